@@ -1,0 +1,400 @@
+"""N copies of one task scene, stepped together.
+
+``BatchSim`` owns the physics: one ``MjModel`` shared by N ``MjData``, the end-effector controller
+(vectorised over environments), the thread couplings, resets from the task's initial-state
+distribution, and the reward context. Physics runs on a thread pool: ``mj_step`` releases Python's
+GIL, so each worker steps its shard of environments in parallel. The environment classes
+(:mod:`itskill.sim.vec_env`, :mod:`itskill.sim.env`) add episodes, observations and rewards.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import mujoco
+import numpy as np
+
+from itskill.sim.context import MAX_FIXTURES, MAX_OBJECTS, quat_to_mat, wrap_angle
+from itskill.sim.controller import (
+    ControllerConfig,
+    dls_step,
+    hand_yaw,
+    rotation_error,
+    yaw_rotation,
+)
+from itskill.sim.panda import HOME_QPOS
+from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec
+from itskill.sim.scene import build_scene, fixture_anchor
+from itskill.sim.task import ObjectInit, SimTask
+from itskill.sim.thread import ThreadConfig, ThreadCoupling
+
+GRIPPER_OPEN_WIDTH = 0.08
+SETTLE_STEPS = 15
+"""Physics steps after a reset, so a part placed in the gripper or on the table comes to rest."""
+NUT_GRIP_YAW = math.pi / 6
+"""A nut's yaw relative to the hand at which two flats face the fingers."""
+
+
+class BatchSim:
+    """Physics, control and state of ``num_envs`` copies of ``task``'s scene."""
+
+    def __init__(
+        self,
+        task: SimTask,
+        num_envs: int,
+        n_threads: int | None = None,
+        controller: ControllerConfig | None = None,
+        thread: ThreadConfig | None = None,
+    ) -> None:
+        if num_envs < 1:
+            raise ValueError("num_envs must be >= 1")
+        self.task = task
+        self.num_envs = num_envs
+        self.cfg = controller or ControllerConfig()
+        self.scene = build_scene(task.scene)
+        self.model = self.scene.model
+        self.datas = [mujoco.MjData(self.model) for _ in range(num_envs)]
+        # Differential IK runs on the commanded posture, not the measured one, so servo lag does
+        # not feed back into the next command; each environment has a kinematics-only scratch.
+        self._ik_datas = [mujoco.MjData(self.model) for _ in range(num_envs)]
+        self.q_des = np.zeros((num_envs, 7))
+        self.coupling = ThreadCoupling(self.scene, thread)
+        threads = n_threads or min(os.cpu_count() or 1, num_envs)
+        self.n_threads = max(1, min(threads, num_envs))
+        self._shards = [s for s in np.array_split(np.arange(num_envs), self.n_threads) if len(s)]
+        self._pool = ThreadPoolExecutor(self.n_threads) if self.n_threads > 1 else None
+
+        self._objects = task.scene.objects
+        self._fixtures = task.scene.fixtures
+        self._obj_fixture = np.array(
+            task.object_fixture
+            or [min(i, max(len(self._fixtures) - 1, 0)) for i in range(len(self._objects))]
+        )
+        self._static_context()
+        self._home_rot = self._home_rotation()
+        self._q_low = self.model.jnt_range[:7, 0] + 0.01
+        self._q_high = self.model.jnt_range[:7, 1] - 0.01
+
+        n, nv = num_envs, self.model.nv
+        self._jacp = np.zeros((n, 3, nv))
+        self._jacr = np.zeros((n, 3, nv))
+        self.target_pos = np.zeros((n, 3))
+        self.target_yaw = np.zeros(n)
+        self.grip_closed = np.zeros(n, dtype=bool)
+        self.last_action = np.zeros((n, 5))
+        self.ee_pos = np.zeros((n, 3))
+        self.ee_rot = np.zeros((n, 3, 3))
+        self.obj_pos = np.zeros((n, MAX_OBJECTS, 3))
+        self.obj_rot = np.tile(np.eye(3), (n, MAX_OBJECTS, 1, 1))
+        self.finger_q = np.zeros((n, 2))
+        self.engaged_thread = np.zeros((n, max(len(self.scene.threads), 1)), dtype=bool)
+        self._prev_ee = np.zeros((n, 3))
+        self._prev_obj = np.zeros((n, MAX_OBJECTS, 3))
+        self.ee_vel = np.zeros((n, 3))
+        self.obj_vel = np.zeros((n, MAX_OBJECTS, 3))
+        self.control_dt = self.cfg.substeps * self.model.opt.timestep
+
+    # ------------------------------------------------------------------ setup
+    def _static_context(self) -> None:
+        """Per-scene constants of the context: sizes, masks, fixture points."""
+        k = len(self._objects)
+        self.obj_mask = np.zeros(MAX_OBJECTS)
+        self.obj_mask[:k] = 1
+        self.obj_height = np.zeros(MAX_OBJECTS)
+        self.obj_width = np.zeros(MAX_OBJECTS)
+        for i, part in enumerate(self._objects):
+            self.obj_height[i], self.obj_width[i] = part.height, part.grasp_width
+        self.fix_mask = np.zeros(MAX_FIXTURES)
+        self.fix_pos = np.zeros((MAX_FIXTURES, 3))
+        self.fix_yaw = np.zeros(MAX_FIXTURES)
+        self.seat_z = np.zeros(MAX_FIXTURES)
+        self.hole_radius = np.zeros(MAX_FIXTURES)
+        for j, placed in enumerate(self._fixtures):
+            self.fix_mask[j] = 1
+            self.fix_pos[j] = fixture_anchor(placed)
+            self.fix_yaw[j] = placed.yaw
+            if isinstance(placed.part, BoltSpec):
+                self.seat_z[j] = placed.part.seat_z
+            else:
+                hole = placed.part
+                half = hole.diameter / 2 if hole.shape == "round" else hole.depth / 2
+                self.hole_radius[j] = half + hole.clearance
+        # Symmetry period of each part's yaw against its fixture: rect pegs repeat every pi.
+        self.yaw_period = np.zeros(MAX_OBJECTS)
+        for i, part in enumerate(self._objects):
+            if isinstance(part, PegSpec) and part.shape == "rect":
+                self.yaw_period[i] = math.pi
+        self._thread_obj = np.array([p.obj for p in self.scene.threads], dtype=int)
+
+    def _home_rotation(self) -> np.ndarray:
+        data = mujoco.MjData(self.model)
+        data.qpos[self.scene.arm_qpos] = HOME_QPOS
+        mujoco.mj_kinematics(self.model, data)
+        return data.site_xmat[self.scene.grip_site].reshape(3, 3).copy()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False)
+            self._pool = None
+
+    # ------------------------------------------------------------------ reset
+    def reset_env(self, env: int, rng: np.random.Generator) -> None:
+        """Sample env ``env``'s initial state from the task's distribution and let it settle."""
+        m, d, sc = self.model, self.datas[env], self.scene
+        init = self.task.init
+        mujoco.mj_resetData(m, d)
+        d.mocap_pos[:] = sc.crest_home
+        ee = np.array([init.ee_x.sample(rng), init.ee_y.sample(rng), init.ee_z.sample(rng)])
+        ee_yaw = init.ee_yaw.sample(rng)
+        finger = GRIPPER_OPEN_WIDTH / 2
+        closed = False
+        held = [o for o in init.objects if o.mode == "gripper"]
+        if held:
+            obj_init = held[0]
+            part = self._objects[init.objects.index(obj_init)]
+            ee = np.array([obj_init.x.sample(rng), obj_init.y.sample(rng), obj_init.z.sample(rng)])
+            finger = max(part.grasp_width / 2 - 0.0003, 0.0)
+            closed = True
+        q = self._solve_ik(d, ee, ee_yaw)
+        d.qpos[sc.finger_qpos] = finger
+        d.ctrl[:7] = q
+        d.ctrl[7] = self.cfg_closed if closed else self.cfg_open
+
+        for i, (part, obj_init) in enumerate(zip(self._objects, init.objects)):
+            self._place_object(d, i, part, obj_init, rng, ee, ee_yaw)
+        mujoco.mj_forward(m, d)
+        for _ in range(SETTLE_STEPS):
+            mujoco.mj_step(m, d)
+        self.coupling.update(d)
+        mujoco.mj_forward(m, d)
+        self.target_pos[env] = d.site_xpos[sc.grip_site]
+        self.q_des[env] = q
+        self.target_yaw[env] = ee_yaw
+        self.grip_closed[env] = closed
+        self.last_action[env] = 0.0
+        self._read_env(env)
+        self._prev_ee[env] = self.ee_pos[env]
+        self._prev_obj[env] = self.obj_pos[env]
+        self.ee_vel[env] = 0.0
+        self.obj_vel[env] = 0.0
+
+    @property
+    def cfg_open(self) -> float:
+        return float(self.model.actuator_ctrlrange[7, 1])
+
+    @property
+    def cfg_closed(self) -> float:
+        return float(self.model.actuator_ctrlrange[7, 0])
+
+    def _solve_ik(self, d: mujoco.MjData, pos: np.ndarray, yaw: float, iters: int = 60) -> np.ndarray:
+        """Arm joints that put the grip point at ``pos`` with hand yaw ``yaw`` (set in ``d``)."""
+        m, sc = self.model, self.scene
+        d.qpos[sc.arm_qpos] = HOME_QPOS
+        desired = yaw_rotation(np.array(yaw)) @ self._home_rot
+        jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+        for _ in range(iters):
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            cur = d.site_xmat[sc.grip_site].reshape(3, 3)
+            err = np.concatenate([pos - d.site_xpos[sc.grip_site], rotation_error(desired, cur)])
+            if np.linalg.norm(err) < 1e-5:
+                break
+            mujoco.mj_jacSite(m, d, jacp, jacr, sc.grip_site)
+            jac = np.concatenate([jacp[:, sc.arm_dof], jacr[:, sc.arm_dof]])[None]
+            q = d.qpos[sc.arm_qpos].copy()
+            d.qpos[sc.arm_qpos] = q + dls_step(jac, err[None], q[None], 0.01, 0.1)[0]
+        return d.qpos[sc.arm_qpos].copy()
+
+    def _place_object(self, d, i, part, init: ObjectInit, rng, ee, ee_yaw) -> None:
+        adr = self.scene.obj_qpos[i]
+        if init.mode == "gripper":
+            pos = ee
+            yaw = ee_yaw + (NUT_GRIP_YAW if isinstance(part, NutSpec) else 0.0)
+        elif init.mode == "table":
+            pos = np.array([init.x.sample(rng), init.y.sample(rng), part.height / 2 + 0.0002])
+            yaw = init.yaw.sample(rng)
+        elif init.mode == "bolt":
+            bolt: BoltSpec = self._fixtures[init.fixture].part
+            x, y = self._fixtures[init.fixture].xy
+            bottom = bolt.seat_z + init.turns.sample(rng) * part.pitch
+            pos = np.array([x, y, bottom + part.height / 2])
+            # The yaw that satisfies the thread equation exactly at this height.
+            yaw = (bottom - bolt.seat_z) / (part.pitch / (2 * math.pi))
+        elif init.mode == "hole":
+            placed = self._fixtures[init.fixture]
+            hole: HoleSpec = placed.part
+            depth = init.depth.sample(rng)
+            pos = np.array([*placed.xy, hole.entrance_z - depth + part.height / 2])
+            yaw = placed.yaw + init.yaw.sample(rng)
+        else:  # validated on load; kept for users building SimTask by hand
+            raise ValueError(f"unknown initial mode {init.mode!r}")
+        if isinstance(part, NutSpec):
+            d.qpos[adr[:3]] = pos
+            d.qpos[adr[3]] = yaw
+            d.qpos[adr[4:6]] = 0.0
+            if init.mode == "bolt":
+                pair = next(
+                    k
+                    for k, p in enumerate(self.scene.threads)
+                    if p.obj == i and p.fixture == init.fixture
+                )
+                self.coupling.engage(d, pair)
+        else:
+            d.qpos[adr[:3]] = pos
+            d.qpos[adr[3:7]] = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+
+    # ------------------------------------------------------------------ step
+    def apply_action(self, actions: np.ndarray) -> None:
+        """Turn actions (N, 5) into joint and finger targets for every environment."""
+        cfg, sc = self.cfg, self.scene
+        a = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
+        self.last_action[:] = a
+        target = self.target_pos + a[:, :3] * cfg.pos_step
+        target = np.clip(target, cfg.workspace_low, cfg.workspace_high)
+        self.target_pos = self.ee_pos + np.clip(target - self.ee_pos, -cfg.max_lead, cfg.max_lead)
+        self.target_yaw = np.clip(self.target_yaw + a[:, 3] * cfg.yaw_step, *cfg.yaw_limits)
+        self.grip_closed = a[:, 4] > cfg.grip_threshold
+
+        des_pos = np.zeros((self.num_envs, 3))
+        des_rot = np.zeros((self.num_envs, 3, 3))
+        for e, d in enumerate(self._ik_datas):
+            d.qpos[sc.arm_qpos] = self.q_des[e]
+            mujoco.mj_kinematics(self.model, d)
+            mujoco.mj_comPos(self.model, d)
+            mujoco.mj_jacSite(self.model, d, self._jacp[e], self._jacr[e], sc.grip_site)
+            des_pos[e] = d.site_xpos[sc.grip_site]
+            des_rot[e] = d.site_xmat[sc.grip_site].reshape(3, 3)
+        jac = np.concatenate([self._jacp[:, :, sc.arm_dof], self._jacr[:, :, sc.arm_dof]], axis=1)
+        desired = yaw_rotation(self.target_yaw) @ self._home_rot
+        err = np.concatenate(
+            [self.target_pos - des_pos, rotation_error(desired, des_rot)], axis=1
+        )
+        self.q_des = self.q_des + dls_step(jac, err, self.q_des, cfg.damping, cfg.nullspace_gain)
+        self.q_des = np.clip(self.q_des, self._q_low, self._q_high)
+        finger = np.where(self.grip_closed, self.cfg_closed, self.cfg_open)
+        for e, d in enumerate(self.datas):
+            d.ctrl[:7] = self.q_des[e]
+            d.ctrl[7] = finger[e]
+
+    def simulate(self) -> None:
+        """Advance every environment by one control period, then update thread couplings."""
+        if self._pool is None:
+            self._step_shard(np.arange(self.num_envs))
+        else:
+            list(self._pool.map(self._step_shard, self._shards))
+        for e, d in enumerate(self.datas):
+            self.coupling.update(d)
+            self._read_env(e)
+        self.ee_vel = (self.ee_pos - self._prev_ee) / self.control_dt
+        self.obj_vel = (self.obj_pos - self._prev_obj) / self.control_dt
+        self._prev_ee = self.ee_pos.copy()
+        self._prev_obj = self.obj_pos.copy()
+
+    def _step_shard(self, envs: np.ndarray) -> None:
+        m, n = self.model, self.cfg.substeps
+        for e in envs:
+            d = self.datas[e]
+            for _ in range(n):
+                mujoco.mj_step(m, d)
+
+    def step(self, actions: np.ndarray) -> None:
+        self.apply_action(actions)
+        self.simulate()
+
+    def _read_env(self, e: int) -> None:
+        d, sc = self.datas[e], self.scene
+        self.ee_pos[e] = d.site_xpos[sc.grip_site]
+        self.ee_rot[e] = d.site_xmat[sc.grip_site].reshape(3, 3)
+        self.finger_q[e] = d.qpos[sc.finger_qpos]
+        k = len(sc.obj_bodies)
+        self.obj_pos[e, :k] = d.xpos[sc.obj_bodies]
+        self.obj_rot[e, :k] = quat_to_mat(d.xquat[sc.obj_bodies])
+        for t, pair in enumerate(sc.threads):
+            self.engaged_thread[e, t] = d.eq_active[pair.eq_ids[0]]
+
+    # ------------------------------------------------------------------ context
+    def context(self, step_count: np.ndarray) -> dict[str, np.ndarray]:
+        """The reward context of every environment (see ``CONTEXT_DOC``), without ``stage``."""
+        n = self.num_envs
+        om = self.obj_mask[None]
+        obj_pos = self.obj_pos * om[..., None]
+        tilt = np.arccos(np.clip(self.obj_rot[..., 2, 2], -1.0, 1.0)) * om
+        obj_yaw = np.arctan2(self.obj_rot[..., 1, 0], self.obj_rot[..., 0, 0]) * om
+        bottom = (obj_pos[..., 2] - 0.5 * self.obj_height * np.cos(tilt)) * om
+        width = self.finger_q.sum(axis=1)
+        to_ee = (self.ee_pos[:, None] - obj_pos) * om[..., None]
+
+        closed = self.grip_closed[:, None]
+        lateral = np.linalg.norm(to_ee[..., :2], axis=-1)
+        grasped = (
+            closed
+            & (width[:, None] >= self.obj_width - 0.004)
+            & (width[:, None] <= self.obj_width * 1.2 + 0.002)
+            & (lateral <= 0.012)
+            & (np.abs(to_ee[..., 2]) <= self.obj_height / 2 + 0.006)
+            & (om > 0)
+        )
+
+        fidx = self._obj_fixture
+        k = len(fidx)
+        fix_pos = np.zeros((MAX_OBJECTS, 3))
+        fix_pos[:k] = self.fix_pos[fidx]
+        bottom_centre = obj_pos.copy()
+        bottom_centre[..., 2] = bottom
+        obj_to_fix = (fix_pos[None] - bottom_centre) * om[..., None]
+        yaw_fix = np.zeros(MAX_OBJECTS)
+        yaw_fix[:k] = self.fix_yaw[fidx]
+        period = np.where(self.yaw_period > 0, self.yaw_period, 1.0)
+        yaw_error = np.where(self.yaw_period > 0, wrap_angle(obj_yaw - yaw_fix, period), 0.0) * om
+        seat = np.zeros(MAX_OBJECTS)
+        seat[:k] = self.seat_z[fidx]
+        radius = np.zeros(MAX_OBJECTS)
+        radius[:k] = self.hole_radius[fidx]
+
+        engaged = np.zeros((n, MAX_OBJECTS), dtype=bool)
+        for t, obj in enumerate(self._thread_obj):
+            engaged[:, obj] |= self.engaged_thread[:, t]
+        is_peg = np.array([isinstance(p, PegSpec) for p in self._objects] + [False] * (2 - k))
+        in_hole = (
+            is_peg[None]
+            & (np.linalg.norm(obj_to_fix[..., :2], axis=-1) <= radius + 0.0005)
+            & (obj_to_fix[..., 2] > 0.001)
+            & (tilt < 0.3)
+        )
+        engaged |= in_hole
+        depth = np.where(engaged, np.maximum(obj_to_fix[..., 2], 0.0), 0.0)
+
+        return {
+            "ee_pos": self.ee_pos.copy(),
+            "ee_vel": self.ee_vel.copy(),
+            "ee_yaw": hand_yaw(self.ee_rot, self._home_rot),
+            "gripper_width": width,
+            "grip_closed": self.grip_closed.astype(np.float64),
+            "action": self.last_action.copy(),
+            "obj_mask": np.broadcast_to(om, (n, MAX_OBJECTS)).copy(),
+            "obj_pos": obj_pos,
+            "obj_vel": self.obj_vel * om[..., None],
+            "obj_yaw": obj_yaw,
+            "obj_tilt": tilt,
+            "obj_height": np.broadcast_to(self.obj_height, (n, MAX_OBJECTS)).copy(),
+            "obj_width": np.broadcast_to(self.obj_width, (n, MAX_OBJECTS)).copy(),
+            "obj_bottom_z": bottom,
+            "obj_to_ee": to_ee,
+            "grasped": grasped.astype(np.float64),
+            "fix_mask": np.broadcast_to(self.fix_mask, (n, MAX_FIXTURES)).copy(),
+            "fix_pos": np.broadcast_to(self.fix_pos, (n, MAX_FIXTURES, 3)).copy(),
+            "fix_yaw": np.broadcast_to(self.fix_yaw, (n, MAX_FIXTURES)).copy(),
+            "seat_z": np.broadcast_to(self.seat_z, (n, MAX_FIXTURES)).copy(),
+            "obj_fixture": np.broadcast_to(
+                np.pad(fidx, (0, MAX_OBJECTS - k)).astype(np.float64), (n, MAX_OBJECTS)
+            ).copy(),
+            "obj_to_fix": obj_to_fix,
+            "yaw_error": yaw_error,
+            "engaged": engaged.astype(np.float64),
+            "insertion_depth": depth,
+            "seat_gap": (bottom - seat[None]) * om,
+            "n_stages": np.full(n, float(self.task.n_stages)),
+            "time_frac": np.asarray(step_count, dtype=np.float64) / self.task.max_steps,
+        }

@@ -1,0 +1,88 @@
+"""What the simulator needs to know about a task, independent of where the task came from.
+
+``itskill.tasks`` builds these from the TOML task files; users can build their own directly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from itskill.sim.scene import SceneSpec
+
+Context = Mapping[str, np.ndarray]
+"""Named batched arrays describing N environments (see :mod:`itskill.sim.context`)."""
+RewardFn = Callable[[Context], tuple[np.ndarray, dict[str, np.ndarray]]]
+"""``compute_reward(ctx) -> (total[N], {component: [N]})``."""
+Predicate = Callable[[Context], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Range:
+    """A uniform interval; ``low == high`` is a constant."""
+
+    low: float
+    high: float
+
+    def __post_init__(self) -> None:
+        if self.high < self.low:
+            raise ValueError(f"range [{self.low}, {self.high}] has high < low")
+
+    def sample(self, rng: np.random.Generator) -> float:
+        return float(self.low if self.low == self.high else rng.uniform(self.low, self.high))
+
+
+@dataclass(frozen=True)
+class ObjectInit:
+    """Where a part starts.
+
+    - ``table``: lying on the table at (x, y) with yaw.
+    - ``gripper``: held between the fingers, its centre at (x, y, z) (z is the grip point).
+    - ``bolt``: threaded on fixture ``fixture``, its bottom ``turns`` pitches above the seat.
+    - ``hole``: standing in fixture ``fixture``'s hole, inserted ``depth`` metres.
+    """
+
+    mode: Literal["table", "gripper", "bolt", "hole"]
+    x: Range = Range(0.0, 0.0)
+    y: Range = Range(0.0, 0.0)
+    z: Range = Range(0.0, 0.0)
+    yaw: Range = Range(0.0, 0.0)
+    turns: Range = Range(0.0, 0.0)
+    depth: Range = Range(0.0, 0.0)
+    fixture: int = 0
+
+
+@dataclass(frozen=True)
+class InitSpec:
+    """Initial-state distribution: the grip point's start and each part's start."""
+
+    ee_x: Range = Range(0.45, 0.45)
+    ee_y: Range = Range(0.0, 0.0)
+    ee_z: Range = Range(0.2, 0.2)
+    ee_yaw: Range = Range(0.0, 0.0)
+    objects: tuple[ObjectInit, ...] = ()
+
+
+@dataclass(frozen=True)
+class SimTask:
+    """A task as the simulator sees it.
+
+    ``stage_fn`` returns each environment's current subtask index (0-based, < ``n_stages``),
+    ``success_fn`` whether it has succeeded, and ``reward_fn`` (optional) the reward; all take the
+    reward context of the current state. ``object_fixture[i]`` names the fixture that object ``i``
+    is meant for (its offset to that fixture appears in observations).
+    """
+
+    name: str
+    scene: SceneSpec
+    init: InitSpec
+    max_steps: int
+    n_stages: int
+    stage_fn: Predicate
+    success_fn: Predicate
+    reward_fn: RewardFn | None = None
+    object_fixture: tuple[int, ...] = field(default=())
+    terminate_on_success: bool = False
