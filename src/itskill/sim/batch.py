@@ -188,7 +188,9 @@ class BatchSim:
     def cfg_closed(self) -> float:
         return float(self.model.actuator_ctrlrange[7, 0])
 
-    def _solve_ik(self, d: mujoco.MjData, pos: np.ndarray, yaw: float, iters: int = 60) -> np.ndarray:
+    def _solve_ik(
+        self, d: mujoco.MjData, pos: np.ndarray, yaw: float, iters: int = 60
+    ) -> np.ndarray:
         """Arm joints that put the grip point at ``pos`` with hand yaw ``yaw`` (set in ``d``)."""
         m, sc = self.model, self.scene
         d.qpos[sc.arm_qpos] = HOME_QPOS
@@ -268,9 +270,7 @@ class BatchSim:
             des_rot[e] = d.site_xmat[sc.grip_site].reshape(3, 3)
         jac = np.concatenate([self._jacp[:, :, sc.arm_dof], self._jacr[:, :, sc.arm_dof]], axis=1)
         desired = yaw_rotation(self.target_yaw) @ self._home_rot
-        err = np.concatenate(
-            [self.target_pos - des_pos, rotation_error(desired, des_rot)], axis=1
-        )
+        err = np.concatenate([self.target_pos - des_pos, rotation_error(desired, des_rot)], axis=1)
         self.q_des = self.q_des + dls_step(jac, err, self.q_des, cfg.damping, cfg.nullspace_gain)
         self.q_des = np.clip(self.q_des, self._q_low, self._q_high)
         finger = np.where(self.grip_closed, self.cfg_closed, self.cfg_open)

@@ -50,7 +50,11 @@ def rotation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
     """Axis-angle vector that rotates ``current`` into ``desired`` (small-angle form), batched."""
     rel = desired @ np.swapaxes(current, -1, -2)
     return 0.5 * np.stack(
-        [rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]],
+        [
+            rel[..., 2, 1] - rel[..., 1, 2],
+            rel[..., 0, 2] - rel[..., 2, 0],
+            rel[..., 1, 0] - rel[..., 0, 1],
+        ],
         axis=-1,
     )
 

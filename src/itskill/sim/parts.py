@@ -198,7 +198,9 @@ def build_peg(body: mujoco.MjsBody, peg: PegSpec) -> None:
 
 def build_bolt(body: mujoco.MjsBody, bolt: BoltSpec) -> None:
     hh = bolt.head_height / 2
-    _part_geom(body, f"{body.name}_head", _CYL, (bolt.head_diameter / 2, hh, 0), (0, 0, hh), bolt.rgba)
+    _part_geom(
+        body, f"{body.name}_head", _CYL, (bolt.head_diameter / 2, hh, 0), (0, 0, hh), bolt.rgba
+    )
     half = bolt.shank_length / 2
     size = (bolt.thread_diameter / 2, half, 0)
     _part_geom(body, f"{body.name}_shank", _CYL, size, (0, 0, bolt.head_height + half), bolt.rgba)

@@ -36,7 +36,6 @@ from itskill.sim.parts import (
 TIMESTEP = 0.004
 TABLE_HALF = (0.45, 0.55)
 TABLE_CENTER_X = 0.45
-FLOOR_Z = -0.75
 PARKED_Z = -0.3
 """Where a crest disc waits while its nut is engaged: inside the table, where nothing collides."""
 CREST_OVERHANG = 0.00075
@@ -101,18 +100,13 @@ def _add_table(spec: mujoco.MjSpec) -> None:
     table_mat = spec.add_material(name="table", texrepeat=[8, 8], reflectance=0.05)
     table_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
     world = spec.worldbody
-    world.add_geom(
-        name="floor",
-        type=mujoco.mjtGeom.mjGEOM_PLANE,
-        size=[3, 3, 0.1],
-        pos=[0, 0, FLOOR_Z],
-        rgba=[0.3, 0.32, 0.35, 1],
-    )
+    # The table top is a plane: cylinders and boxes get several contact points on a plane (a
+    # standing 4 mm peg stays up), and nothing pushed off the table can fall forever.
     table = world.add_geom(
         name="table",
-        type=mujoco.mjtGeom.mjGEOM_BOX,
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
         size=[TABLE_HALF[0], TABLE_HALF[1], 0.02],
-        pos=[TABLE_CENTER_X, 0, -0.02],
+        pos=[TABLE_CENTER_X, 0, 0],
         material="table",
     )
     table.friction = [0.6, 0.005, 0.0001]

@@ -18,7 +18,6 @@ import math
 from dataclasses import dataclass
 
 import mujoco
-import numpy as np
 
 from itskill.sim.scene import PARKED_Z, Scene
 

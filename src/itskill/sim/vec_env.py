@@ -76,7 +76,7 @@ class BatchEnv(VecEnv):
         children = np.random.SeedSequence(seed).spawn(self.sim.num_envs)
         return [np.random.default_rng(c) for c in children]
 
-    def seed(self, seed: int | None = None) -> Sequence[None | int]:
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
         self._rngs = self._make_rngs(seed)
         return [None] * self.num_envs
 

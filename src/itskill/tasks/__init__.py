@@ -1,0 +1,47 @@
+"""Task suite: the paper's Table I and the wider skill set, as TOML data, plus scripted controllers."""
+
+from __future__ import annotations
+
+from itskill.sim.env import TaskEnv
+from itskill.sim.task import RewardFn
+from itskill.sim.vec_env import BatchEnv
+from itskill.tasks.spec import (
+    TaskFileError,
+    TaskSpec,
+    UnknownTaskError,
+    all_tasks,
+    get_task,
+)
+
+
+def make_env(name: str, reward_fn: RewardFn | None = None, **kwargs) -> TaskEnv:
+    """A single Gymnasium environment for task ``name``."""
+    return TaskEnv(get_task(name).to_sim_task(), reward_fn=reward_fn, **kwargs)
+
+
+def make_batch_env(
+    name: str,
+    num_envs: int = 8,
+    seed: int | None = None,
+    reward_fn: RewardFn | None = None,
+    n_threads: int | None = None,
+) -> BatchEnv:
+    """``num_envs`` copies of task ``name`` stepped together (an SB3 ``VecEnv``)."""
+    return BatchEnv(
+        get_task(name).to_sim_task(),
+        num_envs=num_envs,
+        seed=seed,
+        reward_fn=reward_fn,
+        n_threads=n_threads,
+    )
+
+
+__all__ = [
+    "TaskFileError",
+    "TaskSpec",
+    "UnknownTaskError",
+    "all_tasks",
+    "get_task",
+    "make_batch_env",
+    "make_env",
+]

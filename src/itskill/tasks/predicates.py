@@ -1,0 +1,144 @@
+"""Stage and success predicates, written in task files as small expressions over the reward context.
+
+An expression is one or more terms joined by ``and``; a term is ``name(args)`` optionally preceded
+by ``not``. Arguments are numbers; the first is an object slot. Examples::
+
+    lifted(0, 3)                      # object 0's bottom is 3 of its heights above the table
+    engaged(0) and not grasped(0)
+    seated(0, 0.00175)                # within one M12 pitch of the bolt's seat
+
+Each predicate returns a boolean array over the batch.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from itskill.sim.task import Context
+
+
+def near(ctx: Context, i: int, dist: float = 0.02) -> np.ndarray:
+    """The grip point is within ``dist`` metres of object ``i``'s centre."""
+    return np.linalg.norm(ctx["obj_to_ee"][:, i], axis=-1) < dist
+
+
+def grasped(ctx: Context, i: int) -> np.ndarray:
+    """The closed fingers hold object ``i``."""
+    return ctx["grasped"][:, i] > 0.5
+
+
+def lifted(ctx: Context, i: int, heights: float = 3.0) -> np.ndarray:
+    """Object ``i``'s bottom is at least ``heights`` part heights above the table (Factory)."""
+    return ctx["obj_bottom_z"][:, i] >= heights * ctx["obj_height"][:, i]
+
+
+def above_fixture(ctx: Context, i: int, radius: float = 0.004, height: float = 0.03) -> np.ndarray:
+    """Object ``i`` hangs over its fixture: centred within ``radius``, at most ``height`` above."""
+    off = ctx["obj_to_fix"][:, i]
+    lateral = np.linalg.norm(off[:, :2], axis=-1)
+    return (lateral < radius) & (-off[:, 2] > -0.002) & (-off[:, 2] < height)
+
+
+def engaged(ctx: Context, i: int) -> np.ndarray:
+    """Object ``i`` is on its fixture: a nut's thread engaged, a peg inside its hole."""
+    return ctx["engaged"][:, i] > 0.5
+
+
+def seated(ctx: Context, i: int, tolerance: float) -> np.ndarray:
+    """Object ``i`` is engaged and within ``tolerance`` of its seat (a nut: one pitch)."""
+    return engaged(ctx, i) & (ctx["seat_gap"][:, i] <= tolerance)
+
+
+def inserted(ctx: Context, i: int, fraction: float = 0.5, yaw_tol: float = 0.1) -> np.ndarray:
+    """Object ``i`` is in its hole past ``fraction`` of the hole depth, axis and yaw aligned."""
+    fix = ctx["obj_fixture"][:, i].astype(int)
+    rows = np.arange(len(fix))
+    hole_depth = ctx["fix_pos"][rows, fix, 2] - ctx["seat_z"][rows, fix]
+    return (
+        engaged(ctx, i)
+        & (ctx["insertion_depth"][:, i] >= fraction * hole_depth)
+        & (np.abs(ctx["yaw_error"][:, i]) <= yaw_tol)
+        & (ctx["obj_tilt"][:, i] <= 0.1)
+    )
+
+
+def aligned(ctx: Context, i: int, tolerance: float = 0.05) -> np.ndarray:
+    """Object ``i``'s yaw matches its fixture's within ``tolerance`` (always true if round)."""
+    return np.abs(ctx["yaw_error"][:, i]) <= tolerance
+
+
+def released(ctx: Context, i: int) -> np.ndarray:
+    """Object ``i`` is not held and the fingers are commanded open."""
+    return ~grasped(ctx, i) & (ctx["grip_closed"] < 0.5)
+
+
+def removed(ctx: Context, i: int, height: float = 0.02) -> np.ndarray:
+    """Object ``i`` is off its fixture and its bottom at least ``height`` above the fixture point."""
+    return ~engaged(ctx, i) & (ctx["obj_to_fix"][:, i, 2] <= -height)
+
+
+def displaced(ctx: Context, i: int, dx: float, dy: float, tolerance: float = 0.02) -> np.ndarray:
+    """Object ``i``'s centre is within ``tolerance`` of (dx, dy) from its fixture's point."""
+    off = -ctx["obj_to_fix"][:, i, :2] - np.array([dx, dy])
+    return np.linalg.norm(off, axis=-1) < tolerance
+
+
+PREDICATES: dict[str, Callable[..., np.ndarray]] = {
+    f.__name__: f
+    for f in (
+        near, grasped, lifted, above_fixture, engaged, seated, inserted, aligned, released,
+        removed, displaced,
+    )
+}  # fmt: skip
+
+_TERM = re.compile(r"^(not\s+)?([a-z_]+)\(([^()]*)\)$")
+
+
+class PredicateError(ValueError):
+    """A predicate expression that does not parse or names an unknown predicate."""
+
+
+@dataclass(frozen=True)
+class Expression:
+    """A parsed predicate expression, callable on a context."""
+
+    source: str
+    terms: tuple[tuple[bool, str, tuple[float, ...]], ...]
+
+    def __call__(self, ctx: Context) -> np.ndarray:
+        result = np.ones(ctx["ee_pos"].shape[0], dtype=bool)
+        for negate, name, args in self.terms:
+            value = PREDICATES[name](ctx, int(args[0]), *args[1:])
+            result &= ~value if negate else value
+        return result
+
+    @property
+    def objects(self) -> set[int]:
+        return {int(args[0]) for _, _, args in self.terms}
+
+
+def parse(source: str) -> Expression:
+    """Parse ``source``; raise :class:`PredicateError` saying what is wrong."""
+    terms = []
+    for raw in source.split(" and "):
+        match = _TERM.match(raw.strip())
+        if not match:
+            raise PredicateError(
+                f"cannot parse {raw.strip()!r}: expected name(args) or not name(args)"
+            )
+        negate, name, arg_text = bool(match.group(1)), match.group(2), match.group(3)
+        if name not in PREDICATES:
+            known = ", ".join(sorted(PREDICATES))
+            raise PredicateError(f"unknown predicate {name!r}; known: {known}")
+        try:
+            args = tuple(float(a) for a in arg_text.split(",") if a.strip())
+        except ValueError as err:
+            raise PredicateError(f"{raw.strip()!r}: arguments must be numbers") from err
+        if not args:
+            raise PredicateError(f"{raw.strip()!r}: the first argument is the object slot")
+        terms.append((negate, name, args))
+    return Expression(source, tuple(terms))

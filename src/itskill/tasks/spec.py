@@ -1,0 +1,382 @@
+"""Task specifications: TOML files in ``itskill/tasks/data`` validated into ``TaskSpec`` objects.
+
+``parts.toml`` holds part dimensions; each family file (``nutbolt.toml``, ``peghole.toml``) holds
+tasks. A user can add a directory of their own files with ``ITSKILL_TASKS_DIR``. Every problem in a
+file is reported with the file, the field and what was expected.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass, field
+from functools import cache
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec, PlacedFixture
+from itskill.sim.scene import SceneSpec
+from itskill.sim.task import InitSpec, ObjectInit, Range, SimTask
+from itskill.tasks.predicates import Expression, PredicateError, parse
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+TASKS_DIR_ENV = "ITSKILL_TASKS_DIR"
+_PART_KINDS = {"nut": NutSpec, "bolt": BoltSpec, "peg": PegSpec, "hole": HoleSpec}
+_INIT_MODES = ("table", "gripper", "bolt", "hole")
+
+
+class TaskFileError(ValueError):
+    """A task or parts file that does not validate: names the file, the field and the problem."""
+
+    def __init__(self, path: str | Path, where: str, problem: str) -> None:
+        super().__init__(f"{path}: {where}: {problem}")
+        self.path, self.where, self.problem = str(path), where, problem
+
+
+class UnknownTaskError(KeyError):
+    """A task name that no task file defines."""
+
+    def __init__(self, name: str, known: list[str]) -> None:
+        super().__init__(name)
+        self.name, self.known = name, known
+
+    def __str__(self) -> str:
+        return f"unknown task {self.name!r}. Known tasks: {', '.join(self.known)}"
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A subtask: its name and the predicate that says it is done."""
+
+    name: str
+    done: Expression
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """One task as written in its file, validated."""
+
+    id: str
+    family: str
+    kind: str
+    command: str
+    skills: tuple[str, ...]
+    actions: tuple[str, ...]
+    objects: tuple[NutSpec | PegSpec, ...]
+    fixtures: tuple[PlacedFixture, ...]
+    object_fixture: tuple[int, ...]
+    init: InitSpec
+    stages: tuple[Stage, ...]
+    success: Expression
+    max_steps: int
+    script: tuple[str, ...]
+    table_i: bool = False
+    description: str = ""
+    source: str = ""
+    terminate_on_success: bool = False
+    tags: tuple[str, ...] = field(default=())
+
+    def stage_index(self, ctx) -> Any:
+        """Current subtask: one past the furthest stage whose ``done`` predicate holds."""
+        import numpy as np
+
+        stage = np.zeros(ctx["ee_pos"].shape[0], dtype=np.int64)
+        for k, st in enumerate(self.stages):
+            stage = np.where(st.done(ctx), k + 1, stage)
+        return np.minimum(stage, len(self.stages) - 1)
+
+    def to_sim_task(self) -> SimTask:
+        return SimTask(
+            name=self.id,
+            scene=SceneSpec(self.objects, self.fixtures),
+            init=self.init,
+            max_steps=self.max_steps,
+            n_stages=len(self.stages),
+            stage_fn=self.stage_index,
+            success_fn=self.success,
+            object_fixture=self.object_fixture,
+            terminate_on_success=self.terminate_on_success,
+        )
+
+
+# ---------------------------------------------------------------------- validation helpers
+class _Reader:
+    """Typed access to one table of a TOML file, with errors that say where."""
+
+    def __init__(self, path: Path, where: str, table: Any) -> None:
+        if not isinstance(table, dict):
+            raise TaskFileError(path, where, f"expected a table, got {type(table).__name__}")
+        self.path, self.where, self.table = path, where, table
+
+    def _fail(self, key: str, problem: str) -> TaskFileError:
+        return TaskFileError(self.path, f"{self.where}.{key}", problem)
+
+    def get(self, key: str, kind: type | tuple[type, ...], default: Any = ...) -> Any:
+        if key not in self.table:
+            if default is ...:
+                raise self._fail(key, "missing (required)")
+            return default
+        value = self.table[key]
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, kind) or (isinstance(value, bool) and kind in (int, float)):
+            name = (
+                kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
+            )
+            raise self._fail(key, f"expected {name}, got {type(value).__name__} {value!r}")
+        return value
+
+    def strings(self, key: str, default: Any = ...) -> tuple[str, ...]:
+        value = self.get(key, list, default)
+        if not all(isinstance(v, str) for v in value):
+            raise self._fail(key, "expected a list of strings")
+        return tuple(value)
+
+    def range(self, key: str, default: tuple[float, float]) -> Range:
+        value = self.table.get(key, list(default))
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            value = [value, value]
+        if (
+            not isinstance(value, list)
+            or len(value) != 2
+            or not all(isinstance(v, int | float) for v in value)
+        ):
+            raise self._fail(key, f"expected [low, high] or a number, got {value!r}")
+        if value[1] < value[0]:
+            raise self._fail(key, f"expected low <= high, got {value!r}")
+        return Range(float(value[0]), float(value[1]))
+
+    def check_keys(self, allowed: set[str]) -> None:
+        unknown = sorted(set(self.table) - allowed)
+        if unknown:
+            raise self._fail(unknown[0], f"unknown field; allowed: {', '.join(sorted(allowed))}")
+
+
+def _load_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as err:
+        raise TaskFileError(path, "TOML syntax", str(err)) from err
+
+
+def load_parts(path: Path) -> dict[str, Any]:
+    """Parse a parts file into ``{name: NutSpec | BoltSpec | PegSpec | HoleSpec}``."""
+    parts: dict[str, Any] = {}
+    for kind, table in _load_toml(path).items():
+        if kind not in _PART_KINDS:
+            raise TaskFileError(
+                path, kind, f"unknown part kind; expected one of {list(_PART_KINDS)}"
+            )
+        cls = _PART_KINDS[kind]
+        for name, fields in _Reader(path, kind, table).table.items():
+            reader = _Reader(path, f"{kind}.{name}", fields)
+            allowed = set(cls.__dataclass_fields__) - {"name", "kind"}
+            reader.check_keys(allowed)
+            values = dict(fields)
+            if "rgba" in values:
+                values["rgba"] = tuple(values["rgba"])
+            try:
+                parts[name] = cls(name=name, **values)
+            except (TypeError, ValueError) as err:
+                raise TaskFileError(path, f"{kind}.{name}", str(err)) from err
+    return parts
+
+
+_TASK_KEYS = {
+    "id", "family", "kind", "command", "description", "skills", "actions", "objects", "fixtures",
+    "object_fixture", "init", "stages", "success", "max_steps", "script", "table_i",
+    "terminate_on_success", "tags",
+}  # fmt: skip
+
+
+def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> TaskSpec:
+    r = _Reader(path, f"task[{index}]", raw)
+    task_id = r.get("id", str)
+    r = _Reader(path, f"task {task_id!r}", raw)
+    r.check_keys(_TASK_KEYS)
+
+    def part(name: str, kinds: tuple[type, ...], where: str):
+        if name not in parts:
+            raise TaskFileError(path, where, f"unknown part {name!r}; known: {', '.join(parts)}")
+        if not isinstance(parts[name], kinds):
+            raise TaskFileError(
+                path, where, f"{name!r} is not a {' or '.join(k.__name__ for k in kinds)}"
+            )
+        return parts[name]
+
+    objects = tuple(
+        part(n, (NutSpec, PegSpec), f"task {task_id!r}.objects") for n in r.strings("objects")
+    )
+    fixtures = []
+    for k, fx in enumerate(r.get("fixtures", list, [])):
+        fr = _Reader(path, f"task {task_id!r}.fixtures[{k}]", fx)
+        fr.check_keys({"part", "xy", "yaw"})
+        xy = fr.get("xy", list)
+        if len(xy) != 2 or not all(isinstance(v, int | float) for v in xy):
+            raise TaskFileError(path, fr.where + ".xy", f"expected [x, y], got {xy!r}")
+        placed = PlacedFixture(
+            part(fr.get("part", str), (BoltSpec, HoleSpec), fr.where + ".part"),
+            (float(xy[0]), float(xy[1])),
+            fr.get("yaw", float, 0.0),
+        )
+        fixtures.append(placed)
+    if not 1 <= len(objects) <= 2 or len(fixtures) > 2:
+        raise TaskFileError(path, f"task {task_id!r}", "expected 1-2 objects and 0-2 fixtures")
+    default_map = [min(i, max(len(fixtures) - 1, 0)) for i in range(len(objects))]
+    object_fixture = tuple(r.get("object_fixture", list, default_map))
+    if len(object_fixture) != len(objects) or any(
+        not isinstance(f, int) or not 0 <= f < max(len(fixtures), 1) for f in object_fixture
+    ):
+        raise TaskFileError(
+            path, f"task {task_id!r}.object_fixture", "one fixture index per object"
+        )
+
+    ir = _Reader(path, f"task {task_id!r}.init", r.get("init", dict))
+    ir.check_keys({"ee", "objects"})
+    er = _Reader(path, ir.where + ".ee", ir.get("ee", dict, {}))
+    er.check_keys({"x", "y", "z", "yaw"})
+    obj_inits = []
+    raw_inits = ir.get("objects", list)
+    if len(raw_inits) != len(objects):
+        raise TaskFileError(
+            path, ir.where + ".objects", f"expected {len(objects)} entries, one per object"
+        )
+    for k, oi in enumerate(raw_inits):
+        orr = _Reader(path, f"{ir.where}.objects[{k}]", oi)
+        orr.check_keys({"mode", "x", "y", "z", "yaw", "turns", "depth", "fixture"})
+        mode = orr.get("mode", str)
+        if mode not in _INIT_MODES:
+            raise TaskFileError(
+                path, orr.where + ".mode", f"expected one of {_INIT_MODES}, got {mode!r}"
+            )
+        fixture = orr.get("fixture", int, object_fixture[k])
+        if mode in ("bolt", "hole"):
+            want = BoltSpec if mode == "bolt" else HoleSpec
+            if not (0 <= fixture < len(fixtures)) or not isinstance(fixtures[fixture].part, want):
+                raise TaskFileError(
+                    path, orr.where + ".fixture", f"mode {mode!r} needs a {want.__name__} fixture"
+                )
+        obj_inits.append(
+            ObjectInit(
+                mode=mode,
+                x=orr.range("x", (0.0, 0.0)),
+                y=orr.range("y", (0.0, 0.0)),
+                z=orr.range("z", (0.0, 0.0)),
+                yaw=orr.range("yaw", (0.0, 0.0)),
+                turns=orr.range("turns", (0.0, 0.0)),
+                depth=orr.range("depth", (0.0, 0.0)),
+                fixture=fixture,
+            )
+        )
+    if sum(o.mode == "gripper" for o in obj_inits) > 1:
+        raise TaskFileError(
+            path, ir.where + ".objects", "at most one object can start in the gripper"
+        )
+    init = InitSpec(
+        ee_x=er.range("x", (0.45, 0.45)),
+        ee_y=er.range("y", (0.0, 0.0)),
+        ee_z=er.range("z", (0.2, 0.2)),
+        ee_yaw=er.range("yaw", (0.0, 0.0)),
+        objects=tuple(obj_inits),
+    )
+
+    def expression(text: str, where: str) -> Expression:
+        try:
+            expr = parse(text)
+        except PredicateError as err:
+            raise TaskFileError(path, where, str(err)) from err
+        bad = [i for i in expr.objects if not 0 <= i < len(objects)]
+        if bad:
+            raise TaskFileError(path, where, f"object slot {bad[0]} does not exist")
+        return expr
+
+    stages = []
+    for k, st in enumerate(r.get("stages", list)):
+        sr = _Reader(path, f"task {task_id!r}.stages[{k}]", st)
+        sr.check_keys({"name", "done"})
+        stages.append(
+            Stage(sr.get("name", str), expression(sr.get("done", str), sr.where + ".done"))
+        )
+    if not stages:
+        raise TaskFileError(path, f"task {task_id!r}.stages", "at least one stage is required")
+    max_steps = r.get("max_steps", int)
+    if max_steps < 1:
+        raise TaskFileError(path, f"task {task_id!r}.max_steps", "expected a positive integer")
+    return TaskSpec(
+        id=task_id,
+        family=r.get("family", str),
+        kind=r.get("kind", str, "basic"),
+        command=r.get("command", str),
+        description=r.get("description", str, ""),
+        skills=r.strings("skills"),
+        actions=r.strings("actions"),
+        objects=objects,
+        fixtures=tuple(fixtures),
+        object_fixture=object_fixture,
+        init=init,
+        stages=tuple(stages),
+        success=expression(r.get("success", str), f"task {task_id!r}.success"),
+        max_steps=max_steps,
+        script=r.strings("script", ()),
+        table_i=r.get("table_i", bool, False),
+        terminate_on_success=r.get("terminate_on_success", bool, False),
+        tags=r.strings("tags", ()),
+        source=str(path),
+    )
+
+
+def load_task_file(path: Path, parts: dict[str, Any]) -> list[TaskSpec]:
+    data = _load_toml(path)
+    unknown = set(data) - {"task"}
+    if unknown:
+        raise TaskFileError(
+            path, sorted(unknown)[0], "unknown top-level key; tasks go in [[task]] tables"
+        )
+    return [_parse_task(path, i, raw, parts) for i, raw in enumerate(data.get("task", []))]
+
+
+def _task_dirs() -> list[Path]:
+    dirs = [Path(str(resources.files("itskill.tasks") / "data"))]
+    user = os.environ.get(TASKS_DIR_ENV)
+    if user:
+        dirs.append(Path(user).expanduser())
+    return dirs
+
+
+@cache
+def _registry(dirs: tuple[Path, ...]) -> dict[str, TaskSpec]:
+    parts: dict[str, Any] = {}
+    for d in dirs:
+        if (d / "parts.toml").is_file():
+            parts.update(load_parts(d / "parts.toml"))
+    tasks: dict[str, TaskSpec] = {}
+    for d in dirs:
+        for path in sorted(d.glob("*.toml")):
+            if path.name == "parts.toml":
+                continue
+            for spec in load_task_file(path, parts):
+                if spec.id in tasks:
+                    raise TaskFileError(
+                        path, f"task {spec.id!r}", f"id already defined in {tasks[spec.id].source}"
+                    )
+                tasks[spec.id] = spec
+    return tasks
+
+
+def all_tasks() -> dict[str, TaskSpec]:
+    """Every task, by id, in file order."""
+    return _registry(tuple(_task_dirs()))
+
+
+def get_task(name: str) -> TaskSpec:
+    """The task called ``name``; :class:`UnknownTaskError` lists the known ones."""
+    tasks = all_tasks()
+    if name not in tasks:
+        raise UnknownTaskError(name, list(tasks))
+    return tasks[name]
