@@ -64,7 +64,8 @@ class BatchSim:
         threads = n_threads or min(os.cpu_count() or 1, num_envs)
         self.n_threads = max(1, min(threads, num_envs))
         self._shards = [s for s in np.array_split(np.arange(num_envs), self.n_threads) if len(s)]
-        self._pool = ThreadPoolExecutor(self.n_threads) if self.n_threads > 1 else None
+        # The calling thread steps the first shard itself, so the pool needs one worker fewer.
+        self._pool = ThreadPoolExecutor(self.n_threads - 1) if self.n_threads > 1 else None
 
         self._objects = task.scene.objects
         self._fixtures = task.scene.fixtures
@@ -78,8 +79,15 @@ class BatchSim:
         self._q_high = self.model.jnt_range[:7, 1] - 0.01
 
         n, nv = num_envs, self.model.nv
+        # Kinematics of each environment's commanded posture q_des: grip point, its rotation and
+        # Jacobian. Evaluated right after q_des changes (in the physics workers, see simulate), and
+        # read by the next apply_action; _ik_q records the posture they belong to.
         self._jacp = np.zeros((n, 3, nv))
         self._jacr = np.zeros((n, 3, nv))
+        self._ik_pos = np.zeros((n, 3))
+        self._ik_rot = np.zeros((n, 3, 3))
+        self._ik_q = np.full((n, 7), np.nan)
+        self._finger_ctrl = np.zeros(n)
         self.target_pos = np.zeros((n, 3))
         self.target_yaw = np.zeros(n)
         self.grip_closed = np.zeros(n, dtype=bool)
@@ -88,6 +96,7 @@ class BatchSim:
         self.ee_rot = np.zeros((n, 3, 3))
         self.obj_pos = np.zeros((n, MAX_OBJECTS, 3))
         self.obj_rot = np.tile(np.eye(3), (n, MAX_OBJECTS, 1, 1))
+        self._obj_quat = np.zeros((n, len(self._objects), 4))
         self.finger_q = np.zeros((n, 2))
         self.engaged_thread = np.zeros((n, max(len(self.scene.threads), 1)), dtype=bool)
         self._prev_ee = np.zeros((n, 3))
@@ -128,6 +137,22 @@ class BatchSim:
                 self.yaw_period[i] = math.pi
         self._thread_obj = np.array([p.obj for p in self.scene.threads], dtype=int)
 
+        # The fixture constants each object slot is measured against (zero for empty slots).
+        fidx = self._obj_fixture
+        k = len(fidx)
+        self.obj_fix_pos = np.zeros((MAX_OBJECTS, 3))
+        self.obj_fix_pos[:k] = self.fix_pos[fidx]
+        self.obj_fix_yaw = np.zeros(MAX_OBJECTS)
+        self.obj_fix_yaw[:k] = self.fix_yaw[fidx]
+        self.obj_seat_z = np.zeros(MAX_OBJECTS)
+        self.obj_seat_z[:k] = self.seat_z[fidx]
+        self.obj_hole_radius = np.zeros(MAX_OBJECTS)
+        self.obj_hole_radius[:k] = self.hole_radius[fidx]
+        self.is_peg = np.zeros(MAX_OBJECTS, dtype=bool)
+        self.is_peg[:k] = [isinstance(p, PegSpec) for p in self._objects]
+        self.obj_fixture_index = np.zeros(MAX_OBJECTS)
+        self.obj_fixture_index[:k] = fidx
+
     def _home_rotation(self) -> np.ndarray:
         data = mujoco.MjData(self.model)
         data.qpos[self.scene.arm_qpos] = HOME_QPOS
@@ -162,7 +187,7 @@ class BatchSim:
         d.ctrl[:7] = q
         d.ctrl[7] = self.cfg_closed if closed else self.cfg_open
 
-        for i, (part, obj_init) in enumerate(zip(self._objects, init.objects)):
+        for i, (part, obj_init) in enumerate(zip(self._objects, init.objects, strict=True)):
             self._place_object(d, i, part, obj_init, rng, ee, ee_yaw)
         mujoco.mj_forward(m, d)
         for _ in range(SETTLE_STEPS):
@@ -171,10 +196,13 @@ class BatchSim:
         mujoco.mj_forward(m, d)
         self.target_pos[env] = d.site_xpos[sc.grip_site]
         self.q_des[env] = q
+        self._ik_kinematics(env)
         self.target_yaw[env] = ee_yaw
         self.grip_closed[env] = closed
+        self._finger_ctrl[env] = d.ctrl[7]
         self.last_action[env] = 0.0
         self._read_env(env)
+        self._update_rotations()
         self._prev_ee[env] = self.ee_pos[env]
         self._prev_obj[env] = self.obj_pos[env]
         self.ee_vel[env] = 0.0
@@ -249,8 +277,11 @@ class BatchSim:
 
     # ------------------------------------------------------------------ step
     def apply_action(self, actions: np.ndarray) -> None:
-        """Turn actions (N, 5) into joint and finger targets for every environment."""
-        cfg, sc = self.cfg, self.scene
+        """Turn actions (N, 5) into joint and finger targets for every environment.
+
+        The targets reach the actuators in :meth:`simulate`, which must follow (``step`` does both).
+        """
+        cfg = self.cfg
         a = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
         self.last_action[:] = a
         target = self.target_pos + a[:, :3] * cfg.pos_step
@@ -259,58 +290,80 @@ class BatchSim:
         self.target_yaw = np.clip(self.target_yaw + a[:, 3] * cfg.yaw_step, *cfg.yaw_limits)
         self.grip_closed = a[:, 4] > cfg.grip_threshold
 
-        des_pos = np.zeros((self.num_envs, 3))
-        des_rot = np.zeros((self.num_envs, 3, 3))
-        for e, d in enumerate(self._ik_datas):
-            d.qpos[sc.arm_qpos] = self.q_des[e]
-            mujoco.mj_kinematics(self.model, d)
-            mujoco.mj_comPos(self.model, d)
-            mujoco.mj_jacSite(self.model, d, self._jacp[e], self._jacr[e], sc.grip_site)
-            des_pos[e] = d.site_xpos[sc.grip_site]
-            des_rot[e] = d.site_xmat[sc.grip_site].reshape(3, 3)
-        jac = np.concatenate([self._jacp[:, :, sc.arm_dof], self._jacr[:, :, sc.arm_dof]], axis=1)
+        # The commanded posture's kinematics are normally up to date (simulate evaluates them in
+        # parallel); only a caller that changed q_des some other way pays for them here.
+        for e in np.flatnonzero(np.any(self._ik_q != self.q_des, axis=1)):
+            self._ik_kinematics(e)
+        arm_dof = self.scene.arm_dof
+        jac = np.concatenate([self._jacp[:, :, arm_dof], self._jacr[:, :, arm_dof]], axis=1)
         desired = yaw_rotation(self.target_yaw) @ self._home_rot
-        err = np.concatenate([self.target_pos - des_pos, rotation_error(desired, des_rot)], axis=1)
+        err = np.concatenate(
+            [self.target_pos - self._ik_pos, rotation_error(desired, self._ik_rot)], axis=1
+        )
         self.q_des = self.q_des + dls_step(jac, err, self.q_des, cfg.damping, cfg.nullspace_gain)
         self.q_des = np.clip(self.q_des, self._q_low, self._q_high)
-        finger = np.where(self.grip_closed, self.cfg_closed, self.cfg_open)
-        for e, d in enumerate(self.datas):
-            d.ctrl[:7] = self.q_des[e]
-            d.ctrl[7] = finger[e]
+        self._finger_ctrl = np.where(self.grip_closed, self.cfg_closed, self.cfg_open)
+
+    def _ik_kinematics(self, e: int) -> None:
+        """Grip point, rotation and Jacobian of env ``e``'s commanded posture ``q_des[e]``."""
+        m, d, sc = self.model, self._ik_datas[e], self.scene
+        d.qpos[sc.arm_qpos] = self.q_des[e]
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_jacSite(m, d, self._jacp[e], self._jacr[e], sc.grip_site)
+        self._ik_pos[e] = d.site_xpos[sc.grip_site]
+        self._ik_rot[e] = d.site_xmat[sc.grip_site].reshape(3, 3)
+        self._ik_q[e] = self.q_des[e]
 
     def simulate(self) -> None:
         """Advance every environment by one control period, then update thread couplings."""
-        if self._pool is None:
-            self._step_shard(np.arange(self.num_envs))
-        else:
-            list(self._pool.map(self._step_shard, self._shards))
-        for e, d in enumerate(self.datas):
-            self.coupling.update(d)
-            self._read_env(e)
+        others = [self._pool.submit(self._step_shard, s) for s in self._shards[1:]]
+        self._step_shard(self._shards[0])
+        for future in others:
+            future.result()
+        self._update_rotations()
         self.ee_vel = (self.ee_pos - self._prev_ee) / self.control_dt
         self.obj_vel = (self.obj_pos - self._prev_obj) / self.control_dt
         self._prev_ee = self.ee_pos.copy()
         self._prev_obj = self.obj_pos.copy()
 
     def _step_shard(self, envs: np.ndarray) -> None:
+        """Everything per-environment of one control step, for one worker's environments.
+
+        mj_step and the other MuJoCo calls release the GIL, so the Python here (thread coupling,
+        state reads) overlaps with the other workers' physics instead of running after it.
+        """
         m, n = self.model, self.cfg.substeps
         for e in envs:
             d = self.datas[e]
+            d.ctrl[:7] = self.q_des[e]
+            d.ctrl[7] = self._finger_ctrl[e]
             for _ in range(n):
                 mujoco.mj_step(m, d)
+            self.coupling.update(d)
+            self._read_env(e)
+            # The next apply_action linearises around the posture just commanded.
+            self._ik_kinematics(e)
 
     def step(self, actions: np.ndarray) -> None:
         self.apply_action(actions)
         self.simulate()
 
+    def _update_rotations(self) -> None:
+        # From the quaternions, batched, rather than MuJoCo's xmat: the two differ in the last bit,
+        # which tilt (arccos near 1) and a toppled part's yaw amplify to visible differences.
+        self.obj_rot[:, : len(self._objects)] = quat_to_mat(self._obj_quat)
+
     def _read_env(self, e: int) -> None:
+        """Copy env ``e``'s state into the batch arrays; ``obj_rot`` follows from ``_obj_quat``
+        (see ``_update_rotations``)."""
         d, sc = self.datas[e], self.scene
         self.ee_pos[e] = d.site_xpos[sc.grip_site]
         self.ee_rot[e] = d.site_xmat[sc.grip_site].reshape(3, 3)
         self.finger_q[e] = d.qpos[sc.finger_qpos]
         k = len(sc.obj_bodies)
         self.obj_pos[e, :k] = d.xpos[sc.obj_bodies]
-        self.obj_rot[e, :k] = quat_to_mat(d.xquat[sc.obj_bodies])
+        self._obj_quat[e] = d.xquat[sc.obj_bodies]
         for t, pair in enumerate(sc.threads):
             self.engaged_thread[e, t] = d.eq_active[pair.eq_ids[0]]
 
@@ -337,29 +390,20 @@ class BatchSim:
             & (om > 0)
         )
 
-        fidx = self._obj_fixture
-        k = len(fidx)
-        fix_pos = np.zeros((MAX_OBJECTS, 3))
-        fix_pos[:k] = self.fix_pos[fidx]
         bottom_centre = obj_pos.copy()
         bottom_centre[..., 2] = bottom
-        obj_to_fix = (fix_pos[None] - bottom_centre) * om[..., None]
-        yaw_fix = np.zeros(MAX_OBJECTS)
-        yaw_fix[:k] = self.fix_yaw[fidx]
+        obj_to_fix = (self.obj_fix_pos[None] - bottom_centre) * om[..., None]
         period = np.where(self.yaw_period > 0, self.yaw_period, 1.0)
-        yaw_error = np.where(self.yaw_period > 0, wrap_angle(obj_yaw - yaw_fix, period), 0.0) * om
-        seat = np.zeros(MAX_OBJECTS)
-        seat[:k] = self.seat_z[fidx]
-        radius = np.zeros(MAX_OBJECTS)
-        radius[:k] = self.hole_radius[fidx]
+        yaw_error = (
+            np.where(self.yaw_period > 0, wrap_angle(obj_yaw - self.obj_fix_yaw, period), 0.0) * om
+        )
 
         engaged = np.zeros((n, MAX_OBJECTS), dtype=bool)
         for t, obj in enumerate(self._thread_obj):
             engaged[:, obj] |= self.engaged_thread[:, t]
-        is_peg = np.array([isinstance(p, PegSpec) for p in self._objects] + [False] * (2 - k))
         in_hole = (
-            is_peg[None]
-            & (np.linalg.norm(obj_to_fix[..., :2], axis=-1) <= radius + 0.0005)
+            self.is_peg[None]
+            & (np.linalg.norm(obj_to_fix[..., :2], axis=-1) <= self.obj_hole_radius + 0.0005)
             & (obj_to_fix[..., 2] > 0.001)
             & (tilt < 0.3)
         )
@@ -387,14 +431,12 @@ class BatchSim:
             "fix_pos": np.broadcast_to(self.fix_pos, (n, MAX_FIXTURES, 3)).copy(),
             "fix_yaw": np.broadcast_to(self.fix_yaw, (n, MAX_FIXTURES)).copy(),
             "seat_z": np.broadcast_to(self.seat_z, (n, MAX_FIXTURES)).copy(),
-            "obj_fixture": np.broadcast_to(
-                np.pad(fidx, (0, MAX_OBJECTS - k)).astype(np.float64), (n, MAX_OBJECTS)
-            ).copy(),
+            "obj_fixture": np.broadcast_to(self.obj_fixture_index, (n, MAX_OBJECTS)).copy(),
             "obj_to_fix": obj_to_fix,
             "yaw_error": yaw_error,
             "engaged": engaged.astype(np.float64),
             "insertion_depth": depth,
-            "seat_gap": (bottom - seat[None]) * om,
+            "seat_gap": (bottom - self.obj_seat_z[None]) * om,
             "n_stages": np.full(n, float(self.task.n_stages)),
             "time_frac": np.asarray(step_count, dtype=np.float64) / self.task.max_steps,
         }

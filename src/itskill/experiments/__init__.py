@@ -1,0 +1,1 @@
+"""Experiments: running tasks × methods × seeds and the statistics reported on them."""

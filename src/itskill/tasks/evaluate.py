@@ -1,0 +1,196 @@
+"""Success-rate evaluation of a policy on a task: scripted controllers and trained checkpoints.
+
+A policy is anything with ``reset(env_ids)`` and ``__call__(ctx) -> actions`` (:class:`Policy`); the
+observation a trained network sees is a pure function of the reward context, so checkpoints fit the
+same interface as the scripted controllers.
+"""
+
+from __future__ import annotations
+
+import time
+import zipfile
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from stable_baselines3 import A2C, PPO
+
+from itskill.experiments.stats import wilson_interval
+from itskill.sim.layout import OBSERVATION_LAYOUT
+from itskill.tasks import make_batch_env
+from itskill.tasks.scripted import ScriptedPolicy
+from itskill.tasks.spec import TaskSpec
+
+SCRIPTED = "scripted"
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """Acts for a batch of environments; ``reset`` restarts the given environments' episodes."""
+
+    def reset(self, env_ids: np.ndarray | None = None) -> None: ...
+
+    def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray: ...
+
+
+PolicyFactory = Callable[[TaskSpec, int], Policy]
+"""``factory(spec, num_envs) -> Policy``."""
+
+
+class CheckpointError(ValueError):
+    """A policy checkpoint that is missing, unreadable or does not fit the observation layout."""
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path, self.problem = str(path), problem
+
+
+class CheckpointPolicy:
+    """A Stable-Baselines3 PPO or A2C checkpoint acting deterministically."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.model = _load_sb3(self.path)
+
+    def reset(self, env_ids: np.ndarray | None = None) -> None:
+        """Nothing to reset: PPO and A2C policies are feed-forward, without memory."""
+
+    def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
+        actions, _ = self.model.predict(OBSERVATION_LAYOUT.build(ctx), deterministic=True)
+        return np.asarray(actions)
+
+
+def _load_sb3(path: Path) -> Any:
+    """Load ``path`` as PPO, else as A2C (both predict the same way; the zip does not say which)."""
+    if not path.is_file():
+        raise CheckpointError(
+            path, f"no such checkpoint file (expected {SCRIPTED!r} or a Stable-Baselines3 .zip)"
+        )
+    if not zipfile.is_zipfile(path):
+        raise CheckpointError(path, "not a Stable-Baselines3 checkpoint (not a zip archive)")
+    errors = []
+    for algo in (PPO, A2C):
+        try:
+            model = algo.load(path, device="cpu")
+            break
+        except Exception as err:  # SB3 raises many kinds for a damaged or foreign archive
+            errors.append(f"{algo.__name__}: {type(err).__name__}: {err}")
+    else:
+        raise CheckpointError(path, "could not load as PPO or A2C: " + "; ".join(errors))
+    shape = getattr(model.observation_space, "shape", None)
+    if shape != (OBSERVATION_LAYOUT.size,):
+        raise CheckpointError(
+            path, f"observation shape {shape}, the task layout has ({OBSERVATION_LAYOUT.size},)"
+        )
+    return model
+
+
+def make_policy(
+    policy: str | Path | Policy | PolicyFactory, spec: TaskSpec, num_envs: int
+) -> Policy:
+    """Resolve ``"scripted"``, a checkpoint path, a policy factory or a policy into a ``Policy``.
+
+    A ready ``Policy`` is used as it is and must act for ``num_envs`` environments.
+    """
+    if isinstance(policy, str | Path):
+        if str(policy) == SCRIPTED:
+            return ScriptedPolicy(spec, num_envs)
+        return CheckpointPolicy(policy)
+    # A class has ``reset`` and ``__call__`` too, so it would pass the protocol check: it is a
+    # factory.
+    if isinstance(policy, Policy) and not isinstance(policy, type):
+        return policy
+    return policy(spec, num_envs)
+
+
+def describe_policy(policy: str | Path | Policy | PolicyFactory) -> str:
+    """A short name for reports: ``scripted``, the checkpoint path, or the class name."""
+    if isinstance(policy, str | Path):
+        return str(policy)
+    return getattr(policy, "__name__", type(policy).__name__)
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """Outcome of :func:`evaluate`; ``ci_low``/``ci_high`` are the 95% Wilson interval."""
+
+    task: str
+    episodes: int
+    successes: int
+    success_rate: float
+    ci_low: float
+    ci_high: float
+    mean_return: float
+    mean_length: float
+    wall_s: float
+    policy: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def episode_quotas(episodes: int, num_envs: int) -> np.ndarray:
+    """How many episodes each environment runs so that exactly ``episodes`` are counted."""
+    quotas = np.full(num_envs, episodes // num_envs, dtype=np.int64)
+    quotas[: episodes % num_envs] += 1
+    return quotas
+
+
+def evaluate(
+    spec: TaskSpec,
+    policy: str | Path | Policy | PolicyFactory = SCRIPTED,
+    episodes: int = 100,
+    seed: int = 0,
+    num_envs: int = 16,
+) -> EvalResult:
+    """Run exactly ``episodes`` episodes of ``spec`` and report the success rate.
+
+    Environment ``i`` runs the first ``quota[i]`` episodes of its own seeded sequence
+    (:func:`episode_quotas`), so the set of counted episodes depends only on ``seed`` and
+    ``num_envs``, never on which environment happens to finish first.
+    """
+    if episodes < 1:
+        raise ValueError(f"episodes must be positive, got {episodes}")
+    num_envs = max(1, min(num_envs, episodes))
+    quotas = episode_quotas(episodes, num_envs)
+    start = time.perf_counter()
+    env = make_batch_env(spec.id, num_envs=num_envs, seed=seed)
+    try:
+        actor = make_policy(policy, spec, num_envs)
+        env.reset()
+        actor.reset()
+        done_count = np.zeros(num_envs, dtype=np.int64)
+        running_return = np.zeros(num_envs)
+        running_length = np.zeros(num_envs, dtype=np.int64)
+        successes, returns, lengths = 0, [], []
+        while (done_count < quotas).any():
+            _, rewards, dones, infos = env.step(actor(env.context()))
+            running_return += rewards
+            running_length += 1
+            for e in np.flatnonzero(dones):
+                if done_count[e] < quotas[e]:
+                    successes += bool(infos[e]["is_success"])
+                    returns.append(running_return[e])
+                    lengths.append(running_length[e])
+                done_count[e] += 1
+            if dones.any():
+                running_return[dones] = 0.0
+                running_length[dones] = 0
+                actor.reset(np.flatnonzero(dones))
+    finally:
+        env.close()
+    low, high = wilson_interval(successes, episodes)
+    return EvalResult(
+        task=spec.id,
+        episodes=episodes,
+        successes=successes,
+        success_rate=successes / episodes,
+        ci_low=low,
+        ci_high=high,
+        mean_return=float(np.mean(returns)),
+        mean_length=float(np.mean(lengths)),
+        wall_s=time.perf_counter() - start,
+        policy=describe_policy(policy),
+    )

@@ -1,0 +1,34 @@
+import pytest
+
+from itskill.experiments.stats import wilson_interval
+
+
+@pytest.mark.parametrize(
+    ("successes", "n", "confidence", "expected"),
+    [
+        # 81/263 is a textbook worked example; the others were computed by hand.
+        (81, 263, 0.95, (0.2553, 0.3662)),
+        (50, 100, 0.95, (0.4038, 0.5962)),
+        (0, 10, 0.95, (0.0, 0.2775)),
+        (10, 10, 0.95, (0.7225, 1.0)),
+        (95, 100, 0.99, (0.8609, 0.9832)),
+    ],
+)
+def test_known_values(successes, n, confidence, expected):
+    low, high = wilson_interval(successes, n, confidence)
+    assert low == pytest.approx(expected[0], abs=1e-4)
+    assert 0.0 <= low <= high <= 1.0
+    assert high == pytest.approx(expected[1], abs=1e-4)
+
+
+def test_interval_contains_rate_and_narrows_with_n():
+    low1, high1 = wilson_interval(30, 60)
+    low2, high2 = wilson_interval(300, 600)
+    assert low1 < 0.5 < high1
+    assert high2 - low2 < high1 - low1
+
+
+@pytest.mark.parametrize(("successes", "n"), [(1, 0), (-1, 5), (6, 5)])
+def test_rejects_bad_counts(successes, n):
+    with pytest.raises(ValueError):
+        wilson_interval(successes, n)

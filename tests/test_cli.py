@@ -1,0 +1,115 @@
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from itskill.cli import app
+from itskill.sim import GL_BACKEND
+from itskill.tasks import all_tasks
+from itskill.tasks.spec import TASKS_DIR_ENV
+
+runner = CliRunner()
+
+
+def flat(text: str) -> str:
+    """Output with line wrapping undone, so assertions do not depend on terminal width."""
+    return " ".join(text.split())
+
+
+def test_tasks_list_json_has_every_task():
+    result = runner.invoke(app, ["tasks", "list", "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    assert [t["id"] for t in data] == list(all_tasks())
+    assert {"pick_nut_m12", "insert_peg_rect"} <= {t["id"] for t in data if t["table_i"]}
+
+
+def test_tasks_list_table_and_markdown():
+    table = runner.invoke(app, ["tasks", "list"])
+    assert table.exit_code == 0
+    assert "pick_nut_m12" in table.stdout
+    markdown = runner.invoke(app, ["tasks", "list", "--markdown"])
+    lines = markdown.stdout.strip().splitlines()
+    assert lines[0].startswith("| id |")
+    assert len(lines) == 2 + len(all_tasks())
+
+
+def test_tasks_show_json_is_complete():
+    result = runner.invoke(app, ["tasks", "show", "screw_nut_m12", "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    assert data["command"] == "Screw the M12 nut onto the bottom of the bolt"
+    assert data["objects"][0]["pitch"] == pytest.approx(0.00175)
+    assert data["fixtures"][0]["part"]["kind"] == "bolt"
+    assert data["init"]["objects"][0]["mode"] == "bolt"
+    assert data["success"] == "seated(0, 0.00175)"
+    assert data["max_steps"] > 0 and data["stages"] and data["script"]
+
+
+def test_tasks_show_table():
+    result = runner.invoke(app, ["tasks", "show", "pick_nut_m12"])
+    assert result.exit_code == 0
+    text = flat(result.stdout)
+    assert "Pick up the M12 nut" in text and "lifted(0, 3)" in text
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["tasks", "show", "pick_the_moon"],
+        ["eval", "pick_the_moon", "--episodes", "1"],
+        ["render", "pick_the_moon", "--out", "x.mp4"],
+    ],
+)
+def test_unknown_task_lists_known_ones(args):
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    text = flat(result.output)
+    assert "unknown task 'pick_the_moon'" in text
+    assert "pick_nut_m12" in text and "insert_peg_round" in text
+    assert "Traceback" not in text
+
+
+def test_malformed_task_file_names_file_and_field(tmp_path, monkeypatch):
+    bad = tmp_path / "broken.toml"
+    bad.write_text('[[task]]\nid = "broken"\nfamily = "nutbolt"\nmax_stepz = 10\n')
+    monkeypatch.setenv(TASKS_DIR_ENV, str(tmp_path))
+    result = runner.invoke(app, ["tasks", "list"])
+    assert result.exit_code == 2
+    text = flat(result.output)
+    assert str(bad) in text
+    assert "task 'broken'.max_stepz" in text and "unknown field" in text
+    assert "Traceback" not in text
+
+
+def test_eval_missing_checkpoint_is_a_clear_error(tmp_path):
+    missing = tmp_path / "nothing_here.zip"
+    result = runner.invoke(app, ["eval", "pick_nut_m12", "--policy", str(missing)])
+    assert result.exit_code == 2
+    text = flat(result.output)
+    assert str(missing) in text and "no such checkpoint" in text
+
+
+def test_eval_corrupt_checkpoint_is_a_clear_error(tmp_path):
+    corrupt = tmp_path / "corrupt.zip"
+    corrupt.write_bytes(b"not a zip archive")
+    result = runner.invoke(app, ["eval", "pick_nut_m12", "--policy", str(corrupt)])
+    assert result.exit_code == 2
+    assert str(corrupt) in flat(result.output)
+
+
+def test_eval_scripted_json():
+    args = ["eval", "reach_nut_m12", "--episodes", "3", "--num-envs", "2", "--json"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    assert data["episodes"] == 3 and data["policy"] == "scripted"
+    assert 0.0 <= data["ci_low"] <= data["success_rate"] <= data["ci_high"] <= 1.0
+
+
+@pytest.mark.skipif(GL_BACKEND is None, reason="no EGL or OSMesa library installed")
+def test_render_writes_a_video(tmp_path):
+    out = tmp_path / "reach.mp4"
+    result = runner.invoke(app, ["render", "reach_nut_m12", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert out.stat().st_size > 1000
