@@ -32,7 +32,11 @@ class ControllerConfig:
     yaw_limits: tuple[float, float] = (-2.6, 2.6)
     """Hand yaw range relative to home, inside joint 7's limits."""
     damping: float = 0.05
-    nullspace_gain: float = 0.3
+    nullspace_gain: float = 0.05
+    """Fraction of the way back to the home posture per step, in the null space. At 0.3 the
+    commanded posture swung along the redundant joint1/joint3 mode faster than those joints'
+    87 N m servos could follow: both saturated against each other and the hand stalled for
+    seconds mid-move (a third of the rectangular-peg carries that turned the wrist failed)."""
     grip_threshold: float = 0.0
     """``grip > threshold`` closes the fingers, otherwise they open."""
 

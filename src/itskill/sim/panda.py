@@ -39,13 +39,18 @@ class GripperConfig:
 
     ``closed_target`` lies past the fully closed width so a grasped part is squeezed with roughly
     ``kp * (width/2 - closed_target)`` newtons, capped by ``force_limit``.
+
+    The cap is 15 N, not more: MuJoCo's soft contacts let a squeezed light part give way in
+    proportion to the force over its mass, and at 40 N the fingertip pads sank through a 10 g
+    nut's 2.75 mm wall within a few steps (the width fell from 18 to 9 mm and the nut swung out of
+    the grip when carried). 15 N still holds every part against gravity and the thread's friction.
     """
 
     kp: float = 1500.0
     kv: float = 40.0
     open_target: float = 0.04
     closed_target: float = -0.012
-    force_limit: float = 40.0
+    force_limit: float = 15.0
 
 
 def find_panda_xml() -> Path:
@@ -118,6 +123,22 @@ def load_panda_spec(gripper: GripperConfig | None = None) -> mujoco.MjSpec:
         density=0,
     )
     for finger in ("left_finger", "right_finger"):
+        # Menagerie's four small fingertip pads leave a 5 mm gap between them across the finger:
+        # a 4 mm peg slides into it, the fingers close fully on either side of it, and the width
+        # no longer tells that a part is held (the ``grasped`` test needs it). This pad fills the
+        # gap, flush with the others, so a thin peg is pinched by one flat face.
+        spec.body(finger).add_geom(
+            name=f"{finger}_centre_pad",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[0.0025, 0.002, 0.0085],
+            pos=[0.0, 0.002, 0.0445],
+            group=3,
+            rgba=[0, 0, 0, 0],
+            friction=[1.5, 0.02, 0.002],
+            condim=4,
+            solref=[0.008, 1.0],
+            solimp=[0.95, 0.99, 0.001, 0.5, 2.0],
+        )
         spec.body(finger).add_geom(
             name=f"{finger}_box",
             type=mujoco.mjtGeom.mjGEOM_BOX,

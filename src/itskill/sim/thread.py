@@ -32,8 +32,13 @@ class ThreadConfig:
     """A nut engages when its bottom is at most this far above the tip ..."""
     engage_below: float = 0.003
     """... and at most this far below it."""
-    release_above: float = 0.0003
-    """An engaged nut whose bottom rises this far above the tip comes off."""
+    release_above: float = 0.0025
+    """An engaged nut whose bottom rises this far above the tip comes off.
+
+    It must exceed ``engage_above`` plus half a pitch: engaging snaps the nut to the thread's
+    height, up to half a pitch above where it was caught, and with a smaller margin (it was
+    0.3 mm) a nut caught a little above the tip came off again at the next step and flickered
+    between engaged and free until the gripper let go of it."""
 
 
 class ThreadCoupling:
@@ -48,6 +53,8 @@ class ThreadCoupling:
             placed = scene.spec.fixtures[pair.fixture]
             self._tips.append((placed.xy[0], placed.xy[1], placed.part.tip_z))
             self._nut_half_height.append(scene.spec.objects[pair.obj].height / 2)
+        # qpos addresses of each pair's nut chain: x, y, z, yaw, tilt x, tilt y.
+        self._nut_qpos = [scene.obj_qpos[pair.obj][:6] for pair in scene.threads]
 
     def engaged(self, data: mujoco.MjData) -> list[bool]:
         """Per thread pair: is it engaged in this environment?"""
@@ -69,24 +76,29 @@ class ThreadCoupling:
         data.mocap_pos[pair.crest_mocap] = self.scene.crest_home[pair.crest_mocap]
 
     def update(self, data: mujoco.MjData) -> None:
-        """Engage or release every pair of one environment from its current state."""
+        """Engage or release every pair of one environment from its current state.
+
+        Runs once per environment per control step, so it reads plain floats (one ``tolist`` per
+        nut) rather than indexing NumPy arrays element by element.
+        """
         cfg = self.config
-        busy_nuts = {p.obj for p, on in zip(self.scene.threads, self.engaged(data)) if on}
+        active = data.eq_active
+        # Nuts engaged at the start of the update: a nut released below cannot catch another
+        # bolt's thread in the same update.
+        busy_nuts = {p.obj for p in self.scene.threads if active[p.eq_ids[0]]}
         for k, pair in enumerate(self.scene.threads):
-            adr = self.scene.obj_qpos[pair.obj]
-            x, y, z = data.qpos[adr[:3]]
+            x, y, z, _, tilt_x, tilt_y = data.qpos[self._nut_qpos[k]].tolist()
             bottom = z - self._nut_half_height[k]
             tip_x, tip_y, tip_z = self._tips[k]
-            if data.eq_active[pair.eq_ids[0]]:
+            if active[pair.eq_ids[0]]:
                 if bottom > tip_z + cfg.release_above:
                     self.release(data, k)
                 continue
             if pair.obj in busy_nuts:
                 continue
-            tilt = math.hypot(data.qpos[adr[4]], data.qpos[adr[5]])
             if (
                 math.hypot(x - tip_x, y - tip_y) <= cfg.radial_tolerance
-                and tilt <= cfg.tilt_tolerance
+                and math.hypot(tilt_x, tilt_y) <= cfg.tilt_tolerance
                 and tip_z - cfg.engage_below <= bottom <= tip_z + cfg.engage_above
             ):
                 self.engage(data, k)

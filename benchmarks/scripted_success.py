@@ -1,0 +1,81 @@
+"""Success rate of the scripted waypoint controller on each task.
+
+Runs N episodes (default 100) per task on a batch of environments and prints the success rate with
+a Wilson 95% interval and the wall time. By default it runs every Table I task; ``--check`` makes
+it exit non-zero if any Table I task it ran is below 90%.
+
+    python benchmarks/scripted_success.py
+    python benchmarks/scripted_success.py --tasks pick_nut_m12 screw_nut_m16 --episodes 50
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+
+from itskill.tasks import all_tasks, get_task
+from itskill.tasks.scripted import run_episodes
+
+THRESHOLD = 0.9
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score interval for a binomial proportion."""
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def main(argv: list[str] | None = None) -> int:
+    table_i = [name for name, spec in all_tasks().items() if spec.table_i]
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=table_i, help="task ids (default: Table I)")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--num-envs", type=int, default=25)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON")
+    parser.add_argument(
+        "--check", action="store_true", help=f"exit 1 if a Table I task is below {THRESHOLD:.0%}"
+    )
+    args = parser.parse_args(argv)
+
+    results = []
+    print(f"{'task':28s} {'success':>8s} {'95% CI':>15s} {'time':>7s}")
+    for name in args.tasks:
+        start = time.perf_counter()
+        outcomes = run_episodes(name, args.episodes, min(args.num_envs, args.episodes), args.seed)
+        wall = time.perf_counter() - start
+        wins = sum(outcomes)
+        low, high = wilson_interval(wins, len(outcomes))
+        rate = wins / len(outcomes)
+        print(f"{name:28s} {rate:8.0%} [{low:5.0%}, {high:5.0%}] {wall:6.1f}s", flush=True)
+        results.append(
+            {
+                "task": name,
+                "table_i": get_task(name).table_i,
+                "episodes": len(outcomes),
+                "successes": wins,
+                "success_rate": rate,
+                "wilson_95": [low, high],
+                "wall_s": wall,
+            }
+        )
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(results, fh, indent=2)
+    failing = [r["task"] for r in results if r["table_i"] and r["success_rate"] < THRESHOLD]
+    if args.check and failing:
+        print(f"below {THRESHOLD:.0%}: {', '.join(failing)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,267 @@
+"""The environments a user drives: Gymnasium's checker, seeding, episodes, control, layout."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from itskill.sim.layout import OBSERVATION_LAYOUT as L
+from itskill.tasks import get_task, make_batch_env, make_env
+
+FREE = np.array([0.0, 0.0, 0.0, 0.0, -1.0])
+"""Hold still with the fingers open."""
+
+
+def actions_sequence(n: int, seed: int = 123) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return [rng.uniform(-1, 1, 5).astype(np.float32) for _ in range(n)]
+
+
+# ---------------------------------------------------------------------- Gymnasium API
+def test_task_env_passes_gymnasium_env_checker():
+    env = make_env("pick_nut_m12")
+    with warnings.catch_warnings():
+        # An unbounded Box observation space is intended (positions, velocities); the checker
+        # only warns about it.
+        warnings.filterwarnings("ignore", message=".*infinity.*")
+        check_env(env, skip_render_check=True)
+    env.close()
+
+
+# ---------------------------------------------------------------------- seeding
+def test_task_env_reset_is_deterministic_by_seed():
+    a, b = make_env("pick_nut_m12"), make_env("pick_nut_m12")
+    obs_a, _ = a.reset(seed=7)
+    obs_b, _ = b.reset(seed=7)
+    np.testing.assert_array_equal(obs_a, obs_b)
+    for action in actions_sequence(10):
+        obs_a = a.step(action)[0]
+        obs_b = b.step(action)[0]
+    np.testing.assert_array_equal(obs_a, obs_b)
+
+    # Reseeding the same instance replays the same start.
+    again, _ = a.reset(seed=7)
+    first = make_env("pick_nut_m12").reset(seed=7)[0]
+    np.testing.assert_array_equal(again, first)
+
+    # Another seed: another initial part position.
+    other, _ = b.reset(seed=8)
+    pos = L["obj0_pos"]
+    assert np.linalg.norm(other[pos] - first[pos]) > 1e-3
+    a.close()
+    b.close()
+
+
+def test_batch_env_reset_is_deterministic_by_seed():
+    name = "pick_nut_m12"
+    a = make_batch_env(name, num_envs=4, seed=11)
+    b = make_batch_env(name, num_envs=4, seed=11)
+    c = make_batch_env(name, num_envs=4, seed=12)
+    obs_a, obs_b, obs_c = a.reset(), b.reset(), c.reset()
+    assert obs_a.shape == (4, L.size)
+    np.testing.assert_array_equal(obs_a, obs_b)
+    pos = L["obj0_pos"]
+    # The copies in a batch start differently, and so do batches with different seeds.
+    starts = obs_a[:, pos]
+    for i in range(4):
+        for j in range(i + 1, 4):
+            assert np.linalg.norm(starts[i] - starts[j]) > 1e-3
+    assert np.all(np.linalg.norm(obs_c[:, pos] - starts, axis=1) > 1e-3)
+
+    for action in actions_sequence(10):
+        batch_action = np.tile(action, (4, 1))
+        obs_a = a.step(batch_action)[0]
+        obs_b = b.step(batch_action)[0]
+    np.testing.assert_array_equal(obs_a, obs_b)
+    for env in (a, b, c):
+        env.close()
+
+
+def test_single_env_matches_first_env_of_a_batch_with_the_same_seed():
+    single = make_env("pick_nut_m12")
+    batch = make_batch_env("pick_nut_m12", num_envs=3, seed=5)
+    obs = single.reset(seed=5)[0]
+    batch_obs = batch.reset()
+    np.testing.assert_array_equal(obs, batch_obs[0])
+    for action in actions_sequence(10):
+        obs = single.step(action)[0]
+        batch_obs = batch.step(np.tile(action, (3, 1)))[0]
+    np.testing.assert_array_equal(obs, batch_obs[0])
+    single.close()
+    batch.close()
+
+
+# ---------------------------------------------------------------------- episodes
+def test_batch_env_truncates_at_max_steps_and_resets():
+    name = "reach_nut_m12"
+    max_steps = get_task(name).max_steps
+    assert max_steps == 30
+    n = 4
+    env = make_batch_env(name, num_envs=n, seed=3)
+    # A twin stepped without automatic resets gives the true final observation.
+    twin = make_batch_env(name, num_envs=n, seed=3)
+    env.reset()
+    twin.reset()
+    still = np.tile(FREE, (n, 1))
+    for k in range(max_steps - 1):
+        obs, _, dones, infos = env.step(still)
+        twin.advance(still)
+        assert not dones.any(), f"done early at step {k + 1}"
+        assert all("terminal_observation" not in info for info in infos)
+    obs, _, dones, infos = env.step(still)
+    final = twin.advance(still).obs
+
+    assert dones.dtype == bool and dones.all()
+    t = L["time_frac"]
+    for e, info in enumerate(infos):
+        terminal = info["terminal_observation"]
+        np.testing.assert_array_equal(terminal, final[e])
+        assert terminal[t][0] == pytest.approx(1.0)
+        assert info["TimeLimit.truncated"] is True
+        assert isinstance(info["is_success"], bool)
+        # The returned observation is the new episode's first.
+        assert obs[e][t][0] == 0.0
+        assert not np.array_equal(obs[e], terminal)
+    np.testing.assert_array_equal(env.steps, np.zeros(n))
+
+    # The step counter restarted: the next episode is again max_steps long.
+    for k in range(max_steps - 1):
+        obs, _, dones, _ = env.step(still)
+        assert not dones.any(), f"second episode done early at step {k + 1}"
+        assert obs[0][t][0] == pytest.approx((k + 1) / max_steps)
+    dones = env.step(still)[2]
+    assert dones.all()
+    env.close()
+    twin.close()
+
+
+# ---------------------------------------------------------------------- control
+def test_end_effector_moves_about_1_5_cm_per_unit_action():
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            env = make_env("reach_nut_m12")
+            env.reset(seed=0)
+            start = env.context()["ee_pos"][0].copy()
+            action = FREE.copy()
+            action[axis] = sign
+            for _ in range(5):
+                env.step(action)
+            moving = env.context()["ee_pos"][0] - start
+            for _ in range(5):  # let the arm catch up with the command
+                env.step(FREE)
+            moved = env.context()["ee_pos"][0] - start
+            env.close()
+            # Commanded 5 x 1.5 cm = 7.5 cm along the axis; the arm lags a little while moving.
+            assert 0.035 < sign * moving[axis] < 0.08, (axis, sign, moving)
+            assert 0.06 < sign * moved[axis] < 0.08, (axis, sign, moved)
+            others = [k for k in range(3) if k != axis]
+            assert np.all(np.abs(moved[others]) < 0.005), (axis, sign, moved)
+
+
+def test_yaw_action_turns_the_hand():
+    env = make_env("reach_nut_m12")
+    env.reset(seed=0)
+    yaw0 = env.context()["ee_yaw"][0]
+    for _ in range(2):
+        env.step(np.array([0.0, 0.0, 0.0, 1.0, -1.0]))
+    for _ in range(10):  # the wrist follows the command within about half a second
+        env.step(FREE)
+    assert env.context()["ee_yaw"][0] - yaw0 == pytest.approx(0.5, abs=0.03)
+    env.close()
+
+
+def test_gripper_closes_and_opens_on_command():
+    env = make_env("reach_nut_m12")  # the hand starts high above the table, nothing in between
+    env.reset(seed=0)
+    ctx = env.context()
+    assert ctx["gripper_width"][0] == pytest.approx(0.08, abs=0.003)
+    assert ctx["grip_closed"][0] == 0.0
+    close = np.array([0.0, 0.0, 0.0, 0.0, 1.0])
+    for _ in range(5):
+        env.step(close)
+    ctx = env.context()
+    assert ctx["gripper_width"][0] < 0.01
+    assert ctx["grip_closed"][0] == 1.0
+    for _ in range(5):
+        env.step(FREE)
+    ctx = env.context()
+    assert ctx["gripper_width"][0] > 0.075
+    assert ctx["grip_closed"][0] == 0.0
+    env.close()
+
+
+# ---------------------------------------------------------------------- observation layout
+@pytest.mark.parametrize("name, n_objects", [("pick_nut_m12", 1), ("pickplace2_nuts", 2)])
+def test_observation_slices_hold_the_context(name, n_objects):
+    env = make_batch_env(name, num_envs=2, seed=4)
+    env.reset()
+    for action in actions_sequence(3):
+        obs = env.step(np.tile(action, (2, 1)))[0]
+    ctx = env.context()
+    env.close()
+
+    def same(slice_name, value):
+        np.testing.assert_allclose(obs[:, L[slice_name]], np.reshape(value, (2, -1)), atol=1e-6)
+
+    same("ee_pos", ctx["ee_pos"])
+    same("ee_vel", ctx["ee_vel"])
+    same("ee_yaw_sincos", np.stack([np.sin(ctx["ee_yaw"]), np.cos(ctx["ee_yaw"])], -1))
+    same("gripper_width", ctx["gripper_width"])
+    same("grip_closed", ctx["grip_closed"])
+    same("time_frac", ctx["time_frac"])
+    for i in range(2):
+        used = float(i < n_objects)
+        same(f"obj{i}_mask", np.full(2, used))
+        same(f"obj{i}_pos", ctx["obj_pos"][:, i])
+        same(f"obj{i}_to_ee", ctx["obj_to_ee"][:, i])
+        same(f"obj{i}_to_fix", ctx["obj_to_fix"][:, i])
+        same(f"obj{i}_grasped", ctx["grasped"][:, i])
+        same(f"obj{i}_size", np.stack([ctx["obj_width"][:, i], ctx["obj_height"][:, i]], -1))
+        if used:
+            assert np.all(obs[:, L[f"obj{i}_pos"]][:, 2] > 0)  # a real part, above the table
+        else:
+            assert not obs[:, L[f"obj{i}_pos"]].any()
+    same("fix0_pos", ctx["fix_pos"][:, 0])
+    same("fix0_mask", np.ones(2))
+    same("fix1_mask", np.full(2, float(n_objects == 2)))
+    onehot = obs[:, L["stage_onehot"]]
+    np.testing.assert_array_equal(onehot.argmax(axis=1), ctx["stage"])
+    np.testing.assert_array_equal(onehot.sum(axis=1), np.ones(2))
+
+
+# ---------------------------------------------------------------------- rewards
+def test_reward_fn_gets_the_context_and_its_total_is_the_reward():
+    calls = []
+
+    def reward_fn(ctx):
+        calls.append(ctx)
+        height = ctx["ee_pos"][:, 2]
+        closeness = -np.linalg.norm(ctx["obj_to_ee"][:, 0], axis=-1)
+        return 2.0 * height + closeness, {"height": height, "closeness": closeness}
+
+    env = make_batch_env("pick_nut_m12", num_envs=3, seed=0, reward_fn=reward_fn)
+    env.reset()
+    for action in actions_sequence(3):
+        obs, reward, _, _ = env.step(np.tile(action, (3, 1)))
+    ctx = calls[-1]
+    env.close()
+    assert len(calls) == 3
+    assert reward.shape == (3,)
+    assert ctx["ee_pos"].shape == (3, 3) and "stage" in ctx
+    np.testing.assert_allclose(ctx["ee_pos"], obs[:, L["ee_pos"]], atol=1e-6)
+    expected = 2.0 * ctx["ee_pos"][:, 2] - np.linalg.norm(ctx["obj_to_ee"][:, 0], axis=-1)
+    np.testing.assert_allclose(reward, expected, rtol=1e-6)
+
+    # The single environment reports the same reward and its components.
+    env = make_env("pick_nut_m12", reward_fn=reward_fn)
+    env.reset(seed=0)
+    _, reward, _, _, info = env.step(FREE)
+    ctx = calls[-1]
+    assert reward == pytest.approx(
+        float(2.0 * ctx["ee_pos"][0, 2] + info["reward_components"]["closeness"])
+    )
+    assert set(info["reward_components"]) == {"height", "closeness"}
+    env.close()

@@ -1,0 +1,194 @@
+"""Task files: errors that say where, the predicate language, stages, the packaged suite."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import itskill.tasks.spec as spec_module
+from itskill.tasks import TaskFileError, UnknownTaskError, all_tasks, get_task
+from itskill.tasks.predicates import PREDICATES, PredicateError, parse
+from itskill.tasks.spec import load_parts, load_task_file
+
+PARTS_FILE = Path(spec_module.__file__).parent / "data" / "parts.toml"
+
+VALID = """\
+[[task]]
+id = "my_pick"
+family = "nutbolt"
+kind = "basic"
+command = "Pick up the M12 nut"
+skills = ["Pick"]
+actions = ["approach", "grasp"]
+objects = ["nut_m12"]
+fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]
+max_steps = 60
+success = "lifted(0, 3) and grasped(0)"
+stages = [
+  { name = "approach", done = "near(0, 0.02)" },
+  { name = "grasp", done = "grasped(0)" },
+]
+[task.init]
+ee = { x = [0.4, 0.5], y = [-0.08, 0.08], z = [0.15, 0.22] }
+objects = [
+  { mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] },
+]
+"""
+
+
+@pytest.fixture(scope="module")
+def parts():
+    return load_parts(PARTS_FILE)
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "mytasks.toml"
+    path.write_text(text)
+    return path
+
+
+def test_valid_file_loads(tmp_path, parts):
+    (task,) = load_task_file(write(tmp_path, VALID), parts)
+    assert task.id == "my_pick"
+    assert task.command == "Pick up the M12 nut"
+    assert task.max_steps == 60
+    assert [s.name for s in task.stages] == ["approach", "grasp"]
+    assert task.objects[0].name == "nut_m12"
+    assert task.source.endswith("mytasks.toml")
+
+
+# Each case: an edit to the valid file, the field the error must name, a word of the problem.
+BROKEN = {
+    "toml_syntax": (("max_steps = 60", "max_steps = = 60"), "TOML syntax", "line"),
+    "unknown_field": (("max_steps = 60", "max_steps = 60\ncolour = 'red'"), "colour", "unknown"),
+    "missing_command": (('command = "Pick up the M12 nut"\n', ""), "command", "missing"),
+    "wrong_type": (("max_steps = 60", 'max_steps = "ten"'), "max_steps", "int"),
+    "unknown_predicate": (('done = "grasped(0)"', 'done = "flying(0)"'), "stages[1]", "flying"),
+    "unknown_part": (('objects = ["nut_m12"]', 'objects = ["nut_m99"]'), "objects", "nut_m99"),
+    "init_count": (
+        ('objects = ["nut_m12"]', 'objects = ["nut_m12", "nut_m16"]'),
+        "init.objects",
+        "expected 2",
+    ),
+    "object_slot": (('success = "lifted(0, 3)', 'success = "lifted(1, 3)'), "success", "slot 1"),
+}
+
+
+@pytest.mark.parametrize("case", list(BROKEN))
+def test_malformed_task_file_names_the_file_and_the_field(tmp_path, parts, case):
+    (old, new), field, problem = BROKEN[case]
+    assert old in VALID
+    path = write(tmp_path, VALID.replace(old, new, 1))
+    with pytest.raises(TaskFileError) as err:
+        load_task_file(path, parts)
+    message = str(err.value)
+    assert str(path) in message
+    assert field in message and field in err.value.where
+    assert problem in message
+    assert err.value.path == str(path)
+
+
+def test_unknown_task_name_lists_known_tasks():
+    with pytest.raises(UnknownTaskError) as err:
+        get_task("nope")
+    message = str(err.value)
+    assert "'nope'" in message
+    for known in ("pick_nut_m12", "insert_peg_rect", "pickplace2_nuts"):
+        assert known in message
+    assert isinstance(err.value, KeyError)  # dict-like lookups can catch it as a KeyError
+
+
+# ---------------------------------------------------------------------- predicates
+def context(n: int = 3, **values) -> dict[str, np.ndarray]:
+    """A hand-built context of ``n`` environments with two object slots, all zero by default."""
+    ctx = {
+        "ee_pos": np.zeros((n, 3)),
+        "obj_to_ee": np.full((n, 2, 3), 0.5),
+        "grasped": np.zeros((n, 2)),
+        "engaged": np.zeros((n, 2)),
+        "obj_bottom_z": np.zeros((n, 2)),
+        "obj_height": np.full((n, 2), 0.01),
+        "obj_to_fix": np.full((n, 2, 3), 0.5),
+        "grip_closed": np.zeros(n),
+    }
+    ctx.update({k: np.asarray(v, dtype=float) for k, v in values.items()})
+    return ctx
+
+
+def test_expression_evaluates_per_environment():
+    expr = parse("engaged(0) and not grasped(0)")
+    ctx = context(
+        engaged=[[1, 0], [1, 1], [0, 1]],
+        grasped=[[0, 0], [1, 0], [0, 0]],
+    )
+    np.testing.assert_array_equal(expr(ctx), [True, False, False])
+    # Slot 1 is read from its own column.
+    np.testing.assert_array_equal(parse("engaged(1)")(ctx), [False, True, True])
+    assert expr.objects == {0}
+
+
+def test_predicate_arguments_are_passed_on():
+    ctx = context(obj_bottom_z=[[0.02, 0], [0.035, 0], [0.05, 0]])  # part height 1 cm
+    np.testing.assert_array_equal(parse("lifted(0, 3)")(ctx), [False, True, True])
+    np.testing.assert_array_equal(parse("lifted(0, 4)")(ctx), [False, False, True])
+    np.testing.assert_array_equal(parse("not lifted(0, 4)")(ctx), [True, True, False])
+
+
+def test_unknown_predicate_lists_known_ones():
+    with pytest.raises(PredicateError) as err:
+        parse("flying(0)")
+    message = str(err.value)
+    assert "flying" in message
+    for name in PREDICATES:
+        assert name in message
+
+
+@pytest.mark.parametrize("text", ["grasped", "grasped()", "grasped(x)", "engaged(0) or near(0)"])
+def test_malformed_expression_is_a_predicate_error(text):
+    with pytest.raises(PredicateError):
+        parse(text)
+
+
+# ---------------------------------------------------------------------- stages
+def test_stage_index_is_one_past_the_furthest_done_stage():
+    task = get_task("pickplace_nut_m12")
+    names = [s.name for s in task.stages]
+    assert names == ["approach", "grasp", "lift", "approach", "place"]
+    near_nut = np.zeros(3)  # grip point on the nut
+    far = np.full(3, 0.5)
+    ctx = context(
+        4,
+        obj_to_ee=[[near_nut, far], [near_nut, far], [far, far], [far, far]],
+        grasped=[[0, 0], [1, 0], [1, 0], [0, 0]],
+        obj_bottom_z=[[0, 0], [0, 0], [0.05, 0], [0, 0]],
+        engaged=[[0, 0], [0, 0], [0, 0], [1, 0]],
+    )
+    # env 0: only near -> stage 1 (grasp); env 1: near and grasped -> 2 (lift);
+    # env 2: grasped and lifted, though no longer "near" -> 3 (approach the bolt);
+    # env 3: engaged (the last stage) -> clipped to the last stage, 4.
+    np.testing.assert_array_equal(task.stage_index(ctx), [1, 2, 3, 4])
+    nothing = context(2)
+    np.testing.assert_array_equal(task.stage_index(nothing), [0, 0])
+
+
+# ---------------------------------------------------------------------- packaged suite
+def test_all_packaged_tasks_load(monkeypatch):
+    monkeypatch.delenv(spec_module.TASKS_DIR_ENV, raising=False)
+    tasks = all_tasks()
+    assert len(tasks) == 31
+    for name, task in tasks.items():
+        assert task.id == name
+        assert 1 <= len(task.stages) <= 8, name
+        assert task.command and task.max_steps > 0
+        assert 1 <= len(task.objects) <= 2
+    table_i = {name for name, task in tasks.items() if task.table_i}
+    for nut in ("nut_m12", "nut_m16"):
+        for skill in ("pick", "place", "screw", "pickplace", "pickplacescrew"):
+            assert f"{skill}_{nut}" in table_i
+    for peg in ("peg_round", "peg_rect"):
+        assert f"insert_{peg}" in table_i
+        assert f"pickplaceinsert_{peg}" in table_i
+    assert "pickplace2_nuts" in table_i
+    assert "reach_nut_m12" not in table_i
