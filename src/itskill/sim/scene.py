@@ -21,6 +21,8 @@ import numpy as np
 
 from itskill.sim.panda import ARM_JOINTS, FINGER_JOINTS, GRIP_SITE, PREFIX, load_panda_spec
 from itskill.sim.parts import (
+    CONTACT_ROBOT_TABLE,
+    CONTACT_TABLE,
     BoltSpec,
     HoleSpec,
     NutSpec,
@@ -110,6 +112,8 @@ def _add_table(spec: mujoco.MjSpec) -> None:
         material="table",
     )
     table.friction = [0.6, 0.005, 0.0001]
+    table.contype = CONTACT_TABLE | CONTACT_ROBOT_TABLE
+    table.conaffinity = CONTACT_TABLE
     world.add_light(pos=[0.5, -0.4, 1.6], dir=[-0.1, 0.3, -1], diffuse=[0.7, 0.7, 0.7])
     world.add_camera(name="front", pos=[1.25, 0.0, 0.55], xyaxes=[0, 1, 0, -0.45, 0, 0.9])
     world.add_camera(name="closeup", pos=[0.85, -0.25, 0.25], xyaxes=[0.6, 0.8, 0, -0.3, 0.2, 0.93])
@@ -124,6 +128,10 @@ def _add_object(spec: mujoco.MjSpec, index: int, part: PartSpec) -> mujoco.MjsBo
             joint = body.add_joint(
                 name=f"obj{index}_{name}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=axis
             )
+            if name != "yaw":
+                # Armature keeps the chain's mass matrix regular when a fallen nut's tilt lines up
+                # two hinge axes (tilt x at 90 degrees), which otherwise made the step blow up.
+                joint.armature = 1e-6
             if name == "yaw":
                 # Friction on the turn makes the thread self-locking, as real threads are: the
                 # nut's weight cannot back-drive it down the bolt.
@@ -171,10 +179,14 @@ def _add_thread_equalities(spec: mujoco.MjSpec, obj: int, fix: int, nut: NutSpec
     bolt: BoltSpec = placed.part
     seat_center = bolt.seat_z + nut.height / 2
     lead = nut.pitch / (2 * math.pi)
+    # The turn is the dependent joint (yaw = (z - seat) / lead), not the height: MuJoCo scales a
+    # constraint's softness by the inverse inertia of its first joint, and a nut's spin inertia is
+    # so small that a z-first equality pushed with about 1 mN against the nut's 0.15 N weight, so
+    # an "engaged" nut slid down the bolt.
     locks = (
         ("x", None, [placed.xy[0], 0, 0, 0, 0]),
         ("y", None, [placed.xy[1], 0, 0, 0, 0]),
-        ("z", "yaw", [seat_center, lead, 0, 0, 0]),
+        ("yaw", "z", [-seat_center / lead, 1 / lead, 0, 0, 0]),
         ("tiltx", None, [0, 0, 0, 0, 0]),
         ("tilty", None, [0, 0, 0, 0, 0]),
     )
@@ -246,7 +258,7 @@ def _index(scene_spec: SceneSpec, model: mujoco.MjModel, pairs) -> Scene:
         nut: NutSpec = scene_spec.objects[i]
         bolt: BoltSpec = scene_spec.fixtures[j].part
         eq_ids = tuple(
-            model.equality(f"thread{i}_{j}_{n}").id for n in ("x", "y", "z", "tiltx", "tilty")
+            model.equality(f"thread{i}_{j}_{n}").id for n in ("x", "y", "yaw", "tiltx", "tilty")
         )
         threads.append(
             ThreadPair(

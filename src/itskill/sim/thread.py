@@ -7,9 +7,10 @@ from above drives it down). Engaged, the nut can only advance by turning, one pi
 holds against gravity (its turn has friction, so the thread is self-locking). Unscrewed past the
 tip, the coupling releases and the nut is free again.
 
-The coupling equation has a fixed phase, but a hinge's angle is only defined modulo 2 pi: on
-engagement the nut's yaw coordinate is shifted by whole turns so the equation holds to within half
-a pitch, which the constraint then closes, as a real thread catches within one turn.
+The coupling equation has a fixed phase, but a hex nut looks the same every 60 degrees: on
+engagement the nut's yaw coordinate is shifted by whole sixths of a turn (which moves no geometry)
+so the equation holds to within a twelfth of a pitch, which the constraint then closes, as a real
+thread catches.
 """
 
 from __future__ import annotations
@@ -20,6 +21,9 @@ from dataclasses import dataclass
 import mujoco
 
 from itskill.sim.scene import PARKED_Z, Scene
+
+HEX_SYMMETRY = math.pi / 3
+"""A hex nut's rotational symmetry: turning it by this angle moves no geometry."""
 
 
 @dataclass(frozen=True)
@@ -32,13 +36,10 @@ class ThreadConfig:
     """A nut engages when its bottom is at most this far above the tip ..."""
     engage_below: float = 0.003
     """... and at most this far below it."""
-    release_above: float = 0.0025
-    """An engaged nut whose bottom rises this far above the tip comes off.
-
-    It must exceed ``engage_above`` plus half a pitch: engaging snaps the nut to the thread's
-    height, up to half a pitch above where it was caught, and with a smaller margin (it was
-    0.3 mm) a nut caught a little above the tip came off again at the next step and flickered
-    between engaged and free until the gripper let go of it."""
+    release_above: float = 0.0015
+    """An engaged nut whose bottom rises this far above the tip comes off. It must exceed
+    ``engage_above`` plus the engagement snap (at most a twelfth of a pitch), or a nut caught just
+    above the tip comes off again at the next step and flickers between engaged and free."""
 
 
 class ThreadCoupling:
@@ -65,8 +66,8 @@ class ThreadCoupling:
         pair = self.scene.threads[index]
         adr = self.scene.obj_qpos[pair.obj]
         z, yaw = data.qpos[adr[2]], data.qpos[adr[3]]
-        turns = round(((z - pair.seat_center_z) / pair.lead - yaw) / (2 * math.pi))
-        data.qpos[adr[3]] = yaw + 2 * math.pi * turns
+        sixths = round(((z - pair.seat_center_z) / pair.lead - yaw) / HEX_SYMMETRY)
+        data.qpos[adr[3]] = yaw + HEX_SYMMETRY * sixths
         data.eq_active[list(pair.eq_ids)] = 1
         data.mocap_pos[pair.crest_mocap, 2] = PARKED_Z
 

@@ -1,4 +1,4 @@
-"""Task suite: the paper's Table I and the wider skill set, as TOML data, plus scripted controllers."""
+"""Task suite: the paper's Table I and the wider skill set as TOML data, scripted controllers."""
 
 from __future__ import annotations
 

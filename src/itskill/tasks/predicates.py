@@ -77,7 +77,7 @@ def released(ctx: Context, i: int) -> np.ndarray:
 
 
 def removed(ctx: Context, i: int, height: float = 0.02) -> np.ndarray:
-    """Object ``i`` is off its fixture and its bottom at least ``height`` above the fixture point."""
+    """Object ``i`` is off its fixture, its bottom at least ``height`` above the fixture point."""
     return ~engaged(ctx, i) & (ctx["obj_to_fix"][:, i, 2] <= -height)
 
 

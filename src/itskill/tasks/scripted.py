@@ -507,11 +507,14 @@ class ScriptedPolicy:
                 phase = self.phases[k]
                 rows = np.flatnonzero(st.pc == k)
                 done = phase.done(ctx, rows, st) | (st.t[rows] >= phase.timeout)
+                if phase.branch is not None:
+                    # A branch decides at once: jump where it holds, fall through where not.
+                    self._enter(ctx, rows, k + np.where(done, phase.branch, 1))
+                    moved = True
+                    continue
                 if not done.any():
                     continue
-                step = np.where(done, phase.branch if phase.branch is not None else 1, 1)
-                go = rows[done]
-                self._enter(ctx, go, k + step[done])
+                self._enter(ctx, rows[done], np.full(int(done.sum()), k + 1))
                 moved = True
             if not moved:
                 break
