@@ -165,7 +165,7 @@ def bench_physics(model, datas, controls, substeps: int, n_threads: int) -> tupl
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="pick_nut_m12")
-    parser.add_argument("--num-envs", type=int, default=16)
+    parser.add_argument("--num-envs", type=int, default=32)
     parser.add_argument(
         "--steps", type=int, default=30, help="timed env-steps per environment, from the grasp on"
     )

@@ -82,6 +82,22 @@ def find_panda_xml() -> Path:
     return path
 
 
+def _collision_box(body: mujoco.MjsBody, name: str, size, pos) -> mujoco.MjsGeom:
+    """An invisible, massless box that stands in for a collision mesh: it touches parts, and the
+    table (which parts' wall boxes do not)."""
+    return body.add_geom(
+        name=name,
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=list(size),
+        pos=list(pos),
+        group=3,
+        rgba=[0, 0, 0, 0],
+        density=0,
+        contype=CONTACT_PARTS,
+        conaffinity=CONTACT_PARTS | CONTACT_ROBOT_TABLE,
+    )
+
+
 def _make_pad(geom: mujoco.MjsGeom) -> None:
     """Fingertip contact: high and torsional friction, stiff, so small parts do not slip."""
     geom.friction = [1.5, 0.02, 0.002]
@@ -98,7 +114,8 @@ def load_panda_spec(gripper: GripperConfig | None = None) -> mujoco.MjSpec:
       table;
     - arm links do not collide (only the hand and finger pads touch the world), which keeps the
       contact count and the step time low;
-    - the hand's collision mesh becomes a box and each finger's mesh a box, for speed;
+    - the hand's collision mesh becomes a box, each finger's mesh a box and its five fingertip
+      pads one flat pad, for speed;
     - a stiff finger servo (:class:`GripperConfig`) replaces the ~1 N stock one;
     - a ``grip_site`` between the pads marks the end-effector point.
     """
@@ -111,52 +128,23 @@ def load_panda_spec(gripper: GripperConfig | None = None) -> mujoco.MjSpec:
     for body in spec.bodies:
         if body.name.startswith("link") or body.name in ("hand", "left_finger", "right_finger"):
             body.gravcomp = 1.0
+    # Only the boxes added below collide: the arm's meshes never need to, and the hand's and
+    # fingers' meshes cost far more than boxes.
     for geom in spec.geoms:
-        if geom.contype == 0 and geom.conaffinity == 0:
-            continue
-        body = geom.parent.name
-        if body in ("left_finger", "right_finger") and geom.type == mujoco.mjtGeom.mjGEOM_BOX:
-            _make_pad(geom)
-            continue
         geom.contype = 0
         geom.conaffinity = 0
     hand = spec.body("hand")
-    hand.add_geom(
-        name="hand_box",
-        type=mujoco.mjtGeom.mjGEOM_BOX,
-        size=[0.03, 0.1, 0.03],
-        pos=[0.0, 0.0, 0.03],
-        group=3,
-        rgba=[0, 0, 0, 0],
-        density=0,
-    )
+    _collision_box(hand, "hand_box", size=(0.03, 0.1, 0.03), pos=(0.0, 0.0, 0.03))
     for finger in ("left_finger", "right_finger"):
-        # Menagerie's four small fingertip pads leave a 5 mm gap between them across the finger:
-        # a 4 mm peg slides into it, the fingers close fully on either side of it, and the width
-        # no longer tells that a part is held (the ``grasped`` test needs it). This pad fills the
-        # gap, flush with the others, so a thin peg is pinched by one flat face.
-        centre_pad = spec.body(finger).add_geom(
-            name=f"{finger}_centre_pad",
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            size=[0.0025, 0.002, 0.0085],
-            pos=[0.0, 0.002, 0.0445],
-            group=3,
-            rgba=[0, 0, 0, 0],
+        body = spec.body(finger)
+        # One flat pad over the fingertip's whole gripping face instead of Menagerie's five small
+        # pads: they leave a 5 mm gap that a 4 mm peg slides into (the fingers then close fully
+        # and the width no longer tells that a part is held), and against a nut's wall boxes they
+        # made 36 contacts where one face makes about 8, which set the cost of a grasping step.
+        _make_pad(
+            _collision_box(body, f"{finger}_pad", (0.0085, 0.002, 0.0085), (0, 0.002, 0.0445))
         )
-        _make_pad(centre_pad)
-        spec.body(finger).add_geom(
-            name=f"{finger}_box",
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            size=[0.009, 0.006, 0.012],
-            pos=[0.0, 0.012, 0.016],
-            group=3,
-            rgba=[0, 0, 0, 0],
-            density=0,
-        )
-    for geom in spec.geoms:
-        if geom.contype or geom.conaffinity:
-            geom.contype = CONTACT_PARTS
-            geom.conaffinity = CONTACT_PARTS | CONTACT_ROBOT_TABLE
+        _collision_box(body, f"{finger}_box", size=(0.009, 0.006, 0.012), pos=(0.0, 0.012, 0.016))
     hand.add_site(name="grip_site", pos=[0.0, 0.0, 0.1034], size=[0.004, 0, 0], group=4)
 
     finger_act = spec.actuator("actuator8")
