@@ -99,7 +99,16 @@ def _add_table(spec: mujoco.MjSpec) -> None:
         width=256,
         height=256,
     )
-    table_mat = spec.add_material(name="table", texrepeat=[8, 8], reflectance=0.05)
+    spec.add_texture(
+        name="sky",
+        type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
+        builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
+        rgb1=[0.75, 0.8, 0.86],
+        rgb2=[0.3, 0.33, 0.38],
+        width=256,
+        height=256,
+    )
+    table_mat = spec.add_material(name="table", texrepeat=[8, 8], reflectance=0.0)
     table_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
     world = spec.worldbody
     # The table top is a plane: cylinders and boxes get several contact points on a plane (a
@@ -114,9 +123,13 @@ def _add_table(spec: mujoco.MjSpec) -> None:
     table.friction = [0.6, 0.005, 0.0001]
     table.contype = CONTACT_TABLE | CONTACT_ROBOT_TABLE
     table.conaffinity = CONTACT_TABLE
-    world.add_light(pos=[0.5, -0.4, 1.6], dir=[-0.1, 0.3, -1], diffuse=[0.7, 0.7, 0.7])
-    world.add_camera(name="front", pos=[1.25, 0.0, 0.55], xyaxes=[0, 1, 0, -0.45, 0, 0.9])
-    world.add_camera(name="closeup", pos=[0.85, -0.25, 0.25], xyaxes=[0.6, 0.8, 0, -0.3, 0.2, 0.93])
+    world.add_light(pos=[0.5, -0.4, 1.6], dir=[-0.1, 0.3, -1], diffuse=[0.5, 0.5, 0.5])
+    # Both cameras look at the workspace centre, above where parts and fixtures sit, with room
+    # for the hand over them.
+    world.add_camera(name="front", pos=[1.05, 0.0, 0.40], xyaxes=[0, 1, 0, -0.479, 0, 0.878])
+    world.add_camera(
+        name="closeup", pos=[0.8, -0.22, 0.2], xyaxes=[0.618, 0.786, 0, -0.306, 0.24, 0.922]
+    )
 
 
 def _add_object(spec: mujoco.MjSpec, index: int, part: PartSpec) -> mujoco.MjsBody:
@@ -211,6 +224,8 @@ def build_scene(scene_spec: SceneSpec) -> Scene:
     spec.option.impratio = 10.0
     spec.visual.global_.offwidth = 640
     spec.visual.global_.offheight = 480
+    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+    spec.visual.headlight.diffuse = [0.4, 0.4, 0.4]
     spec.stat.center = [0.45, 0.0, 0.1]
     spec.stat.extent = 0.8
     _add_table(spec)
