@@ -36,7 +36,8 @@ USAGE_ERROR = 2
 
 TaskArg = Annotated[str, typer.Argument(help="Task id (see `itskill tasks list`).")]
 PolicyOpt = Annotated[
-    str, typer.Option(help="'scripted' or a Stable-Baselines3 PPO/A2C checkpoint (.zip).")
+    str,
+    typer.Option(help="'scripted', a training run directory (itskill train --out) or an SB3 .zip."),
 ]
 SeedOpt = Annotated[int, typer.Option(help="Seed of the initial-state sequence.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
@@ -211,8 +212,58 @@ def eval_cmd(
 ) -> None:
     """Evaluate a policy: success rate over N episodes with its 95% interval."""
     with _user_errors():
-        result = evaluate(get_task(task), policy, episodes=episodes, seed=seed, num_envs=num_envs)
+        ref = _policy_ref(policy)
+        result = evaluate(get_task(task), ref, episodes=episodes, seed=seed, num_envs=num_envs)
     _print_eval(result, as_json)
+
+
+def _policy_ref(policy: str) -> Any:
+    """A training run directory becomes its checkpoint's policy; other references pass through."""
+    from itskill.rl.checkpoint import as_policy
+
+    return as_policy(policy)
+
+
+@app.command("train")
+def train_cmd(
+    task: TaskArg,
+    algo: Annotated[str, typer.Option(help="a2c (the paper's algorithm) or ppo.")] = "ppo",
+    steps: Annotated[int, typer.Option(min=1, help="Total env-steps (a rerun resumes).")] = 100_000,
+    seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
+    reward: Annotated[
+        str, typer.Option(help="'expert' or a .py file defining compute_reward(ctx).")
+    ] = "expert",
+    out: Annotated[Path, typer.Option(help="Run directory (checkpoints, metrics).")] = Path(
+        "runs/train"
+    ),
+    num_envs: Annotated[
+        int | None, typer.Option(min=1, help="Environments stepped together.")
+    ] = None,
+    hyperparams: Annotated[
+        Path | None, typer.Option(help="A hyper-parameter TOML file instead of the packaged one.")
+    ] = None,
+) -> None:
+    """Train a policy with A2C or PPO; rerun the same command to resume from the last checkpoint."""
+    from itskill.rl.config import HyperparamError
+    from itskill.rl.train import ResumeMismatchError, RewardLoadError, train
+
+    if algo not in ("a2c", "ppo"):
+        raise typer.BadParameter("expected a2c or ppo", param_hint="--algo")
+    try:
+        with _user_errors():
+            result = train(
+                task, algo, steps, seed, reward, out, num_envs, hyperparams, console=console
+            )
+    except (HyperparamError, RewardLoadError, ResumeMismatchError) as err:
+        err_console.print(f"[red]error:[/red] {err}", highlight=False, markup=True)
+        raise typer.Exit(USAGE_ERROR) from err
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    console.print(
+        f"trained {task} with {algo}: {result.num_timesteps} env-steps in total"
+        + (f" (resumed from {result.resumed_from})" if result.resumed_from else "")
+        + f"; checkpoint in {result.run_dir}"
+    )
 
 
 @app.command("render")
@@ -227,7 +278,8 @@ def render_cmd(
     """Film episodes of a policy to an MP4 file."""
     _check_camera(camera)
     with _user_errors():
-        video = render.record(get_task(task), policy, out, episodes, seed=seed, camera=camera)
+        ref = _policy_ref(policy)
+        video = render.record(get_task(task), ref, out, episodes, seed=seed, camera=camera)
     wins = sum(video.successes)
     console.print(f"wrote {video.path} ({video.frames} frames); {wins}/{episodes} succeeded")
 
@@ -265,3 +317,175 @@ def demo(
     summary = out / f"{task}_eval.json"
     summary.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
     console.print(f"summary: {summary}")
+
+
+# ---------------------------------------------------------------------- skills
+# Imports of itskill.skills stay inside the commands: the other commands should not pay for them.
+skills_app = typer.Typer(
+    no_args_is_help=True, help="The skill space: learned skills, their checkpoints, retrieval."
+)
+app.add_typer(skills_app, name="skills")
+
+SkillArg = Annotated[str, typer.Argument(help="Skill id or name (see `itskill skills list`).")]
+
+
+@contextmanager
+def _skill_errors() -> Iterator[None]:
+    """Unknown skill or task, unreadable or newer database, missing checkpoint: exit code 2."""
+    from rich.markup import escape
+
+    from itskill.skills import SkillSpaceError
+
+    try:
+        yield
+    except (SkillSpaceError, UnknownTaskError, TaskFileError) as err:
+        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
+        raise typer.Exit(USAGE_ERROR) from err
+
+
+def _skill_table(rows: list[tuple[Any, float | None]], title: str) -> Table:
+    table = Table(title=title)
+    scored = any(score is not None for _, score in rows)
+    columns = ("score",) if scored else ()
+    for column in (*columns, "id", "name", "task", "success", "actions", "checkpoint"):
+        table.add_column(column)
+    for s, score in rows:
+        success = "" if s.success_rate is None else f"{s.success_rate:.1%}"
+        cells = (f"{score:.3f}",) if scored else ()
+        table.add_row(
+            *cells, str(s.id), s.name, s.task_id, success, " → ".join(s.actions), s.checkpoint
+        )
+    return table
+
+
+@skills_app.command("list")
+def skills_list(as_json: JsonOpt = False) -> None:
+    """List every skill in the skill space ($ITSKILL_HOME/skills.sqlite)."""
+    from itskill.skills import SkillSpace
+
+    with _skill_errors(), SkillSpace() as space:
+        skills = space.list()
+        path = space.path
+    if as_json:
+        _print_json([s.to_dict() for s in skills])
+        return
+    console.print(_skill_table([(s, None) for s in skills], f"{len(skills)} skills in {path}"))
+
+
+@skills_app.command("show")
+def skills_show(skill: SkillArg, as_json: JsonOpt = False) -> None:
+    """Show one skill: its description, actions, checkpoint and metrics."""
+    from itskill.skills import SkillSpace
+
+    with _skill_errors(), SkillSpace() as space:
+        found = space.get(skill)
+        ckpt = space.checkpoint_path(found)
+    data = {**found.to_dict(), "checkpoint_path": str(ckpt), "checkpoint_exists": ckpt.is_file()}
+    if as_json:
+        _print_json(data)
+        return
+    kv = Table.grid(padding=(0, 2))
+    kv.add_column(style="cyan")
+    kv.add_column()
+    for key, value in data.items():
+        kv.add_row(key, " → ".join(value) if key == "actions" else str(value))
+    console.print(kv)
+
+
+@skills_app.command("search")
+def skills_search(
+    query: Annotated[str, typer.Argument(help="A task command, e.g. 'Pick up the round peg'.")],
+    k: Annotated[int, typer.Option("-k", min=1, help="How many skills to return.")] = 5,
+    exclude_task: Annotated[
+        list[str] | None, typer.Option(help="Leave out skills of this task id (repeatable).")
+    ] = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """The skills most similar to QUERY (cosine similarity of sentence embeddings)."""
+    from itskill.skills import SkillSpace, search
+
+    with _skill_errors(), SkillSpace() as space:
+        hits = search(space, query, k=k, exclude_tasks=set(exclude_task or ()))
+    if as_json:
+        _print_json([{"score": score, **s.to_dict()} for s, score in hits])
+        return
+    console.print(_skill_table(list(hits), f"top {len(hits)} for {query!r}"))
+
+
+@skills_app.command("add")
+def skills_add(
+    task: Annotated[str, typer.Option(help="Task id the skill solves.")],
+    checkpoint: Annotated[Path, typer.Option(help="Trained policy checkpoint (must exist).")],
+    name: Annotated[str | None, typer.Option(help="Unique name (default: the task id).")] = None,
+    description: Annotated[
+        str | None, typer.Option(help="Task command (default: the task's command).")
+    ] = None,
+    actions: Annotated[
+        str | None, typer.Option(help="Comma-separated actions (default: the task's actions).")
+    ] = None,
+    success: Annotated[float | None, typer.Option(min=0, max=1, help="Success rate.")] = None,
+    ci_low: Annotated[float | None, typer.Option(min=0, max=1, help="95% CI low.")] = None,
+    ci_high: Annotated[float | None, typer.Option(min=0, max=1, help="95% CI high.")] = None,
+    steps: Annotated[int | None, typer.Option(min=0, help="Training env-steps.")] = None,
+    wall_s: Annotated[float | None, typer.Option(min=0, help="Training wall seconds.")] = None,
+    algo: Annotated[str | None, typer.Option(help="Algorithm, e.g. ppo or a2c.")] = None,
+    seed: Annotated[int | None, typer.Option(help="Training seed.")] = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Add a learned skill (its checkpoint must exist)."""
+    from itskill.skills import Skill, SkillSpace
+
+    if (ci_low is None) != (ci_high is None):
+        raise typer.BadParameter("give both --ci-low and --ci-high, or neither")
+    with _skill_errors():
+        spec = get_task(task)
+        acts = spec.actions if actions is None else tuple(a.strip() for a in actions.split(","))
+        skill = Skill(
+            name=name or spec.id,
+            task_id=spec.id,
+            description=description or spec.command,
+            actions=tuple(a for a in acts if a),
+            # Absolute: a path relative to the shell's directory means nothing to other processes.
+            checkpoint=str(checkpoint.expanduser().resolve()),
+            success_rate=success,
+            success_ci=None if ci_low is None else (ci_low, ci_high),
+            train_steps=steps,
+            train_wall_s=wall_s,
+            algo=algo,
+            seed=seed,
+        )
+        with SkillSpace() as space:
+            added = space.add(skill)
+    if as_json:
+        _print_json(added.to_dict())
+        return
+    console.print(f"added skill {added.id}: {added.name} ({added.task_id})")
+
+
+@skills_app.command("remove")
+def skills_remove(skill: SkillArg, as_json: JsonOpt = False) -> None:
+    """Remove a skill from the skill space (its checkpoint file is left in place)."""
+    from itskill.skills import SkillSpace
+
+    with _skill_errors(), SkillSpace() as space:
+        removed = space.remove(skill)
+    if as_json:
+        _print_json(removed.to_dict())
+        return
+    console.print(f"removed skill {removed.id}: {removed.name}")
+
+
+@skills_app.command("install")
+def skills_install(
+    library: Annotated[Path, typer.Argument(help="Library directory with a manifest.json.")],
+    as_json: JsonOpt = False,
+) -> None:
+    """Register every skill of a library directory (skipping names already present)."""
+    from itskill.skills import SkillSpace, install_library
+
+    with _skill_errors(), SkillSpace() as space:
+        added = install_library(space, library)
+    if as_json:
+        _print_json([s.to_dict() for s in added])
+        return
+    console.print(f"installed {len(added)} skill(s) from {library}")

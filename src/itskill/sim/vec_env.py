@@ -67,6 +67,8 @@ class BatchEnv(VecEnv):
         self.steps = np.zeros(num_envs, dtype=np.int64)
         self.episode_return = np.zeros(num_envs)
         self._actions = np.zeros((num_envs, 5))
+        self.last_components: dict[str, np.ndarray] = {}
+        """The reward components of the last step (``advance``/``step_wait``), for metrics."""
         self._rngs = self._make_rngs(seed)
         self.render_mode = None
         super().__init__(num_envs, observation_space(), action_space())
@@ -127,6 +129,7 @@ class BatchEnv(VecEnv):
         else:
             reward, components = np.zeros(self.num_envs), {}
         self.episode_return += reward
+        self.last_components = components
         terminated = success if self.task.terminate_on_success else np.zeros_like(success)
         truncated = self.steps >= self.task.max_steps
         obs = OBSERVATION_LAYOUT.build(ctx)

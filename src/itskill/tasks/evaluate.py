@@ -64,6 +64,12 @@ class CheckpointPolicy:
 
 def _load_sb3(path: Path) -> Any:
     """Load ``path`` as PPO, else as A2C (both predict the same way; the zip does not say which)."""
+    if path.is_dir():
+        raise CheckpointError(
+            path,
+            "a training run directory: resolve it with itskill.rl.as_policy first "
+            "(the itskill CLI does; tasks/ does not import the rl layer)",
+        )
     if not path.is_file():
         raise CheckpointError(
             path, f"no such checkpoint file (expected {SCRIPTED!r} or a Stable-Baselines3 .zip)"

@@ -1,0 +1,214 @@
+"""Training hyper-parameters: one dataclass per algorithm, values per task family from TOML.
+
+The packaged file is ``itskill/rl/data/hyperparams.toml``; ``load_hyperparams(..., path=...)``
+reads a user's file of the same shape instead. Every problem is reported with the file, the field
+and what was expected (:class:`HyperparamError`).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import asdict, dataclass, field, fields, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+from itskill.rl.policy import PolicyConfig
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+Algo = Literal["a2c", "ppo"]
+ALGOS: tuple[str, ...] = ("a2c", "ppo")
+
+
+class HyperparamError(ValueError):
+    """A hyper-parameter file or override that does not validate."""
+
+    def __init__(self, path: str | Path, where: str, problem: str) -> None:
+        super().__init__(f"{path}: {where}: {problem}")
+        self.path, self.where, self.problem = str(path), where, problem
+
+
+@dataclass(frozen=True)
+class A2CConfig:
+    """A2C (synchronous advantage actor-critic); defaults follow Mnih et al. (2016) / SB3."""
+
+    learning_rate: float = 7e-4
+    n_steps: int = 8
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    use_rms_prop: bool = True
+    rms_prop_eps: float = 1e-5
+    normalize_advantage: bool = False
+
+    def sb3_kwargs(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """PPO with clipped surrogate; defaults are the usual continuous-control values."""
+
+    learning_rate: float = 3e-4
+    n_steps: int = 128
+    batch_size: int = 512
+    n_epochs: int = 5
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    target_kl: float = 0.0
+    """0 disables early stopping on KL."""
+
+    def sb3_kwargs(self) -> dict[str, Any]:
+        kw = asdict(self)
+        kw["target_kl"] = kw["target_kl"] or None
+        return kw
+
+
+@dataclass(frozen=True)
+class Hyperparams:
+    """Everything the trainer needs for one (family, algorithm) pair."""
+
+    family: str
+    algo: Algo
+    num_envs: int = 16
+    checkpoint_every: int = 50_000
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    algo_config: A2CConfig | PPOConfig = field(default_factory=PPOConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "family": self.family,
+            "algo": self.algo,
+            "num_envs": self.num_envs,
+            "checkpoint_every": self.checkpoint_every,
+            "policy": self.policy.to_dict(),
+            self.algo: asdict(self.algo_config),
+        }
+
+
+ALGO_CONFIGS: dict[str, type] = {"a2c": A2CConfig, "ppo": PPOConfig}
+_FAMILY_KEYS = {"num_envs": int, "checkpoint_every": int}
+_POSITIVE = {"num_envs", "checkpoint_every", "n_steps", "batch_size", "n_epochs", "learning_rate"}
+
+
+def default_path() -> Path:
+    return Path(str(resources.files("itskill.rl") / "data" / "hyperparams.toml"))
+
+
+def _check_value(path: Path, where: str, value: Any, default: Any) -> Any:
+    """``value`` as the type of ``default``, or a HyperparamError naming the expected type."""
+    if isinstance(default, bool):
+        ok, want = isinstance(value, bool), "a boolean"
+    elif isinstance(default, int):
+        ok, want = isinstance(value, int) and not isinstance(value, bool), "an integer"
+    elif isinstance(default, float):
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        want = "a number"
+        value = float(value) if ok else value
+    elif isinstance(default, str):
+        ok, want = isinstance(value, str), "a string"
+    elif isinstance(default, tuple):
+        ok = isinstance(value, list) and all(
+            isinstance(v, int) and not isinstance(v, bool) for v in value
+        )
+        want = "a list of integers"
+        value = tuple(value) if ok else value
+    else:  # pragma: no cover - every dataclass field above has one of these types
+        ok, want = True, ""
+    if not ok:
+        raise HyperparamError(path, where, f"expected {want}, got {type(value).__name__} {value!r}")
+    if where.rsplit(".", 1)[-1] in _POSITIVE and value <= 0:
+        raise HyperparamError(path, where, f"expected a positive value, got {value!r}")
+    return value
+
+
+def _build(path: Path, where: str, cls: type, table: Any, base: Any = None) -> Any:
+    """An instance of dataclass ``cls`` from a TOML table, every field checked."""
+    if not isinstance(table, dict):
+        raise HyperparamError(path, where, f"expected a table, got {type(table).__name__}")
+    base = base if base is not None else cls()
+    known = {f.name for f in fields(cls)}
+    values = {}
+    for key, value in table.items():
+        if key not in known:
+            raise HyperparamError(
+                path, f"{where}.{key}", f"unknown field; expected one of {', '.join(sorted(known))}"
+            )
+        values[key] = _check_value(path, f"{where}.{key}", value, getattr(base, key))
+    try:
+        return replace(base, **values)
+    except (TypeError, ValueError) as err:
+        raise HyperparamError(path, where, str(err)) from err
+
+
+def load_hyperparams(
+    family: str,
+    algo: str,
+    path: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+) -> Hyperparams:
+    """Hyper-parameters for ``family`` and ``algo`` from ``path`` (default: the packaged file).
+
+    ``overrides`` are applied on top, with the same checks: algorithm fields by name, plus
+    ``num_envs``, ``checkpoint_every`` and ``policy`` (a dict of :class:`PolicyConfig` fields).
+    """
+    path = Path(path) if path is not None else default_path()
+    if algo not in ALGO_CONFIGS:
+        raise HyperparamError(path, "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError as err:
+        raise HyperparamError(path, "file", "no such file") from err
+    except tomllib.TOMLDecodeError as err:
+        raise HyperparamError(path, "TOML syntax", str(err)) from err
+    if family not in data:
+        raise HyperparamError(
+            path, family, f"no table for this task family; the file has {sorted(data)}"
+        )
+    table = data[family]
+    if not isinstance(table, dict):
+        raise HyperparamError(path, family, f"expected a table, got {type(table).__name__}")
+    allowed = set(_FAMILY_KEYS) | {"policy", *ALGOS}
+    for key in table:
+        if key not in allowed:
+            raise HyperparamError(
+                path,
+                f"{family}.{key}",
+                f"unknown field; expected one of {', '.join(sorted(allowed))}",
+            )
+    top = {
+        k: _check_value(path, f"{family}.{k}", table[k], getattr(Hyperparams, k))
+        for k in _FAMILY_KEYS
+        if k in table
+    }
+    policy = _build(path, f"{family}.policy", PolicyConfig, table.get("policy", {}))
+    algo_cfg = _build(path, f"{family}.{algo}", ALGO_CONFIGS[algo], table.get(algo, {}))
+    if overrides:
+        where = "overrides"
+        overrides = dict(overrides)
+        if "policy" in overrides:
+            policy = _build(where, f"{where}.policy", PolicyConfig, overrides.pop("policy"), policy)
+        for k in list(overrides):
+            if k in _FAMILY_KEYS:
+                top[k] = _check_value(where, f"{where}.{k}", overrides.pop(k), _FAMILY_KEYS[k]())
+        algo_cfg = _build(where, f"{where}.{algo}", ALGO_CONFIGS[algo], overrides, algo_cfg)
+    if isinstance(algo_cfg, PPOConfig):
+        batch = algo_cfg.n_steps * top.get("num_envs", Hyperparams.num_envs)
+        if algo_cfg.batch_size > batch:
+            raise HyperparamError(
+                path,
+                f"{family}.ppo.batch_size",
+                f"expected at most n_steps * num_envs = {batch}, got {algo_cfg.batch_size}",
+            )
+    return Hyperparams(family=family, algo=algo, policy=policy, algo_config=algo_cfg, **top)  # type: ignore[arg-type]

@@ -1,0 +1,257 @@
+"""Training metrics: one row per update to ``metrics.csv``, ``metrics.jsonl`` and TensorBoard.
+
+A row holds the env-steps done, wall time, the success rate and mean return and length of the
+episodes that ended since the previous row, the mean of every reward component over the steps
+since the previous row, and end-to-end env-steps per second (rollouts and gradient updates).
+
+A2C updates are small (``n_steps * num_envs`` env-steps), so a row is written at the end of the
+first update after at least ``LoggerConfig.min_steps_per_row`` env-steps; with PPO's default
+rollout sizes that is every update.
+
+Resuming appends to the same files: :meth:`MetricsWriter.truncate_after` first drops rows logged
+after the checkpoint the run resumes from, so the step column stays increasing and unique.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
+
+from itskill.sim.vec_env import BatchEnv
+
+FIXED_COLUMNS = (
+    "step",
+    "wall_s",
+    "updates",
+    "episodes",
+    "success_rate",
+    "ep_return",
+    "ep_length",
+    "steps_per_s",
+)
+
+
+@dataclass(frozen=True)
+class LoggerConfig:
+    """Where and how often metrics go; ``progress`` shows a rich progress bar on the terminal."""
+
+    min_steps_per_row: int = 1000
+    tensorboard: bool = True
+    progress: bool = True
+
+
+class MetricsWriter:
+    """Appends metric rows to ``metrics.csv`` and ``metrics.jsonl`` in ``run_dir``.
+
+    The CSV header is fixed by the first row (fixed columns, then reward components sorted by name);
+    a component that appears later is written to the JSONL file only.
+    """
+
+    def __init__(self, run_dir: Path) -> None:
+        self.csv_path = run_dir / "metrics.csv"
+        self.jsonl_path = run_dir / "metrics.jsonl"
+        self._columns: list[str] | None = None
+        if self.csv_path.exists():
+            with open(self.csv_path, newline="") as fh:
+                header = next(csv.reader(fh), None)
+            self._columns = header or None
+
+    def truncate_after(self, step: int) -> None:
+        """Drop rows with ``step`` greater than ``step`` (logged after the last checkpoint)."""
+        if self.jsonl_path.exists():
+            lines = self.jsonl_path.read_text().splitlines()
+            kept = [ln for ln in lines if ln.strip() and json.loads(ln)["step"] <= step]
+            self.jsonl_path.write_text("".join(ln + "\n" for ln in kept))
+        if self.csv_path.exists():
+            with open(self.csv_path, newline="") as fh:
+                rows = list(csv.reader(fh))
+            if rows:
+                header, body = rows[0], rows[1:]
+                body = [r for r in body if r and int(float(r[0])) <= step]
+                with open(self.csv_path, "w", newline="") as fh:
+                    csv.writer(fh).writerows([header, *body])
+
+    def write(self, row: dict[str, Any]) -> None:
+        with open(self.jsonl_path, "a") as fh:
+            fh.write(json.dumps({k: _json_value(v) for k, v in row.items()}) + "\n")
+        new_file = self._columns is None
+        if new_file:
+            comps = sorted(k for k in row if k not in FIXED_COLUMNS)
+            self._columns = [*FIXED_COLUMNS, *comps]
+        with open(self.csv_path, "a", newline="") as fh:
+            writer = csv.writer(fh)
+            if new_file:
+                writer.writerow(self._columns)
+            writer.writerow([_csv_value(row.get(c)) for c in self._columns])  # type: ignore[union-attr]
+
+
+def _json_value(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def _csv_value(v: Any) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return ""
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
+
+
+def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
+    """The rows of ``metrics.jsonl`` in ``run_dir`` (empty if there are none yet)."""
+    path = Path(run_dir) / "metrics.jsonl"
+    if not path.exists():
+        return []
+    return [json.loads(ln) for ln in path.read_text().splitlines() if ln.strip()]
+
+
+class MetricsCallback(BaseCallback):
+    """Collects episode outcomes and reward components each step; writes a row per update.
+
+    ``env`` is the unwrapped :class:`BatchEnv` being trained on (its ``last_components`` attribute
+    holds the reward components of the step just taken). ``total_steps`` is the run's target
+    step count, for the progress bar.
+    """
+
+    def __init__(
+        self,
+        env: BatchEnv,
+        run_dir: Path,
+        total_steps: int,
+        config: LoggerConfig | None = None,
+        console: Console | None = None,
+    ) -> None:
+        super().__init__()
+        self.env = env
+        self.config = config or LoggerConfig()
+        self.writer = MetricsWriter(run_dir)
+        self.run_dir = run_dir
+        self.total_steps = total_steps
+        self.console = console
+        self._tb: Logger | None = None
+        self._progress: Progress | None = None
+        self._task_id: Any = None
+        self.last_row: dict[str, Any] | None = None
+        n = env.num_envs
+        self._ret = np.zeros(n)
+        self._len = np.zeros(n, dtype=np.int64)
+        self._reset_window(None)
+
+    def _reset_window(self, step0: int | None) -> None:
+        self._successes: list[bool] = []
+        self._returns: list[float] = []
+        self._lengths: list[int] = []
+        self._comp_sums: dict[str, float] = {}
+        self._comp_count = 0
+        self._updates = 0
+        self._t0 = time.perf_counter()
+        self._step0 = step0
+
+    # ------------------------------------------------------------------ SB3 hooks
+    def _on_training_start(self) -> None:
+        self._t_start = time.perf_counter()
+        self._reset_window(self.num_timesteps)
+        if self.config.tensorboard:
+            tb_dir = self.run_dir / "tb"
+            tb_dir.mkdir(parents=True, exist_ok=True)
+            self._tb = Logger(str(tb_dir), [TensorBoardOutputFormat(str(tb_dir))])
+            # SB3's own training statistics (losses, entropy, ...) go to the same event file.
+            self.model.set_logger(self._tb)
+        if self.config.progress:
+            self._progress = Progress(
+                TextColumn("[bold]{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("{task.fields[stats]}"),
+                TimeRemainingColumn(),
+                console=self.console,
+                transient=False,
+            )
+            self._progress.start()
+            self._task_id = self._progress.add_task(
+                "training", total=self.total_steps, completed=self.num_timesteps, stats=""
+            )
+
+    def _on_step(self) -> bool:
+        rewards = self.locals["rewards"]
+        dones = self.locals["dones"]
+        infos = self.locals["infos"]
+        self._ret += rewards
+        self._len += 1
+        for key, value in self.env.last_components.items():
+            self._comp_sums[key] = self._comp_sums.get(key, 0.0) + float(np.sum(value))
+        self._comp_count += self.env.num_envs
+        for e in np.flatnonzero(dones):
+            self._successes.append(bool(infos[e].get("is_success", False)))
+            self._returns.append(float(self._ret[e]))
+            self._lengths.append(int(self._len[e]))
+            self._ret[e] = 0.0
+            self._len[e] = 0
+        return True
+
+    def _on_rollout_end(self) -> None:
+        self._updates += 1
+        if self.num_timesteps - self._step0 >= self.config.min_steps_per_row:
+            self.flush()
+
+    def _on_training_end(self) -> None:
+        if self._step0 is not None and self.num_timesteps > self._step0 and self._updates:
+            self.flush()
+        self.close()
+
+    # ------------------------------------------------------------------ rows
+    def flush(self) -> dict[str, Any]:
+        """Write a row for the steps since the previous one."""
+        now = time.perf_counter()
+        steps = self.num_timesteps - (self._step0 or 0)
+        n_ep = len(self._successes)
+        row: dict[str, Any] = {
+            "step": int(self.num_timesteps),
+            "wall_s": round(now - self._t_start, 3),
+            "updates": self._updates,
+            "episodes": n_ep,
+            "success_rate": float(np.mean(self._successes)) if n_ep else float("nan"),
+            "ep_return": float(np.mean(self._returns)) if n_ep else float("nan"),
+            "ep_length": float(np.mean(self._lengths)) if n_ep else float("nan"),
+            "steps_per_s": steps / max(now - self._t0, 1e-9),
+        }
+        for key in sorted(self._comp_sums):
+            row[key] = self._comp_sums[key] / max(self._comp_count, 1)
+        self.writer.write(row)
+        if self._tb is not None:
+            for key, value in row.items():
+                if key in ("step",) or (isinstance(value, float) and not math.isfinite(value)):
+                    continue
+                prefix = "rollout" if key in FIXED_COLUMNS else "reward"
+                self._tb.record(f"{prefix}/{key}", value)
+            self._tb.dump(self.num_timesteps)
+        if self._progress is not None:
+            sr = row["success_rate"]
+            stats = f"success {sr:.0%}" if math.isfinite(sr) else "success -"
+            stats += f"  {row['steps_per_s']:.0f} steps/s"
+            self._progress.update(self._task_id, completed=self.num_timesteps, stats=stats)
+        self.last_row = row
+        self._reset_window(self.num_timesteps)
+        return row
+
+    def close(self) -> None:
+        if self._progress is not None:
+            self._progress.update(self._task_id, completed=self.num_timesteps)
+            self._progress.stop()
+            self._progress = None
+        if self._tb is not None:
+            self._tb.close()
+            self._tb = None

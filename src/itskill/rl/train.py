@@ -1,0 +1,247 @@
+"""Train a policy on one task with A2C or PPO, checkpointing and resuming in a run directory.
+
+The loop itself is Stable-Baselines3's ``learn``; around it, this module builds the environment,
+the reward and the model, logs metrics (:mod:`itskill.rl.logger`) and checkpoints
+(:mod:`itskill.rl.checkpoint`). Rerunning the same call on the same ``out`` directory resumes from
+the last checkpoint: the model (optimiser included) is reloaded and the step count continues.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import runpy
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from rich.console import Console
+from stable_baselines3 import A2C, PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.utils import set_random_seed
+
+from itskill.rl.checkpoint import MODEL_FILE, read_meta, save_checkpoint
+from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
+from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
+from itskill.rl.policy import StagedActorCriticPolicy
+from itskill.sim.task import RewardFn
+from itskill.tasks import get_task, make_batch_env
+from itskill.tasks.evaluate import CheckpointError
+from itskill.tasks.spec import TaskSpec
+
+ALGO_CLASSES: dict[str, type[BaseAlgorithm]] = {"a2c": A2C, "ppo": PPO}
+EXPERT = "expert"
+
+
+class RewardLoadError(ValueError):
+    """A reward file that cannot be used: names the file and the problem."""
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path, self.problem = str(path), problem
+
+
+class ResumeMismatchError(ValueError):
+    """``out`` holds a run of a different task, algorithm, seed or reward than requested."""
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What :func:`train` did: where, how many env-steps in total, whether it was interrupted."""
+
+    run_dir: Path
+    num_timesteps: int
+    resumed_from: int
+    interrupted: bool
+    wall_s: float
+    last_metrics: dict[str, Any] | None
+
+
+def load_reward(reward: str | Path, spec: TaskSpec) -> tuple[RewardFn, dict[str, Any]]:
+    """The reward function and its description for the checkpoint metadata.
+
+    ``"expert"`` is the task's human-designed reward (:func:`itskill.tasks.rewards.expert_reward`).
+    Anything else is a path to a Python file defining ``compute_reward(ctx) -> (total,
+    components)``. The file is executed as plain, trusted Python in this process for now; the
+    sandbox for generated reward code comes in a later issue.
+    """
+    if str(reward) == EXPERT:
+        from itskill.tasks.rewards import expert_reward
+
+        return expert_reward(spec), {"kind": EXPERT}
+    path = Path(reward)
+    if not path.is_file():
+        raise RewardLoadError(path, f"no such reward file (expected {EXPERT!r} or a .py file)")
+    source = path.read_bytes()
+    try:
+        namespace = runpy.run_path(str(path), run_name="itskill_reward")
+    except Exception as err:
+        raise RewardLoadError(path, f"failed to run: {type(err).__name__}: {err}") from err
+    fn = namespace.get("compute_reward")
+    if not callable(fn):
+        raise RewardLoadError(path, "defines no function compute_reward(ctx)")
+    return fn, {"kind": "file", "path": str(path.resolve()), "sha256": _sha256(source)}
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+class CheckpointCallback(BaseCallback):
+    """Saves a checkpoint at the end of the first update after every ``every`` env-steps."""
+
+    def __init__(self, run_dir: Path, every: int, meta: Mapping[str, Any]) -> None:
+        super().__init__()
+        self.run_dir, self.every, self.meta = run_dir, every, dict(meta)
+        self._last = 0
+
+    def _on_training_start(self) -> None:
+        self._last = self.num_timesteps
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        # Runs between collecting a rollout and the update on it: the saved weights have not seen
+        # that rollout, so a resumed run simply collects fresh data from the saved step count.
+        if self.num_timesteps - self._last >= self.every:
+            save_checkpoint(self.model, self.run_dir, self.meta)
+            self._last = self.num_timesteps
+
+
+def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> None:
+    for key in ("task", "algo", "seed"):
+        if meta.get(key) != want[key]:
+            raise ResumeMismatchError(
+                f"{run_dir}: holds a run with {key}={meta.get(key)!r}, this call asks for "
+                f"{key}={want[key]!r}; use another --out directory or the same settings"
+            )
+    have, new = meta.get("reward", {}), want["reward"]
+    if have.get("kind") != new.get("kind") or have.get("sha256") != new.get("sha256"):
+        raise ResumeMismatchError(
+            f"{run_dir}: holds a run trained with reward {have!r}, this call gives {new!r}"
+        )
+
+
+def train(
+    task: str,
+    algo: str = "ppo",
+    steps: int = 100_000,
+    seed: int = 0,
+    reward: str | Path = EXPERT,
+    out: str | Path = Path("runs/train"),
+    num_envs: int | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    logger: LoggerConfig | None = None,
+    n_threads: int | None = None,
+    console: Console | None = None,
+) -> TrainResult:
+    """Train ``algo`` on ``task`` until ``steps`` env-steps in total, in run directory ``out``.
+
+    ``reward`` is ``"expert"`` or a path to a Python file defining ``compute_reward`` (executed as
+    plain Python: no sandbox yet). Hyper-parameters come from the packaged table for the task's
+    family (or ``hyperparams``, a TOML file of the same shape), with ``overrides`` on top
+    (:func:`itskill.rl.config.load_hyperparams`); ``num_envs`` overrides the family's value.
+
+    If ``out`` already holds a checkpoint of the same task, algorithm, seed and reward, training
+    resumes from it (optimiser state and step count included) and metrics rows logged after that
+    checkpoint are dropped. A checkpoint is written every ``checkpoint_every`` env-steps, at the
+    end, and on Ctrl-C (after which ``KeyboardInterrupt`` propagates).
+    """
+    torch.set_num_threads(1)
+    if algo not in ALGO_CLASSES:
+        raise HyperparamError("algo", "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
+    if steps < 1:
+        raise ValueError(f"steps must be positive, got {steps}")
+    spec = get_task(task)
+    run_dir = Path(out)
+    ov = dict(overrides or {})
+    if num_envs is not None:
+        ov["num_envs"] = num_envs
+    hp: Hyperparams = load_hyperparams(spec.family, algo, hyperparams, ov)
+    reward_fn, reward_meta = load_reward(reward, spec)
+    meta: dict[str, Any] = {
+        "task": spec.id,
+        "family": spec.family,
+        "algo": algo,
+        "seed": seed,
+        "reward": reward_meta,
+        "num_envs": hp.num_envs,
+        "hyperparams": hp.to_dict(),
+    }
+
+    resumed_from = 0
+    model_path = run_dir / MODEL_FILE
+    resuming = (run_dir / "checkpoint.json").exists()
+    if resuming:
+        old = read_meta(run_dir)
+        _check_resume(old, meta, run_dir)
+        if not model_path.is_file():
+            raise CheckpointError(model_path, "missing: cannot resume training without it")
+        resumed_from = int(old["num_timesteps"])
+
+    # A resumed run draws fresh initial states, not a replay of the first ones.
+    env_seed = int(np.random.SeedSequence([seed, resumed_from]).generate_state(1)[0])
+    env = make_batch_env(
+        spec.id, hp.num_envs, seed=env_seed, reward_fn=reward_fn, n_threads=n_threads
+    )
+    cls = ALGO_CLASSES[algo]
+    try:
+        if resuming:
+            try:
+                model = cls.load(model_path, env=env, device="cpu")
+            except Exception as err:
+                raise CheckpointError(
+                    model_path, f"cannot resume: {type(err).__name__}: {err}"
+                ) from err
+            model._last_obs = None  # the saved observation belongs to the old process's envs
+            set_random_seed(seed + resumed_from)
+        else:
+            set_random_seed(seed)
+            model = cls(
+                StagedActorCriticPolicy,
+                env,
+                policy_kwargs=hp.policy.policy_kwargs(),
+                seed=seed,
+                device="cpu",
+                verbose=0,
+                **hp.algo_config.sb3_kwargs(),
+            )
+        if model.num_timesteps >= steps:
+            return TrainResult(run_dir, model.num_timesteps, resumed_from, False, 0.0, None)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        if resuming:
+            MetricsWriter(run_dir).truncate_after(resumed_from)
+        metrics = MetricsCallback(env, run_dir, steps, logger, console)
+        ckpt = CheckpointCallback(run_dir, hp.checkpoint_every, meta)
+        start = time.perf_counter()
+        try:
+            model.learn(
+                total_timesteps=steps - model.num_timesteps,
+                callback=CallbackList([metrics, ckpt]),
+                log_interval=None,  # type: ignore[arg-type]
+                reset_num_timesteps=False,
+            )
+        except KeyboardInterrupt:
+            metrics.close()
+            save_checkpoint(model, run_dir, meta)
+            (console or Console(stderr=True)).print(
+                f"interrupted: checkpoint saved at {model.num_timesteps} env-steps in {run_dir}"
+            )
+            raise
+        save_checkpoint(model, run_dir, meta)
+        return TrainResult(
+            run_dir,
+            int(model.num_timesteps),
+            resumed_from,
+            False,
+            time.perf_counter() - start,
+            metrics.last_row,
+        )
+    finally:
+        env.close()

@@ -1,0 +1,49 @@
+"""The skill space: learned skills in SQLite, sentence embeddings, retrieval, shipped libraries.
+
+Importing this package is cheap: the embedding model loads on the first embedding only.
+"""
+
+from __future__ import annotations
+
+from itskill.skills.manifest import (
+    ManifestEntry,
+    ManifestError,
+    install_library,
+    read_manifest,
+    write_manifest,
+)
+from itskill.skills.retrieval import search, skill_text
+from itskill.skills.store import (
+    CorruptDatabaseError,
+    DuplicateSkillError,
+    MigrationError,
+    MissingCheckpointError,
+    SchemaVersionError,
+    Skill,
+    SkillSpace,
+    SkillSpaceConfig,
+    SkillSpaceError,
+    UnknownSkillError,
+    itskill_home,
+)
+
+__all__ = [
+    "CorruptDatabaseError",
+    "DuplicateSkillError",
+    "ManifestEntry",
+    "ManifestError",
+    "MigrationError",
+    "MissingCheckpointError",
+    "SchemaVersionError",
+    "Skill",
+    "SkillSpace",
+    "SkillSpaceConfig",
+    "SkillSpaceError",
+    "UnknownSkillError",
+    "install_library",
+    "itskill_home",
+    "read_manifest",
+    "search",
+    "skill_text",
+    "write_manifest",
+]

@@ -1,0 +1,171 @@
+"""A skill library on disk: policy checkpoints plus a ``manifest.json`` that describes them.
+
+This is how pretrained skills are shipped and shared. The manifest lists each skill with its task,
+command, action sequence, checkpoint file (relative to the library directory, so the directory can
+be moved or packaged), measured success and training budget. :func:`install_library` registers the
+entries in a :class:`SkillSpace`; only entries whose checkpoint exists are accepted, because a
+skill without a trained policy is not a skill.
+
+Format (``format`` is bumped on incompatible changes)::
+
+    {"format": 1, "skills": [{"name": "pick_nut_m12", "task": "pick_nut_m12",
+      "description": "Pick up the M12 nut", "actions": ["approach", "grasp", "lift"],
+      "checkpoint": "pick_nut_m12.zip", "success": 0.97, "success_ci": [0.92, 0.99],
+      "budget": {"steps": 200000, "wall_s": 900.0}, "algo": "ppo", "seed": 0}]}
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from itskill.skills.store import Skill, SkillSpace, SkillSpaceError
+
+MANIFEST_NAME = "manifest.json"
+MANIFEST_FORMAT = 1
+
+
+class ManifestError(SkillSpaceError):
+    """A manifest that cannot be read, or that names checkpoints that are not there."""
+
+
+@dataclass(frozen=True)
+class ManifestEntry:
+    """One skill of a library. ``checkpoint`` is relative to the library directory."""
+
+    name: str
+    task: str
+    description: str
+    actions: tuple[str, ...]
+    checkpoint: str
+    success: float | None = None
+    success_ci: tuple[float, float] | None = None
+    steps: int | None = None
+    wall_s: float | None = None
+    algo: str | None = None
+    seed: int | None = None
+    extra: dict[str, Any] = field(default_factory=dict)  # Unknown keys, kept on rewrite.
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "task": self.task,
+            "description": self.description,
+            "actions": list(self.actions),
+            "checkpoint": self.checkpoint,
+            "success": self.success,
+            "success_ci": list(self.success_ci) if self.success_ci else None,
+            "budget": {"steps": self.steps, "wall_s": self.wall_s},
+            "algo": self.algo,
+            "seed": self.seed,
+            **self.extra,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], where: str) -> ManifestEntry:
+        try:
+            budget = data.get("budget") or {}
+            ci = data.get("success_ci")
+            known = {"name", "task", "description", "actions", "checkpoint", "success"}
+            known |= {"success_ci", "budget", "algo", "seed"}
+            return cls(
+                name=str(data["name"]),
+                task=str(data["task"]),
+                description=str(data["description"]),
+                actions=tuple(str(a) for a in data["actions"]),
+                checkpoint=str(data["checkpoint"]),
+                success=None if data.get("success") is None else float(data["success"]),
+                success_ci=None if ci is None else (float(ci[0]), float(ci[1])),
+                steps=None if budget.get("steps") is None else int(budget["steps"]),
+                wall_s=None if budget.get("wall_s") is None else float(budget["wall_s"]),
+                algo=data.get("algo"),
+                seed=None if data.get("seed") is None else int(data["seed"]),
+                extra={k: v for k, v in data.items() if k not in known},
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as err:
+            raise ManifestError(f"{where}: bad skill entry ({err!r})") from err
+
+    def to_skill(self, checkpoint: str) -> Skill:
+        return Skill(
+            name=self.name,
+            task_id=self.task,
+            description=self.description,
+            actions=self.actions,
+            checkpoint=checkpoint,
+            success_rate=self.success,
+            success_ci=self.success_ci,
+            train_steps=self.steps,
+            train_wall_s=self.wall_s,
+            algo=self.algo,
+            seed=self.seed,
+        )
+
+
+def read_manifest(library_dir: Path | str) -> list[ManifestEntry]:
+    """The entries of ``<library_dir>/manifest.json``."""
+    path = Path(library_dir) / MANIFEST_NAME
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError as err:
+        raise ManifestError(f"{path}: no manifest (not a skill library directory)") from err
+    except json.JSONDecodeError as err:
+        raise ManifestError(f"{path}: not valid JSON ({err})") from err
+    if not isinstance(data, dict) or not isinstance(data.get("skills"), list):
+        raise ManifestError(f"{path}: expected an object with a 'skills' list")
+    if data.get("format", MANIFEST_FORMAT) > MANIFEST_FORMAT:
+        raise ManifestError(
+            f"{path}: manifest format {data['format']} is newer than this itskill supports "
+            f"({MANIFEST_FORMAT})"
+        )
+    return [
+        ManifestEntry.from_json(e, f"{path}: skills[{i}]") for i, e in enumerate(data["skills"])
+    ]
+
+
+def write_manifest(library_dir: Path | str, entries: Sequence[ManifestEntry]) -> Path:
+    """Write ``<library_dir>/manifest.json`` atomically (a reader never sees half a file)."""
+    library_dir = Path(library_dir)
+    library_dir.mkdir(parents=True, exist_ok=True)
+    path = library_dir / MANIFEST_NAME
+    text = json.dumps(
+        {"format": MANIFEST_FORMAT, "skills": [e.to_json() for e in entries]}, indent=2
+    )
+    fd, tmp = tempfile.mkstemp(dir=library_dir, prefix=".manifest.", suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        f.write(text + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def install_library(
+    space: SkillSpace, library_dir: Path | str, skip_existing: bool = True
+) -> list[Skill]:
+    """Register every manifest entry of ``library_dir`` in ``space``; returns the added skills.
+
+    Every checkpoint must exist, or nothing is installed and the error names each missing file.
+    Entries whose name is already in the space are skipped when ``skip_existing`` (so installing
+    twice is harmless). Checkpoints are stored relative when ``library_dir`` is the space's own
+    library directory (relocatable with it) and absolute otherwise.
+    """
+    library_dir = Path(library_dir).expanduser().resolve()
+    entries = read_manifest(library_dir)
+    missing = [str(library_dir / e.checkpoint) for e in entries]
+    missing = [m for m in missing if not Path(m).is_file()]
+    if missing:
+        raise ManifestError(
+            f"{library_dir / MANIFEST_NAME}: {len(missing)} checkpoint file(s) missing: "
+            + ", ".join(missing)
+        )
+    own = library_dir == space.library_dir.expanduser().resolve()
+    existing = {s.name for s in space.list()} if skip_existing else set()
+    todo = [
+        e.to_skill(e.checkpoint if own else str(library_dir / e.checkpoint))
+        for e in entries
+        if e.name not in existing
+    ]
+    return space.add_many(todo)

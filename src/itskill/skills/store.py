@@ -1,0 +1,462 @@
+"""The skill space: every learned skill in one SQLite database.
+
+A skill is a policy the robot has already learned, with what is needed to pick it as a transfer
+source: a serial number, a unique name, the task command it solves (its description), the action
+sequence it executes, the checkpoint of the trained policy, how well it does, what it cost to train,
+and the sentence embedding of its text (stored, so a search embeds only the query).
+
+Concurrency: the file is opened in WAL mode with a busy timeout and every write is one
+``BEGIN IMMEDIATE`` transaction, so several training processes can add skills at the same time
+without losing any (SQLite serialises the writers; readers are never blocked).
+
+Schema changes are a list of migration steps; ``PRAGMA user_version`` records how many have been
+applied. Opening a database applies the missing ones in a single transaction; a database written by
+a newer itskill (a higher version than this code knows) is refused rather than misread.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import os
+import sqlite3
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HOME_ENV = "ITSKILL_HOME"
+EMBEDDING_DIM = 384
+
+
+@dataclass(frozen=True)
+class SkillSpaceConfig:
+    """Where the skill space lives and how it waits for other writers.
+
+    ``home`` None means :func:`itskill_home` (``$ITSKILL_HOME`` or the user's data directory).
+    """
+
+    home: Path | None = None
+    db_name: str = "skills.sqlite"
+    # Checkpoints named by a relative path live here (the installed pretrained library).
+    library_subdir: str = "library"
+    # Long enough for another process to finish a batch insert (embedding happens before the
+    # transaction, so writers hold the lock for milliseconds, not seconds).
+    busy_timeout_s: float = 30.0
+
+
+def itskill_home() -> Path:
+    """The itskill data directory: ``$ITSKILL_HOME``, else ``$XDG_DATA_HOME/itskill``.
+
+    ``XDG_DATA_HOME`` defaults to ``~/.local/share`` (the XDG base-directory rule, which is what
+    platformdirs returns on Linux); deriving it here avoids a dependency for one path.
+    """
+    env = os.environ.get(HOME_ENV)
+    if env:
+        return Path(env).expanduser()
+    xdg = os.environ.get("XDG_DATA_HOME")
+    base = Path(xdg).expanduser() if xdg else Path.home() / ".local" / "share"
+    return base / "itskill"
+
+
+# ---------------------------------------------------------------------------- errors
+class SkillSpaceError(RuntimeError):
+    """Any problem with the skill database that the user has to act on."""
+
+
+class SchemaVersionError(SkillSpaceError):
+    """The database was written by a newer itskill than this one."""
+
+
+class MigrationError(SkillSpaceError):
+    """A schema upgrade step failed; the transaction is rolled back, the file is unchanged."""
+
+
+class CorruptDatabaseError(SkillSpaceError):
+    """The file is not a readable SQLite skill database."""
+
+
+class DuplicateSkillError(SkillSpaceError):
+    """A skill with this name already exists (names are unique)."""
+
+
+class MissingCheckpointError(SkillSpaceError):
+    """A skill whose policy checkpoint file does not exist: a skill must be learned to be added."""
+
+
+class UnknownSkillError(SkillSpaceError, KeyError):
+    """No skill has this id or name; the message lists close names."""
+
+    def __init__(self, key: str | int, known: Sequence[str]) -> None:
+        super().__init__(str(key))
+        self.key = key
+        self.close = difflib.get_close_matches(str(key), list(known), n=5, cutoff=0.4)
+
+    def __str__(self) -> str:
+        hint = f" Did you mean: {', '.join(self.close)}?" if self.close else ""
+        return f"unknown skill {self.key!r}.{hint} (`itskill skills list` shows them all)"
+
+
+# ---------------------------------------------------------------------------- the record
+@dataclass(frozen=True)
+class Skill:
+    """One learned skill as stored.
+
+    ``checkpoint`` is stored as given: an absolute path, or a path relative to the library
+    directory (see :meth:`SkillSpace.checkpoint_path`), which keeps a shipped library relocatable.
+    ``embedding`` is the normalised vector of :func:`itskill.skills.retrieval.skill_text`, or None
+    for a row that predates embeddings (it is filled in by the first search).
+    """
+
+    name: str
+    task_id: str
+    description: str
+    actions: tuple[str, ...]
+    checkpoint: str
+    success_rate: float | None = None
+    success_ci: tuple[float, float] | None = None
+    train_steps: int | None = None
+    train_wall_s: float | None = None
+    algo: str | None = None
+    seed: int | None = None
+    id: int | None = None
+    created: float | None = None  # Unix time
+    embedding: np.ndarray | None = field(default=None, repr=False, compare=False)
+    embedding_model: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready fields (without the embedding vector, which is data, not information)."""
+        return {
+            "id": self.id,
+            "name": self.name,
+            "task_id": self.task_id,
+            "description": self.description,
+            "actions": list(self.actions),
+            "checkpoint": self.checkpoint,
+            "success_rate": self.success_rate,
+            "success_ci": list(self.success_ci) if self.success_ci else None,
+            "train_steps": self.train_steps,
+            "train_wall_s": self.train_wall_s,
+            "algo": self.algo,
+            "seed": self.seed,
+            "created": self.created,
+            "embedding_model": self.embedding_model,
+        }
+
+
+# ---------------------------------------------------------------------------- schema
+# Each entry is one migration: the statements that take the schema from version i to i + 1.
+# Never edit a released step; append a new one. Version 1 is the paper's four attributes plus the
+# bookkeeping a first version needs; version 2 adds training metadata and stored embeddings.
+MIGRATIONS: list[list[str]] = [
+    [
+        """CREATE TABLE skills (
+            id INTEGER PRIMARY KEY,
+            name TEXT NOT NULL UNIQUE,
+            task_id TEXT NOT NULL,
+            description TEXT NOT NULL,
+            actions TEXT NOT NULL,          -- JSON list of action names
+            checkpoint TEXT NOT NULL,
+            success_rate REAL,
+            created REAL NOT NULL
+        )""",
+        "CREATE INDEX skills_task ON skills(task_id)",
+    ],
+    [
+        "ALTER TABLE skills ADD COLUMN success_ci_low REAL",
+        "ALTER TABLE skills ADD COLUMN success_ci_high REAL",
+        "ALTER TABLE skills ADD COLUMN train_steps INTEGER",
+        "ALTER TABLE skills ADD COLUMN train_wall_s REAL",
+        "ALTER TABLE skills ADD COLUMN algo TEXT",
+        "ALTER TABLE skills ADD COLUMN seed INTEGER",
+        "ALTER TABLE skills ADD COLUMN embedding BLOB",  # float32, little-endian
+        "ALTER TABLE skills ADD COLUMN embedding_model TEXT",
+    ],
+]
+SCHEMA_VERSION = len(MIGRATIONS)
+
+_COLUMNS = (
+    "id, name, task_id, description, actions, checkpoint, success_rate, success_ci_low, "
+    "success_ci_high, train_steps, train_wall_s, algo, seed, created, embedding, embedding_model"
+)
+
+
+def _row_to_skill(row: sqlite3.Row) -> Skill:
+    ci = None
+    if row["success_ci_low"] is not None and row["success_ci_high"] is not None:
+        ci = (row["success_ci_low"], row["success_ci_high"])
+    blob = row["embedding"]
+    return Skill(
+        id=row["id"],
+        name=row["name"],
+        task_id=row["task_id"],
+        description=row["description"],
+        actions=tuple(json.loads(row["actions"])),
+        checkpoint=row["checkpoint"],
+        success_rate=row["success_rate"],
+        success_ci=ci,
+        train_steps=row["train_steps"],
+        train_wall_s=row["train_wall_s"],
+        algo=row["algo"],
+        seed=row["seed"],
+        created=row["created"],
+        embedding=None if blob is None else np.frombuffer(blob, dtype="<f4").copy(),
+        embedding_model=row["embedding_model"],
+    )
+
+
+def _blob(vec: np.ndarray | None) -> bytes | None:
+    if vec is None:
+        return None
+    arr = np.asarray(vec, dtype="<f4").reshape(-1)
+    if arr.shape[0] != EMBEDDING_DIM:
+        raise ValueError(f"embedding must have {EMBEDDING_DIM} values, got {arr.shape[0]}")
+    return arr.tobytes()
+
+
+# ---------------------------------------------------------------------------- the database
+class SkillSpace:
+    """The skill database at ``<home>/skills.sqlite``; opening it creates or upgrades it.
+
+    Use as a context manager or call :meth:`close`. One instance per thread (sqlite3 connections
+    are not shared across threads); separate processes may each open the same file.
+    """
+
+    def __init__(self, path: Path | str | None = None, config: SkillSpaceConfig | None = None):
+        self.config = config or SkillSpaceConfig()
+        home = self.config.home or itskill_home()
+        self.path = Path(path) if path is not None else home / self.config.db_name
+        self.library_dir = self.path.parent / self.config.library_subdir
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            # isolation_level=None: no implicit transactions; every write below opens its own
+            # BEGIN IMMEDIATE so that the write lock is taken up front, not upgraded mid-way
+            # (an upgrade can fail with SQLITE_BUSY regardless of the busy timeout).
+            self._conn = sqlite3.connect(
+                self.path, timeout=self.config.busy_timeout_s, isolation_level=None
+            )
+            self._conn.row_factory = sqlite3.Row
+            self._conn.execute(f"PRAGMA busy_timeout = {int(self.config.busy_timeout_s * 1000)}")
+            self._open_retrying_while_busy()
+        except sqlite3.DatabaseError as err:
+            if hasattr(self, "_conn"):
+                self._conn.close()
+            raise CorruptDatabaseError(
+                f"{self.path}: not a readable itskill skill database ({err}). Move it aside or "
+                f"point {HOME_ENV} elsewhere."
+            ) from err
+        except SkillSpaceError:
+            self._conn.close()
+            raise
+
+    def _open_retrying_while_busy(self) -> None:
+        """Switch to WAL and migrate. Processes creating the file at the same moment can get
+        "database is locked" at once (switching the journal mode does not wait on the busy
+        timeout), so that error is retried until the timeout, not reported as corruption."""
+        deadline = time.monotonic() + self.config.busy_timeout_s
+        while True:
+            try:
+                self._conn.execute("PRAGMA journal_mode = WAL")
+                self._migrate()
+                return
+            except sqlite3.OperationalError as err:
+                busy = "locked" in str(err) or "busy" in str(err)
+                if not busy or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
+
+    # -- lifecycle
+    def close(self) -> None:
+        self._conn.close()
+
+    def __enter__(self) -> SkillSpace:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @contextmanager
+    def _write(self) -> Iterator[sqlite3.Connection]:
+        """One write transaction: all of it lands or none of it does."""
+        self._conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield self._conn
+        except BaseException:
+            self._conn.execute("ROLLBACK")
+            raise
+        self._conn.execute("COMMIT")
+
+    def _migrate(self) -> None:
+        version = self.schema_version
+        if version > SCHEMA_VERSION:
+            raise SchemaVersionError(
+                f"{self.path}: skill database schema version {version} is newer than this "
+                f"itskill supports ({SCHEMA_VERSION}); upgrade itskill to open it."
+            )
+        if version == SCHEMA_VERSION:
+            return
+        with self._write() as conn:
+            # Re-read under the write lock: another process may have migrated meanwhile.
+            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            for number, step in enumerate(MIGRATIONS[version:], start=version + 1):
+                try:
+                    for statement in step:
+                        conn.execute(statement)
+                except sqlite3.DatabaseError as err:
+                    raise MigrationError(
+                        f"{self.path}: upgrading the skill database to schema version {number} "
+                        f"failed ({err}); the file is left at version {version}."
+                    ) from err
+            # user_version is part of the transaction: a failed step leaves the old version.
+            conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+
+    @property
+    def schema_version(self) -> int:
+        return int(self._conn.execute("PRAGMA user_version").fetchone()[0])
+
+    # -- paths
+    def checkpoint_path(self, skill: Skill) -> Path:
+        """The checkpoint file of ``skill``: relative paths are inside the library directory."""
+        p = Path(skill.checkpoint).expanduser()
+        return p if p.is_absolute() else self.library_dir / p
+
+    # -- writes
+    def add(self, skill: Skill) -> Skill:
+        """Add one skill (embedding it first if it has no embedding); returns it with its id."""
+        return self.add_many([skill])[0]
+
+    def add_many(self, skills: Iterable[Skill]) -> list[Skill]:
+        """Add several skills in one transaction (all or none).
+
+        Raises :class:`MissingCheckpointError` if a checkpoint file does not exist and
+        :class:`DuplicateSkillError` if a name is taken.
+        """
+        skills = list(skills)
+        for s in skills:
+            if not self.checkpoint_path(s).is_file():
+                raise MissingCheckpointError(
+                    f"skill {s.name!r}: checkpoint {self.checkpoint_path(s)} does not exist "
+                    "(only learned skills, with a trained policy, go into the skill space)"
+                )
+        skills = self._with_embeddings(skills)  # Outside the transaction: the model is slow.
+        now = time.time()
+        added: list[Skill] = []
+        with self._write() as conn:
+            for s in skills:
+                ci_low, ci_high = s.success_ci if s.success_ci else (None, None)
+                created = s.created if s.created is not None else now
+                try:
+                    cur = conn.execute(
+                        "INSERT INTO skills (name, task_id, description, actions, checkpoint, "
+                        "success_rate, success_ci_low, success_ci_high, train_steps, "
+                        "train_wall_s, algo, seed, created, embedding, embedding_model) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                        (
+                            s.name,
+                            s.task_id,
+                            s.description,
+                            json.dumps(list(s.actions)),
+                            s.checkpoint,
+                            s.success_rate,
+                            ci_low,
+                            ci_high,
+                            s.train_steps,
+                            s.train_wall_s,
+                            s.algo,
+                            s.seed,
+                            created,
+                            _blob(s.embedding),
+                            s.embedding_model,
+                        ),
+                    )
+                except sqlite3.IntegrityError as err:
+                    raise DuplicateSkillError(f"a skill named {s.name!r} already exists") from err
+                added.append(replace(s, id=cur.lastrowid, created=created))
+        return added
+
+    def _with_embeddings(self, skills: list[Skill]) -> list[Skill]:
+        from itskill.skills import embeddings, retrieval
+
+        todo = [i for i, s in enumerate(skills) if s.embedding is None]
+        if not todo:
+            return skills
+        vecs = embeddings.embed([retrieval.skill_text(skills[i]) for i in todo])
+        out = list(skills)
+        for row, i in enumerate(todo):
+            out[i] = replace(skills[i], embedding=vecs[row], embedding_model=embeddings.MODEL_ID)
+        return out
+
+    def set_embeddings(self, items: Sequence[tuple[int, np.ndarray]], model_id: str) -> None:
+        """Store embeddings for existing skills (used to fill rows that predate them)."""
+        with self._write() as conn:
+            conn.executemany(
+                "UPDATE skills SET embedding = ?, embedding_model = ? WHERE id = ?",
+                [(_blob(vec), model_id, skill_id) for skill_id, vec in items],
+            )
+
+    def remove(self, key: int | str) -> Skill:
+        """Delete a skill by id or name; returns what was deleted. The checkpoint file stays."""
+        with self._write() as conn:
+            skill = self._get(conn, key)
+            conn.execute("DELETE FROM skills WHERE id = ?", (skill.id,))
+        return skill
+
+    def update_metrics(
+        self,
+        key: int | str,
+        *,
+        success_rate: float | None = None,
+        success_ci: tuple[float, float] | None = None,
+        train_steps: int | None = None,
+        train_wall_s: float | None = None,
+    ) -> Skill:
+        """Replace the given measurements of a skill (arguments left as None are kept)."""
+        with self._write() as conn:
+            skill = self._get(conn, key)
+            new = replace(
+                skill,
+                success_rate=skill.success_rate if success_rate is None else success_rate,
+                success_ci=skill.success_ci if success_ci is None else tuple(success_ci),
+                train_steps=skill.train_steps if train_steps is None else train_steps,
+                train_wall_s=skill.train_wall_s if train_wall_s is None else train_wall_s,
+            )
+            ci_low, ci_high = new.success_ci if new.success_ci else (None, None)
+            conn.execute(
+                "UPDATE skills SET success_rate = ?, success_ci_low = ?, success_ci_high = ?, "
+                "train_steps = ?, train_wall_s = ? WHERE id = ?",
+                (new.success_rate, ci_low, ci_high, new.train_steps, new.train_wall_s, skill.id),
+            )
+        return new
+
+    # -- reads
+    def get(self, key: int | str) -> Skill:
+        """A skill by id (an int, or a string of digits) or by name."""
+        return self._get(self._conn, key)
+
+    def _get(self, conn: sqlite3.Connection, key: int | str) -> Skill:
+        if isinstance(key, int) or (isinstance(key, str) and key.isdigit()):
+            row = conn.execute(f"SELECT {_COLUMNS} FROM skills WHERE id = ?", (int(key),))
+        else:
+            row = conn.execute(f"SELECT {_COLUMNS} FROM skills WHERE name = ?", (key,))
+        found = row.fetchone()
+        if found is None:
+            names = [r[0] for r in conn.execute("SELECT name FROM skills ORDER BY id")]
+            raise UnknownSkillError(key, names)
+        return _row_to_skill(found)
+
+    def list(self, task_id: str | None = None) -> list[Skill]:
+        """Every skill (or every skill for ``task_id``), by serial number."""
+        if task_id is None:
+            rows = self._conn.execute(f"SELECT {_COLUMNS} FROM skills ORDER BY id")
+        else:
+            rows = self._conn.execute(
+                f"SELECT {_COLUMNS} FROM skills WHERE task_id = ? ORDER BY id", (task_id,)
+            )
+        return [_row_to_skill(r) for r in rows]
+
+    def __len__(self) -> int:
+        return int(self._conn.execute("SELECT COUNT(*) FROM skills").fetchone()[0])

@@ -1,0 +1,65 @@
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from itskill.cli import app
+
+runner = CliRunner()
+
+
+def add(checkpoint, task: str, *extra: str):
+    args = ["skills", "add", "--task", task, "--checkpoint", str(checkpoint), "--json", *extra]
+    return runner.invoke(app, args)
+
+
+def test_add_list_search_show_remove(home, checkpoint):
+    result = add(checkpoint, "insert_peg_round", "--success", "0.9", "--steps", "1000")
+    assert result.exit_code == 0, result.output
+    added = json.loads(result.stdout)
+    assert added["description"] == "Insert the round peg into the round hole"
+    assert added["actions"] == ["insert"] and added["train_steps"] == 1000
+    assert add(checkpoint, "pick_nut_m12", "--name", "pick", "--actions", "a, b").exit_code == 0
+
+    listed = json.loads(runner.invoke(app, ["skills", "list", "--json"]).stdout)
+    assert [(s["id"], s["name"]) for s in listed] == [(1, "insert_peg_round"), (2, "pick")]
+    assert listed[1]["actions"] == ["a", "b"]
+
+    result = runner.invoke(
+        app, ["skills", "search", "insert the peg in the hole", "-k", "1", "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    hits = json.loads(result.stdout)
+    assert len(hits) == 1 and hits[0]["name"] == "insert_peg_round" and hits[0]["score"] > 0.5
+
+    shown = json.loads(runner.invoke(app, ["skills", "show", "pick", "--json"]).stdout)
+    assert shown["checkpoint_exists"] is True
+
+    assert runner.invoke(app, ["skills", "remove", "1", "--json"]).exit_code == 0
+    assert len(json.loads(runner.invoke(app, ["skills", "list", "--json"]).stdout)) == 1
+    table = runner.invoke(app, ["skills", "list"])
+    assert table.exit_code == 0 and "pick" in table.stdout
+
+
+def test_unknown_skill_exits_2_with_close_names(home, checkpoint):
+    assert add(checkpoint, "pick_nut_m12").exit_code == 0
+    result = runner.invoke(app, ["skills", "show", "pick_nut_m16"])
+    assert result.exit_code == 2
+    assert "unknown skill" in result.output and "pick_nut_m12" in result.output
+
+
+def test_add_needs_existing_checkpoint_and_known_task(home, tmp_path, checkpoint):
+    missing = runner.invoke(
+        app, ["skills", "add", "--task", "pick_nut_m12", "--checkpoint", str(tmp_path / "no.zip")]
+    )
+    assert missing.exit_code == 2 and "does not exist" in missing.output
+    assert add(checkpoint, "no_such_task").exit_code == 2
+
+
+def test_corrupt_database_names_path(home):
+    home.mkdir()
+    (home / "skills.sqlite").write_bytes(b"garbage" * 1000)
+    result = runner.invoke(app, ["skills", "list"])
+    assert result.exit_code == 2
+    assert str(home / "skills.sqlite") in " ".join(result.output.split())

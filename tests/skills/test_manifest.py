@@ -1,0 +1,81 @@
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from itskill.skills import (
+    ManifestEntry,
+    ManifestError,
+    SkillSpace,
+    install_library,
+    read_manifest,
+    write_manifest,
+)
+
+
+def entries() -> list[ManifestEntry]:
+    return [
+        ManifestEntry(
+            name="pick_nut_m12",
+            task="pick_nut_m12",
+            description="Pick up the M12 nut",
+            actions=("approach", "grasp", "lift"),
+            checkpoint="pick_nut_m12.zip",
+            success=0.97,
+            success_ci=(0.92, 0.99),
+            steps=200_000,
+            wall_s=900.0,
+            algo="ppo",
+            seed=0,
+        ),
+        ManifestEntry(
+            name="insert_peg_round",
+            task="insert_peg_round",
+            description="Insert the round peg into the round hole",
+            actions=("insert",),
+            checkpoint="sub/insert_peg_round.zip",
+        ),
+    ]
+
+
+def test_manifest_round_trip(tmp_path):
+    path = write_manifest(tmp_path, entries())
+    assert json.loads(path.read_text())["format"] == 1
+    assert read_manifest(tmp_path) == entries()
+
+
+def test_bad_manifest_names_file(tmp_path):
+    (tmp_path / "manifest.json").write_text("{not json")
+    with pytest.raises(ManifestError, match=r"manifest\.json"):
+        read_manifest(tmp_path)
+    (tmp_path / "manifest.json").write_text('{"skills": [{"name": "x"}]}')
+    with pytest.raises(ManifestError, match=r"skills\[0\]"):
+        read_manifest(tmp_path)
+
+
+def test_install_requires_every_checkpoint(home, tmp_path):
+    lib = tmp_path / "lib"
+    write_manifest(lib, entries())
+    (lib / "pick_nut_m12.zip").write_bytes(b"x")
+    with SkillSpace() as space:
+        with pytest.raises(ManifestError, match=r"insert_peg_round\.zip"):
+            install_library(space, lib)
+        assert len(space) == 0  # All or nothing.
+        (lib / "sub").mkdir()
+        (lib / "sub" / "insert_peg_round.zip").write_bytes(b"x")
+        added = install_library(space, lib)
+        assert [s.name for s in added] == ["pick_nut_m12", "insert_peg_round"]
+        pick = space.get("pick_nut_m12")
+        assert (pick.success_ci, pick.train_steps, pick.algo) == ((0.92, 0.99), 200_000, "ppo")
+        assert pick.checkpoint == str(lib / "pick_nut_m12.zip")  # Outside the home: absolute.
+        assert install_library(space, lib) == []  # A second install adds nothing.
+
+
+def test_own_library_is_stored_relative(home):
+    with SkillSpace() as space:
+        write_manifest(space.library_dir, entries()[:1])
+        (space.library_dir / "pick_nut_m12.zip").write_bytes(b"x")
+        (skill,) = install_library(space, space.library_dir)
+        assert skill.checkpoint == "pick_nut_m12.zip"
+        assert space.checkpoint_path(skill).is_file()

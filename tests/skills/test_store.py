@@ -1,0 +1,158 @@
+from __future__ import annotations
+
+import multiprocessing as mp
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pytest
+from skill_helpers import make_skill
+
+from itskill.skills import (
+    CorruptDatabaseError,
+    DuplicateSkillError,
+    MissingCheckpointError,
+    SchemaVersionError,
+    SkillSpace,
+    UnknownSkillError,
+    itskill_home,
+)
+from itskill.skills.store import MIGRATIONS, SCHEMA_VERSION, MigrationError
+
+
+def test_home_defaults(monkeypatch, tmp_path):
+    monkeypatch.delenv("ITSKILL_HOME", raising=False)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    assert itskill_home() == tmp_path / "xdg" / "itskill"
+    monkeypatch.delenv("XDG_DATA_HOME")
+    assert itskill_home() == Path.home() / ".local" / "share" / "itskill"
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "h"))
+    assert itskill_home() == tmp_path / "h"
+
+
+def test_add_get_list_update_remove(home, checkpoint):
+    with SkillSpace() as space:
+        assert space.path == home / "skills.sqlite"
+        a = space.add(make_skill("a", checkpoint, seed=1, success_rate=0.5, train_steps=1000))
+        b = space.add(make_skill("b", checkpoint, seed=2, algo="ppo"))
+        assert (a.id, b.id) == (1, 2)
+        got = space.get("a")
+        assert got == a and space.get(1) == a and space.get("2") == b
+        np.testing.assert_array_equal(got.embedding, a.embedding)
+        assert [s.name for s in space.list()] == ["a", "b"]
+        new = space.update_metrics("a", success_rate=0.9, success_ci=(0.8, 0.95))
+        assert space.get("a").success_rate == 0.9
+        assert space.get("a").success_ci == (0.8, 0.95) == new.success_ci
+        assert space.get("a").train_steps == 1000  # Untouched fields are kept.
+        assert space.remove("b").name == "b"
+        assert len(space) == 1
+        with pytest.raises(DuplicateSkillError):
+            space.add(make_skill("a", checkpoint))
+
+
+def test_unknown_skill_lists_close_names(home, checkpoint):
+    with SkillSpace() as space:
+        space.add(make_skill("pick_nut_m12", checkpoint))
+        with pytest.raises(UnknownSkillError, match="pick_nut_m12") as err:
+            space.get("pick_nut_m16")
+        assert err.value.close == ["pick_nut_m12"]
+        with pytest.raises(UnknownSkillError):
+            space.remove(99)
+
+
+def test_checkpoint_must_exist_and_relative_paths_use_library(home, checkpoint):
+    with SkillSpace() as space:
+        with pytest.raises(MissingCheckpointError, match=r"nope\.zip"):
+            space.add(make_skill("x", checkpoint.parent / "nope.zip"))
+        space.library_dir.mkdir(parents=True)
+        (space.library_dir / "rel.zip").write_bytes(b"x")
+        s = space.add(make_skill("rel", Path("rel.zip")))
+        assert space.checkpoint_path(s) == home / "library" / "rel.zip"
+
+
+def _add_many(args: tuple[str, str, int]) -> None:
+    home, checkpoint, worker = args
+    import os
+
+    os.environ["ITSKILL_HOME"] = home
+    with SkillSpace() as space:
+        for i in range(25):
+            # One transaction per skill, interleaved with the other writers.
+            space.add(make_skill(f"w{worker}_{i}", Path(checkpoint), seed=worker * 100 + i))
+
+
+def test_concurrent_adds_lose_nothing(home, checkpoint):
+    ctx = mp.get_context("spawn")  # No inherited sqlite handles; the way real workers start.
+    with ctx.Pool(4) as pool:
+        pool.map(_add_many, [(str(home), str(checkpoint), w) for w in range(4)])
+    with SkillSpace() as space:
+        names = {s.name for s in space.list()}
+        ids = [s.id for s in space.list()]
+    assert names == {f"w{w}_{i}" for w in range(4) for i in range(25)}
+    assert sorted(ids) == list(range(1, 101))
+
+
+def test_old_version_is_upgraded_and_keeps_rows(home, checkpoint):
+    home.mkdir()
+    path = home / "skills.sqlite"
+    conn = sqlite3.connect(path)
+    for statement in MIGRATIONS[0]:
+        conn.execute(statement)
+    conn.execute("PRAGMA user_version = 1")
+    conn.execute(
+        "INSERT INTO skills (name, task_id, description, actions, checkpoint, success_rate, "
+        "created) VALUES ('old', 'pick_nut_m12', 'Pick up the M12 nut', '[\"approach\"]', ?, "
+        "0.7, 1.0)",
+        (str(checkpoint),),
+    )
+    conn.commit()
+    conn.close()
+    with SkillSpace() as space:
+        assert space.schema_version == SCHEMA_VERSION > 1
+        old = space.get("old")
+        assert (old.success_rate, old.actions, old.embedding) == (0.7, ("approach",), None)
+        space.update_metrics("old", train_steps=5, success_ci=(0.6, 0.8))
+        assert space.get("old").train_steps == 5
+
+
+def test_failed_migration_leaves_old_version(home, monkeypatch):
+    home.mkdir()
+    path = home / "skills.sqlite"
+    conn = sqlite3.connect(path)
+    for statement in MIGRATIONS[0]:
+        conn.execute(statement)
+    conn.execute("PRAGMA user_version = 1")
+    conn.commit()
+    conn.close()
+    from itskill.skills import store
+
+    broken = [*MIGRATIONS[:1], [*MIGRATIONS[1], "THIS IS NOT SQL"]]
+    monkeypatch.setattr(store, "MIGRATIONS", broken)
+    monkeypatch.setattr(store, "SCHEMA_VERSION", len(broken))
+    with pytest.raises(MigrationError, match="schema version 2 failed"):
+        SkillSpace()
+    conn = sqlite3.connect(path)
+    assert conn.execute("PRAGMA user_version").fetchone()[0] == 1
+    columns = [r[1] for r in conn.execute("PRAGMA table_info(skills)")]
+    assert "embedding" not in columns  # The half-applied step was rolled back.
+    conn.close()
+
+
+def test_newer_version_is_refused(home):
+    home.mkdir()
+    path = home / "skills.sqlite"
+    conn = sqlite3.connect(path)
+    conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    conn.close()
+    with pytest.raises(SchemaVersionError, match="newer than this itskill supports") as err:
+        SkillSpace()
+    assert str(path) in str(err.value)
+
+
+def test_corrupt_file_names_path(home):
+    home.mkdir()
+    path = home / "skills.sqlite"
+    path.write_bytes(b"this is not an sqlite database" * 100)
+    with pytest.raises(CorruptDatabaseError) as err:
+        SkillSpace()
+    assert str(path) in str(err.value)
