@@ -489,3 +489,61 @@ def skills_install(
         _print_json([s.to_dict() for s in added])
         return
     console.print(f"installed {len(added)} skill(s) from {library}")
+
+
+@skills_app.command("pretrain")
+def skills_pretrain(
+    tasks: Annotated[
+        list[str] | None,
+        typer.Option("--tasks", help="Tasks to train (default: every basic task)."),
+    ] = None,
+    steps: Annotated[int, typer.Option(help="Env-steps per skill.")] = 300_000,
+    algo: Annotated[str, typer.Option(help="a2c or ppo.")] = "ppo",
+    seed: Annotated[int, typer.Option()] = 0,
+    episodes: Annotated[int, typer.Option(help="Evaluation episodes per skill.")] = 100,
+    executor: Annotated[str, typer.Option(help="local (one job per core) or ray.")] = "local",
+    workers: Annotated[int | None, typer.Option(help="Parallel jobs (local executor).")] = None,
+    ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,
+    runs: Annotated[Path, typer.Option(help="Training run directories (resumable).")] = Path(
+        "runs/pretrain"
+    ),
+    library: Annotated[
+        Path | None, typer.Option(help="Library directory (default: the skill space's own).")
+    ] = None,
+) -> None:
+    """Train skills from scratch with expert rewards, evaluate each, add them to the skill space.
+
+    Rerunning the same command resumes unfinished trainings from their last checkpoint.
+    """
+    from itskill.executors import ExecutorError
+    from itskill.skills import SkillSpace
+    from itskill.skills.pretrain import PretrainConfig, basic_tasks, pretrain
+
+    config = PretrainConfig(algo=algo, steps=steps, seed=seed, eval_episodes=episodes)
+
+    def report(task: str, entry, error) -> None:
+        if error is not None:
+            console.print(f"[red]{task}: failed: {type(error).__name__}: {error}[/red]")
+        else:
+            lo, hi = entry.success_ci
+            console.print(
+                f"{task}: success {entry.success:.0%} (95% CI {lo:.0%}-{hi:.0%}) after "
+                f"{entry.steps:,} env-steps, {entry.wall_s / 60:.1f} min"
+            )
+
+    with _user_errors(), _skill_errors(), SkillSpace() as space:
+        try:
+            pretrain(
+                tasks or basic_tasks(),
+                config,
+                runs,
+                library or space.library_dir,
+                space,
+                executor=executor,
+                workers=workers,
+                ray_address=ray_address,
+                on_result=report,
+            )
+        except ExecutorError as err:
+            console.print(f"[red]{err}[/red]")
+            raise typer.Exit(2) from err

@@ -1,0 +1,118 @@
+"""Run independent jobs in parallel: local worker processes by default, Ray for a cluster.
+
+Pretraining skills, reward candidates and experiment cells are all "call this function with these
+arguments, somewhere, and give me the result": :func:`run_jobs` does that and yields each result
+as soon as it is finished, so callers write it to disk at once and a killed run loses only the jobs
+in flight. A job that raises is reported with its exception, not raised, so one failure does not
+take down the others.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Any, Literal
+
+Executor = Literal["local", "ray"]
+EXECUTORS: tuple[str, ...] = ("local", "ray")
+
+
+class ExecutorError(RuntimeError):
+    """The executor itself could not run (Ray missing or unreachable, bad name)."""
+
+
+@dataclass(frozen=True)
+class JobResult:
+    """The outcome of one job: its index in the submitted list, its value or its error."""
+
+    index: int
+    value: Any = None
+    error: BaseException | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+def default_workers() -> int:
+    """One job per core."""
+    return max(1, os.cpu_count() or 1)
+
+
+def run_jobs(
+    fn: Callable[..., Any],
+    jobs: Sequence[tuple[Any, ...]],
+    executor: Executor = "local",
+    workers: int | None = None,
+    ray_address: str | None = None,
+) -> Iterator[JobResult]:
+    """Call ``fn(*args)`` for each ``args`` in ``jobs``; yield results in order of completion.
+
+    ``local`` runs ``workers`` spawned processes (one job per core by default; spawned, not
+    forked, so no thread pool or MuJoCo state is inherited). ``ray`` submits ``ray.remote`` tasks
+    to the cluster at ``ray_address``, or to a local Ray instance when it is None.
+    """
+    if executor == "local":
+        yield from _run_local(fn, jobs, workers or default_workers())
+    elif executor == "ray":
+        yield from _run_ray(fn, jobs, ray_address)
+    else:
+        raise ExecutorError(f"unknown executor {executor!r}; expected one of {EXECUTORS}")
+
+
+def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
+    if workers == 1:
+        # In-process: easier to debug and no start-up cost.
+        for i, args in enumerate(jobs):
+            try:
+                yield JobResult(i, value=fn(*args))
+            except Exception as err:
+                yield JobResult(i, error=err)
+        return
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+        pending: dict[Future, int] = {pool.submit(fn, *args): i for i, args in enumerate(jobs)}
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                index = pending.pop(future)
+                error = future.exception()
+                yield JobResult(index, value=None if error else future.result(), error=error)
+
+
+def _call(fn: Callable[..., Any], *args: Any) -> Any:
+    """Ray's remote wrapper: ``ray.remote`` takes only Python functions, not builtins."""
+    return fn(*args)
+
+
+def _run_ray(fn, jobs, address: str | None) -> Iterator[JobResult]:
+    try:
+        import ray
+    except ImportError as err:
+        raise ExecutorError(
+            "executor 'ray' needs Ray: pip install 'ray>=2.9' (or use --executor local)"
+        ) from err
+    started_here = not ray.is_initialized()
+    if started_here:
+        try:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        except (ConnectionError, RuntimeError, ValueError) as err:
+            where = address or "a local instance"
+            raise ExecutorError(f"could not start or reach Ray at {where}: {err}") from err
+    try:
+        remote = ray.remote(_call)
+        pending = {remote.remote(fn, *args): i for i, args in enumerate(jobs)}
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                index = pending.pop(ref)
+                try:
+                    yield JobResult(index, value=ray.get(ref))
+                except ray.exceptions.RayTaskError as err:
+                    yield JobResult(index, error=err.as_instanceof_cause())
+    finally:
+        if started_here:
+            ray.shutdown()

@@ -1,0 +1,134 @@
+"""Pretrain skills from scratch with the expert reward, measure them, and add them to a library.
+
+Each task is one job (:func:`pretrain_task`): train with :func:`itskill.rl.train.train` into
+``runs_dir/<task>`` (resumable: a rerun continues from the last checkpoint), evaluate the final
+policy deterministically over ``eval_episodes`` episodes, and copy its weights and metadata (no
+optimiser state) into ``library_dir/<task>/``. :func:`pretrain` runs the jobs through an executor
+and, as each one finishes, rewrites the library's manifest and registers the skill in a skill
+space, so an interrupted pretraining keeps every skill already finished.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from itskill.executors import Executor, run_jobs
+from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy
+from itskill.rl.train import train
+from itskill.skills.manifest import MANIFEST_NAME, ManifestEntry, read_manifest, write_manifest
+from itskill.skills.store import SkillSpace, UnknownSkillError
+from itskill.tasks import get_task
+from itskill.tasks.evaluate import evaluate
+
+
+@dataclass(frozen=True)
+class PretrainConfig:
+    """Budget and evaluation of each pretrained skill."""
+
+    algo: str = "ppo"
+    steps: int = 300_000
+    """Env-steps per skill."""
+    seed: int = 0
+    num_envs: int = 16
+    eval_episodes: int = 100
+    eval_seed: int = 10_000
+    """Evaluation episodes are drawn from other seeds than training's."""
+
+
+def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir: Path) -> dict:
+    """Train, evaluate and export one skill; returns its manifest entry as JSON (picklable)."""
+    spec = get_task(task)
+    run_dir = Path(runs_dir) / task
+    result = train(
+        task,
+        algo=config.algo,
+        steps=config.steps,
+        seed=config.seed,
+        reward="expert",
+        out=run_dir,
+        num_envs=config.num_envs,
+        n_threads=1,
+    )
+    ev = evaluate(
+        spec, as_policy(run_dir), episodes=config.eval_episodes, seed=config.eval_seed, num_envs=25
+    )
+    target = Path(library_dir) / task
+    target.mkdir(parents=True, exist_ok=True)
+    for name in (POLICY_FILE, META_FILE):
+        shutil.copyfile(run_dir / name, target / name)
+    entry = ManifestEntry(
+        name=task,
+        task=task,
+        description=spec.command,
+        actions=spec.actions,
+        checkpoint=f"{task}/{POLICY_FILE}",
+        success=ev.success_rate,
+        success_ci=(ev.ci_low, ev.ci_high),
+        steps=result.num_timesteps,
+        wall_s=round(result.wall_s, 1),
+        algo=config.algo,
+        seed=config.seed,
+    )
+    return entry.to_json()
+
+
+def record(entry: ManifestEntry, library_dir: Path, space: SkillSpace | None) -> None:
+    """Put ``entry`` in the library's manifest (replacing an older one) and in ``space``."""
+    entries = [e for e in read_manifest_or_empty(library_dir) if e.name != entry.name]
+    write_manifest(library_dir, [*entries, entry])
+    if space is None:
+        return
+    with contextlib.suppress(UnknownSkillError):  # a retrained skill replaces the old one
+        space.remove(entry.name)
+    space.add(entry.to_skill(str(Path(library_dir).resolve() / entry.checkpoint)))
+
+
+def read_manifest_or_empty(library_dir: Path) -> list[ManifestEntry]:
+    """The library's manifest entries; none for a library not yet written."""
+    return read_manifest(library_dir) if (Path(library_dir) / MANIFEST_NAME).is_file() else []
+
+
+def pretrain(
+    tasks: Iterable[str],
+    config: PretrainConfig,
+    runs_dir: Path,
+    library_dir: Path,
+    space: SkillSpace | None = None,
+    executor: Executor = "local",
+    workers: int | None = None,
+    ray_address: str | None = None,
+    on_result: Callable[[str, ManifestEntry | None, BaseException | None], None] | None = None,
+) -> list[ManifestEntry]:
+    """Pretrain every task in ``tasks``; returns the entries of the skills that finished.
+
+    A task whose job fails is reported through ``on_result`` with its exception and skipped; the
+    others go on.
+    """
+    tasks = [get_task(t).id for t in tasks]  # unknown names fail before any training starts
+    Path(library_dir).mkdir(parents=True, exist_ok=True)
+    jobs = [(t, config, Path(runs_dir), Path(library_dir)) for t in tasks]
+    finished = []
+    for res in run_jobs(pretrain_task, jobs, executor, workers, ray_address):
+        task = tasks[res.index]
+        entry = None
+        if res.ok:
+            entry = ManifestEntry.from_json(res.value, where=task)
+            record(entry, Path(library_dir), space)
+            finished.append(entry)
+        if on_result is not None:
+            on_result(task, entry, res.error)
+    return finished
+
+
+def basic_tasks() -> list[str]:
+    """The tasks pretrained by default: every basic (single-skill) task."""
+    from itskill.tasks import all_tasks
+
+    return [t.id for t in all_tasks().values() if t.kind == "basic"]
+
+
+__all__ = ["PretrainConfig", "basic_tasks", "pretrain", "pretrain_task", "record"]

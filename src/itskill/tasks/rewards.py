@@ -1,0 +1,304 @@
+"""Expert (human-designed) rewards: the baseline that LLM-generated rewards are compared against.
+
+One reward recipe serves every task. It is built from the task's data, not written per task:
+
+* The task's stages say which subtask an environment is in (``ctx["stage"]``). Each stage's
+  ``done`` predicate names what the subtask must achieve (``near``, ``grasped``, ``lifted``,
+  ``above_fixture``, ``engaged``, ``seated``, ``inserted``, ``removed``, ``displaced``, ...), and
+  its arguments (object slot, heights, tolerances, push offsets) parameterise the shaping.
+* Every predicate name maps to a *term function* that returns dense shaping terms in [0, 1] which
+  reach 1 when the predicate holds (closeness of the grip point to the part, part height up to the
+  target, closeness of the part's bottom to its fixture point, yaw alignment, thread travel, ...).
+* Only the current stage's terms are paid, as a weighted mean ``progress`` in [0, 1].
+
+The total per step is::
+
+    STAGE_BONUS * stage + PROGRESS_WEIGHT * progress + SUCCESS_BONUS * success - action penalty
+
+With ``PROGRESS_WEIGHT <= STAGE_BONUS`` completing a stage never lowers the reward: the bonus of
+the next stage is at least what the finished stage's shaping could pay. Each transformed term has
+its own temperature in :data:`TEMPERATURES` (metres or radians); the reward-optimisation loop may
+pass its own values to :func:`expert_reward`.
+
+Components are named ``"<k>.<stage name>/<term>"`` (the stage index keeps repeated stage names such
+as the two ``approach`` stages of pick-and-place apart) plus ``"stage_bonus"``, ``"success"`` and
+``"action_penalty"``; they sum to the total.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from itskill.sim.task import Context, RewardFn
+from itskill.tasks.spec import TaskSpec
+
+STAGE_BONUS = 1.0
+"""Reward per completed stage, paid every step while the stage stays completed."""
+PROGRESS_WEIGHT = 1.0
+"""Weight of the current stage's shaping (a mean in [0, 1]); at most ``STAGE_BONUS``."""
+SUCCESS_BONUS = 2.0
+"""Paid every step on which the task's success predicate holds (episodes do not end on success,
+so a policy that keeps the part lifted or seated keeps earning it)."""
+ACTION_PENALTY = 0.01
+"""Weight of the mean squared motion action [dx, dy, dz, dyaw]: discourages jitter, small enough
+not to stop exploration."""
+
+TEMPERATURES: dict[str, float] = {
+    "reach": 0.15,  # grip point to part, coarse: still has a slope 30 cm away (m)
+    "reach_fine": 0.015,  # grip point to part, fine: the last centimetres before a grasp (m)
+    "grasp_align": 0.01,  # grip point to the part's grip zone while closing (m)
+    "fixture": 0.06,  # part bottom to a point over its fixture, coarse (m)
+    "fixture_fine": 0.006,  # part bottom over its fixture, fine (a bolt tip is ~12 mm wide) (m)
+    "yaw": 0.15,  # part yaw to fixture yaw (rad)
+    "engage": 0.008,  # part bottom to the fixture point while placing (m)
+    "screw": 0.004,  # nut seat gap left to travel (m; M12 pitch is 1.75 mm)
+    "push": 0.04,  # part centre to the push target (m)
+    "push_reach": 0.06,  # grip point to the pushed part (m)
+}
+"""Distance scale of each tanh-shaped term: ``1 - tanh(distance / temperature)``."""
+
+Term = Callable[[Context, int, tuple[float, ...], Mapping[str, float]], dict[str, np.ndarray]]
+"""``(ctx, object slot, extra predicate args, temperatures) -> {term name: value in [0, 1]}``."""
+
+
+def _closeness(distance: np.ndarray, temperature: float) -> np.ndarray:
+    """1 at zero distance, falling off smoothly over ``temperature``."""
+    return 1.0 - np.tanh(np.maximum(distance, 0.0) / temperature)
+
+
+def _fraction(value: np.ndarray, target: np.ndarray | float) -> np.ndarray:
+    """``value / target`` clipped to [0, 1]: linear progress, with the same slope everywhere."""
+    return np.clip(value / np.maximum(target, 1e-6), 0.0, 1.0)
+
+
+def _fixture_of(ctx: Context, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and fixture index of object ``i``'s fixture, for fancy indexing."""
+    fix = ctx["obj_fixture"][:, i].astype(int)
+    return np.arange(len(fix)), fix
+
+
+def _ee_dist(ctx: Context, i: int) -> np.ndarray:
+    return np.linalg.norm(ctx["obj_to_ee"][:, i], axis=-1)
+
+
+# ------------------------------------------------------------------------------ term functions
+def near_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Approach a part: the grip point's closeness to its centre, a coarse and a fine scale.
+
+    Two scales because one tanh either has no slope far away or none in the last centimetres.
+    """
+    d = _ee_dist(ctx, i)
+    return {"reach": _closeness(d, t["reach"]), "reach_fine": _closeness(d, t["reach_fine"])}
+
+
+def grasped_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Grasp (or keep holding) a part.
+
+    1 while held. Otherwise pay for centring the grip point on the part's grip zone, halved while
+    the fingers are closed on nothing: fingers shut above the part block the descent, a local
+    optimum the policy otherwise settles in. The cap below 1 keeps a held part strictly better
+    than any near miss.
+    """
+    held = ctx["grasped"][:, i]
+    # The fingers hold anywhere along the part's height, so only the part of the vertical offset
+    # beyond half its height counts (the grip point cannot reach a short nut's centre anyway: the
+    # fingertips touch the table first).
+    off = ctx["obj_to_ee"][:, i]
+    vertical = np.maximum(np.abs(off[:, 2]) - 0.5 * ctx["obj_height"][:, i], 0.0)
+    align = _closeness(np.hypot(np.linalg.norm(off[:, :2], axis=-1), vertical), t["grasp_align"])
+    empty = ctx["grip_closed"] * (ctx["gripper_width"] < ctx["obj_width"][:, i] - 0.004)
+    attempt = 0.7 * align * (1.0 - 0.5 * empty)
+    return {"grasp": np.maximum(held, attempt)}
+
+
+def lifted_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Lift a part: its bottom's height as a fraction of the target (``heights`` part heights),
+    counted only while it is held so that knocking it into the air earns nothing."""
+    heights = args[0] if args else 3.0
+    target = heights * ctx["obj_height"][:, i]
+    return {"lift": ctx["grasped"][:, i] * _fraction(ctx["obj_bottom_z"][:, i], target)}
+
+
+def above_fixture_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Carry a part over its fixture: its bottom's closeness to a point over the fixture point,
+    in the middle of the predicate's height window, coarse and fine; and its yaw alignment."""
+    height = args[1] if len(args) > 1 else 0.03
+    off = np.array(ctx["obj_to_fix"][:, i], dtype=np.float64)
+    off[:, 2] += 0.5 * height  # aim half-way up the allowed hover window
+    d = np.linalg.norm(off, axis=-1)
+    return {
+        "to_fixture": _closeness(d, t["fixture"]),
+        "over_fixture": _closeness(d, t["fixture_fine"]),
+    }
+
+
+def aligned_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Turn a part to its fixture's yaw (the error is 0 for a round part)."""
+    return {"yaw": _closeness(np.abs(ctx["yaw_error"][:, i]), t["yaw"])}
+
+
+def engaged_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Place a part on its fixture: its bottom's closeness to the fixture point (the nut's
+    thread catches there), then 1 once engaged."""
+    d = np.linalg.norm(ctx["obj_to_fix"][:, i], axis=-1)
+    engaged = ctx["engaged"][:, i]
+    return {"engage": np.maximum(engaged, 0.9 * _closeness(d, t["engage"]))}
+
+
+def seated_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Screw a nut down: the seat gap still to travel, while engaged; and holding the nut, since
+    only a gripped nut can be turned."""
+    tolerance = args[0] if args else 0.0
+    gap = ctx["seat_gap"][:, i] - tolerance
+    return {
+        "screw": ctx["engaged"][:, i] * _closeness(gap, t["screw"]),
+        "reach_fine": _closeness(_ee_dist(ctx, i), t["reach_fine"]),
+    }
+
+
+def inserted_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Insert a peg: centred over the hole, yaw aligned, and depth as a fraction of the target."""
+    fraction = args[0] if args else 0.5
+    rows, fix = _fixture_of(ctx, i)
+    hole_depth = ctx["fix_pos"][rows, fix, 2] - ctx["seat_z"][rows, fix]
+    lateral = np.linalg.norm(ctx["obj_to_fix"][:, i, :2], axis=-1)
+    return {
+        "centre": _closeness(lateral, t["fixture_fine"]),
+        "yaw": _closeness(np.abs(ctx["yaw_error"][:, i]), t["yaw"]),
+        "depth": _fraction(ctx["insertion_depth"][:, i], fraction * hole_depth),
+    }
+
+
+def removed_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Unscrew or pull a part off its fixture: its bottom's height from the seat up to ``height``
+    above the fixture point (the whole travel, linear), while the grip point stays on the part."""
+    height = args[0] if args else 0.02
+    rows, fix = _fixture_of(ctx, i)
+    seat = ctx["seat_z"][rows, fix]
+    travel = ctx["fix_pos"][rows, fix, 2] + height - seat
+    return {
+        "raise": _fraction(ctx["obj_bottom_z"][:, i] - seat, travel),
+        "reach_fine": _closeness(_ee_dist(ctx, i), t["reach_fine"]),
+    }
+
+
+def displaced_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Push a part to (dx, dy) from its fixture point: the part's closeness to that target, and
+    the grip point staying near the part (a coarse scale: the pusher sits beside it)."""
+    dx, dy = (args[0], args[1]) if len(args) >= 2 else (0.0, 0.0)
+    err = -ctx["obj_to_fix"][:, i, :2] - np.array([dx, dy])
+    return {
+        "push": _closeness(np.linalg.norm(err, axis=-1), t["push"]),
+        "push_reach": _closeness(_ee_dist(ctx, i), t["push_reach"]),
+    }
+
+
+def released_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Let go of a part: fingers commanded open and the part not held."""
+    return {"release": (1.0 - ctx["grasped"][:, i]) * (1.0 - ctx["grip_closed"])}
+
+
+TERMS: dict[str, Term] = {
+    "near": near_terms,
+    "grasped": grasped_terms,
+    "lifted": lifted_terms,
+    "above_fixture": above_fixture_terms,
+    "aligned": aligned_terms,
+    "engaged": engaged_terms,
+    "seated": seated_terms,
+    "inserted": inserted_terms,
+    "removed": removed_terms,
+    "displaced": displaced_terms,
+    "released": released_terms,
+}
+"""Shaping for each stage predicate (see :mod:`itskill.tasks.predicates`)."""
+
+TERM_WEIGHTS: dict[str, float] = {"reach_fine": 0.5, "push_reach": 0.5}
+"""Relative weight of a term inside its stage's mean (1 if not listed): auxiliary terms count
+less than the term that measures the subtask itself."""
+
+
+# ------------------------------------------------------------------------------ the reward
+@dataclass(frozen=True)
+class _StagePlan:
+    """What one stage pays for: ``(predicate, object slot, extra args)`` per shaped term."""
+
+    label: str
+    terms: tuple[tuple[str, int, tuple[float, ...]], ...]
+
+
+def _plan(spec: TaskSpec) -> list[_StagePlan]:
+    """Shaped predicates per stage: the positive terms of each stage's ``done`` expression.
+
+    A term already required by the previous stage (``engaged(0)`` in ``engaged(0) and near(1)``)
+    is dropped: it holds anyway, and paying for it again would only flatten the new terms.
+    Negated terms are not shaped (they say what must stay false, not where to go).
+    """
+    plans: list[_StagePlan] = []
+    previous: set[tuple[str, tuple[float, ...]]] = set()
+    for k, stage in enumerate(spec.stages):
+        current = {(name, args) for neg, name, args in stage.done.terms if not neg}
+        new = [
+            (name, int(args[0]), tuple(args[1:]))
+            for neg, name, args in stage.done.terms
+            if not neg and name in TERMS and (name, args) not in previous
+        ]
+        if not new:  # a stage that repeats its predecessor's predicate: shape all of it
+            new = [
+                (name, int(args[0]), tuple(args[1:]))
+                for neg, name, args in stage.done.terms
+                if not neg and name in TERMS
+            ]
+        plans.append(_StagePlan(f"{k}.{stage.name}", tuple(new)))
+        previous = current
+    return plans
+
+
+def expert_reward(spec: TaskSpec, temperatures: Mapping[str, float] | None = None) -> RewardFn:
+    """The expert reward of task ``spec``: staged dense shaping, stage bonus and success bonus.
+
+    ``temperatures`` overrides entries of :data:`TEMPERATURES` (unknown names are an error, so a
+    typo does not silently leave the default in place).
+    """
+    temps = dict(TEMPERATURES)
+    for name, value in (temperatures or {}).items():
+        if name not in temps:
+            raise KeyError(f"unknown temperature {name!r}; known: {', '.join(temps)}")
+        temps[name] = float(value)
+    plans = _plan(spec)
+    success_fn = spec.success
+
+    def compute_reward(ctx: Context) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        n = ctx["ee_pos"].shape[0]
+        stage = np.asarray(ctx["stage"]).astype(int).reshape(n)
+        components: dict[str, np.ndarray] = {}
+        for k, plan in enumerate(plans):
+            active = stage == k
+            values: dict[str, np.ndarray] = {}
+            for name, slot, args in plan.terms:
+                for term, value in TERMS[name](ctx, slot, args, temps).items():
+                    key = term if term not in values else f"{term}_{slot}"
+                    values[key] = value
+            total_weight = sum(_weight(term) for term in values) or 1.0
+            for term, value in values.items():
+                share = PROGRESS_WEIGHT * _weight(term) / total_weight
+                components[f"{plan.label}/{term}"] = np.where(active, share * value, 0.0)
+        components["stage_bonus"] = STAGE_BONUS * stage.astype(np.float64)
+        components["success"] = SUCCESS_BONUS * np.asarray(success_fn(ctx), dtype=np.float64)
+        motion = np.asarray(ctx["action"], dtype=np.float64)[:, :4]
+        components["action_penalty"] = -ACTION_PENALTY * np.mean(motion**2, axis=-1)
+        total = np.sum(list(components.values()), axis=0)
+        return total, components
+
+    return compute_reward
+
+
+def _weight(term: str) -> float:
+    """A term's weight in its stage's mean, ignoring a ``_<slot>`` suffix."""
+    if term in TERM_WEIGHTS:
+        return TERM_WEIGHTS[term]
+    base = term.rsplit("_", 1)[0]
+    return TERM_WEIGHTS.get(base, 1.0) if term[-1:].isdigit() else 1.0

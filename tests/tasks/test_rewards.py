@@ -1,0 +1,195 @@
+"""The expert reward: values on hand-built states, along scripted rollouts, and on every task."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from itskill.sim.context import MAX_FIXTURES, MAX_OBJECTS
+from itskill.tasks import all_tasks, get_task, make_batch_env
+from itskill.tasks.rewards import SUCCESS_BONUS, TEMPERATURES, expert_reward
+from itskill.tasks.scripted import ScriptedPolicy
+
+N = 3
+NUT_HEIGHT = 0.01
+NUT_WIDTH = 0.018
+
+
+def _ctx(**overrides) -> dict[str, np.ndarray]:
+    """A context of N = 3 environments: an M12-sized nut on the table at (0.5, 0, 0), its bolt
+    tip at (0.55, 0.12, 0.04), the open hand 10 cm above the nut. ``overrides`` replace keys."""
+    nut = np.array([0.5, 0.0, NUT_HEIGHT / 2])
+    fix = np.array([0.55, 0.12, 0.04])
+    ctx = {
+        "ee_pos": np.tile(nut + np.array([0.0, 0.0, 0.1]), (N, 1)),
+        "ee_vel": np.zeros((N, 3)),
+        "ee_yaw": np.zeros(N),
+        "gripper_width": np.full(N, 0.08),
+        "grip_closed": np.zeros(N),
+        "action": np.zeros((N, 5)),
+        "obj_mask": np.tile([1.0, 0.0], (N, 1)),
+        "obj_pos": np.zeros((N, MAX_OBJECTS, 3)),
+        "obj_vel": np.zeros((N, MAX_OBJECTS, 3)),
+        "obj_yaw": np.zeros((N, MAX_OBJECTS)),
+        "obj_tilt": np.zeros((N, MAX_OBJECTS)),
+        "obj_height": np.tile([NUT_HEIGHT, 0.0], (N, 1)),
+        "obj_width": np.tile([NUT_WIDTH, 0.0], (N, 1)),
+        "obj_bottom_z": np.zeros((N, MAX_OBJECTS)),
+        "grasped": np.zeros((N, MAX_OBJECTS)),
+        "fix_mask": np.tile([1.0, 0.0], (N, 1)),
+        "fix_pos": np.zeros((N, MAX_FIXTURES, 3)),
+        "fix_yaw": np.zeros((N, MAX_FIXTURES)),
+        "seat_z": np.zeros((N, MAX_FIXTURES)),
+        "obj_fixture": np.zeros((N, MAX_OBJECTS)),
+        "yaw_error": np.zeros((N, MAX_OBJECTS)),
+        "engaged": np.zeros((N, MAX_OBJECTS)),
+        "insertion_depth": np.zeros((N, MAX_OBJECTS)),
+        "stage": np.zeros(N, dtype=np.int64),
+        "n_stages": np.full(N, 3.0),
+        "time_frac": np.zeros(N),
+    }
+    ctx["obj_pos"][:, 0] = nut
+    ctx["fix_pos"][:, 0] = fix
+    ctx["seat_z"][:, 0] = 0.005
+    ctx.update({k: np.asarray(v, dtype=np.float64) for k, v in overrides.items()})
+    _derive(ctx)
+    return ctx
+
+
+def _derive(ctx: dict[str, np.ndarray]) -> None:
+    """Fill the keys that follow from positions, as the simulator does."""
+    pos = ctx["obj_pos"]
+    ctx["obj_bottom_z"] = (pos[..., 2] - ctx["obj_height"] / 2) * ctx["obj_mask"]
+    ctx["obj_to_ee"] = (ctx["ee_pos"][:, None] - pos) * ctx["obj_mask"][..., None]
+    bottom = pos.copy()
+    bottom[..., 2] = ctx["obj_bottom_z"]
+    ctx["obj_to_fix"] = (ctx["fix_pos"][:, :1] - bottom) * ctx["obj_mask"][..., None]
+    ctx["seat_gap"] = (ctx["obj_bottom_z"] - ctx["seat_z"][:, :1]) * ctx["obj_mask"]
+
+
+def _with_stage(spec, ctx: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    ctx["stage"] = spec.stage_index(ctx)
+    return ctx
+
+
+def _reward(task: str, ctx: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    spec = get_task(task)
+    return expert_reward(spec)(_with_stage(spec, ctx))
+
+
+def test_approach_term_is_higher_at_the_nut() -> None:
+    far = _ctx()
+    at = _ctx(ee_pos=np.tile([0.5, 0.0, 0.012], (N, 1)))
+    r_far, c_far = _reward("reach_nut_m12", far)
+    r_at, c_at = _reward("reach_nut_m12", at)
+    assert (c_at["0.approach/reach"] > c_far["0.approach/reach"]).all()
+    assert (r_at > r_far).all()
+    # At the nut the reach task has succeeded and pays the success bonus.
+    np.testing.assert_allclose(c_at["success"], SUCCESS_BONUS)
+    np.testing.assert_allclose(c_far["success"], 0.0)
+
+
+def test_lifted_beats_grasped_on_table_and_success_pays_bonus() -> None:
+    grip = dict(grip_closed=np.ones(N), grasped=np.tile([1.0, 0.0], (N, 1)))
+    on_table = _ctx(ee_pos=np.tile([0.5, 0.0, 0.012], (N, 1)), **grip)
+    lifted_pos = np.zeros((N, MAX_OBJECTS, 3))
+    lifted_pos[:, 0] = [0.5, 0.0, 0.02 + NUT_HEIGHT / 2]  # bottom 2 heights up: not yet success
+    half = _ctx(ee_pos=np.tile([0.5, 0.0, 0.027], (N, 1)), obj_pos=lifted_pos, **grip)
+    done_pos = lifted_pos.copy()
+    done_pos[:, 0, 2] = 0.04 + NUT_HEIGHT / 2  # 4 heights: success (3 needed)
+    done = _ctx(ee_pos=np.tile([0.5, 0.0, 0.047], (N, 1)), obj_pos=done_pos, **grip)
+    r_table, _ = _reward("pick_nut_m12", on_table)
+    r_half, c_half = _reward("pick_nut_m12", half)
+    r_done, c_done = _reward("pick_nut_m12", done)
+    assert (r_table < r_half).all() and (r_half < r_done).all()
+    np.testing.assert_allclose(c_half["success"], 0.0)
+    np.testing.assert_allclose(c_done["success"], SUCCESS_BONUS)
+    assert (c_half["2.lift/lift"] > 0).all()
+
+
+def test_grasping_beats_hovering_and_empty_fingers_are_worse() -> None:
+    centred = np.tile([0.5, 0.0, 0.012], (N, 1))
+    open_ = _ctx(ee_pos=centred)
+    shut = _ctx(ee_pos=centred, grip_closed=np.ones(N), gripper_width=np.zeros(N))
+    held = _ctx(
+        ee_pos=centred,
+        grip_closed=np.ones(N),
+        gripper_width=np.full(N, NUT_WIDTH),
+        grasped=np.tile([1.0, 0.0], (N, 1)),
+    )
+    r_open, _ = _reward("pick_nut_m12", open_)
+    r_shut, _ = _reward("pick_nut_m12", shut)
+    r_held, _ = _reward("pick_nut_m12", held)
+    assert (r_shut < r_open).all() and (r_open < r_held).all()
+
+
+def test_components_sum_to_total_and_stages_only_pay_their_own_terms() -> None:
+    ctx = _ctx(ee_pos=np.array([[0.5, 0.0, 0.2], [0.5, 0.0, 0.02], [0.5, 0.0, 0.012]]))
+    total, comps = _reward("pickplace_nut_m12", ctx)
+    np.testing.assert_allclose(sum(comps.values()), total)
+    stage = ctx["stage"]
+    for name, value in comps.items():
+        if "/" in name:
+            k = int(name.split(".", 1)[0])
+            assert (value[stage != k] == 0).all(), name
+
+
+def test_temperatures_can_be_overridden_and_typos_are_caught() -> None:
+    spec = get_task("reach_nut_m12")
+    ctx = _with_stage(spec, _ctx())
+    sharp = expert_reward(spec, {"reach": TEMPERATURES["reach"] / 4})(ctx)[1]["0.approach/reach"]
+    default = expert_reward(spec)(ctx)[1]["0.approach/reach"]
+    assert (sharp < default).all()
+    with pytest.raises(KeyError, match="unknown temperature"):
+        expert_reward(spec, {"reech": 0.1})
+
+
+def _scripted_rollout(task: str, num_envs: int = 4):
+    """Rewards, stages and success of one scripted episode: arrays (T, num_envs)."""
+    spec = get_task(task)
+    reward_fn = expert_reward(spec)
+    env = make_batch_env(task, num_envs=num_envs, seed=1, n_threads=1)
+    policy = ScriptedPolicy(spec, num_envs)
+    env.reset()
+    policy.reset()
+    rewards, stages, successes = [], [], []
+    try:
+        for _ in range(spec.max_steps - 1):
+            ctx = env.context()
+            total, comps = reward_fn(ctx)
+            np.testing.assert_allclose(sum(comps.values()), total)
+            rewards.append(total)
+            stages.append(ctx["stage"].copy())
+            successes.append(spec.success(ctx))
+            env.step(policy(ctx))
+    finally:
+        env.close()
+    return np.array(rewards), np.array(stages), np.array(successes)
+
+
+@pytest.mark.parametrize("task", ["pick_nut_m12", "place_nut_m12", "insert_peg_round"])
+def test_reward_rises_along_a_scripted_episode(task: str) -> None:
+    rewards, stages, successes = _scripted_rollout(task)
+    assert successes[-1].all(), "the script should solve the task"
+    assert (rewards[-1] > rewards[0]).all()
+    # At stage transitions upward the per-step reward rises (the stage bonus covers the shaping
+    # the finished stage paid), apart from the odd physics wobble.
+    up = stages[1:] > stages[:-1]
+    if up.any():
+        rises = rewards[1:][up] > rewards[:-1][up]
+        assert rises.mean() >= 0.9
+
+
+@pytest.mark.parametrize("task", list(all_tasks()))
+def test_every_task_has_a_finite_expert_reward(task: str) -> None:
+    spec = get_task(task)
+    env = make_batch_env(task, num_envs=2, seed=0, n_threads=1)
+    try:
+        env.reset()
+        total, comps = expert_reward(spec)(env.context())
+    finally:
+        env.close()
+    assert total.shape == (2,) and np.isfinite(total).all()
+    assert {"stage_bonus", "success"} <= set(comps)
+    for value in comps.values():
+        assert value.shape == (2,) and np.isfinite(value).all()
