@@ -361,9 +361,9 @@ def _skill_table(rows: list[tuple[Any, float | None]], title: str) -> Table:
 @skills_app.command("list")
 def skills_list(as_json: JsonOpt = False) -> None:
     """List every skill in the skill space ($ITSKILL_HOME/skills.sqlite)."""
-    from itskill.skills import SkillSpace
+    from itskill.skills import open_skill_space
 
-    with _skill_errors(), SkillSpace() as space:
+    with _skill_errors(), open_skill_space() as space:
         skills = space.list()
         path = space.path
     if as_json:
@@ -375,9 +375,9 @@ def skills_list(as_json: JsonOpt = False) -> None:
 @skills_app.command("show")
 def skills_show(skill: SkillArg, as_json: JsonOpt = False) -> None:
     """Show one skill: its description, actions, checkpoint and metrics."""
-    from itskill.skills import SkillSpace
+    from itskill.skills import open_skill_space
 
-    with _skill_errors(), SkillSpace() as space:
+    with _skill_errors(), open_skill_space() as space:
         found = space.get(skill)
         ckpt = space.checkpoint_path(found)
     data = {**found.to_dict(), "checkpoint_path": str(ckpt), "checkpoint_exists": ckpt.is_file()}
@@ -402,9 +402,9 @@ def skills_search(
     as_json: JsonOpt = False,
 ) -> None:
     """The skills most similar to QUERY (cosine similarity of sentence embeddings)."""
-    from itskill.skills import SkillSpace, search
+    from itskill.skills import open_skill_space, search
 
-    with _skill_errors(), SkillSpace() as space:
+    with _skill_errors(), open_skill_space() as space:
         hits = search(space, query, k=k, exclude_tasks=set(exclude_task or ()))
     if as_json:
         _print_json([{"score": score, **s.to_dict()} for s, score in hits])
@@ -433,7 +433,7 @@ def skills_add(
     as_json: JsonOpt = False,
 ) -> None:
     """Add a learned skill (its checkpoint must exist)."""
-    from itskill.skills import Skill, SkillSpace
+    from itskill.skills import Skill, open_skill_space
 
     if (ci_low is None) != (ci_high is None):
         raise typer.BadParameter("give both --ci-low and --ci-high, or neither")
@@ -454,7 +454,7 @@ def skills_add(
             algo=algo,
             seed=seed,
         )
-        with SkillSpace() as space:
+        with open_skill_space() as space:
             added = space.add(skill)
     if as_json:
         _print_json(added.to_dict())
@@ -465,9 +465,9 @@ def skills_add(
 @skills_app.command("remove")
 def skills_remove(skill: SkillArg, as_json: JsonOpt = False) -> None:
     """Remove a skill from the skill space (its checkpoint file is left in place)."""
-    from itskill.skills import SkillSpace
+    from itskill.skills import open_skill_space
 
-    with _skill_errors(), SkillSpace() as space:
+    with _skill_errors(), open_skill_space() as space:
         removed = space.remove(skill)
     if as_json:
         _print_json(removed.to_dict())
@@ -481,9 +481,9 @@ def skills_install(
     as_json: JsonOpt = False,
 ) -> None:
     """Register every skill of a library directory (skipping names already present)."""
-    from itskill.skills import SkillSpace, install_library
+    from itskill.skills import install_library, open_skill_space
 
-    with _skill_errors(), SkillSpace() as space:
+    with _skill_errors(), open_skill_space() as space:
         added = install_library(space, library)
     if as_json:
         _print_json([s.to_dict() for s in added])
@@ -516,7 +516,7 @@ def skills_pretrain(
     Rerunning the same command resumes unfinished trainings from their last checkpoint.
     """
     from itskill.executors import ExecutorError
-    from itskill.skills import SkillSpace
+    from itskill.skills import open_skill_space
     from itskill.skills.pretrain import PretrainConfig, basic_tasks, pretrain
 
     config = PretrainConfig(algo=algo, steps=steps, seed=seed, eval_episodes=episodes)
@@ -531,7 +531,7 @@ def skills_pretrain(
                 f"{entry.steps:,} env-steps, {entry.wall_s / 60:.1f} min"
             )
 
-    with _user_errors(), _skill_errors(), SkillSpace() as space:
+    with _user_errors(), _skill_errors(), open_skill_space() as space:
         try:
             pretrain(
                 tasks or basic_tasks(),

@@ -20,3 +20,9 @@ def checkpoint(tmp_path: Path) -> Path:
     path = tmp_path / "dummy_policy.zip"
     path.write_bytes(b"not a real policy")
     return path
+
+
+@pytest.fixture(autouse=True)
+def no_shipped_library(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Skill spaces start empty in tests, whatever library the checkout ships."""
+    monkeypatch.setattr("itskill.skills.library.SHIPPED_LIBRARY", tmp_path / "no-shipped-library")

@@ -5,6 +5,7 @@ Importing this package is cheap: the embedding model loads on the first embeddin
 
 from __future__ import annotations
 
+from itskill.skills.library import SHIPPED_LIBRARY, open_skill_space
 from itskill.skills.manifest import (
     ManifestEntry,
     ManifestError,
@@ -28,6 +29,7 @@ from itskill.skills.store import (
 )
 
 __all__ = [
+    "SHIPPED_LIBRARY",
     "CorruptDatabaseError",
     "DuplicateSkillError",
     "ManifestEntry",
@@ -42,6 +44,7 @@ __all__ = [
     "UnknownSkillError",
     "install_library",
     "itskill_home",
+    "open_skill_space",
     "read_manifest",
     "search",
     "skill_text",
