@@ -167,12 +167,11 @@ def load_policy(run_dir: str | Path) -> StagedActorCriticPolicy:
     return policy
 
 
-class TrainedPolicy:
-    """A training run's policy acting deterministically (the evaluation ``Policy`` interface)."""
+class PolicyActor:
+    """A policy acting deterministically on contexts (the evaluation ``Policy`` interface)."""
 
-    def __init__(self, run_dir: str | Path) -> None:
-        self.path = Path(run_dir)
-        self.policy = load_policy(self.path)
+    def __init__(self, policy: StagedActorCriticPolicy) -> None:
+        self.policy = policy
 
     def reset(self, env_ids: np.ndarray | None = None) -> None:
         """Nothing to reset: the policy is feed-forward."""
@@ -182,6 +181,14 @@ class TrainedPolicy:
         obs = torch.as_tensor(OBSERVATION_LAYOUT.build(ctx), dtype=torch.float32)
         actions = self.policy._predict(obs, deterministic=True).cpu().numpy()
         return np.clip(actions, -1.0, 1.0)
+
+
+class TrainedPolicy(PolicyActor):
+    """A training run's last checkpoint, acting deterministically."""
+
+    def __init__(self, run_dir: str | Path) -> None:
+        self.path = Path(run_dir)
+        super().__init__(load_policy(self.path))
 
 
 def as_policy(ref: str | Path | Policy | PolicyFactory) -> str | Path | Policy | PolicyFactory:

@@ -26,6 +26,7 @@ from stable_baselines3.common.utils import set_random_seed
 
 from itskill.rl.checkpoint import MODEL_FILE, read_meta, save_checkpoint
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
+from itskill.rl.eval_callback import DeterministicEvalCallback
 from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.sim.task import RewardFn
@@ -140,6 +141,8 @@ def train(
     logger: LoggerConfig | None = None,
     n_threads: int | None = None,
     console: Console | None = None,
+    eval_every: int | None = None,
+    eval_episodes: int = 50,
 ) -> TrainResult:
     """Train ``algo`` on ``task`` until ``steps`` env-steps in total, in run directory ``out``.
 
@@ -152,6 +155,10 @@ def train(
     resumes from it (optimiser state and step count included) and metrics rows logged after that
     checkpoint are dropped. A checkpoint is written every ``checkpoint_every`` env-steps, at the
     end, and on Ctrl-C (after which ``KeyboardInterrupt`` propagates).
+
+    With ``eval_every``, the deterministic policy is evaluated over ``eval_episodes`` episodes
+    every ``eval_every`` env-steps and at the end, into ``eval.csv``
+    (:class:`itskill.rl.eval_callback.DeterministicEvalCallback`).
     """
     torch.set_num_threads(1)
     if algo not in ALGO_CLASSES:
@@ -218,12 +225,17 @@ def train(
         if resuming:
             MetricsWriter(run_dir).truncate_after(resumed_from)
         metrics = MetricsCallback(env, run_dir, steps, logger, console)
-        ckpt = CheckpointCallback(run_dir, hp.checkpoint_every, meta)
+        callbacks: list[BaseCallback] = [
+            metrics,
+            CheckpointCallback(run_dir, hp.checkpoint_every, meta),
+        ]
+        if eval_every:
+            callbacks.append(DeterministicEvalCallback(spec, run_dir, eval_every, eval_episodes))
         start = time.perf_counter()
         try:
             model.learn(
                 total_timesteps=steps - model.num_timesteps,
-                callback=CallbackList([metrics, ckpt]),
+                callback=CallbackList(callbacks),
                 log_interval=None,  # type: ignore[arg-type]
                 reset_num_timesteps=False,
             )

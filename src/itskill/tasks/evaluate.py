@@ -17,8 +17,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from stable_baselines3 import A2C, PPO
 
-from itskill.experiments.stats import wilson_interval
 from itskill.sim.layout import OBSERVATION_LAYOUT
+from itskill.stats import wilson_interval
 from itskill.tasks import make_batch_env
 from itskill.tasks.scripted import ScriptedPolicy
 from itskill.tasks.spec import TaskSpec

@@ -1,6 +1,6 @@
 import pytest
 
-from itskill.experiments.stats import wilson_interval
+from itskill.stats import mean_interval, steps_to_threshold, wilson_interval
 
 
 @pytest.mark.parametrize(
@@ -32,3 +32,18 @@ def test_interval_contains_rate_and_narrows_with_n():
 def test_rejects_bad_counts(successes, n):
     with pytest.raises(ValueError):
         wilson_interval(successes, n)
+
+
+def test_mean_interval_uses_student_t() -> None:
+    mean, low, high = mean_interval([1.0, 2.0, 3.0])
+    assert mean == pytest.approx(2.0)
+    # t(0.975, 2) = 4.303, sd = 1, n = 3: half width 4.303 / sqrt(3) = 2.484
+    assert high - mean == pytest.approx(2.484, abs=1e-3)
+    assert mean - low == pytest.approx(high - mean)
+    assert mean_interval([0.5]) == (0.5, 0.5, 0.5)
+
+
+def test_steps_to_threshold_is_the_first_crossing() -> None:
+    steps = [10, 20, 30, 40]
+    assert steps_to_threshold(steps, [0.1, 0.85, 0.7, 0.95], 0.8) == 20
+    assert steps_to_threshold(steps, [0.1, 0.2, 0.3, 0.4], 0.8) is None

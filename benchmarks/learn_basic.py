@@ -1,0 +1,159 @@
+"""How fast basic skills are learned from scratch with the expert reward.
+
+For each task x algorithm x seed, train with periodic deterministic evaluation
+(:class:`itskill.rl.eval_callback.DeterministicEvalCallback`), then report per task and algorithm:
+env-steps and wall-minutes to 80% and 90% deterministic success (mean over the seeds that got
+there, and how many did), the final success, and a learning-curve plot with a 95% band across
+seeds. Runs are resumable: rerunning the same command continues unfinished trainings.
+
+Targets (the task-suite issue): Pick (nut M12) at 80% within 200k env-steps and 5 wall-minutes
+with PPO; A2C within 2x PPO's steps; every basic skill >= 95% final success.
+
+    python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos ppo a2c --seeds 0 1 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import platform
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from itskill.executors import EXECUTORS, run_jobs
+from itskill.rl.eval_callback import EVAL_FILE
+from itskill.rl.train import train
+from itskill.stats import mean_interval, steps_to_threshold
+
+THRESHOLDS = (0.8, 0.9)
+
+
+def run_one(task: str, algo: str, seed: int, steps: int, every: int, episodes: int, out: str):
+    """One training run with evaluations; returns its eval curve (picklable)."""
+    run_dir = Path(out) / "runs" / task / algo / f"seed{seed}"
+    train(
+        task,
+        algo=algo,
+        steps=steps,
+        seed=seed,
+        out=run_dir,
+        n_threads=1,
+        eval_every=every,
+        eval_episodes=episodes,
+    )
+    with open(run_dir / EVAL_FILE) as fh:
+        rows = list(csv.DictReader(fh))
+    return {
+        "steps": [int(r["env_steps"]) for r in rows],
+        "wall_s": [float(r["wall_s"]) for r in rows],
+        "success": [float(r["success"]) for r in rows],
+    }
+
+
+def summarise(curves: list[dict]) -> dict:
+    """Steps and minutes to each threshold (over the seeds that reached it) and final success."""
+    out: dict = {"seeds": len(curves)}
+    for thr in THRESHOLDS:
+        steps = [steps_to_threshold(c["steps"], c["success"], thr) for c in curves]
+        walls = [steps_to_threshold(c["wall_s"], c["success"], thr) for c in curves]
+        reached = [s for s in steps if s is not None]
+        key = f"to_{round(thr * 100)}"
+        out[key] = {
+            "reached": len(reached),
+            "env_steps_mean": mean_interval(reached)[0] if reached else None,
+            "wall_min_mean": (
+                mean_interval([w for w in walls if w is not None])[0] / 60 if reached else None
+            ),
+        }
+    finals = [c["success"][-1] for c in curves]
+    mean, low, high = mean_interval(finals)
+    out["final_success"] = {"mean": mean, "ci": [low, high], "per_seed": finals}
+    out["final_steps"] = max(c["steps"][-1] for c in curves)
+    return out
+
+
+def _cell(s: dict, key: str) -> str:
+    c, seeds = s[key], s["seeds"]
+    if not c["reached"]:
+        return f"not reached (0/{seeds})"
+    return f"{c['env_steps_mean']:,.0f} / {c['wall_min_mean']:.1f} ({c['reached']}/{seeds})"
+
+
+def plot(task: str, curves_by_algo: dict[str, list[dict]], path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for algo, curves in curves_by_algo.items():
+        n = min(len(c["steps"]) for c in curves)
+        x = np.asarray(curves[0]["steps"][:n])
+        ys = np.asarray([c["success"][:n] for c in curves])
+        bands = np.asarray([mean_interval(ys[:, k]) for k in range(n)])
+        ax.plot(x, bands[:, 0], label=f"{algo} ({len(curves)} seeds)")
+        ax.fill_between(x, np.clip(bands[:, 1], 0, 1), np.clip(bands[:, 2], 0, 1), alpha=0.2)
+    for thr in THRESHOLDS:
+        ax.axhline(thr, color="grey", lw=0.6, ls=":")
+    ax.set(xlabel="env-steps", ylabel="deterministic success", title=task, ylim=(0, 1.02))
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tasks", nargs="+", default=["pick_nut_m12"])
+    parser.add_argument("--algos", nargs="+", default=["ppo", "a2c"])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--steps", type=int, default=200_000)
+    parser.add_argument("--eval-every", type=int, default=10_000)
+    parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--executor", choices=EXECUTORS, default="local")
+    parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--out", type=Path, default=Path("results/learn_basic"))
+    args = parser.parse_args()
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    cells = [(t, a, s) for t in args.tasks for a in args.algos for s in args.seeds]
+    jobs = [
+        (t, a, s, args.steps, args.eval_every, args.eval_episodes, str(args.out))
+        for t, a, s in cells
+    ]
+    curves: dict[tuple[str, str], list[dict]] = {}
+    for res in run_jobs(run_one, jobs, args.executor, args.workers):
+        task, algo, seed = cells[res.index]
+        if not res.ok:
+            print(f"{task} {algo} seed {seed}: FAILED {type(res.error).__name__}: {res.error}")
+            continue
+        curves.setdefault((task, algo), []).append(res.value)
+        print(f"{task} {algo} seed {seed}: final success {res.value['success'][-1]:.0%}")
+
+    summary = {
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
+        "settings": {k: v for k, v in vars(args).items() if k != "out"},
+        "results": {},
+    }
+    print(f"\n{'task':24s} {'algo':5s} {'to 80%: steps / min (seeds)':32s} {'to 90%':28s} final")
+    for task in args.tasks:
+        by_algo = {a: curves[(task, a)] for a in args.algos if (task, a) in curves}
+        if not by_algo:
+            continue
+        plot(task, by_algo, args.out / f"{task}.png")
+        for algo, cs in by_algo.items():
+            s = summarise(cs)
+            summary["results"][f"{task}/{algo}"] = s
+            final = s["final_success"]
+            print(
+                f"{task:24s} {algo:5s} {_cell(s, 'to_80'):32s} {_cell(s, 'to_90'):28s} "
+                f"{final['mean']:.0%} [{final['ci'][0]:.0%}, {final['ci'][1]:.0%}]"
+            )
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(f"\nplots and summary.json in {args.out}")
+
+
+if __name__ == "__main__":
+    main()

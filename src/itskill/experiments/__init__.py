@@ -1,1 +1,0 @@
-"""Experiments: running tasks × methods × seeds and the statistics reported on them."""

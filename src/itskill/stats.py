@@ -1,0 +1,62 @@
+"""Statistics for reported results: success-rate intervals, means with intervals, thresholds.
+
+A leaf module (NumPy and SciPy only), so every layer can report the same way.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from statistics import NormalDist
+
+import numpy as np
+from scipy.stats import t as t_dist
+
+
+def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval for a success rate of ``successes`` out of ``n`` trials.
+
+    Preferred over the normal approximation because it stays inside [0, 1] and is sensible at
+    rates of 0 or 1, which short scripted or early-training evaluations often produce.
+    """
+    if n <= 0:
+        raise ValueError(f"n must be positive, got {n}")
+    if not 0 <= successes <= n:
+        raise ValueError(f"successes must be in [0, {n}], got {successes}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
+    z = NormalDist().inv_cdf(0.5 + confidence / 2)
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    # At p = 0 or 1 the bound is exactly 0 or 1; floating point leaves a residue of ~1e-17.
+    low = 0.0 if successes == 0 else centre - half
+    high = 1.0 if successes == n else centre + half
+    return low, high
+
+
+def mean_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[float, float, float]:
+    """Mean of ``values`` with its Student-t confidence interval (seeds are few, so not normal).
+
+    One value gives an interval of zero width: there is nothing to estimate the spread from.
+    """
+    data = np.asarray(values, dtype=float)
+    if data.size == 0:
+        raise ValueError("no values")
+    mean = float(data.mean())
+    if data.size == 1:
+        return mean, mean, mean
+    half = float(t_dist.ppf(0.5 + confidence / 2, data.size - 1) * data.std(ddof=1))
+    half /= math.sqrt(data.size)
+    return mean, mean - half, mean + half
+
+
+def steps_to_threshold(
+    steps: Sequence[float], values: Sequence[float], threshold: float
+) -> float | None:
+    """The first of ``steps`` at which ``values`` reaches ``threshold``; None if it never does."""
+    for step, value in zip(steps, values, strict=True):
+        if value >= threshold:
+            return float(step)
+    return None
