@@ -92,13 +92,18 @@ def test_concurrent_adds_lose_nothing(home, checkpoint):
     assert sorted(ids) == list(range(1, 101))
 
 
-def test_old_version_is_upgraded_and_keeps_rows(home, checkpoint):
+def _version_1_database(home):
+    """A skill database as the first schema version left it; the caller commits and closes."""
     home.mkdir()
-    path = home / "skills.sqlite"
-    conn = sqlite3.connect(path)
+    conn = sqlite3.connect(home / "skills.sqlite")
     for statement in MIGRATIONS[0]:
         conn.execute(statement)
     conn.execute("PRAGMA user_version = 1")
+    return conn
+
+
+def test_old_version_is_upgraded_and_keeps_rows(home, checkpoint):
+    conn = _version_1_database(home)
     conn.execute(
         "INSERT INTO skills (name, task_id, description, actions, checkpoint, success_rate, "
         "created) VALUES ('old', 'pick_nut_m12', 'Pick up the M12 nut', '[\"approach\"]', ?, "
@@ -116,12 +121,7 @@ def test_old_version_is_upgraded_and_keeps_rows(home, checkpoint):
 
 
 def test_failed_migration_leaves_old_version(home, monkeypatch):
-    home.mkdir()
-    path = home / "skills.sqlite"
-    conn = sqlite3.connect(path)
-    for statement in MIGRATIONS[0]:
-        conn.execute(statement)
-    conn.execute("PRAGMA user_version = 1")
+    conn = _version_1_database(home)
     conn.commit()
     conn.close()
     from itskill.skills import store
@@ -131,7 +131,7 @@ def test_failed_migration_leaves_old_version(home, monkeypatch):
     monkeypatch.setattr(store, "SCHEMA_VERSION", len(broken))
     with pytest.raises(MigrationError, match="schema version 2 failed"):
         SkillSpace()
-    conn = sqlite3.connect(path)
+    conn = sqlite3.connect(home / "skills.sqlite")
     assert conn.execute("PRAGMA user_version").fetchone()[0] == 1
     columns = [r[1] for r in conn.execute("PRAGMA table_info(skills)")]
     assert "embedding" not in columns  # The half-applied step was rolled back.
