@@ -1,0 +1,63 @@
+"""What every command shares: consoles, option types, error handling, JSON output."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+
+from itskill.tasks import TaskFileError, UnknownTaskError, render
+from itskill.tasks.evaluate import CheckpointError
+
+console = Console()
+
+
+# Soft wrap: a long path in an error message must stay copyable, not be folded at 80 columns.
+err_console = Console(stderr=True, soft_wrap=True)
+
+
+USAGE_ERROR = 2
+
+
+TaskArg = Annotated[str, typer.Argument(help="Task id (see `itskill tasks list`).")]
+
+
+PolicyOpt = Annotated[
+    str,
+    typer.Option(help="'scripted', a training run directory (itskill train --out) or an SB3 .zip."),
+]
+
+
+SeedOpt = Annotated[int, typer.Option(help="Seed of the initial-state sequence.")]
+
+
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
+
+
+CameraOpt = Annotated[str, typer.Option(help="Camera: front or closeup.")]
+
+
+@contextmanager
+def user_errors() -> Iterator[None]:
+    """Turn errors caused by the user's input into a red message and exit code 2."""
+    try:
+        yield
+    except (UnknownTaskError, TaskFileError, CheckpointError, render.RenderError) as err:
+        err_console.print(f"[red]error:[/red] {err}", highlight=False, markup=True)
+        raise typer.Exit(USAGE_ERROR) from err
+
+
+def print_json(data: Any) -> None:
+    # Plain stdout, not rich: JSON must not be wrapped or coloured.
+    typer.echo(json.dumps(data, indent=2))
+
+
+def policy_ref(policy: str) -> Any:
+    """A training run directory becomes its checkpoint's policy; other references pass through."""
+    from itskill.rl.checkpoint import as_policy
+
+    return as_policy(policy)

@@ -1,0 +1,102 @@
+"""`itskill eval`, `render` and `demo`: run a policy (scripted or trained) on a task."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from itskill.cli.common import (
+    CameraOpt,
+    JsonOpt,
+    PolicyOpt,
+    SeedOpt,
+    TaskArg,
+    console,
+    err_console,
+    policy_ref,
+    print_json,
+    user_errors,
+)
+from itskill.tasks import get_task, render
+from itskill.tasks.evaluate import SCRIPTED, EvalResult, evaluate
+
+
+def _print_eval(result: EvalResult, as_json: bool) -> None:
+    if as_json:
+        print_json(result.to_dict())
+        return
+    console.print(
+        f"[bold]{result.task}[/bold] with {result.policy}: "
+        f"success {result.successes}/{result.episodes} = [bold]{result.success_rate:.1%}[/bold] "
+        f"(95% CI {result.ci_low:.1%}–{result.ci_high:.1%}), "
+        f"mean length {result.mean_length:.1f} steps, {result.wall_s:.1f} s"
+    )
+
+
+def eval_cmd(
+    task: TaskArg,
+    policy: PolicyOpt = SCRIPTED,
+    episodes: Annotated[int, typer.Option(min=1, help="Episodes to count.")] = 100,
+    seed: SeedOpt = 0,
+    num_envs: Annotated[int, typer.Option(min=1, help="Environments stepped together.")] = 16,
+    as_json: JsonOpt = False,
+) -> None:
+    """Evaluate a policy: success rate over N episodes with its 95% interval."""
+    with user_errors():
+        ref = policy_ref(policy)
+        result = evaluate(get_task(task), ref, episodes=episodes, seed=seed, num_envs=num_envs)
+    _print_eval(result, as_json)
+
+
+def render_cmd(
+    task: TaskArg,
+    out: Annotated[Path, typer.Option(help="Output video (.mp4).")],
+    policy: PolicyOpt = SCRIPTED,
+    episodes: Annotated[int, typer.Option(min=1, help="Episodes to film.")] = 1,
+    seed: SeedOpt = 0,
+    camera: CameraOpt = "front",
+) -> None:
+    """Film episodes of a policy to an MP4 file."""
+    _check_camera(camera)
+    with user_errors():
+        ref = policy_ref(policy)
+        video = render.record(get_task(task), ref, out, episodes, seed=seed, camera=camera)
+    wins = sum(video.successes)
+    console.print(f"wrote {video.path} ({video.frames} frames); {wins}/{episodes} succeeded")
+
+
+def _check_camera(camera: str) -> None:
+    if camera not in render.CAMERAS:
+        raise typer.BadParameter(f"expected one of {render.CAMERAS}", param_hint="--camera")
+
+
+def demo(
+    task: Annotated[str, typer.Option(help="A Table I task.")] = "pick_nut_m12",
+    episodes: Annotated[int, typer.Option(min=1, help="Episodes to evaluate.")] = 100,
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/demo"),
+    seed: SeedOpt = 0,
+    camera: CameraOpt = "front",
+) -> None:
+    """The main job for now: a scripted rollout of a task, filmed and evaluated.
+
+    Without an OpenGL backend the video is skipped with a warning; the evaluation still runs.
+    """
+    _check_camera(camera)
+    with user_errors():
+        spec = get_task(task)
+        try:
+            video = render.record(
+                spec, SCRIPTED, out / f"{task}.mp4", episodes=1, seed=seed, camera=camera
+            )
+            console.print(f"video: {video.path}")
+        except render.RenderError as err:
+            err_console.print(f"[yellow]no video:[/yellow] {err}", highlight=False)
+        result = evaluate(spec, SCRIPTED, episodes=episodes, seed=seed)
+    _print_eval(result, as_json=False)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = out / f"{task}_eval.json"
+    summary.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+    console.print(f"summary: {summary}")

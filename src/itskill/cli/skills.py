@@ -1,0 +1,251 @@
+"""`itskill skills`: the skill space (list, show, search, add, remove, install, pretrain).
+
+Imports of itskill.skills stay inside the commands: the other commands should not pay for them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from itskill.cli.common import (
+    USAGE_ERROR,
+    JsonOpt,
+    console,
+    err_console,
+    print_json,
+    user_errors,
+)
+from itskill.tasks import TaskFileError, UnknownTaskError, get_task
+
+skills_app = typer.Typer(
+    no_args_is_help=True, help="The skill space: learned skills, their checkpoints, retrieval."
+)
+
+
+SkillArg = Annotated[str, typer.Argument(help="Skill id or name (see `itskill skills list`).")]
+
+
+@contextmanager
+def _skill_errors() -> Iterator[None]:
+    """Unknown skill or task, unreadable or newer database, missing checkpoint: exit code 2."""
+    from rich.markup import escape
+
+    from itskill.skills import SkillSpaceError
+
+    try:
+        yield
+    except (SkillSpaceError, UnknownTaskError, TaskFileError) as err:
+        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
+        raise typer.Exit(USAGE_ERROR) from err
+
+
+def _skill_table(rows: list[tuple[Any, float | None]], title: str) -> Table:
+    table = Table(title=title)
+    scored = any(score is not None for _, score in rows)
+    columns = ("score",) if scored else ()
+    for column in (*columns, "id", "name", "task", "success", "actions", "checkpoint"):
+        table.add_column(column)
+    for s, score in rows:
+        success = "" if s.success_rate is None else f"{s.success_rate:.1%}"
+        cells = (f"{score:.3f}",) if scored else ()
+        table.add_row(
+            *cells, str(s.id), s.name, s.task_id, success, " → ".join(s.actions), s.checkpoint
+        )
+    return table
+
+
+@skills_app.command("list")
+def skills_list(as_json: JsonOpt = False) -> None:
+    """List every skill in the skill space ($ITSKILL_HOME/skills.sqlite)."""
+    from itskill.skills import open_skill_space
+
+    with _skill_errors(), open_skill_space() as space:
+        skills = space.list()
+        path = space.path
+    if as_json:
+        print_json([s.to_dict() for s in skills])
+        return
+    console.print(_skill_table([(s, None) for s in skills], f"{len(skills)} skills in {path}"))
+
+
+@skills_app.command("show")
+def skills_show(skill: SkillArg, as_json: JsonOpt = False) -> None:
+    """Show one skill: its description, actions, checkpoint and metrics."""
+    from itskill.skills import open_skill_space
+
+    with _skill_errors(), open_skill_space() as space:
+        found = space.get(skill)
+        ckpt = space.checkpoint_path(found)
+    data = {**found.to_dict(), "checkpoint_path": str(ckpt), "checkpoint_exists": ckpt.is_file()}
+    if as_json:
+        print_json(data)
+        return
+    kv = Table.grid(padding=(0, 2))
+    kv.add_column(style="cyan")
+    kv.add_column()
+    for key, value in data.items():
+        kv.add_row(key, " → ".join(value) if key == "actions" else str(value))
+    console.print(kv)
+
+
+@skills_app.command("search")
+def skills_search(
+    query: Annotated[str, typer.Argument(help="A task command, e.g. 'Pick up the round peg'.")],
+    k: Annotated[int, typer.Option("-k", min=1, help="How many skills to return.")] = 5,
+    exclude_task: Annotated[
+        list[str] | None, typer.Option(help="Leave out skills of this task id (repeatable).")
+    ] = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """The skills most similar to QUERY (cosine similarity of sentence embeddings)."""
+    from itskill.skills import open_skill_space, search
+
+    with _skill_errors(), open_skill_space() as space:
+        hits = search(space, query, k=k, exclude_tasks=set(exclude_task or ()))
+    if as_json:
+        print_json([{"score": score, **s.to_dict()} for s, score in hits])
+        return
+    console.print(_skill_table(list(hits), f"top {len(hits)} for {query!r}"))
+
+
+@skills_app.command("add")
+def skills_add(
+    task: Annotated[str, typer.Option(help="Task id the skill solves.")],
+    checkpoint: Annotated[Path, typer.Option(help="Trained policy checkpoint (must exist).")],
+    name: Annotated[str | None, typer.Option(help="Unique name (default: the task id).")] = None,
+    description: Annotated[
+        str | None, typer.Option(help="Task command (default: the task's command).")
+    ] = None,
+    actions: Annotated[
+        str | None, typer.Option(help="Comma-separated actions (default: the task's actions).")
+    ] = None,
+    success: Annotated[float | None, typer.Option(min=0, max=1, help="Success rate.")] = None,
+    ci_low: Annotated[float | None, typer.Option(min=0, max=1, help="95% CI low.")] = None,
+    ci_high: Annotated[float | None, typer.Option(min=0, max=1, help="95% CI high.")] = None,
+    steps: Annotated[int | None, typer.Option(min=0, help="Training env-steps.")] = None,
+    wall_s: Annotated[float | None, typer.Option(min=0, help="Training wall seconds.")] = None,
+    algo: Annotated[str | None, typer.Option(help="Algorithm, e.g. ppo or a2c.")] = None,
+    seed: Annotated[int | None, typer.Option(help="Training seed.")] = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Add a learned skill (its checkpoint must exist)."""
+    from itskill.skills import Skill, open_skill_space
+
+    if (ci_low is None) != (ci_high is None):
+        raise typer.BadParameter("give both --ci-low and --ci-high, or neither")
+    with _skill_errors():
+        spec = get_task(task)
+        acts = spec.actions if actions is None else tuple(a.strip() for a in actions.split(","))
+        skill = Skill(
+            name=name or spec.id,
+            task_id=spec.id,
+            description=description or spec.command,
+            actions=tuple(a for a in acts if a),
+            # Absolute: a path relative to the shell's directory means nothing to other processes.
+            checkpoint=str(checkpoint.expanduser().resolve()),
+            success_rate=success,
+            success_ci=None if ci_low is None else (ci_low, ci_high),
+            train_steps=steps,
+            train_wall_s=wall_s,
+            algo=algo,
+            seed=seed,
+        )
+        with open_skill_space() as space:
+            added = space.add(skill)
+    if as_json:
+        print_json(added.to_dict())
+        return
+    console.print(f"added skill {added.id}: {added.name} ({added.task_id})")
+
+
+@skills_app.command("remove")
+def skills_remove(skill: SkillArg, as_json: JsonOpt = False) -> None:
+    """Remove a skill from the skill space (its checkpoint file is left in place)."""
+    from itskill.skills import open_skill_space
+
+    with _skill_errors(), open_skill_space() as space:
+        removed = space.remove(skill)
+    if as_json:
+        print_json(removed.to_dict())
+        return
+    console.print(f"removed skill {removed.id}: {removed.name}")
+
+
+@skills_app.command("install")
+def skills_install(
+    library: Annotated[Path, typer.Argument(help="Library directory with a manifest.json.")],
+    as_json: JsonOpt = False,
+) -> None:
+    """Register every skill of a library directory (skipping names already present)."""
+    from itskill.skills import install_library, open_skill_space
+
+    with _skill_errors(), open_skill_space() as space:
+        added = install_library(space, library)
+    if as_json:
+        print_json([s.to_dict() for s in added])
+        return
+    console.print(f"installed {len(added)} skill(s) from {library}")
+
+
+@skills_app.command("pretrain")
+def skills_pretrain(
+    tasks: Annotated[
+        list[str] | None,
+        typer.Option("--tasks", help="Tasks to train (default: every basic task)."),
+    ] = None,
+    steps: Annotated[int, typer.Option(help="Env-steps per skill.")] = 300_000,
+    algo: Annotated[str, typer.Option(help="a2c or ppo.")] = "ppo",
+    seed: Annotated[int, typer.Option()] = 0,
+    episodes: Annotated[int, typer.Option(help="Evaluation episodes per skill.")] = 100,
+    executor: Annotated[str, typer.Option(help="local (one job per core) or ray.")] = "local",
+    workers: Annotated[int | None, typer.Option(help="Parallel jobs (local executor).")] = None,
+    ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,
+    runs: Annotated[Path, typer.Option(help="Training run directories (resumable).")] = Path(
+        "runs/pretrain"
+    ),
+    library: Annotated[
+        Path | None, typer.Option(help="Library directory (default: the skill space's own).")
+    ] = None,
+) -> None:
+    """Train skills from scratch with expert rewards, evaluate each, add them to the skill space.
+
+    Rerunning the same command resumes unfinished trainings from their last checkpoint.
+    """
+    from itskill.executors import ExecutorError
+    from itskill.skills import open_skill_space
+    from itskill.skills.pretrain import PretrainConfig, basic_tasks, pretrain
+
+    config = PretrainConfig(algo=algo, steps=steps, seed=seed, eval_episodes=episodes)
+
+    def report(task: str, entry, error) -> None:
+        if error is not None:
+            console.print(f"[red]{task}: failed: {type(error).__name__}: {error}[/red]")
+        else:
+            lo, hi = entry.success_ci
+            console.print(
+                f"{task}: success {entry.success:.0%} (95% CI {lo:.0%}-{hi:.0%}) after "
+                f"{entry.steps:,} env-steps, {entry.wall_s / 60:.1f} min"
+            )
+
+    with user_errors(), _skill_errors(), open_skill_space() as space:
+        try:
+            pretrain(
+                tasks or basic_tasks(),
+                config,
+                runs,
+                library or space.library_dir,
+                space,
+                executor=executor,
+                workers=workers,
+                ray_address=ray_address,
+                on_result=report,
+            )
+        except ExecutorError as err:
+            console.print(f"[red]{err}[/red]")
+            raise typer.Exit(2) from err

@@ -1,0 +1,152 @@
+"""`itskill tasks`: list the task suite, show one task."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from itskill.cli.common import (
+    JsonOpt,
+    TaskArg,
+    console,
+    print_json,
+    user_errors,
+)
+from itskill.tasks import all_tasks, get_task
+from itskill.tasks.spec import TaskSpec
+
+tasks_app = typer.Typer(no_args_is_help=True, help="The task suite: list tasks, show one.")
+
+
+def _range(r) -> list[float]:
+    return [r.low, r.high]
+
+
+def task_dict(spec: TaskSpec) -> dict[str, Any]:
+    """Everything a task file says about ``spec``, as JSON-ready data."""
+    init = spec.init
+    return {
+        "id": spec.id,
+        "family": spec.family,
+        "kind": spec.kind,
+        "table_i": spec.table_i,
+        "command": spec.command,
+        "description": spec.description,
+        "skills": list(spec.skills),
+        "actions": list(spec.actions),
+        "objects": [asdict(o) for o in spec.objects],
+        "fixtures": [
+            {"part": asdict(f.part), "xy": list(f.xy), "yaw": f.yaw} for f in spec.fixtures
+        ],
+        "object_fixture": list(spec.object_fixture),
+        "init": {
+            "ee": {
+                "x": _range(init.ee_x),
+                "y": _range(init.ee_y),
+                "z": _range(init.ee_z),
+                "yaw": _range(init.ee_yaw),
+            },
+            "objects": [
+                {
+                    "mode": o.mode,
+                    "fixture": o.fixture,
+                    **{k: _range(getattr(o, k)) for k in ("x", "y", "z", "yaw", "turns", "depth")},
+                }
+                for o in init.objects
+            ],
+        },
+        "stages": [{"name": s.name, "done": s.done.source} for s in spec.stages],
+        "success": spec.success.source,
+        "max_steps": spec.max_steps,
+        "terminate_on_success": spec.terminate_on_success,
+        "script": list(spec.script),
+        "tags": list(spec.tags),
+        "source": spec.source,
+    }
+
+
+def tasks_markdown() -> str:
+    """The task list as a Markdown table (docs/tasks.md is this output)."""
+    rows = [
+        "| id | family | kind | Table I | command | stages |",
+        "|---|---|---|---|---|---|",
+    ]
+    for spec in all_tasks().values():
+        stages = ", ".join(s.name for s in spec.stages)
+        table_i = "yes" if spec.table_i else ""
+        rows.append(
+            f"| `{spec.id}` | {spec.family} | {spec.kind} | {table_i} | {spec.command} | {stages} |"
+        )
+    return "\n".join(rows)
+
+
+@tasks_app.command("list")
+def tasks_list(
+    as_json: JsonOpt = False,
+    markdown: Annotated[bool, typer.Option("--markdown", help="Print a Markdown table.")] = False,
+) -> None:
+    """List every task: id, family, kind, Table I flag, command and stages."""
+    with user_errors():
+        tasks = all_tasks()
+        if as_json:
+            print_json([task_dict(s) for s in tasks.values()])
+            return
+        if markdown:
+            typer.echo(tasks_markdown())
+            return
+    table = Table(title=f"{len(tasks)} tasks")
+    for column in ("id", "family", "kind", "Table I", "command", "stages"):
+        table.add_column(column)
+    for s in tasks.values():
+        stages = ", ".join(st.name for st in s.stages)
+        table.add_row(s.id, s.family, s.kind, "yes" if s.table_i else "", s.command, stages)
+    console.print(table)
+
+
+@tasks_app.command("show")
+def tasks_show(task: TaskArg, as_json: JsonOpt = False) -> None:
+    """Show everything about one task."""
+    with user_errors():
+        data = task_dict(get_task(task))
+    if as_json:
+        print_json(data)
+        return
+    console.print(f"[bold]{data['id']}[/bold]: {data['command']}")
+    kv = Table.grid(padding=(0, 2))
+    kv.add_column(style="cyan")
+    kv.add_column()
+    kv.add_row("family / kind", f"{data['family']} / {data['kind']}")
+    kv.add_row("Table I", "yes" if data["table_i"] else "no")
+    if data["description"]:
+        kv.add_row("description", data["description"])
+    kv.add_row("skills", ", ".join(data["skills"]))
+    kv.add_row("actions", " → ".join(data["actions"]))
+    for i, part in enumerate(data["objects"]):
+        kv.add_row(f"object {i}", _part_text(part))
+    for j, fx in enumerate(data["fixtures"]):
+        kv.add_row(f"fixture {j}", f"{_part_text(fx['part'])} at xy={fx['xy']} yaw={fx['yaw']}")
+    kv.add_row("object → fixture", str(data["object_fixture"]))
+    kv.add_row("init ee", json.dumps(data["init"]["ee"]))
+    for i, obj in enumerate(data["init"]["objects"]):
+        kv.add_row(f"init object {i}", json.dumps(obj))
+    for k, st in enumerate(data["stages"]):
+        kv.add_row(f"stage {k}", f"{st['name']}: {st['done']}")
+    kv.add_row("success", data["success"])
+    kv.add_row("episode length", f"{data['max_steps']} steps")
+    kv.add_row("script", "; ".join(data["script"]) or "(none)")
+    kv.add_row("file", data["source"])
+    console.print(kv)
+
+
+def _part_text(part: dict[str, Any]) -> str:
+    dims = ", ".join(
+        f"{k}={v * 1000:g} mm"
+        for k, v in part.items()
+        if isinstance(v, float) and k not in ("rgba",)
+    )
+    shape = f" {part['shape']}" if "shape" in part else ""
+    return f"{part['name']} ({part['kind']}{shape}): {dims}"

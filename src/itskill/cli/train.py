@@ -1,0 +1,57 @@
+"""`itskill train`: train one task with A2C or PPO into a resumable run directory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from itskill.cli.common import (
+    USAGE_ERROR,
+    TaskArg,
+    console,
+    err_console,
+    user_errors,
+)
+
+
+def train_cmd(
+    task: TaskArg,
+    algo: Annotated[str, typer.Option(help="a2c (the paper's algorithm) or ppo.")] = "ppo",
+    steps: Annotated[int, typer.Option(min=1, help="Total env-steps (a rerun resumes).")] = 100_000,
+    seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
+    reward: Annotated[
+        str, typer.Option(help="'expert' or a .py file defining compute_reward(ctx).")
+    ] = "expert",
+    out: Annotated[Path, typer.Option(help="Run directory (checkpoints, metrics).")] = Path(
+        "runs/train"
+    ),
+    num_envs: Annotated[
+        int | None, typer.Option(min=1, help="Environments stepped together.")
+    ] = None,
+    hyperparams: Annotated[
+        Path | None, typer.Option(help="A hyper-parameter TOML file instead of the packaged one.")
+    ] = None,
+) -> None:
+    """Train a policy with A2C or PPO; rerun the same command to resume from the last checkpoint."""
+    from itskill.rl.config import HyperparamError
+    from itskill.rl.train import ResumeMismatchError, RewardLoadError, train
+
+    if algo not in ("a2c", "ppo"):
+        raise typer.BadParameter("expected a2c or ppo", param_hint="--algo")
+    try:
+        with user_errors():
+            result = train(
+                task, algo, steps, seed, reward, out, num_envs, hyperparams, console=console
+            )
+    except (HyperparamError, RewardLoadError, ResumeMismatchError) as err:
+        err_console.print(f"[red]error:[/red] {err}", highlight=False, markup=True)
+        raise typer.Exit(USAGE_ERROR) from err
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    console.print(
+        f"trained {task} with {algo}: {result.num_timesteps} env-steps in total"
+        + (f" (resumed from {result.resumed_from})" if result.resumed_from else "")
+        + f"; checkpoint in {result.run_dir}"
+    )
