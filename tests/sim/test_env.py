@@ -264,3 +264,20 @@ def test_reward_fn_gets_the_context_and_its_total_is_the_reward():
     )
     assert set(info["reward_components"]) == {"height", "closeness"}
     env.close()
+
+
+def test_diverged_physics_ends_the_episode_instead_of_continuing_from_a_reset_state():
+    env = make_batch_env("pick_nut_m12", num_envs=2, seed=0, n_threads=1)
+    env.reset()
+    # A runaway velocity on env 1's nut: MuJoCo warns and silently resets that env's data.
+    nut_dof = env.sim.scene.obj_dof[0]
+    env.sim.datas[1].qvel[nut_dof[0]] = 1e20
+    _, _, dones, infos = env.step(np.zeros((2, 5)))
+    assert dones.tolist() == [False, True]
+    assert infos[1]["unstable"] and infos[1]["TimeLimit.truncated"]
+    assert "unstable" not in infos[0]
+    # The diverged env was reset from the task's distribution, not left at qpos0.
+    assert env.steps[1] == 0
+    np.testing.assert_allclose(env.sim.ee_pos[1], env.sim.target_pos[1], atol=0.01)
+    assert env.sim.ee_pos[1, 2] > 0.1
+    env.close()

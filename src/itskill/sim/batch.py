@@ -33,6 +33,11 @@ from itskill.sim.thread import ThreadConfig, ThreadCoupling
 GRIPPER_OPEN_WIDTH = 0.08
 SETTLE_STEPS = 15
 """Physics steps after a reset, so a part placed in the gripper or on the table comes to rest."""
+DIVERGENCE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADQACC,
+)
 NUT_GRIP_YAW = math.pi / 6
 """A nut's yaw relative to the hand at which two flats face the fingers."""
 
@@ -99,6 +104,9 @@ class BatchSim:
         self._obj_quat = np.zeros((n, len(self._objects), 4))
         self.finger_q = np.zeros((n, 2))
         self.engaged_thread = np.zeros((n, max(len(self.scene.threads), 1)), dtype=bool)
+        self.unstable = np.zeros(n, dtype=bool)
+        """Set for an environment whose physics diverged during the last step (see _step_shard)."""
+        self._divergences = np.zeros(n, dtype=np.int64)
         self._prev_ee = np.zeros((n, 3))
         self._prev_obj = np.zeros((n, MAX_OBJECTS, 3))
         self.ee_vel = np.zeros((n, 3))
@@ -170,6 +178,8 @@ class BatchSim:
         m, d, sc = self.model, self.datas[env], self.scene
         init = self.task.init
         mujoco.mj_resetData(m, d)
+        self._divergences[env] = 0
+        self.unstable[env] = False
         d.mocap_pos[:] = sc.crest_home
         ee = np.array([init.ee_x.sample(rng), init.ee_y.sample(rng), init.ee_z.sample(rng)])
         ee_yaw = init.ee_yaw.sample(rng)
@@ -343,6 +353,11 @@ class BatchSim:
             d.ctrl[7] = self._finger_ctrl[e]
             for _ in range(n):
                 mujoco.mj_step(m, d)
+            # On a NaN or runaway value MuJoCo warns and silently resets the data to qpos0, which
+            # would continue the episode from a nonsense state; flag it so the episode ends.
+            diverged = sum(d.warning[w].number for w in DIVERGENCE_WARNINGS)
+            self.unstable[e] = diverged > self._divergences[e]
+            self._divergences[e] = diverged
             self.coupling.update(d)
             self._read_env(e)
             # The next apply_action linearises around the posture just commanded.

@@ -111,6 +111,8 @@ class BatchEnv(VecEnv):
                 info["TimeLimit.truncated"] = bool(res.truncated[e] and not res.terminated[e])
                 info["is_success"] = bool(res.success[e])
                 info["episode_success"] = bool(res.success[e])
+                if self.sim.unstable[e]:
+                    info["unstable"] = True
                 self._reset_env(e)
             infos.append(info)
         if dones.any():
@@ -131,7 +133,8 @@ class BatchEnv(VecEnv):
         self.episode_return += reward
         self.last_components = components
         terminated = success if self.task.terminate_on_success else np.zeros_like(success)
-        truncated = self.steps >= self.task.max_steps
+        # A diverged environment (see BatchSim.unstable) ends its episode as if timed out.
+        truncated = (self.steps >= self.task.max_steps) | self.sim.unstable
         obs = OBSERVATION_LAYOUT.build(ctx)
         return StepResult(obs, reward, success, terminated, truncated, components, ctx)
 
