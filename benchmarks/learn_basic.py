@@ -74,7 +74,12 @@ def summarise(curves: list[dict]) -> dict:
         }
     finals = [c["success"][-1] for c in curves]
     mean, low, high = mean_interval(finals)
-    out["final_success"] = {"mean": mean, "ci": [low, high], "per_seed": finals}
+    # A rate's interval is clipped to [0, 1]; with 3 seeds the t-interval easily runs past it.
+    out["final_success"] = {
+        "mean": mean,
+        "ci": [max(low, 0.0), min(high, 1.0)],
+        "per_seed": finals,
+    }
     out["final_steps"] = max(c["steps"][-1] for c in curves)
     return out
 
@@ -93,8 +98,16 @@ def plot(task: str, curves_by_algo: dict[str, list[dict]], path: Path) -> None:
         x = np.asarray(curves[0]["steps"][:n])
         ys = np.asarray([c["success"][:n] for c in curves])
         bands = np.asarray([mean_interval(ys[:, k]) for k in range(n)])
-        ax.plot(x, bands[:, 0], label=f"{algo} ({len(curves)} seeds)")
-        ax.fill_between(x, np.clip(bands[:, 1], 0, 1), np.clip(bands[:, 2], 0, 1), alpha=0.2)
+        (line,) = ax.plot(x, bands[:, 0], lw=2, label=f"{algo}: mean of {len(curves)} seeds")
+        ax.fill_between(
+            x,
+            np.clip(bands[:, 1], 0, 1),
+            np.clip(bands[:, 2], 0, 1),
+            alpha=0.15,
+            color=line.get_color(),
+        )
+        for y in ys:  # each seed, so a wide band can be read as spread, not noise
+            ax.plot(x, y, lw=0.7, alpha=0.5, color=line.get_color())
     for thr in THRESHOLDS:
         ax.axhline(thr, color="grey", lw=0.6, ls=":")
     ax.set(xlabel="env-steps", ylabel="deterministic success", title=task, ylim=(0, 1.02))
