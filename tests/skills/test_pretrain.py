@@ -12,7 +12,7 @@ from itskill.skills.pretrain import PretrainConfig, pretrain
 
 def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
-    config = PretrainConfig(steps=1024, num_envs=8, eval_episodes=6)
+    config = PretrainConfig(steps=1024, num_envs=8, eval_episodes=6, min_success=0.0)
     runs, library = tmp_path / "runs", tmp_path / "library"
     seen = []
     with SkillSpace() as space:
@@ -40,3 +40,17 @@ def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) 
         (again,) = pretrain(["reach_nut_m12"], config, runs, library, space, workers=1)
         assert len(space.list()) == 1
     assert again.steps == steps_before["num_timesteps"]
+
+
+def test_a_skill_below_min_success_is_reported_but_not_added(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    config = PretrainConfig(steps=1024, num_envs=8, eval_episodes=4, min_success=1.01)
+    reported = []
+    with SkillSpace() as space:
+        added = pretrain(
+            ["reach_nut_m12"], config, tmp_path / "runs", tmp_path / "library", space, workers=1,
+            on_result=lambda task, entry, error: reported.append(entry),
+        )  # fmt: skip
+        assert added == [] and space.list() == []
+    assert reported[0].name == "reach_nut_m12" and reported[0].steps >= 1024
+    assert not (tmp_path / "library" / "reach_nut_m12").exists()

@@ -203,6 +203,9 @@ def skills_pretrain(
     algo: Annotated[str, typer.Option(help="a2c or ppo.")] = "ppo",
     seed: Annotated[int, typer.Option()] = 0,
     episodes: Annotated[int, typer.Option(help="Evaluation episodes per skill.")] = 100,
+    min_success: Annotated[
+        float, typer.Option(help="Success a skill needs to be added to the library.")
+    ] = 0.5,
     executor: Annotated[str, typer.Option(help="local (one job per core) or ray.")] = "local",
     workers: Annotated[int | None, typer.Option(help="Parallel jobs (local executor).")] = None,
     ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,
@@ -221,16 +224,19 @@ def skills_pretrain(
     from itskill.skills import open_skill_space
     from itskill.skills.pretrain import PretrainConfig, basic_tasks, pretrain
 
-    config = PretrainConfig(algo=algo, steps=steps, seed=seed, eval_episodes=episodes)
+    config = PretrainConfig(
+        algo=algo, steps=steps, seed=seed, eval_episodes=episodes, min_success=min_success
+    )
 
     def report(task: str, entry, error) -> None:
         if error is not None:
             console.print(f"[red]{task}: failed: {type(error).__name__}: {error}[/red]")
         else:
             lo, hi = entry.success_ci
+            learned = "" if entry.success >= config.min_success else " - not learned, not added"
             console.print(
                 f"{task}: success {entry.success:.0%} (95% CI {lo:.0%}-{hi:.0%}) after "
-                f"{entry.steps:,} env-steps, {entry.wall_s / 60:.1f} min"
+                f"{entry.steps:,} env-steps, {entry.wall_s / 60:.1f} min{learned}"
             )
 
     with user_errors(), _skill_errors(), open_skill_space() as space:

@@ -37,10 +37,17 @@ class PretrainConfig:
     eval_episodes: int = 100
     eval_seed: int = 10_000
     """Evaluation episodes are drawn from other seeds than training's."""
+    min_success: float = 0.5
+    """A policy below this deterministic success is reported but not exported or registered:
+    it has not learned the skill, and would only mislead retrieval and transfer."""
 
 
 def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir: Path) -> dict:
-    """Train, evaluate and export one skill; returns its manifest entry as JSON (picklable)."""
+    """Train, evaluate and (if it learned) export one skill.
+
+    Returns its manifest entry as JSON (picklable), with ``"exported"`` telling whether it reached
+    ``config.min_success`` and was copied into the library.
+    """
     spec = get_task(task)
     run_dir = Path(runs_dir) / task
     result = train(
@@ -56,10 +63,6 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
     ev = evaluate(
         spec, as_policy(run_dir), episodes=config.eval_episodes, seed=config.eval_seed, num_envs=25
     )
-    target = Path(library_dir) / task
-    target.mkdir(parents=True, exist_ok=True)
-    for name in (POLICY_FILE, META_FILE):
-        shutil.copyfile(run_dir / name, target / name)
     entry = ManifestEntry(
         name=task,
         task=task,
@@ -73,7 +76,13 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
         algo=config.algo,
         seed=config.seed,
     )
-    return entry.to_json()
+    exported = ev.success_rate >= config.min_success
+    if exported:
+        target = Path(library_dir) / task
+        target.mkdir(parents=True, exist_ok=True)
+        for name in (POLICY_FILE, META_FILE):
+            shutil.copyfile(run_dir / name, target / name)
+    return {**entry.to_json(), "exported": exported}
 
 
 def record(entry: ManifestEntry, library_dir: Path, space: SkillSpace | None) -> None:
@@ -103,10 +112,11 @@ def pretrain(
     ray_address: str | None = None,
     on_result: Callable[[str, ManifestEntry | None, BaseException | None], None] | None = None,
 ) -> list[ManifestEntry]:
-    """Pretrain every task in ``tasks``; returns the entries of the skills that finished.
+    """Pretrain every task in ``tasks``; returns the entries of the skills added to the library.
 
-    A task whose job fails is reported through ``on_result`` with its exception and skipped; the
-    others go on.
+    Every finished task is reported through ``on_result`` with its entry (success and budget),
+    whether or not it reached ``config.min_success``; a task whose job fails is reported with its
+    exception and skipped, and the others go on.
     """
     tasks = [get_task(t).id for t in tasks]  # unknown names fail before any training starts
     Path(library_dir).mkdir(parents=True, exist_ok=True)
@@ -116,9 +126,12 @@ def pretrain(
         task = tasks[res.index]
         entry = None
         if res.ok:
-            entry = ManifestEntry.from_json(res.value, where=task)
-            record(entry, Path(library_dir), space)
-            finished.append(entry)
+            value = dict(res.value)
+            exported = value.pop("exported")
+            entry = ManifestEntry.from_json(value, where=task)
+            if exported:
+                record(entry, Path(library_dir), space)
+                finished.append(entry)
         if on_result is not None:
             on_result(task, entry, res.error)
     return finished
