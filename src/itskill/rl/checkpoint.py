@@ -31,7 +31,7 @@ from safetensors.torch import load_file, save_file
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.sim.vec_env import action_space, observation_space
-from itskill.tasks.evaluate import CheckpointError, Policy, PolicyFactory
+from itskill.tasks.evaluate import CheckpointError, Policy, PolicyActor, PolicyFactory
 from itskill.tasks.spec import TaskSpec
 
 MODEL_FILE = "model.zip"
@@ -165,22 +165,6 @@ def load_policy(run_dir: str | Path) -> StagedActorCriticPolicy:
     policy.update_obs_stats = False
     policy.set_training_mode(False)
     return policy
-
-
-class PolicyActor:
-    """A policy acting deterministically on contexts (the evaluation ``Policy`` interface)."""
-
-    def __init__(self, policy: StagedActorCriticPolicy) -> None:
-        self.policy = policy
-
-    def reset(self, env_ids: np.ndarray | None = None) -> None:
-        """Nothing to reset: the policy is feed-forward."""
-
-    @torch.no_grad()
-    def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
-        obs = torch.as_tensor(OBSERVATION_LAYOUT.build(ctx), dtype=torch.float32)
-        actions = self.policy._predict(obs, deterministic=True).cpu().numpy()
-        return np.clip(actions, -1.0, 1.0)
 
 
 class TrainedPolicy(PolicyActor):

@@ -14,8 +14,7 @@ from pathlib import Path
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from itskill.rl.checkpoint import PolicyActor
-from itskill.tasks.evaluate import evaluate
+from itskill.tasks.evaluate import PolicyActor, evaluate
 from itskill.tasks.spec import TaskSpec
 
 EVAL_FILE = "eval.csv"

@@ -47,19 +47,26 @@ class CheckpointError(ValueError):
         self.path, self.problem = str(path), problem
 
 
-class CheckpointPolicy:
-    """A Stable-Baselines3 PPO or A2C checkpoint acting deterministically."""
+class PolicyActor:
+    """A Stable-Baselines3 policy (anything with SB3's ``predict``) acting deterministically."""
 
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self.model = _load_sb3(self.path)
+    def __init__(self, policy: Any) -> None:
+        self.policy = policy
 
     def reset(self, env_ids: np.ndarray | None = None) -> None:
         """Nothing to reset: PPO and A2C policies are feed-forward, without memory."""
 
     def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
-        actions, _ = self.model.predict(OBSERVATION_LAYOUT.build(ctx), deterministic=True)
+        actions, _ = self.policy.predict(OBSERVATION_LAYOUT.build(ctx), deterministic=True)
         return np.asarray(actions)
+
+
+class CheckpointPolicy(PolicyActor):
+    """A Stable-Baselines3 PPO or A2C checkpoint (``.zip``) acting deterministically."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        super().__init__(_load_sb3(self.path).policy)
 
 
 def _load_sb3(path: Path) -> Any:
