@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from itskill.cli import app
 from itskill.rl.checkpoint import as_policy, load_policy
 from itskill.rl.logger import LoggerConfig, read_metrics
-from itskill.rl.train import ResumeMismatchError, RewardLoadError, train
+from itskill.rl.train import ResumeMismatchError, RewardLoadError, RewardSource, train
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import CheckpointError, evaluate
 
@@ -55,6 +55,29 @@ def test_resume_refuses_other_settings(tmp_path: Path, reach_reward: Path) -> No
     _train(out, reach_reward, 64, algo="a2c")
     with pytest.raises(ResumeMismatchError, match="algo"):
         _train(out, reach_reward, 128, algo="ppo")
+
+
+def test_callable_reward_is_recorded_and_guards_resume(tmp_path: Path, reach_reward: Path) -> None:
+    calls = []
+
+    def compute_reward(ctx):
+        calls.append(len(ctx["ee_pos"]))
+        close = np.exp(-np.linalg.norm(ctx["obj_to_ee"][:, 0], axis=-1) / 0.05)
+        return close, {"close": close}
+
+    out = tmp_path / "run"
+    source = RewardSource(compute_reward, {"kind": "generated", "sha256": "a" * 64})
+    _train(out, source, 64)  # type: ignore[arg-type]
+    assert calls and set(calls) == {4}
+    meta = json.loads((out / "checkpoint.json").read_text())
+    assert meta["reward"] == {"kind": "generated", "sha256": "a" * 64}
+    assert meta["policy_class"].endswith("StagedActorCriticPolicy")
+    assert "close" in (out / "metrics.csv").read_text().splitlines()[0]
+    other = RewardSource(compute_reward, {"kind": "generated", "sha256": "b" * 64})
+    with pytest.raises(ResumeMismatchError, match="reward"):
+        _train(out, other, 128)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="sha256"):
+        RewardSource(compute_reward, {"kind": "generated"})
 
 
 def test_interrupt_saves_checkpoint(tmp_path: Path, reach_reward: Path, monkeypatch) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 from itskill.rl.checkpoint import TrainedPolicy, as_policy, load_policy, read_meta
 from itskill.rl.config import A2CConfig, HyperparamError, Hyperparams, PPOConfig, load_hyperparams
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
-from itskill.rl.train import RewardLoadError, TrainResult, train
+from itskill.rl.train import RewardLoadError, RewardSource, TrainResult, train
 
 __all__ = [
     "A2CConfig",
@@ -15,6 +15,7 @@ __all__ = [
     "PPOConfig",
     "PolicyConfig",
     "RewardLoadError",
+    "RewardSource",
     "StagedActorCriticPolicy",
     "TrainResult",
     "TrainedPolicy",

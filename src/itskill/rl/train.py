@@ -22,6 +22,7 @@ from rich.console import Console
 from stable_baselines3 import A2C, PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import set_random_seed
 
 from itskill.rl.checkpoint import MODEL_FILE, read_meta, save_checkpoint
@@ -51,6 +52,23 @@ class ResumeMismatchError(ValueError):
 
 
 @dataclass(frozen=True)
+class RewardSource:
+    """A reward given as a callable, with the description stored in the checkpoint.
+
+    ``meta`` must be JSON-serialisable and hold at least ``kind`` and ``sha256`` (of the code the
+    callable was built from): a resumed run checks both, so it never continues under another reward.
+    """
+
+    fn: RewardFn
+    meta: Mapping[str, Any]
+
+    def __post_init__(self) -> None:
+        missing = [k for k in ("kind", "sha256") if k not in self.meta]
+        if missing:
+            raise ValueError(f"RewardSource.meta lacks {', '.join(missing)}")
+
+
+@dataclass(frozen=True)
 class TrainResult:
     """What :func:`train` did: where, how many env-steps in total, whether it was interrupted."""
 
@@ -62,14 +80,19 @@ class TrainResult:
     last_metrics: dict[str, Any] | None
 
 
-def load_reward(reward: str | Path, spec: TaskSpec) -> tuple[RewardFn, dict[str, Any]]:
+def load_reward(
+    reward: str | Path | RewardSource, spec: TaskSpec
+) -> tuple[RewardFn, dict[str, Any]]:
     """The reward function and its description for the checkpoint metadata.
 
-    ``"expert"`` is the task's human-designed reward (:func:`itskill.tasks.rewards.expert_reward`).
-    Anything else is a path to a Python file defining ``compute_reward(ctx) -> (total,
-    components)``. The file is executed as plain, trusted Python in this process for now; the
-    sandbox for generated reward code comes in a later issue.
+    ``"expert"`` is the task's human-designed reward (:func:`itskill.tasks.rewards.expert_reward`),
+    a :class:`RewardSource` is used as given (generated rewards arrive this way, already
+    sandboxed). Anything else is a path to a Python file defining ``compute_reward(ctx) -> (total,
+    components)``, executed as plain Python in this process: a file the user wrote is trusted like
+    any script they run; generated code goes through :mod:`itskill.reward.sandbox` instead.
     """
+    if isinstance(reward, RewardSource):
+        return reward.fn, dict(reward.meta)
     if str(reward) == EXPERT:
         from itskill.tasks.rewards import expert_reward
 
@@ -114,8 +137,14 @@ class CheckpointCallback(BaseCallback):
             self._last = self.num_timesteps
 
 
+def _class_path(cls: type) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
 def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> None:
-    for key in ("task", "algo", "seed"):
+    # Checkpoints written before the policy class was recorded all hold the staged policy.
+    meta = {"policy_class": _class_path(StagedActorCriticPolicy), **meta}
+    for key in ("task", "algo", "seed", "policy_class"):
         if meta.get(key) != want[key]:
             raise ResumeMismatchError(
                 f"{run_dir}: holds a run with {key}={meta.get(key)!r}, this call asks for "
@@ -133,7 +162,7 @@ def train(
     algo: str = "ppo",
     steps: int = 100_000,
     seed: int = 0,
-    reward: str | Path = EXPERT,
+    reward: str | Path | RewardSource = EXPERT,
     out: str | Path = Path("runs/train"),
     num_envs: int | None = None,
     hyperparams: str | Path | None = None,
@@ -143,11 +172,15 @@ def train(
     console: Console | None = None,
     eval_every: int | None = None,
     eval_episodes: int = 50,
+    policy_class: type[ActorCriticPolicy] = StagedActorCriticPolicy,
+    policy_kwargs: Mapping[str, Any] | None = None,
 ) -> TrainResult:
     """Train ``algo`` on ``task`` until ``steps`` env-steps in total, in run directory ``out``.
 
-    ``reward`` is ``"expert"`` or a path to a Python file defining ``compute_reward`` (executed as
-    plain Python: no sandbox yet). Hyper-parameters come from the packaged table for the task's
+    ``reward`` is ``"expert"``, a :class:`RewardSource`, or a path to a Python file defining
+    ``compute_reward`` (see :func:`load_reward`). ``policy_class`` is any SB3 ``ActorCriticPolicy``
+    subclass (the transfer methods pass theirs); ``policy_kwargs`` go over the family's policy
+    settings. Hyper-parameters come from the packaged table for the task's
     family (or ``hyperparams``, a TOML file of the same shape), with ``overrides`` on top
     (:func:`itskill.rl.config.load_hyperparams`); ``num_envs`` overrides the family's value.
 
@@ -180,6 +213,7 @@ def train(
         "reward": reward_meta,
         "num_envs": hp.num_envs,
         "hyperparams": hp.to_dict(),
+        "policy_class": _class_path(policy_class),
     }
 
     resumed_from = 0
@@ -211,9 +245,9 @@ def train(
         else:
             set_random_seed(seed)
             model = cls(
-                StagedActorCriticPolicy,
+                policy_class,
                 env,
-                policy_kwargs=hp.policy.policy_kwargs(),
+                policy_kwargs={**hp.policy.policy_kwargs(), **dict(policy_kwargs or {})},
                 seed=seed,
                 device="cpu",
                 verbose=0,
