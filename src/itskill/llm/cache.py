@@ -1,0 +1,90 @@
+"""Reply cache: a rerun replays the replies it already paid for instead of asking again.
+
+One JSON file per request under the cache directory, named by a SHA-256 of what determines the
+reply: the model, the messages, ``n``, the sampling temperature, the purpose and the request's
+*occurrence index*. The endpoint URL is left out on purpose, so moving from one server to another
+serving the same model keeps the cache. The occurrence index counts identical requests within one
+client's lifetime (0 for the first, 1 for the second, ...): asking the same question twice in a run
+still gets two independent samples, and a rerun that asks the same sequence of questions gets the
+same sequence of replies back. Files are written atomically (temporary file, then ``os.replace``),
+so a run killed mid-write never leaves a truncated entry.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+CACHE_VERSION = 1
+
+
+def request_key(
+    model: str, messages: list[dict[str, str]], n: int, temperature: float, purpose: str
+) -> str:
+    """SHA-256 (hex) of everything that determines a request's replies, except the occurrence."""
+    payload = json.dumps(
+        {
+            "version": CACHE_VERSION,
+            "model": model,
+            "messages": messages,
+            "n": n,
+            "temperature": round(float(temperature), 6),
+            "purpose": purpose,
+        },
+        sort_keys=True,
+        ensure_ascii=False,
+    )
+    return hashlib.sha256(payload.encode()).hexdigest()
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write ``data`` as JSON to ``path`` through a temporary file in the same directory."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1, ensure_ascii=False)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class ReplyCache:
+    """Replies on disk, one file per request (``<cache_dir>/<key>.json``)."""
+
+    def __init__(self, cache_dir: Path) -> None:
+        self.dir = Path(cache_dir)
+        self._seen: Counter[str] = Counter()
+
+    def occurrence_key(self, key: str) -> str:
+        """The key of the next occurrence of request ``key`` in this client's lifetime."""
+        index = self._seen[key]
+        self._seen[key] += 1
+        return hashlib.sha256(f"{key}:{index}".encode()).hexdigest()
+
+    def path(self, key: str) -> Path:
+        return self.dir / f"{key}.json"
+
+    def get(self, key: str, n: int) -> list[str] | None:
+        """The cached replies for ``key``, or None if absent or unusable (then it is re-asked)."""
+        try:
+            data = json.loads(self.path(key).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        replies = data.get("replies") if isinstance(data, dict) else None
+        if (
+            not isinstance(replies, list)
+            or len(replies) != n
+            or not all(isinstance(r, str) for r in replies)
+        ):
+            return None
+        return replies
+
+    def put(self, key: str, replies: list[str], meta: dict[str, Any]) -> None:
+        write_json_atomic(self.path(key), {**meta, "version": CACHE_VERSION, "replies": replies})

@@ -1,0 +1,175 @@
+"""The language-model interface every caller uses, and the factory that picks a backend.
+
+A client answers ``complete(messages, n, purpose=...)`` with exactly ``n`` reply texts. Two
+backends implement it: :class:`~itskill.llm.openai_client.OpenAIClient` (any OpenAI-compatible
+endpoint) and :class:`~itskill.llm.offline.OfflineClient` (the embedded rule-based backend, no
+network). Both share :class:`BaseClient`, which validates requests, replays cached replies and keeps
+the token and cost accounting, so every backend behaves the same to its caller.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+from itskill.llm.cache import ReplyCache, request_key
+
+Message = dict[str, str]
+"""One chat message: ``{"role": "system" | "user" | "assistant", "content": ...}``."""
+
+PURPOSES = ("plan", "reward", "analyze")
+"""What a request is for: the offline backend dispatches on it, accounting and caching record it."""
+
+ROLES = ("system", "user", "assistant")
+MODEL_ENV = "ITSKILL_LLM_MODEL"
+BASE_URL_ENV = "OPENAI_BASE_URL"
+API_KEY_ENV = "OPENAI_API_KEY"
+
+
+@dataclass
+class Usage:
+    """What a client has consumed so far: tokens from the responses, requests sent, cache replays
+    (which cost nothing) and the cost in USD from the price table."""
+
+    prompt_tokens: int = 0
+    completion_tokens: int = 0
+    requests: int = 0
+    cache_hits: int = 0
+    cost_usd: float = 0.0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def add(self, other: Usage) -> None:
+        """Accumulate ``other`` into this one (e.g. a run's total over several clients)."""
+        self.prompt_tokens += other.prompt_tokens
+        self.completion_tokens += other.completion_tokens
+        self.requests += other.requests
+        self.cache_hits += other.cache_hits
+        self.cost_usd += other.cost_usd
+
+
+class LLMError(RuntimeError):
+    """A language-model failure a user can see; the message says what to do about it."""
+
+
+class LLMUnavailableError(LLMError):
+    """The endpoint cannot be reached, refuses the key, or no key is configured."""
+
+
+@runtime_checkable
+class LLMClient(Protocol):
+    """What the planner, the reward generator and the transfer analyzer need from a model."""
+
+    name: str
+    offline: bool
+    usage: Usage
+
+    def complete(
+        self, messages: list[Message], n: int = 1, *, purpose: str, temperature: float = 1.0
+    ) -> list[str]:
+        """Exactly ``n`` reply texts to ``messages``."""
+        ...
+
+
+def validate_request(messages: list[Message], n: int, purpose: str, temperature: float) -> None:
+    """Reject a malformed request before it costs anything, naming what is wrong."""
+    if purpose not in PURPOSES:
+        raise ValueError(f"unknown purpose {purpose!r}; expected one of {', '.join(PURPOSES)}")
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise ValueError(f"n must be a positive integer, got {n!r}")
+    if not 0.0 <= temperature <= 2.0:
+        raise ValueError(f"temperature must be in [0, 2], got {temperature!r}")
+    if not isinstance(messages, list) or not messages:
+        raise ValueError("messages must be a non-empty list of {'role', 'content'} dicts")
+    for k, message in enumerate(messages):
+        if not isinstance(message, Mapping) or set(message) != {"role", "content"}:
+            raise ValueError(f"messages[{k}] must be a dict with exactly 'role' and 'content'")
+        if message["role"] not in ROLES:
+            raise ValueError(
+                f"messages[{k}]['role'] is {message['role']!r}; expected one of {', '.join(ROLES)}"
+            )
+        if not isinstance(message["content"], str):
+            raise ValueError(f"messages[{k}]['content'] must be a string")
+
+
+class BaseClient:
+    """Shared behaviour of every backend: validation, the reply cache and usage accounting.
+
+    A subclass sets ``name``/``offline`` and implements :meth:`_complete`, which returns the ``n``
+    replies and adds what it consumed to ``self.usage``.
+    """
+
+    name: str = ""
+    offline: bool = False
+
+    def __init__(self, cache_dir: Path | None = None) -> None:
+        self.usage = Usage()
+        self.cache = ReplyCache(cache_dir) if cache_dir is not None else None
+
+    def complete(
+        self, messages: list[Message], n: int = 1, *, purpose: str, temperature: float = 1.0
+    ) -> list[str]:
+        validate_request(messages, n, purpose, temperature)
+        key = None
+        if self.cache is not None:
+            key = request_key(self.name, messages, n, temperature, purpose)
+            key = self.cache.occurrence_key(key)
+            cached = self.cache.get(key, n)
+            if cached is not None:
+                self.usage.cache_hits += 1
+                return cached
+        replies = self._complete(messages, n, purpose, temperature)
+        if len(replies) != n:
+            raise LLMError(f"{self.name} returned {len(replies)} replies where {n} were asked for")
+        if self.cache is not None and key is not None:
+            self.cache.put(key, replies, {"model": self.name, "purpose": purpose, "n": n})
+        return replies
+
+    def _complete(
+        self, messages: list[Message], n: int, purpose: str, temperature: float
+    ) -> list[str]:
+        raise NotImplementedError
+
+
+def make_client(
+    spec: str | None = None,
+    *,
+    base_url: str | None = None,
+    api_key: str | None = None,
+    cache_dir: Path | None = None,
+    price: tuple[float, float] | None = None,
+) -> LLMClient:
+    """The client named by ``spec``.
+
+    ``spec`` is ``"offline"``, ``"openai:MODEL"`` (any OpenAI-compatible endpoint: the model name is
+    whatever the server calls it), or ``None`` for ``$ITSKILL_LLM_MODEL``, else ``"offline"``.
+    ``base_url``/``api_key`` default to ``$OPENAI_BASE_URL``/``$OPENAI_API_KEY``. ``price`` is
+    ``(USD per 1M input tokens, USD per 1M output tokens)`` and overrides the price table.
+    ``cache_dir`` turns on the reply cache (a rerun replays instead of asking again).
+    """
+    if spec is None:
+        spec = os.environ.get(MODEL_ENV) or "offline"
+    spec = spec.strip()
+    if spec == "offline":
+        from itskill.llm.offline import OfflineClient
+
+        return OfflineClient(cache_dir=cache_dir)
+    backend, _, model = spec.partition(":")
+    if backend == "openai" and model.strip():
+        from itskill.llm.openai_client import OpenAIClient
+
+        return OpenAIClient(
+            model.strip(),
+            base_url=base_url or os.environ.get(BASE_URL_ENV) or None,
+            api_key=api_key or os.environ.get(API_KEY_ENV) or None,
+            cache_dir=cache_dir,
+            price=price,
+        )
+    raise ValueError(
+        f"unknown language model {spec!r}: expected 'offline' or 'openai:MODEL' "
+        "(e.g. openai:gpt-4o, or openai:llama3.1 with OPENAI_BASE_URL=http://localhost:11434/v1)"
+    )

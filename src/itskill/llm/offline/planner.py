@@ -1,0 +1,248 @@
+"""The offline task planner: a command matched to a catalogue task by rule.
+
+1. Objects are grounded from the words of the command against the catalogue's object names
+   (``nut_m12`` is "M12 nut", ``peg_rect_16mm`` "rectangular peg"); a bare "the nut" means the
+   M12 nut and a bare "the peg" the round peg, and the plan's notes say so; plural "nuts" means
+   every nut. Fixture words (bolt, hole) must match the task's fixtures.
+2. The command is split into clauses ("pick up X", "place it on Y", "screw it down", ...); each
+   clause's verb adds the actions that distinguish it (``pick`` -> grasp, lift; ``insert`` ->
+   [place], insert; ...). "approach" (and "carry") are implied everywhere and not compared.
+3. A catalogue task matches if its objects are the grounded ones and its distinguishing actions
+   are exactly the clauses' (optional ones may be absent). Among matches, the one whose own
+   command shares most words with the user's wins, less one per optional action it lacks (this
+   tells "pull the peg out of the hole" from "pick up the peg", and "lift the nut" from a pick).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+
+BACKEND = "offline rule-based backend"
+
+# verb phrase -> distinguishing actions; a "?" suffix marks an action that may be absent.
+_VERBS: list[tuple[str, tuple[str, ...]]] = [
+    (r"\bunscrew\w*|\bloosen\w*", ("unscrew",)),
+    (r"\bscrew\w*|\btighten\w*|\bfasten\w*", ("screw",)),
+    (r"\binsert\w*|\bplug\w*", ("place?", "insert")),
+    (
+        r"\bpull\w*|\bremov\w*|\btake\w* (?:it |them )?(?:out|off)\b|\bextract\w*",
+        ("grasp", "lift?"),
+    ),
+    (r"\bpick\w*|\bgrab\w*|\bgrasp\w*|\btake\w*|\bfetch\w*", ("grasp", "lift?")),
+    (r"\blift\w*|\braise\w*", ("grasp?", "lift")),
+    (r"\bplace\w*|\bput\w*|\bset\w*|\bmount\w*|\bdrop\w*|\bposition\w*", ("place|align?",)),
+    (r"\balign\w*|\borient\w*", ("align",)),
+    (r"\bpush\w*|\bslide\w*|\bshove\w*|\bnudge\w*", ("push",)),
+    (r"\breach\w*|\bmove\w*|\bgo\b|\btouch\w*|\bapproach\w*", ()),
+    (r"\bcarry\w*|\btransport\w*|\bbring\w*|\bhold\w*", ()),
+]
+_IMPLIED = {"approach", "carry"}
+_ORDINALS = ["First", "Second", "Third", "Fourth", "Fifth", "Sixth", "Seventh", "Eighth", "Ninth",
+             "Tenth", "Eleventh", "Twelfth"]  # fmt: skip
+_SHAPES = {"round": "round", "cylindrical": "round", "circular": "round", "rect": "rect",
+           "rectangular": "rect", "square": "rect", "box": "rect", "flat": "rect"}  # fmt: skip
+_STOP = {"the", "a", "an", "it", "them", "and", "then", "of", "to", "on", "onto", "into", "in",
+         "up", "its", "with", "please", "robot"}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Part:
+    """A catalogue object or fixture name read as words: kind (nut, peg, bolt, hole) and tags."""
+
+    name: str
+    kind: str
+    size: str  # "m12", "m16" or ""
+    shape: str  # "round", "rect" or ""
+
+    @classmethod
+    def from_name(cls, name: str) -> Part:
+        tokens = name.lower().split("_")
+        size = next((t for t in tokens if re.fullmatch(r"m\d+", t)), "")
+        shape = next((_SHAPES[t] for t in tokens if t in _SHAPES), "")
+        return cls(name, tokens[0], size, shape)
+
+    @property
+    def label(self) -> str:
+        shape = {"round": "round", "rect": "rectangular"}.get(self.shape, "")
+        return " ".join(w for w in (self.size.upper(), shape, self.kind) if w)
+
+
+class PlanningError(ValueError):
+    """The command cannot be grounded in the catalogue; the message says why."""
+
+
+def _words(text: str) -> list[str]:
+    return re.findall(r"[a-z0-9]+", text.lower())
+
+
+def _ground_objects(command: str, parts: list[Part]) -> tuple[list[Part], list[str]]:
+    """The objects the command names, and notes on the assumptions made."""
+    words = _words(command)
+    kinds = sorted({p.kind for p in parts})
+    notes: list[str] = []
+    grounded: list[Part] = []
+    for kind in kinds:
+        plural = f"{kind}s" in words or ("both" in words and kind in words)
+        if kind not in words and not plural:
+            continue
+        of_kind = [p for p in parts if p.kind == kind]
+        sizes = {p.size for p in of_kind if p.size and p.size in words}
+        shapes = {
+            p.shape for p in of_kind if p.shape and any(_SHAPES.get(w) == p.shape for w in words)
+        }
+        chosen = [
+            p for p in of_kind
+            if (not sizes or p.size in sizes) and (not shapes or p.shape in shapes)
+        ]  # fmt: skip
+        if not plural and len(chosen) > 1:
+            default = sorted(chosen, key=lambda p: (p.size or "~", p.shape != "round", p.name))[0]
+            notes.append(
+                f"'the {kind}' names no size or shape: assumed the {default.label} "
+                f"(others: {', '.join(p.label for p in chosen if p is not default)})"
+            )
+            chosen = [default]
+        grounded += sorted(chosen, key=lambda p: p.name)
+    return grounded, notes
+
+
+def _clauses(command: str) -> list[tuple[str, ...]]:
+    """The distinguishing actions of each verb in the command, in the order they appear."""
+    text = command.lower()
+    hits: list[tuple[int, tuple[str, ...]]] = []
+    taken: list[tuple[int, int]] = []
+    for pattern, actions in _VERBS:
+        for match in re.finditer(pattern, text):
+            span = match.span()
+            if any(s < span[1] and span[0] < e for s, e in taken):
+                continue  # "unscrew" already matched; do not read "screw" in it again
+            taken.append(span)
+            hits.append((span[0], actions))
+    return [actions for _, actions in sorted(hits)]
+
+
+def _skipped(pattern: list[str], actions: list[str]) -> int | None:
+    """How few optional elements ``actions`` must skip to fit ``pattern`` (``a?`` optional,
+    ``a|b`` alternatives); None if they do not fit."""
+    if not pattern:
+        return None if actions else 0
+    head, rest = pattern[0], pattern[1:]
+    options = head.rstrip("?").split("|")
+    best = None
+    if actions and actions[0] in options:
+        best = _skipped(rest, actions[1:])
+    if head.endswith("?"):
+        skip = _skipped(rest, actions)
+        if skip is not None and (best is None or skip + 1 < best):
+            best = skip + 1
+    return best
+
+
+def plan(command: str, catalogue: list[dict]) -> dict:
+    """The plan reply for ``command`` (see the planner prompt), or ``{"error": ...}``."""
+    objects = {name for entry in catalogue for name in entry["objects"]}
+    fixtures = {name for entry in catalogue for name in entry["fixtures"]}
+    parts = [Part.from_name(n) for n in sorted(objects)]
+    fixture_parts = [Part.from_name(n) for n in sorted(fixtures)]
+    grounded, notes = _ground_objects(command, parts)
+    words = set(_words(command))
+    if not grounded:
+        known = ", ".join(sorted({p.label for p in parts}))
+        return {"error": f"the command names no object of this scene (known objects: {known})"}
+    clauses = _clauses(command)
+    if not clauses:
+        return {
+            "error": "the command has no action this robot can do (pick up, place, screw, "
+            "unscrew, insert, pull out, push, lift, move to)"
+        }
+    named_fixtures = {p.kind for p in fixture_parts if p.kind in words or f"{p.kind}s" in words}
+    per_object = [a for clause in clauses for a in clause]
+    pattern = per_object * (len(grounded) if len(grounded) > 1 else 1)
+    wanted = {p.name for p in grounded}
+    candidates = []
+    for entry in catalogue:
+        if set(entry["objects"]) != wanted:
+            continue
+        if named_fixtures - {Part.from_name(f).kind for f in entry["fixtures"]}:
+            continue
+        distinctive = [a for a in entry["actions"] if a not in _IMPLIED]
+        skipped = _skipped(pattern, distinctive)
+        if skipped is not None:
+            overlap = len((words - _STOP) & (set(_words(entry["command"])) - _STOP))
+            candidates.append((skipped - overlap, skipped, entry["task"], entry))
+    if not candidates:
+        labels = " and ".join(p.label for p in grounded)
+        read = ", ".join(a.rstrip("?") for a in pattern)
+        return {
+            "error": f"no catalogue task does what the command asks with the {labels} "
+            f"(actions read from the command: {read or 'move to'})"
+        }
+    entry = min(candidates, key=lambda c: c[:3])[3]
+    notes.append(f"planned by the {BACKEND} (not a language model): matched catalogue task "
+                 f"{entry['task']!r}")  # fmt: skip
+    return {
+        "task": entry["task"],
+        "subtasks": subtasks(entry),
+        "actions": list(entry["actions"]),
+        "objects": list(entry["objects"]),
+        "notes": "; ".join(notes),
+    }
+
+
+def subtasks(entry: dict) -> list[str]:
+    """One "First, ..." sentence per action of a catalogue entry."""
+    objects = [Part.from_name(n) for n in entry["objects"]]
+    fixtures = [Part.from_name(n) for n in entry["fixtures"]] or [Part("", "table", "", "")]
+    sentences = []
+    # A command that starts by carrying, placing, inserting or lifting finds the part in hand.
+    held = bool(re.match(r"\s*(carry|place|put|insert|lift|align)", entry["command"].lower()))
+    slot = 0
+    for k, action in enumerate(entry["actions"]):
+        obj = objects[min(slot, len(objects) - 1)]
+        fix = fixtures[min(slot, len(fixtures) - 1)]
+        o, f = f"the {obj.label}", f"the {fix.label}"
+        if action == "approach":
+            text = f"carry {o} over {f}" if held else f"move the gripper to {o}"
+        elif action == "carry":
+            text = f"carry {o} over {f}"
+        elif action == "grasp":
+            text, held = f"close the gripper on {o}", True
+        elif action == "lift":
+            text = f"lift {o}" + (f" off {f}" if entry["actions"][0] == "unscrew" else "")
+        elif action == "place":
+            text = (
+                f"place {o} on {f}" if fix.kind == "bolt" else f"place {o} at the entrance of {f}"
+            )
+            held = False
+            slot += 1 if len(objects) > 1 else 0
+        elif action == "align":
+            text = f"align {o} with {f}"
+        elif action == "insert":
+            text = f"insert {o} into {f}"
+        elif action == "screw":
+            text = f"screw {o} down to the bottom of {f}"
+        elif action == "unscrew":
+            text, held = f"unscrew {o} from {f}", True
+        elif action == "push":
+            text = f"push {o} next to {f}"
+        elif action == "release":
+            text, held = f"open the gripper to release {o}", False
+        else:
+            text = f"{action} {o}"
+        ordinal = _ORDINALS[k] if k < len(_ORDINALS) else f"Step {k + 1}"
+        sentences.append(f"{ordinal}, {text}.")
+    return sentences
+
+
+def reply(command: str | None, catalogue_text: str | None) -> str:
+    """The planner's reply text: one ```json fence."""
+    if command is None or catalogue_text is None:
+        result = {"error": f"{BACKEND}: the prompt has no <command> or <catalogue> block"}
+    else:
+        try:
+            catalogue = json.loads(catalogue_text)
+            result = plan(command, catalogue)
+        except (ValueError, KeyError, TypeError) as err:
+            result = {"error": f"{BACKEND}: cannot read the catalogue: {err}"}
+    return "```json\n" + json.dumps(result, indent=1) + "\n```\n"

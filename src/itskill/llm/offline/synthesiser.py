@@ -1,0 +1,455 @@
+"""The offline reward synthesiser: staged reward code composed by rule from a task description.
+
+It reads the stage lines of the generator prompt's task description (``stage K: NAME | object I |
+done when EXPR``), picks the shaping terms of each stage from its action (``terms.toml``:
+``[recipes]`` and ``[terms]``), and writes a ``compute_reward(ctx)`` in the same shape a language
+model must use: one temperature variable per transformed term, one weight per term, a stage bonus,
+a success bonus and an action penalty, components named ``"<k>.<stage>/<term>"``.
+
+Sample 0 of a request uses the defaults (or, with policy feedback, the retuned values); samples
+1.. vary temperatures, weights and the transform, seeded by the sample index and the prompt, so
+replies are deterministic. Policy feedback is handled by rule (see ``[retune]`` in the data file):
+a term that never gets near its maximum gets a wider temperature, one always near it a narrower
+one, the first stage never reached more weight and the stage before it wider temperatures.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import math
+import re
+import sys
+from dataclasses import dataclass, field, replace
+from functools import cache
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from itskill.llm.offline.blocks import fenced
+from itskill.tasks.predicates import PREDICATES, PredicateError, parse
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+BACKEND = "offline rule-based backend"
+
+_STAGE = re.compile(
+    r"^\s*stage\s+(\d+)\s*:\s*([A-Za-z_][\w\-]*)\s*\|\s*object\s+(\d+)\s*\|"
+    r"\s*done when\s+(.+?)\s*$",
+    re.M | re.I,
+)
+_OBJECT = re.compile(r"^\s*object\s+(\d+)\s*:.*?for fixture\s+(\d+)", re.M | re.I)
+_SUCCESS = re.compile(r"^\s*Success:\s*(.+?)\s*$", re.M)
+_COMMAND = re.compile(r"^\s*Command:\s*(.+?)\s*$", re.M)
+_ASSIGN = re.compile(r"^\s*((?:temp|w)_\w+|stage_bonus|success_bonus|action_penalty)\s*=\s*"
+                     r"([-+0-9.eE]+)\s*(?:#.*)?$", re.M)  # fmt: skip
+_STAT = re.compile(r"^\s*([^|\n]+?)\s*\|\s*([-+0-9.eE]+|nan|inf)\s*\|\s*([-+0-9.eE]+|nan|inf)\s*\|"
+                   r"\s*([-+0-9.eE]+|nan|inf)\s*$", re.M)  # fmt: skip
+_COMPONENT = re.compile(r"^(\d+)\.[^/]+/(\w+)$")
+_SUCCESS_RATE = re.compile(r"success rate:\s*([0-9.]+)", re.I)
+
+# Which recipe a stage gets when its action is not a recipe name: by its condition.
+_RECIPE_OF_PREDICATE = {
+    "near": "approach",
+    "grasped": "grasp",
+    "lifted": "lift",
+    "above_fixture": "carry",
+    "aligned": "align",
+    "engaged": "place",
+    "seated": "screw",
+    "inserted": "insert",
+    "removed": "unscrew",
+    "displaced": "push",
+    "released": "release",
+}
+_ACTION_ALIASES = {"reach": "approach", "move": "approach", "transport": "carry", "pull": "remove"}
+
+
+class SynthesisError(ValueError):
+    """The prompt has no task description the synthesiser can read."""
+
+
+@cache
+def vocabulary(path: Path | None = None) -> dict[str, Any]:
+    """The synthesiser's data file, checked: every recipe term defined, every term complete."""
+    source = path or Path(str(resources.files("itskill.llm.offline") / "terms.toml"))
+    with open(source, "rb") as fh:
+        data = tomllib.load(fh)
+    for section in ("recipes", "terms", "predicates", "defaults", "variation", "retune"):
+        if section not in data:
+            raise ValueError(f"{source}: missing [{section}] table")
+    for recipe, names in data["recipes"].items():
+        for name in names:
+            if name not in data["terms"]:
+                raise ValueError(f"{source}: recipes.{recipe}: unknown term {name!r}")
+    for name, term in data["terms"].items():
+        needed = ["doc", "kind", "weight"] + (
+            ["distance", "temperature"] if term.get("kind") == "distance" else ["value"]
+        )
+        missing = [key for key in needed if key not in term]
+        if term.get("kind") not in ("distance", "flag") or missing:
+            raise ValueError(
+                f"{source}: terms.{name}: needs kind 'distance' or 'flag' and {', '.join(needed)}"
+            )
+    unknown = set(data["predicates"]) ^ set(PREDICATES)
+    if unknown:
+        raise ValueError(f"{source}: [predicates] must cover exactly {sorted(PREDICATES)}")
+    return data
+
+
+# ------------------------------------------------------------------------------ task structure
+@dataclass(frozen=True)
+class StageSpec:
+    """One stage as read from the description, with the recipe and fields its terms need."""
+
+    index: int
+    action: str
+    recipe: str
+    slot: int
+    fields: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class TaskStructure:
+    command: str
+    stages: tuple[StageSpec, ...]
+    success: str  # NumPy expression
+
+
+def predicate_params(name: str, args: tuple[float, ...]) -> dict[str, Any]:
+    """A predicate's arguments by parameter name, defaults filled in (slot included as ``i``)."""
+    signature = inspect.signature(PREDICATES[name])
+    bound = signature.bind(None, *[int(args[0]), *args[1:]])
+    bound.apply_defaults()
+    params = dict(bound.arguments)
+    params.pop(next(iter(signature.parameters)))
+    return params
+
+
+def _expression_code(source: str, fixture_of: dict[int, int]) -> str:
+    """NumPy code for a predicate expression such as ``lifted(0, 3) and grasped(0)``."""
+    parts = []
+    for negate, name, args in parse(source).terms:
+        params = predicate_params(name, args)
+        slot = int(params["i"])
+        code = vocabulary()["predicates"][name].format(
+            **{**params, "i": slot, "j": fixture_of.get(slot, slot)}
+        )
+        parts.append(f"~({code})" if negate else f"({code})")
+    return " & ".join(parts)
+
+
+def parse_description(text: str) -> TaskStructure:
+    """Stages, objects' fixtures and the success condition from a task description."""
+    fixture_of = {int(i): int(j) for i, j in _OBJECT.findall(text)}
+    rows = _STAGE.findall(text)
+    if not rows:
+        raise SynthesisError(
+            "the task description has no stage lines ('stage K: NAME | object I | done when EXPR')"
+        )
+    stages: list[StageSpec] = []
+    held: set[int] = set()  # object slots in the hand, as far as the stage sequence tells
+    for k, (index, action, slot_text, done) in enumerate(rows):
+        if int(index) != k:
+            raise SynthesisError(f"stage lines must be numbered 0, 1, ... in order; got {index}")
+        slot = int(slot_text)
+        try:
+            terms = parse(done).terms
+        except PredicateError:
+            terms = ()
+        names = [name for neg, name, _ in terms if not neg]
+        recipe = _recipe(action.lower(), names, slot in held)
+        stages.append(StageSpec(k, action, recipe, slot, _fields(slot, fixture_of, terms)))
+        if recipe in ("grasp", "lift", "unscrew", "remove"):
+            held.add(slot)
+        elif recipe in ("place", "insert", "release", "push"):
+            held.discard(slot)
+    match = _SUCCESS.search(text)
+    try:
+        success = _expression_code(match.group(1), fixture_of) if match else ""
+    except PredicateError as err:
+        raise SynthesisError(f"cannot read the success condition: {err}") from err
+    if not success:  # no usable success line: the last stage being done is the goal
+        success = _expression_code(rows[-1][3], fixture_of)
+    command = _COMMAND.search(text)
+    return TaskStructure(command.group(1) if command else "", tuple(stages), success)
+
+
+def _recipe(action: str, predicates: list[str], holding: bool) -> str:
+    recipes = vocabulary()["recipes"]
+    action = _ACTION_ALIASES.get(action, action)
+    if action == "approach" and ("above_fixture" in predicates or holding):
+        return "carry"
+    if action == "lift" and "removed" in predicates:
+        return "remove"
+    if action in recipes:
+        return action
+    for name in predicates:
+        if name in _RECIPE_OF_PREDICATE:
+            return _RECIPE_OF_PREDICATE[name]
+    return "approach"
+
+
+def _fields(slot: int, fixture_of: dict[int, int], terms) -> dict[str, Any]:
+    j = fixture_of.get(slot, slot)
+    fields: dict[str, Any] = {
+        "i": slot,
+        "j": j,
+        "target": f'3.0 * ctx["obj_height"][:, {slot}]',
+        "hover": 0.015,
+        "tolerance": 0.0,
+        "fraction": 0.5,
+        "height": 0.02,
+        "dx": 0.0,
+        "dy": 0.0,
+    }
+    for negate, name, args in terms:
+        if negate or int(args[0]) != slot:
+            continue
+        p = predicate_params(name, args)
+        if name == "lifted":
+            fields["target"] = f'{float(p["heights"])!r} * ctx["obj_height"][:, {slot}]'
+        elif name == "above_fixture":
+            fields["hover"] = 0.5 * float(p["height"])
+        elif name == "seated":
+            fields["tolerance"] = float(p["tolerance"])
+        elif name == "inserted":
+            fields["fraction"] = float(p["fraction"])
+        elif name == "removed":
+            fields["height"] = float(p["height"])
+        elif name == "displaced":
+            fields["dx"], fields["dy"] = float(p["dx"]), float(p["dy"])
+    return fields
+
+
+# ------------------------------------------------------------------------------ parameters
+@dataclass
+class RewardParams:
+    """Every number in a generated reward: temperatures and weights by variable name."""
+
+    temperatures: dict[str, float] = field(default_factory=dict)
+    weights: dict[str, float] = field(default_factory=dict)
+    transform: str = "exp"
+    stage_bonus: float = 1.0
+    success_bonus: float = 2.0
+    action_penalty: float = 0.01
+
+    def copy(self) -> RewardParams:
+        return replace(self, temperatures=dict(self.temperatures), weights=dict(self.weights))
+
+
+def default_params(task: TaskStructure) -> RewardParams:
+    vocab = vocabulary()
+    params = RewardParams(
+        transform=vocab["defaults"]["transform"],
+        stage_bonus=float(vocab["defaults"]["stage_bonus"]),
+        success_bonus=float(vocab["defaults"]["success_bonus"]),
+        action_penalty=float(vocab["defaults"]["action_penalty"]),
+    )
+    for stage in task.stages:
+        for name in vocab["recipes"][stage.recipe]:
+            term = vocab["terms"][name]
+            params.weights[f"w_{name}_{stage.index}"] = float(term["weight"])
+            if term["kind"] == "distance":
+                params.temperatures[f"temp_{name}_{stage.index}"] = float(term["temperature"])
+    return params
+
+
+def vary(params: RewardParams, seed: int) -> RewardParams:
+    """A deterministic variation of ``params`` for one sample."""
+    cfg = vocabulary()["variation"]
+    rng = np.random.default_rng(seed)
+    out = params.copy()
+    lo, hi = (math.log(v) for v in cfg["temperature_factor"])
+    for key in out.temperatures:
+        out.temperatures[key] *= math.exp(rng.uniform(lo, hi))
+    for key in out.weights:
+        out.weights[key] *= rng.uniform(*cfg["weight_factor"])
+    out.transform = "tanh" if rng.random() < cfg["tanh_probability"] else "exp"
+    return out
+
+
+def retune(
+    task: TaskStructure,
+    previous_code: str,
+    success_rate: float | None,
+    stats: dict[str, dict[str, float]],
+) -> tuple[RewardParams, list[str]]:
+    """New parameters from the previous code's values and the training statistics, with notes
+    that say what changed and why."""
+    cfg = vocabulary()["retune"]
+    params = default_params(task)
+    for name, value in _ASSIGN.findall(previous_code):
+        number = float(value)
+        if name in params.temperatures:
+            params.temperatures[name] = number
+        elif name in params.weights:
+            params.weights[name] = number
+        elif name in ("stage_bonus", "success_bonus", "action_penalty"):
+            setattr(params, name, number)
+    if "np.tanh(" in previous_code:
+        params.transform = "tanh"
+    notes: list[str] = []
+    reached: dict[int, bool] = {}
+    widened: set[str] = set()
+    for component, values in stats.items():
+        match = _COMPONENT.match(component)
+        if not match:
+            continue
+        k, term = int(match.group(1)), match.group(2)
+        weight = params.weights.get(f"w_{term}_{k}")
+        if weight is None:
+            continue
+        reached[k] = reached.get(k, False) or values["max"] > 1e-9
+        temp = f"temp_{term}_{k}"
+        if temp not in params.temperatures or values["max"] <= 1e-9 or weight <= 0:
+            continue
+        hi, lo = values["max"] / weight, values["min"] / weight
+        if hi < cfg["dead_max"]:
+            _scale(params.temperatures, temp, cfg["widen"], notes, "stays near zero: widened")
+            widened.add(temp)
+        elif lo > cfg["saturated_min"]:
+            _scale(params.temperatures, temp, cfg["narrow"], notes, "always saturated: narrowed")
+    unreached = sorted(k for k, hit in reached.items() if not hit)
+    if unreached and unreached[0] > 0:
+        k = unreached[0]
+        for key in [w for w in params.weights if w.endswith(f"_{k}")]:
+            _scale(params.weights, key, cfg["unreached_weight"], notes, f"stage {k} never reached")
+        for key in [t for t in params.temperatures if t.endswith(f"_{k - 1}")]:
+            if key not in widened:
+                _scale(
+                    params.temperatures, key, cfg["bottleneck_widen"], notes,
+                    f"stage {k - 1} never completed: widened",
+                )  # fmt: skip
+    if success_rate == 0.0 and stats and not unreached:
+        params.success_bonus *= cfg["success_bonus_factor"]
+        notes.append(
+            f"success_bonus -> {params.success_bonus:.3g}: every stage reached, no success"
+        )
+    t_lo, t_hi = cfg["temperature_range"]
+    w_lo, w_hi = cfg["weight_range"]
+    params.temperatures = {k: min(max(v, t_lo), t_hi) for k, v in params.temperatures.items()}
+    params.weights = {k: min(max(v, w_lo), w_hi) for k, v in params.weights.items()}
+    return params, notes
+
+
+def _scale(table: dict[str, float], key: str, factor: float, notes: list[str], why: str) -> None:
+    old = table[key]
+    table[key] = old * factor
+    notes.append(f"{key}: {old:.4g} -> {table[key]:.4g} ({why})")
+
+
+def parse_feedback(feedback: str) -> tuple[str, float | None, dict[str, dict[str, float]]]:
+    """(previous code, success rate, component stats) from a policy-feedback message."""
+    code = fenced(feedback, "python") or ""
+    rate = _SUCCESS_RATE.search(feedback)
+    stats: dict[str, dict[str, float]] = {}
+    for name, hi, mean, lo in _STAT.findall(feedback.split("```")[0]):
+        if name.strip() == "component":
+            continue
+        values = {"max": float(hi), "mean": float(mean), "min": float(lo)}
+        if all(math.isfinite(v) for v in values.values()):
+            stats[name.strip()] = values
+    return code, (float(rate.group(1)) if rate else None), stats
+
+
+# ------------------------------------------------------------------------------ code
+def render_code(task: TaskStructure, params: RewardParams, label: str) -> str:
+    """The ``compute_reward`` source for ``task`` with ``params``."""
+    vocab = vocabulary()
+    transform = "np.exp(-d / {t})" if params.transform == "exp" else "1.0 - np.tanh(d / {t})"
+    out = [
+        f"# Staged reward for: {task.command or 'the described task'}",
+        f"# Written by itskill's {BACKEND} (not a language model), {label}.",
+        "import numpy as np",
+        "",
+        "",
+        "def compute_reward(ctx):",
+        '    """Staged shaping per subtask + stage bonus + success bonus - action penalty."""',
+        '    stage = np.asarray(ctx["stage"]).astype(np.int64)',
+        "    # Temperatures (metres or radians): one per transformed term.",
+    ]
+    for stage in task.stages:
+        for name in vocab["recipes"][stage.recipe]:
+            term = vocab["terms"][name]
+            if term["kind"] == "distance":
+                var = f"temp_{name}_{stage.index}"
+                doc = term["doc"].format(**stage.fields)
+                out.append(f"    {var} = {params.temperatures[var]:.5g}  # {doc}")
+    out.append("    # Term weights: a completed stage keeps paying its terms' full weight.")
+    for stage in task.stages:
+        for name in vocab["recipes"][stage.recipe]:
+            var = f"w_{name}_{stage.index}"
+            out.append(f"    {var} = {params.weights[var]:.4g}")
+    out += [
+        f"    stage_bonus = {params.stage_bonus:.4g}",
+        f"    success_bonus = {params.success_bonus:.4g}",
+        f"    action_penalty = {params.action_penalty:.4g}",
+        "",
+        "    components = {}",
+    ]
+    for stage in task.stages:
+        k, f = stage.index, stage.fields
+        out.append(f"    # stage {k}: {stage.action} (object {f['i']}, recipe {stage.recipe})")
+        for name in vocab["recipes"][stage.recipe]:
+            term = vocab["terms"][name]
+            if term["kind"] == "distance":
+                out.append(f"    d = {term['distance'].format(**f)}")
+                out.append(f"    value = {transform.format(t=f'temp_{name}_{k}')}")
+            else:
+                out.append(f"    value = {term['value'].format(**f)}")
+            if "gate" in term:
+                out.append(f"    value = value * {term['gate'].format(**f)}")
+            if "floor" in term:
+                out.append(f"    value = np.maximum({term['floor'].format(**f)}, 0.9 * value)")
+            out.append(
+                f'    components["{k}.{stage.action}/{name}"] = w_{name}_{k} * '
+                f"np.where(stage > {k}, 1.0, np.where(stage == {k}, value, 0.0))"
+            )
+    out += [
+        f"    success = {task.success}",
+        '    components["stage_bonus"] = stage_bonus * stage.astype(np.float64)',
+        '    components["success"] = success_bonus * success.astype(np.float64)',
+        '    motion = np.asarray(ctx["action"], dtype=np.float64)[:, :4]',
+        '    components["action_penalty"] = -action_penalty * np.mean(motion**2, axis=-1)',
+        "    total = sum(components.values())",
+        "    return total, components",
+        "",
+    ]
+    return "\n".join(out)
+
+
+def _seed(*parts: object) -> int:
+    digest = hashlib.sha256("|".join(str(p) for p in parts).encode()).hexdigest()
+    return int(digest[:16], 16)
+
+
+def synthesise(description: str, n: int, feedback: str | None = None) -> list[str]:
+    """``n`` replies, each a short note and one ```python fence with a staged reward."""
+    try:
+        task = parse_description(description)
+    except SynthesisError as err:
+        return [f"The {BACKEND} cannot write a reward: {err}."] * n
+    notes: list[str] = []
+    if feedback is not None:
+        code, rate, stats = parse_feedback(feedback)
+        base, notes = retune(task, code, rate, stats)
+    else:
+        base = default_params(task)
+    header = f"The {BACKEND} composed a staged reward for {len(task.stages)} stage(s)"
+    if feedback is not None:
+        header += " and retuned it from the policy feedback: " + (
+            "; ".join(notes) if notes else "no change was called for"
+        )
+    replies = []
+    for s in range(n):
+        params = base if s == 0 else vary(base, _seed(description, feedback, s))
+        label = f"sample {s}" + (" (retuned)" if feedback is not None else "")
+        code = render_code(task, params, label)
+        replies.append(f"{header}. Sample {s}.\n\n```python\n{code}```\n")
+    return replies

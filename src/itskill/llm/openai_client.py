@@ -1,0 +1,227 @@
+"""A client for any OpenAI-compatible chat endpoint: OpenAI, vLLM, Ollama, a llama.cpp server.
+
+Built on the ``openai`` SDK with its own retries turned off, because the policy here is ours:
+exponential back-off with jitter on rate limits (429, honouring ``Retry-After``), timeouts,
+connection errors and 5xx replies, then an :class:`LLMUnavailableError` that says what to do.
+``n`` samples are asked for in one request; a server that rejects ``n`` or returns fewer choices
+(Ollama and llama.cpp ignore it) gets the missing ones as repeated single-sample requests, and is
+remembered as such so later requests go straight to repeated calls.
+"""
+
+from __future__ import annotations
+
+import random
+import re
+import sys
+import time
+from dataclasses import dataclass
+from functools import cache
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import openai
+
+from itskill.llm.client import BaseClient, LLMError, LLMUnavailableError, Message
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+OPENAI_URL = "https://api.openai.com/v1"
+LOCAL_DUMMY_KEY = "sk-no-key-needed"
+"""Sent to a custom endpoint when no key is set: the SDK insists on one, Ollama ignores it."""
+
+
+@dataclass(frozen=True)
+class RetryConfig:
+    """How hard to try before giving up on an endpoint.
+
+    A request is attempted ``1 + max_retries`` times; the wait before retry ``k`` (0-based) is
+    ``min(backoff_max_s, backoff_initial_s * 2**k)`` scaled by a random factor in [0.5, 1.5) so
+    that parallel workers do not retry in lock-step.
+    """
+
+    max_retries: int = 5
+    backoff_initial_s: float = 1.0
+    backoff_max_s: float = 30.0
+    timeout_s: float = 180.0
+
+
+@cache
+def load_prices(path: Path | None = None) -> dict[str, tuple[float, float]]:
+    """Model -> (USD per 1M input tokens, USD per 1M output tokens) from ``prices.toml``."""
+    source = path or Path(str(resources.files("itskill.llm") / "prices.toml"))
+    with open(source, "rb") as fh:
+        data = tomllib.load(fh)
+    prices: dict[str, tuple[float, float]] = {}
+    for model, entry in data.get("models", {}).items():
+        try:
+            prices[model] = (float(entry["input"]), float(entry["output"]))
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(
+                f"{source}: models.{model}: expected numbers 'input' and 'output' "
+                "(USD per 1M tokens)"
+            ) from err
+    return prices
+
+
+def model_price(model: str) -> tuple[float, float]:
+    """The price of ``model`` (a dated snapshot falls back to its base name); (0, 0) if unknown."""
+    prices = load_prices()
+    if model in prices:
+        return prices[model]
+    base = re.sub(r"-\d{4}-\d{2}-\d{2}$", "", model)
+    return prices.get(base, (0.0, 0.0))
+
+
+class OpenAIClient(BaseClient):
+    """``complete()`` against an OpenAI-compatible ``/v1/chat/completions`` endpoint."""
+
+    offline = False
+
+    def __init__(
+        self,
+        model: str,
+        *,
+        base_url: str | None = None,
+        api_key: str | None = None,
+        cache_dir: Path | None = None,
+        price: tuple[float, float] | None = None,
+        retry: RetryConfig | None = None,
+    ) -> None:
+        super().__init__(cache_dir)
+        if not model:
+            raise ValueError("OpenAIClient needs a model name")
+        if api_key is None and base_url is None:
+            raise LLMUnavailableError(
+                f"no API key for openai:{model}: set OPENAI_API_KEY, point OPENAI_BASE_URL at a "
+                "local OpenAI-compatible server (vLLM, Ollama, llama.cpp), or use --llm offline"
+            )
+        self.model = model
+        self.name = f"openai:{model}"
+        self.base_url = base_url or OPENAI_URL
+        self.price = price if price is not None else model_price(model)
+        self.retry = retry or RetryConfig()
+        self.n_supported: bool | None = None  # unknown until the server has answered once
+        self._sdk = openai.OpenAI(
+            base_url=self.base_url,
+            api_key=api_key or LOCAL_DUMMY_KEY,
+            max_retries=0,
+            timeout=self.retry.timeout_s,
+        )
+
+    def _complete(
+        self, messages: list[Message], n: int, purpose: str, temperature: float
+    ) -> list[str]:
+        replies: list[str] = []
+        if n > 1 and self.n_supported is not False:
+            try:
+                replies = self._request(messages, n, temperature)
+            except (openai.BadRequestError, openai.UnprocessableEntityError):
+                # Most likely the server does not take `n`; a single-sample request below tells:
+                # if it fails too, its error is the one that matters.
+                self.n_supported = False
+            else:
+                self.n_supported = len(replies) >= n
+        while len(replies) < n:
+            try:
+                replies += self._request(messages, 1, temperature)[:1]
+            except (openai.BadRequestError, openai.UnprocessableEntityError) as err:
+                raise LLMError(
+                    f"{self.name} at {self.base_url} rejected the request: {_detail(err)}"
+                ) from err
+        return replies[:n]
+
+    def _request(self, messages: list[Message], n: int, temperature: float) -> list[str]:
+        """One chat-completion request with retries; its choices' texts."""
+        kwargs: dict[str, Any] = {
+            "model": self.model,
+            "messages": messages,
+            "temperature": temperature,
+        }
+        if n > 1:
+            kwargs["n"] = n
+        attempts = self.retry.max_retries + 1
+        for attempt in range(attempts):
+            try:
+                response = self._sdk.chat.completions.create(**kwargs)
+            except openai.AuthenticationError as err:
+                raise LLMUnavailableError(
+                    f"{self.base_url} refused the API key for {self.name}: {_detail(err)}; "
+                    "set OPENAI_API_KEY or use --llm offline"
+                ) from err
+            except openai.PermissionDeniedError as err:
+                raise LLMUnavailableError(
+                    f"{self.base_url} denied access to {self.name}: {_detail(err)}; "
+                    "check the key's permissions or use --llm offline"
+                ) from err
+            except openai.NotFoundError as err:
+                raise LLMError(
+                    f"{self.base_url} does not serve model {self.model!r} (404): {_detail(err)}; "
+                    "check the model name in --llm openai:MODEL"
+                ) from err
+            except (openai.BadRequestError, openai.UnprocessableEntityError):
+                raise
+            except (openai.APIConnectionError, openai.RateLimitError, openai.APIStatusError) as err:
+                retryable = not isinstance(err, openai.APIStatusError) or (
+                    err.status_code == 429 or err.status_code >= 500
+                )
+                if not retryable:
+                    raise LLMError(
+                        f"{self.name} at {self.base_url} failed: {_detail(err)}"
+                    ) from err
+                if attempt == attempts - 1:
+                    raise _unavailable(self, err, attempts) from err
+                time.sleep(self._backoff(attempt, err))
+                continue
+            self._account(response)
+            return [(choice.message.content or "") for choice in response.choices]
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _backoff(self, attempt: int, err: Exception) -> float:
+        wait = min(self.retry.backoff_max_s, self.retry.backoff_initial_s * 2**attempt)
+        wait *= 0.5 + random.random()
+        retry_after = _retry_after(err)
+        if retry_after is not None:
+            wait = max(wait, min(retry_after, self.retry.backoff_max_s))
+        return wait
+
+    def _account(self, response: Any) -> None:
+        self.usage.requests += 1
+        usage = getattr(response, "usage", None)
+        prompt = int(getattr(usage, "prompt_tokens", 0) or 0)
+        completion = int(getattr(usage, "completion_tokens", 0) or 0)
+        self.usage.prompt_tokens += prompt
+        self.usage.completion_tokens += completion
+        self.usage.cost_usd += (prompt * self.price[0] + completion * self.price[1]) / 1e6
+
+
+def _detail(err: Exception) -> str:
+    message = getattr(err, "message", None) or str(err)
+    return " ".join(str(message).split())[:300]
+
+
+def _retry_after(err: Exception) -> float | None:
+    response = getattr(err, "response", None)
+    headers = getattr(response, "headers", None)
+    if headers is None:
+        return None
+    try:
+        return float(headers.get("retry-after"))
+    except (TypeError, ValueError):
+        return None
+
+
+def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnavailableError:
+    if isinstance(err, openai.RateLimitError):
+        what = f"rate-limited by {client.base_url}"
+    elif isinstance(err, openai.APIStatusError):
+        what = f"server error {err.status_code} from {client.base_url}"
+    else:
+        what = f"cannot reach {client.name} at {client.base_url}"
+    return LLMUnavailableError(
+        f"{what}: {_detail(err)} (gave up after {attempts} attempts); "
+        "set OPENAI_BASE_URL or use --llm offline"
+    )

@@ -1,0 +1,286 @@
+"""Prompts as text files a user can read and edit, and the builders that fill them.
+
+The templates live in ``itskill/llm/prompts/*.txt`` with ``{placeholder}`` fields (literal braces
+doubled, as in :meth:`str.format`). A directory named by ``$ITSKILL_PROMPTS_DIR`` overrides any of
+them file by file. Every template is checked against the fields its builder fills: a missing or
+unknown field is a :class:`PromptError` naming the template, so an edit that breaks a prompt fails
+at once instead of sending a half-filled prompt to a paid model.
+
+Structured parts of a prompt sit between tags (``<command>``, ``<catalogue>``,
+``<task_description>``, ``<policy_feedback>``, ``<execution_error>``, ``<target>``,
+``<sources>``): a model reads them as delimiters, and the offline backend parses them.
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import math
+import os
+import re
+import string
+from collections.abc import Mapping, Sequence
+from functools import cache
+from importlib import resources
+from pathlib import Path
+
+from itskill.llm.client import Message
+from itskill.sim.context import CONTEXT_DOC
+from itskill.sim.layout import OBSERVATION_LAYOUT
+from itskill.tasks.predicates import PREDICATES
+from itskill.tasks.spec import TaskSpec
+
+PROMPTS_DIR_ENV = "ITSKILL_PROMPTS_DIR"
+
+TEMPLATE_FIELDS: dict[str, frozenset[str]] = {
+    "planner_system": frozenset(),
+    "planner_user": frozenset({"catalogue", "command"}),
+    "reward_system": frozenset(),
+    "reward_environment": frozenset({"context_doc", "observation_layout"}),
+    "reward_task": frozenset({"task_description"}),
+    "reward_constraints": frozenset(),
+    "policy_feedback": frozenset({"success_rate", "stats_table", "code"}),
+    "execution_error": frozenset({"code", "error"}),
+    "analyzer_system": frozenset(),
+    "analyzer_user": frozenset({"target", "sources"}),
+    "task_description": frozenset(
+        {"command", "subtasks", "objects", "fixtures", "stages", "success", "predicates"}
+    ),
+}
+"""Every template and the fields it must contain, exactly."""
+
+CATALOGUE_KEYS = ("task", "family", "command", "actions", "objects", "fixtures")
+TRANSFER_KEYS = ("id", "description", "actions")
+STAT_KEYS = ("max", "mean", "min")
+
+
+class PromptError(ValueError):
+    """A template that does not match its builder, or a builder argument of the wrong shape."""
+
+
+def _template_path(name: str) -> Path:
+    override = os.environ.get(PROMPTS_DIR_ENV)
+    if override and (Path(override).expanduser() / f"{name}.txt").is_file():
+        return Path(override).expanduser() / f"{name}.txt"
+    return Path(str(resources.files("itskill.llm") / "prompts" / f"{name}.txt"))
+
+
+@cache
+def _load_template(path: Path, name: str) -> str:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise PromptError(f"prompt template {name!r}: cannot read {path}: {err}") from err
+    check_template(name, text, path)
+    return text
+
+
+def check_template(name: str, text: str, where: Path | str = "") -> None:
+    """Raise :class:`PromptError` if ``text`` does not have exactly the fields of ``name``."""
+    label = f"prompt template {name!r}" + (f" ({where})" if where else "")
+    try:
+        fields = [f for _, f, _, _ in string.Formatter().parse(text) if f is not None]
+    except ValueError as err:
+        raise PromptError(f"{label}: {err} (write literal braces as {{{{ and }}}})") from err
+    expected = TEMPLATE_FIELDS[name]
+    for field in fields:
+        if not field.isidentifier():
+            raise PromptError(
+                f"{label}: field {{{field}}} is not a plain name (literal braces are {{{{ }}}})"
+            )
+        if field not in expected:
+            allowed = ", ".join(sorted(expected)) or "none"
+            raise PromptError(f"{label}: unknown field {{{field}}}; allowed fields: {allowed}")
+    missing = sorted(expected - set(fields))
+    if missing:
+        raise PromptError(f"{label}: missing field(s) {', '.join('{' + m + '}' for m in missing)}")
+
+
+def render(name: str, **fields: str) -> str:
+    """Template ``name`` filled with ``fields``."""
+    if name not in TEMPLATE_FIELDS:
+        raise PromptError(f"unknown prompt template {name!r}; known: {', '.join(TEMPLATE_FIELDS)}")
+    text = _load_template(_template_path(name), name)
+    return text.format(**fields).strip() + "\n"
+
+
+# --------------------------------------------------------------------------- planner
+def planner_messages(command: str, catalogue: list[dict]) -> list[Message]:
+    """The task planner's prompt: the command and the catalogue of trainable tasks (as JSON)."""
+    if not isinstance(command, str) or not command.strip():
+        raise PromptError("the command is empty: say what the robot should do")
+    for k, entry in enumerate(catalogue):
+        missing = [key for key in CATALOGUE_KEYS if key not in entry]
+        if missing:
+            raise PromptError(f"catalogue entry {k} lacks {', '.join(missing)}")
+    body = json.dumps([{key: entry[key] for key in CATALOGUE_KEYS} for entry in catalogue])
+    return [
+        {"role": "system", "content": render("planner_system")},
+        {
+            "role": "user",
+            "content": render("planner_user", catalogue=body, command=command.strip()),
+        },
+    ]
+
+
+# --------------------------------------------------------------------------- reward generator
+def reward_messages(task_description: str) -> list[Message]:
+    """The reward generator's prompt: system, then environment, task description and constraints.
+
+    The last three parts go in one user message: some chat templates (llama.cpp, Ollama) reject
+    consecutive messages of the same role.
+    """
+    if not task_description.strip():
+        raise PromptError("the task description is empty")
+    user = "\n".join(
+        [
+            render(
+                "reward_environment",
+                context_doc=CONTEXT_DOC,
+                observation_layout=OBSERVATION_LAYOUT.describe(),
+            ),
+            render("reward_task", task_description=task_description.strip()),
+            render("reward_constraints"),
+        ]
+    )
+    return [
+        {"role": "system", "content": render("reward_system")},
+        {"role": "user", "content": user},
+    ]
+
+
+def policy_feedback(
+    code: str, success_rate: float, stats: Mapping[str, Mapping[str, float]]
+) -> str:
+    """The Eureka reflection: how the policy trained with ``code`` did, component by component."""
+    if not 0.0 <= float(success_rate) <= 1.0:
+        raise PromptError(f"success_rate must be in [0, 1], got {success_rate!r}")
+    rows = ["component | max | mean | min"]
+    for name, values in stats.items():
+        missing = [key for key in STAT_KEYS if key not in values]
+        if missing:
+            raise PromptError(f"stats[{name!r}] lacks {', '.join(missing)}")
+        numbers = [float(values[key]) for key in STAT_KEYS]
+        if not all(math.isfinite(v) for v in numbers):
+            raise PromptError(f"stats[{name!r}] has a non-finite value: {numbers}")
+        rows.append(f"{name} | " + " | ".join(f"{v:.4g}" for v in numbers))
+    return render(
+        "policy_feedback",
+        success_rate=f"{float(success_rate):.3f}",
+        stats_table="\n".join(rows),
+        code=code.strip(),
+    )
+
+
+def execution_error_feedback(code: str, error: str) -> str:
+    """Ask for a corrected function after ``code`` failed the sandbox or raised."""
+    return render("execution_error", code=code.strip(), error=error.strip() or "(no message)")
+
+
+# --------------------------------------------------------------------------- analyzer
+def analyzer_messages(target: dict, sources: list[dict]) -> list[Message]:
+    """The transfer analyzer's prompt: target and sources as JSON ``{id, description, actions}``."""
+    for label, entry in [("target", target)] + [
+        (f"sources[{k}]", s) for k, s in enumerate(sources)
+    ]:
+        missing = [key for key in TRANSFER_KEYS if key not in entry]
+        if missing:
+            raise PromptError(f"{label} lacks {', '.join(missing)}")
+        if not entry["actions"]:
+            raise PromptError(f"{label} has no actions")
+    if not sources:
+        raise PromptError("the analyzer needs at least one source")
+
+    def pick(entry: dict) -> dict:
+        return {key: entry[key] for key in TRANSFER_KEYS}
+
+    return [
+        {"role": "system", "content": render("analyzer_system")},
+        {
+            "role": "user",
+            "content": render(
+                "analyzer_user",
+                target=json.dumps(pick(target)),
+                sources=json.dumps([pick(s) for s in sources], indent=1),
+            ),
+        },
+    ]
+
+
+# --------------------------------------------------------------------------- task description
+def task_description(command: str, subtasks: Sequence[str], task: TaskSpec) -> str:
+    """The generator's task-description part for a plan of ``task``: ordered subtasks, objects
+    and fixtures with their slots, each stage (``ctx["stage"]`` index, name = action, object slot,
+    done condition), the success condition and what every condition used means.
+
+    The stage lines read ``stage K: NAME | object I | done when EXPR``; the offline synthesiser
+    parses them, so keep that shape if you edit the template.
+    """
+    objects = []
+    for i, part in enumerate(task.objects):
+        fixture = task.object_fixture[i] if i < len(task.object_fixture) else 0
+        objects.append(f"  object {i}: {part.name} ({_describe_part(part)}), for fixture {fixture}")
+    fixtures = [
+        f"  fixture {j}: {placed.part.name} ({_describe_part(placed.part)}) at "
+        f"x={placed.xy[0]:.3f} m, y={placed.xy[1]:.3f} m"
+        for j, placed in enumerate(task.fixtures)
+    ] or ["  (none)"]
+    stages = []
+    used: list[str] = []
+    previous: set = set()
+    for k, stage in enumerate(task.stages):
+        # The stage acts on the object of its new conditions ("engaged(0) and near(1)" after
+        # "engaged(0)" is about object 1).
+        terms = stage.done.terms
+        new = [t for t in terms if not t[0] and t not in previous] or list(terms)
+        slot = int(new[-1][2][0])
+        stages.append(f"  stage {k}: {stage.name} | object {slot} | done when {stage.done.source}")
+        used += [name for _, name, _ in terms]
+        previous = set(terms)
+    used += [name for _, name, _ in task.success.terms]
+    return render(
+        "task_description",
+        command=command.strip(),
+        subtasks="\n".join(f"  {s}" for s in subtasks) or "  (none)",
+        objects="\n".join(objects),
+        fixtures="\n".join(fixtures),
+        stages="\n".join(stages),
+        success=task.success.source,
+        predicates="\n".join(_describe_predicate(n) for n in dict.fromkeys(used)),
+    ).strip()
+
+
+def _describe_part(part) -> str:
+    kind = part.kind
+    if kind == "nut":
+        return (
+            f"hex nut, across-flats {part.across_flats:.4f} m, height {part.height:.4f} m, "
+            f"thread pitch {part.pitch:.5f} m"
+        )
+    if kind == "peg":
+        size = (
+            f"diameter {part.diameter:.4f} m"
+            if part.shape == "round"
+            else f"{part.width:.4f} x {part.depth:.4f} m"
+        )
+        shape = "round" if part.shape == "round" else "rectangular"
+        return f"{shape} peg, {size}, length {part.length:.4f} m"
+    if kind == "bolt":
+        return (
+            f"bolt, thread diameter {part.thread_diameter:.4f} m, tip at z={part.tip_z:.4f} m, "
+            f"seat (head top) at z={part.seat_z:.4f} m"
+        )
+    return (
+        f"{part.shape} hole, entrance at z={part.entrance_z:.4f} m, depth {part.hole_depth:.4f} m"
+    )
+
+
+def _describe_predicate(name: str) -> str:
+    fn = PREDICATES[name]
+    params = list(inspect.signature(fn).parameters.values())[1:]  # drop ctx
+    signature = ", ".join(
+        p.name if p.default is inspect.Parameter.empty else f"{p.name}={p.default}" for p in params
+    )
+    doc = (inspect.getdoc(fn) or "").split("\n\n")[0]
+    doc = re.sub(r"``([^`]*)``", r"\1", " ".join(doc.split()))
+    return f"  {name}({signature}): {doc}"

@@ -1,0 +1,557 @@
+"""The only way generated reward code runs: a static allowlist, a bare namespace, time and memory
+limits, and checked outputs. The threat model is in ``docs/sandbox.md``.
+
+Layers, each for a reason:
+
+1. :func:`check_source` parses the code and walks every AST node against allowlists: node types,
+   imports (``import numpy as np``, ``import math``, ``from math import ...``), builtin names,
+   attributes of ``np``/``np.linalg``/``math`` and attributes of anything else (array, dict and
+   list methods). No name or attribute may start with ``_`` (the way out of every Python sandbox
+   goes through dunders). Constant-size memory bombs (``10**10**10``, ``"a" * 10**12``,
+   ``np.ones(10**12)``, ``range(10**12)``) are refused here.
+2. :func:`compile_reward` runs the module in a fresh namespace whose builtins are only the safe
+   ones (no ``open``, ``eval``, ``getattr``, ``type``, ``__import__``...; ``import`` statements are
+   served by a private importer that hands out numpy and math and nothing else).
+3. Every call has a wall-clock timeout: ``signal.setitimer(ITIMER_REAL)`` in the main thread, a
+   watchdog thread that raises :class:`SandboxTimeout` in the calling thread otherwise. The
+   context handed to the code is read-only, so it cannot corrupt the simulator's arrays.
+4. :func:`apply_process_limits` caps CPU time and address space (``RLIMIT_CPU``/``RLIMIT_AS``) of
+   the worker process a candidate trains in; a memory bomb there ends in ``MemoryError``, caught
+   and reported, instead of the host swapping.
+5. Outputs are validated: ``total`` of shape (N,) and finite, components a dict of str to finite
+   (N,) arrays.
+"""
+
+from __future__ import annotations
+
+import ast
+import builtins
+import ctypes
+import hashlib
+import math
+import signal
+import threading
+import traceback
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+FILENAME = "<reward>"
+
+
+class SandboxViolation(ValueError):
+    """Static rejection: the code uses something outside the allowlist (message names the line)."""
+
+
+class SandboxTimeout(RuntimeError):
+    """A call ran past its time limit."""
+
+
+class SandboxError(RuntimeError):
+    """The code raised at run time or returned something invalid (the message has the
+    traceback tail)."""
+
+
+@dataclass(frozen=True)
+class SandboxConfig:
+    """Limits for running generated code.
+
+    ``call_timeout_s`` bounds one call (and running the module body); ``cpu_limit_s`` and
+    ``memory_limit_mb`` are applied by :func:`apply_process_limits` to a whole worker process
+    (None: no limit), so they must leave room for everything else that process does (training).
+    """
+
+    call_timeout_s: float = 2.0
+    cpu_limit_s: int | None = None
+    memory_limit_mb: int | None = None
+    max_source_chars: int = 20000
+
+
+# ------------------------------------------------------------------------------ allowlists
+SAFE_BUILTINS = frozenset(
+    {
+        "abs", "all", "any", "bool", "dict", "divmod", "enumerate", "filter", "float", "int",
+        "isinstance", "len", "list", "map", "max", "min", "range", "reversed", "round", "set",
+        "slice", "sorted", "str", "sum", "tuple", "zip", "True", "False", "None",
+        "ArithmeticError", "ValueError", "ZeroDivisionError",
+    }
+)  # fmt: skip
+"""Builtins the code may name. Left out on purpose: open, eval, exec, compile, getattr, setattr,
+delattr, globals, locals, vars, dir, type, object, super, __import__, input, print, breakpoint,
+help, memoryview, bytearray, classmethod, staticmethod, property, id, hash, iter/next (generator
+objects), format (its mini-language reaches attributes)."""
+
+NUMPY_ALLOWED = frozenset(
+    {
+        "abs", "absolute", "add", "all", "allclose", "amax", "amin", "any", "arange", "arccos",
+        "arccosh", "arcsin", "arcsinh", "arctan", "arctan2", "arctanh", "argmax", "argmin",
+        "argsort", "around", "array", "asarray", "atleast_1d", "atleast_2d", "average",
+        "broadcast_to", "cbrt", "ceil", "clip", "column_stack", "concatenate", "copy", "cos",
+        "cosh", "count_nonzero", "cross", "cumprod", "cumsum", "deg2rad", "degrees", "diag",
+        "diff", "digitize", "divide", "dot", "dstack", "e", "einsum", "empty_like", "equal", "exp",
+        "exp2", "expand_dims", "expm1", "eye", "fabs", "flip", "float32", "float64", "floor",
+        "floor_divide", "fmax", "fmin", "fmod", "full", "full_like", "greater", "greater_equal",
+        "heaviside", "hstack", "hypot", "inf", "inner", "int32", "int64", "interp", "isclose",
+        "isfinite", "isinf", "isnan", "less", "less_equal", "linalg", "linspace", "log", "log10",
+        "log1p", "log2", "logaddexp", "logical_and", "logical_not", "logical_or", "logical_xor",
+        "matmul", "max", "maximum", "mean", "median", "min", "minimum", "mod", "multiply", "nan",
+        "nan_to_num", "nanmax", "nanmean", "nanmin", "nansum", "negative", "newaxis", "not_equal",
+        "ones", "ones_like", "outer", "percentile", "pi", "power", "prod", "quantile",
+        "rad2deg", "radians", "reciprocal", "remainder", "repeat", "reshape", "rint", "round",
+        "searchsorted", "select", "sign", "sin", "sinc", "sinh", "sort", "sqrt", "square",
+        "squeeze", "stack", "std", "subtract", "sum", "take", "take_along_axis", "tan", "tanh",
+        "tensordot", "tile", "trace", "transpose", "tril", "triu", "trunc", "unwrap", "var",
+        "vstack", "where", "zeros", "zeros_like", "bool_", "float16", "int8", "int16", "uint8",
+    }
+)  # fmt: skip
+"""``np.X`` the code may use: math, reductions, array construction and dtypes. Not I/O (load,
+save, fromfile, memmap, genfromtxt, DataSource), not buffers (frombuffer, ndarray, ctypeslib), not
+submodules other than linalg (lib, testing, f2py, distutils, core, os, sys), not random."""
+
+LINALG_ALLOWED = frozenset({"norm", "det", "inv", "solve", "pinv", "eigh", "eigvalsh"})
+
+MATH_ALLOWED = frozenset(
+    name for name in dir(math) if not name.startswith("_")
+)  # ``math`` has only numeric functions and constants
+
+METHOD_ALLOWED = frozenset(
+    {
+        # ndarray
+        "T", "all", "any", "argmax", "argmin", "argsort", "astype", "clip", "conj", "copy",
+        "cumprod", "cumsum", "dot", "dtype", "fill", "flatten", "imag", "item", "max", "mean",
+        "min", "ndim", "nonzero", "prod", "ravel", "real", "repeat", "reshape", "round", "shape",
+        "size", "sort", "squeeze", "std", "sum", "take", "tolist", "transpose", "var",
+        # dict and list
+        "append", "count", "extend", "get", "index", "items", "keys", "pop", "setdefault",
+        "update", "values",
+    }
+)  # fmt: skip
+"""Attributes of any other object (arrays, dicts, lists). Not tofile, dump, dumps, tobytes,
+ctypes, data, base, flags, setflags, view, format, gi_frame, f_globals..."""
+
+_ALLOWED_NODES = (
+    ast.Module, ast.Expr, ast.Import, ast.ImportFrom, ast.alias, ast.FunctionDef, ast.arguments,
+    ast.arg, ast.Return, ast.Assign, ast.AugAssign, ast.AnnAssign, ast.For, ast.While, ast.If,
+    ast.Break, ast.Continue, ast.Pass, ast.Assert, ast.BinOp, ast.UnaryOp, ast.BoolOp,
+    ast.Compare, ast.Call, ast.keyword, ast.IfExp, ast.NamedExpr, ast.Name, ast.Load, ast.Store,
+    ast.Constant, ast.Attribute, ast.Subscript, ast.Slice, ast.Starred, ast.Tuple, ast.List,
+    ast.Dict, ast.Set, ast.ListComp, ast.DictComp, ast.SetComp, ast.comprehension,
+    ast.JoinedStr, ast.FormattedValue, ast.operator, ast.unaryop, ast.boolop, ast.cmpop,
+    ast.expr_context,
+)  # fmt: skip
+"""Everything else is refused, notably: lambda (no use in a reward, and closures invite
+introspection), generator expressions and yield (generator objects carry frames), class, try,
+with, raise, global, nonlocal, del, async/await, match."""
+
+_NODE_WHY = {
+    ast.Lambda: "lambda is not allowed (define a function with def)",
+    ast.GeneratorExp: "generator expressions are not allowed (use a list comprehension)",
+    ast.Yield: "yield is not allowed",
+    ast.YieldFrom: "yield is not allowed",
+    ast.ClassDef: "class definitions are not allowed",
+    ast.Try: "try is not allowed",
+    ast.With: "with is not allowed",
+    ast.Raise: "raise is not allowed",
+    ast.Global: "global is not allowed",
+    ast.Nonlocal: "nonlocal is not allowed",
+    ast.Delete: "del is not allowed",
+    ast.AsyncFunctionDef: "async is not allowed",
+    ast.Await: "await is not allowed",
+}
+
+MAX_CONSTANT_ELEMENTS = 10**8
+"""Largest constant size for a repeated sequence, a range or an array constructor."""
+MAX_INT_BITS = 4096
+"""Largest integer a constant power may produce."""
+_SIZED_NUMPY = {
+    "zeros",
+    "ones",
+    "full",
+    "empty_like",
+    "arange",
+    "linspace",
+    "eye",
+    "tile",
+    "repeat",
+}
+
+
+def _violation(node: ast.AST, what: str) -> SandboxViolation:
+    return SandboxViolation(f"line {getattr(node, 'lineno', '?')}: {what}")
+
+
+def _const_int(node: ast.AST) -> int | None:
+    """The value of a constant integer expression (``10**10``, ``-3``), refusing huge powers."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, int):
+        return int(node.value)
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+        value = _const_int(node.operand)
+        return None if value is None else (-value if isinstance(node.op, ast.USub) else value)
+    if isinstance(node, ast.BinOp):
+        left, right = _const_int(node.left), _const_int(node.right)
+        if left is None or right is None:
+            return None
+        if isinstance(node.op, ast.Pow):
+            if right < 0:
+                return None
+            if abs(left) > 1 and right * math.log2(abs(left)) > MAX_INT_BITS:
+                raise _violation(node, f"constant power too large ({left} ** {right})")
+            return left**right
+        if isinstance(node.op, ast.Mult):
+            return left * right
+        if isinstance(node.op, ast.Add):
+            return left + right
+        if isinstance(node.op, ast.Sub):
+            return left - right
+    return None
+
+
+def _const_size(node: ast.AST) -> int | None:
+    """Number of elements a constant size argument asks for (an int or a tuple of ints)."""
+    if isinstance(node, (ast.Tuple, ast.List)):
+        sizes = [_const_int(e) for e in node.elts]
+        return math.prod(abs(s) for s in sizes) if all(s is not None for s in sizes) else None
+    value = _const_int(node)
+    return abs(value) if value is not None else None
+
+
+class _Checker(ast.NodeVisitor):
+    def __init__(self, local_names: set[str]) -> None:
+        self.local_names = local_names
+
+    def generic_visit(self, node: ast.AST) -> None:
+        if not isinstance(node, _ALLOWED_NODES):
+            why = _NODE_WHY.get(type(node), f"{type(node).__name__} is not allowed")
+            raise _violation(node, why)
+        super().generic_visit(node)
+
+    def visit_Import(self, node: ast.Import) -> None:
+        for alias in node.names:
+            if (alias.name, alias.asname) not in (
+                ("numpy", "np"),
+                ("math", None),
+                ("math", "math"),
+            ):
+                raise _violation(
+                    node, f"import {alias.name!r} is not allowed (only 'import numpy as np' and "
+                    "'import math')"
+                )  # fmt: skip
+
+    def visit_ImportFrom(self, node: ast.ImportFrom) -> None:
+        if node.module != "math" or node.level:
+            raise _violation(node, f"from {node.module} import ... is not allowed (only from math)")
+        for alias in node.names:
+            if alias.name not in MATH_ALLOWED:
+                raise _violation(node, f"math.{alias.name} is not allowed")
+            self._check_name(node, alias.asname or alias.name)
+
+    def visit_FunctionDef(self, node: ast.FunctionDef) -> None:
+        if node.decorator_list:
+            raise _violation(node, "decorators are not allowed")
+        if node.returns is not None:
+            node.returns = None  # annotations are never evaluated by the sandbox
+        self._check_name(node, node.name)
+        for arg in node.args.posonlyargs + node.args.args + node.args.kwonlyargs:
+            self._check_name(arg, arg.arg)
+            arg.annotation = None
+        for arg in (node.args.vararg, node.args.kwarg):
+            if arg is not None:
+                self._check_name(arg, arg.arg)
+                arg.annotation = None
+        self.generic_visit(node)
+
+    def _check_name(self, node: ast.AST, name: str) -> None:
+        if name.startswith("_"):
+            raise _violation(node, f"names starting with '_' are not allowed ({name!r})")
+
+    def visit_Name(self, node: ast.Name) -> None:
+        self._check_name(node, node.id)
+        if isinstance(node.ctx, ast.Store) and node.id in ("np", "math"):
+            raise _violation(node, f"assigning to {node.id!r} is not allowed")
+        if (
+            isinstance(node.ctx, ast.Load)
+            and node.id not in self.local_names
+            and node.id not in SAFE_BUILTINS
+            and node.id not in ("np", "math")
+        ):
+            raise _violation(node, f"name {node.id!r} is not allowed (not a safe builtin)")
+
+    def visit_Attribute(self, node: ast.Attribute) -> None:
+        self.generic_visit(node)  # inner first: np.lib.format.open_memmap is refused at np.lib
+        attr = node.attr
+        if attr.startswith("_"):
+            raise _violation(node, f"attribute {attr!r} is not allowed (starts with '_')")
+        base = node.value
+        if isinstance(base, ast.Name) and base.id == "np":
+            if attr not in NUMPY_ALLOWED:
+                raise _violation(node, f"np.{attr} is not allowed")
+        elif isinstance(base, ast.Attribute) and _is_np(base.value) and base.attr == "linalg":
+            if attr not in LINALG_ALLOWED:
+                raise _violation(node, f"np.linalg.{attr} is not allowed")
+        elif isinstance(base, ast.Name) and base.id == "math":
+            if attr not in MATH_ALLOWED:
+                raise _violation(node, f"math.{attr} is not allowed")
+        elif attr not in METHOD_ALLOWED:
+            raise _violation(node, f"attribute .{attr} is not allowed")
+
+    def visit_BinOp(self, node: ast.BinOp) -> None:
+        _const_int(node)  # refuses huge constant powers
+        if isinstance(node.op, ast.Mult):
+            for seq, count in ((node.left, node.right), (node.right, node.left)):
+                if isinstance(seq, (ast.List, ast.Tuple, ast.Constant)) and not (
+                    isinstance(seq, ast.Constant) and isinstance(seq.value, (int, float))
+                ):
+                    size = _const_int(count)
+                    if size is not None and size > MAX_CONSTANT_ELEMENTS:
+                        raise _violation(node, f"sequence repeated {size} times is too large")
+        self.generic_visit(node)
+
+    def visit_Call(self, node: ast.Call) -> None:
+        func = node.func
+        sized = (isinstance(func, ast.Name) and func.id == "range") or (
+            isinstance(func, ast.Attribute) and _is_np(func.value) and func.attr in _SIZED_NUMPY
+        )
+        if sized:
+            for arg in list(node.args) + [k.value for k in node.keywords]:
+                size = _const_size(arg)
+                if size is not None and size > MAX_CONSTANT_ELEMENTS:
+                    raise _violation(node, f"constant size {size} is too large")
+        self.generic_visit(node)
+
+
+def _is_np(node: ast.AST) -> bool:
+    return isinstance(node, ast.Name) and node.id == "np"
+
+
+def _bound_names(tree: ast.AST) -> set[str]:
+    """Every name the code binds itself: assignments, loop targets, functions, arguments,
+    imports."""
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            names.add(node.id)
+        elif isinstance(node, ast.FunctionDef):
+            names.add(node.name)
+        elif isinstance(node, ast.arg):
+            names.add(node.arg)
+        elif isinstance(node, ast.alias):
+            names.add(node.asname or node.name.split(".")[0])
+    return names
+
+
+def check_source(source: str, config: SandboxConfig | None = None) -> ast.Module:
+    """Parse ``source`` and check it against the allowlists; :class:`SandboxViolation` if not."""
+    config = config or SandboxConfig()
+    if not isinstance(source, str) or not source.strip():
+        raise SandboxViolation("the code is empty")
+    if len(source) > config.max_source_chars:
+        raise SandboxViolation(
+            f"the code is {len(source)} characters long; the limit is {config.max_source_chars}"
+        )
+    try:
+        tree = ast.parse(source, filename=FILENAME)
+    except SyntaxError as err:
+        raise SandboxViolation(f"line {err.lineno}: syntax error: {err.msg}") from err
+    except (ValueError, RecursionError, MemoryError) as err:
+        raise SandboxViolation(f"the code cannot be parsed: {err}") from err
+    try:
+        _Checker(_bound_names(tree)).visit(tree)
+    except RecursionError as err:
+        raise SandboxViolation("the code is nested too deeply") from err
+    return tree
+
+
+# ------------------------------------------------------------------------------ execution
+def _importer(name: str, globals=None, locals=None, fromlist=(), level=0):
+    """The ``__import__`` of the sandbox: numpy and math only (the checker already refused the
+    rest; this is the second lock)."""
+    if level == 0 and name == "numpy":
+        return np
+    if level == 0 and name == "math":
+        return math
+    raise ImportError(f"import of {name!r} is not allowed in the sandbox")
+
+
+def _namespace() -> dict[str, Any]:
+    safe = {name: getattr(builtins, name) for name in SAFE_BUILTINS}
+    safe["__import__"] = _importer
+    return {"__builtins__": safe, "__name__": "reward", "np": np, "math": math}
+
+
+@contextmanager
+def _deadline(seconds: float | None) -> Iterator[None]:
+    """Raise :class:`SandboxTimeout` in the calling thread after ``seconds``.
+
+    In the main thread a ``SIGALRM`` interval timer does it; elsewhere (signals only reach the
+    main thread) a watchdog thread injects the exception with ``PyThreadState_SetAsyncExc``.
+    Either way the exception arrives between bytecodes: one long NumPy call finishes first.
+    """
+    if not seconds or seconds <= 0:
+        yield
+        return
+    if threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer"):
+
+        def on_alarm(signum, frame):
+            raise SandboxTimeout(f"the reward code ran longer than {seconds:g} s")
+
+        previous = signal.signal(signal.SIGALRM, on_alarm)
+        signal.setitimer(signal.ITIMER_REAL, seconds)
+        try:
+            yield
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+        return
+    target = threading.get_ident()
+    done = threading.Event()
+
+    def watchdog() -> None:
+        if not done.wait(seconds):
+            ctypes.pythonapi.PyThreadState_SetAsyncExc(
+                ctypes.c_ulong(target), ctypes.py_object(SandboxTimeout)
+            )
+
+    thread = threading.Thread(target=watchdog, daemon=True)
+    thread.start()
+    try:
+        yield
+    except SandboxTimeout as err:
+        raise SandboxTimeout(f"the reward code ran longer than {seconds:g} s") from err
+    finally:
+        done.set()
+        thread.join()
+
+
+def _traceback_tail(err: BaseException, lines: int = 6) -> str:
+    frames = [
+        f"line {frame.lineno}: {frame.line}"
+        for frame in traceback.extract_tb(err.__traceback__)
+        if frame.filename == FILENAME
+    ]
+    message = "".join(traceback.format_exception_only(type(err), err)).strip()
+    return "\n".join([*frames[-lines:], message])
+
+
+def _run(fn, *args: Any, timeout: float | None) -> Any:
+    try:
+        with _deadline(timeout):
+            return fn(*args)
+    except SandboxTimeout:
+        raise
+    except MemoryError as err:
+        raise SandboxError(f"the reward code ran out of memory: {err}") from err
+    except RecursionError as err:
+        raise SandboxError(f"the reward code recursed too deeply:\n{_traceback_tail(err)}") from err
+    except Exception as err:
+        raise SandboxError(f"the reward code raised:\n{_traceback_tail(err)}") from err
+
+
+def _read_only(ctx: Mapping[str, Any]) -> dict[str, Any]:
+    """A copy of the context whose arrays are read-only views: the code cannot write into the
+    simulator's state."""
+    out = {}
+    for key, value in ctx.items():
+        if isinstance(value, np.ndarray):
+            value = value.view()
+            value.flags.writeable = False
+        out[key] = value
+    return out
+
+
+class SandboxedReward:
+    """A checked reward function: ``reward(ctx) -> (total[N], {name: [N]})``, all float64, finite.
+
+    Every call runs under the time limit with a read-only context; a failure is a
+    :class:`SandboxError` (or :class:`SandboxTimeout`) with the reason.
+    """
+
+    def __init__(self, fn: Any, source: str, config: SandboxConfig) -> None:
+        self._fn = fn
+        self.source = source
+        self.sha256 = hashlib.sha256(source.encode()).hexdigest()
+        self.config = config
+
+    def __call__(self, ctx: Mapping[str, Any]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        n = int(np.asarray(ctx["ee_pos"]).shape[0])
+        result = _run(self._fn, _read_only(ctx), timeout=self.config.call_timeout_s)
+        return validate_output(result, n)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # The function cannot be pickled; the source can, and is re-checked on arrival.
+        return {"source": self.source, "config": self.config}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        other = compile_reward(state["source"], state["config"])
+        self.__dict__.update(other.__dict__)
+
+
+def _finite_vector(value: Any, n: int, what: str) -> np.ndarray:
+    try:
+        array = np.array(value, dtype=np.float64)  # a copy: never a view of the context
+    except (TypeError, ValueError) as err:
+        raise SandboxError(f"{what} is not numeric: {type(value).__name__}") from err
+    if array.shape != (n,):
+        raise SandboxError(f"{what} has shape {array.shape}; expected ({n},), one per environment")
+    if not np.all(np.isfinite(array)):
+        bad = int(np.sum(~np.isfinite(array)))
+        raise SandboxError(f"{what} has {bad} non-finite value(s) (nan or inf)")
+    return array
+
+
+def validate_output(result: Any, n: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """``(total, components)`` checked and converted to float64, or :class:`SandboxError`."""
+    if not isinstance(result, tuple) or len(result) != 2:
+        raise SandboxError(
+            f"compute_reward must return (total, components); got {type(result).__name__}"
+        )
+    total, components = result
+    total = _finite_vector(total, n, "total")
+    if not isinstance(components, dict):
+        raise SandboxError(f"components must be a dict; got {type(components).__name__}")
+    checked = {}
+    for key, value in components.items():
+        if not isinstance(key, str):
+            raise SandboxError(f"component names must be strings; got {key!r}")
+        checked[key] = _finite_vector(value, n, f"components[{key!r}]")
+    return total, checked
+
+
+def compile_reward(source: str, config: SandboxConfig | None = None) -> SandboxedReward:
+    """Check ``source``, run its module body in the sandbox and return its ``compute_reward``."""
+    config = config or SandboxConfig()
+    tree = check_source(source, config)
+    code = compile(tree, FILENAME, "exec")
+    namespace = _namespace()
+    _run(exec, code, namespace, timeout=config.call_timeout_s)
+    fn = namespace.get("compute_reward")
+    if not callable(fn) or not hasattr(fn, "__code__"):
+        raise SandboxError("the code defines no function compute_reward(ctx)")
+    if fn.__code__.co_argcount < 1:
+        raise SandboxError("compute_reward must take the context as its argument")
+    return SandboxedReward(fn, source, config)
+
+
+def apply_process_limits(config: SandboxConfig) -> None:
+    """Cap this process's CPU time (``RLIMIT_CPU``, SIGXCPU when exceeded) and address space
+    (``RLIMIT_AS``, allocations fail with MemoryError beyond it).
+
+    Call it at the start of a worker process that runs generated code, never in the main CLI
+    process: the limits hold for the rest of the process's life. Limits only ever go down.
+    """
+    import resource
+
+    def lower(kind: int, value: int) -> None:
+        soft, hard = resource.getrlimit(kind)
+        if hard != resource.RLIM_INFINITY:
+            value = min(value, hard)
+        if soft != resource.RLIM_INFINITY:
+            value = min(value, soft)
+        resource.setrlimit(kind, (value, hard))
+
+    if config.cpu_limit_s is not None:
+        lower(resource.RLIMIT_CPU, int(config.cpu_limit_s))
+    if config.memory_limit_mb is not None:
+        lower(resource.RLIMIT_AS, int(config.memory_limit_mb) * 1024 * 1024)

@@ -1,0 +1,269 @@
+"""The offline backend: planner, reward synthesiser and analyzer, through the same prompts and
+reply formats a language model gets."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from itskill.llm import (
+    OfflineClient,
+    analyzer_messages,
+    execution_error_feedback,
+    planner_messages,
+    policy_feedback,
+    reward_messages,
+    task_description,
+)
+from itskill.llm.offline.analyzer import FLOOR
+from itskill.reward.sandbox import compile_reward
+from itskill.tasks import all_tasks, get_task, make_batch_env
+from itskill.tasks.scripted import ScriptedPolicy
+
+CATALOGUE = [
+    {
+        "task": t.id,
+        "family": t.family,
+        "command": t.command,
+        "actions": list(t.actions),
+        "objects": [o.name for o in t.objects],
+        "fixtures": [f.part.name for f in t.fixtures],
+    }
+    for t in all_tasks().values()
+]
+
+
+def json_reply(text: str) -> dict:
+    match = re.search(r"```json\n(.*?)```", text, re.S)
+    assert match, text
+    return json.loads(match.group(1))
+
+
+def code_of(reply: str) -> str:
+    match = re.search(r"```python\n(.*?)```", reply, re.S)
+    assert match, reply
+    return match.group(1)
+
+
+def plan(command: str) -> dict:
+    return json_reply(
+        OfflineClient().complete(planner_messages(command, CATALOGUE), purpose="plan")[0]
+    )
+
+
+# ------------------------------------------------------------------------------ planner
+@pytest.mark.parametrize("task", [t for t, spec in all_tasks().items() if spec.table_i])
+def test_planner_maps_table_i_commands_to_their_task(task: str) -> None:
+    spec = get_task(task)
+    reply = plan(spec.command)
+    assert reply["task"] == task
+    assert reply["actions"] == list(spec.actions)
+    assert reply["objects"] == [o.name for o in spec.objects]
+    assert len(reply["subtasks"]) == len(spec.actions)
+    ordinals = ["First, ", "Second, ", "Third, ", "Fourth, ", "Fifth, ", "Sixth, "]
+    assert all(s.startswith(o) for s, o in zip(reply["subtasks"], ordinals, strict=False))
+    assert "offline rule-based backend" in reply["notes"]
+
+
+def test_planner_maps_every_catalogue_command_to_its_own_task() -> None:
+    wrong = {e["task"]: plan(e["command"]).get("task") for e in CATALOGUE}
+    assert {k: v for k, v in wrong.items() if k != v} == {}
+
+
+@pytest.mark.parametrize(
+    ("command", "task"),
+    [
+        ("Pick up the nut, place it on the bolt and screw it down", "pickplacescrew_nut_m12"),
+        ("grab the M16 nut and put it onto the bolt", "pickplace_nut_m16"),
+        ("Take the square peg and plug it into its hole", "pickplaceinsert_peg_rect"),
+        ("pull the round peg out of the hole", "remove_peg_round"),
+        ("Loosen the M16 nut", "unscrew_nut_m16"),
+        ("please pick up both nuts and place them on the bolts", "pickplace2_nuts"),
+        ("screw the nut to the bottom", "screw_nut_m12"),
+    ],
+)
+def test_planner_understands_paraphrases(command: str, task: str) -> None:
+    assert plan(command)["task"] == task
+
+
+def test_planner_says_which_nut_it_assumed() -> None:
+    reply = plan("Pick up the nut")
+    assert reply["task"] == "pick_nut_m12"
+    assert "assumed the M12 nut" in reply["notes"]
+
+
+@pytest.mark.parametrize(
+    ("command", "why"),
+    [
+        ("make me a sandwich", "names no object of this scene"),
+        ("the M12 nut", "no action this robot can do"),
+        ("screw the round peg into the bolt", "no catalogue task"),
+    ],
+)
+def test_planner_refuses_what_it_cannot_ground(command: str, why: str) -> None:
+    reply = plan(command)
+    assert set(reply) == {"error"} and why in reply["error"]
+
+
+# ------------------------------------------------------------------------------ synthesiser
+def describe(task: str) -> str:
+    spec = get_task(task)
+    return task_description(spec.command, [f"Step {a}" for a in spec.actions], spec)
+
+
+def test_synthesiser_is_deterministic_and_samples_differ() -> None:
+    messages = reward_messages(describe("pick_nut_m12"))
+    first = OfflineClient().complete(messages, n=4, purpose="reward")
+    again = OfflineClient().complete(messages, n=4, purpose="reward")
+    assert first == again
+    codes = [code_of(r) for r in first]
+    assert len(set(codes)) == 4
+    assert "not a language model" in first[0]
+    temps = [dict(re.findall(r"(temp_\w+) = ([0-9.e-]+)", c)) for c in codes]
+    assert set(temps[0]) == {"temp_reach_0", "temp_centre_1", "temp_lift_2"}
+    assert all(t.keys() == temps[0].keys() for t in temps)
+
+
+@pytest.mark.parametrize("task", list(all_tasks()))
+def test_every_task_gets_samples_that_run_in_the_sandbox(task: str) -> None:
+    spec = get_task(task)
+    replies = OfflineClient().complete(reward_messages(describe(task)), n=3, purpose="reward")
+    rewards = [compile_reward(code_of(r)) for r in replies]
+    env = make_batch_env(task, 2, seed=0, n_threads=1)
+    rng = np.random.default_rng(0)
+    try:
+        env.reset()
+        for _ in range(3):
+            ctx = env.context()
+            for reward in rewards:
+                total, comps = reward(ctx)
+                assert total.shape == (2,) and np.isfinite(total).all()
+                np.testing.assert_allclose(sum(comps.values()), total)
+                assert len([k for k in comps if "/" in k]) >= len(spec.stages)
+                # The success bonus is paid exactly when the task's own predicate holds.
+                np.testing.assert_array_equal(comps["success"] > 0, spec.success(ctx))
+            env.step(rng.uniform(-1, 1, size=(2, 5)).astype(np.float32))
+    finally:
+        env.close()
+
+
+def test_the_reward_rises_through_a_scripted_pick_and_place() -> None:
+    task = "pickplace_nut_m12"
+    spec = get_task(task)
+    reply = OfflineClient().complete(reward_messages(describe(task)), purpose="reward")[0]
+    reward = compile_reward(code_of(reply))
+    env = make_batch_env(task, 2, seed=1, n_threads=1)
+    policy = ScriptedPolicy(spec, 2)
+    totals, stages = [], []
+    try:
+        env.reset()
+        policy.reset()
+        for _ in range(spec.max_steps - 1):
+            ctx = env.context()
+            totals.append(reward(ctx)[0])
+            stages.append(ctx["stage"].copy())
+            env.step(policy(ctx))
+        assert spec.success(ctx).all()
+    finally:
+        env.close()
+    totals, stages = np.array(totals), np.array(stages)
+    assert (totals[-1] > totals[0] + len(spec.stages) - 1).all()
+    up = stages[1:] > stages[:-1]
+    assert (totals[1:][up] > totals[:-1][up]).mean() >= 0.9  # completing a stage pays
+
+
+def feedback_round(task: str, stats: dict, success: float, code: str | None = None) -> str:
+    client = OfflineClient()
+    messages = reward_messages(describe(task))
+    code = code or code_of(client.complete(messages, purpose="reward")[0])
+    messages += [
+        {"role": "assistant", "content": f"```python\n{code}```"},
+        {"role": "user", "content": policy_feedback(code, success, stats)},
+    ]
+    return code_of(client.complete(messages, n=2, purpose="reward")[0])
+
+
+def temps_and_weights(code: str) -> dict[str, float]:
+    return {k: float(v) for k, v in re.findall(r"^\s+((?:temp|w)_\w+) = ([0-9.e-]+)", code, re.M)}
+
+
+def test_feedback_retunes_temperatures_in_the_right_direction() -> None:
+    stats = {
+        "0.approach/reach": {"max": 1.0, "mean": 0.97, "min": 0.95},  # saturated: narrow
+        "1.grasp/centre": {"max": 0.02, "mean": 0.01, "min": 0.0},  # stays ~0: widen
+        "1.grasp/grasped": {"max": 0.5, "mean": 0.1, "min": 0.0},
+        "2.lift/lift": {"max": 0.0, "mean": 0.0, "min": 0.0},  # never reached: more weight
+        "stage_bonus": {"max": 1.0, "mean": 0.5, "min": 0.0},
+    }
+    before = temps_and_weights(code_of(OfflineClient().complete(
+        reward_messages(describe("pick_nut_m12")), purpose="reward")[0]))  # fmt: skip
+    after = temps_and_weights(feedback_round("pick_nut_m12", stats, 0.0))
+    assert after["temp_reach_0"] < before["temp_reach_0"]
+    assert after["temp_centre_1"] > before["temp_centre_1"]
+    assert after["w_lift_2"] > before["w_lift_2"]
+    assert after["temp_lift_2"] == before["temp_lift_2"]  # no information about an unreached term
+
+
+def test_feedback_builds_on_the_previous_code_values() -> None:
+    code = code_of(OfflineClient().complete(
+        reward_messages(describe("pick_nut_m12")), n=2, purpose="reward")[1])  # fmt: skip
+    previous = temps_and_weights(code)
+    stats = {"0.approach/reach": {"max": 0.05, "mean": 0.02, "min": 0.0}}
+    after = temps_and_weights(feedback_round("pick_nut_m12", stats, 0.1, code))
+    assert after["temp_reach_0"] == pytest.approx(2 * previous["temp_reach_0"], rel=1e-3)
+    assert after["temp_lift_2"] == pytest.approx(previous["temp_lift_2"], rel=1e-3)
+
+
+def test_an_execution_error_gets_valid_code_back() -> None:
+    client = OfflineClient()
+    messages = reward_messages(describe("insert_peg_round"))
+    messages += [
+        {"role": "assistant", "content": "```python\nimport os\n```"},
+        {"role": "user", "content": execution_error_feedback("import os", "line 1: import 'os'")},
+    ]
+    reward = compile_reward(code_of(client.complete(messages, purpose="reward")[0]))
+    assert reward.sha256
+    assert client.usage.requests == 1 and client.usage.cost_usd == 0.0
+
+
+def test_a_prompt_without_a_task_description_gets_no_code() -> None:
+    reply = OfflineClient().complete([{"role": "user", "content": "hi"}], purpose="reward")[0]
+    assert "```python" not in reply and "offline rule-based backend" in reply
+
+
+# ------------------------------------------------------------------------------ analyzer
+def analyze(target: dict, sources: list[dict]) -> dict:
+    reply = OfflineClient().complete(analyzer_messages(target, sources), purpose="analyze")[0]
+    return json_reply(reply)
+
+
+def test_analyzer_matrix_from_action_overlap() -> None:
+    target = {"id": "pickplace", "description": "pick and place",
+              "actions": ["approach", "grasp", "lift", "approach", "place"]}  # fmt: skip
+    sources = [
+        {"id": "pick", "description": "pick", "actions": ["approach", "grasp", "lift"]},
+        {"id": "place", "description": "place", "actions": ["approach", "place"]},
+        {"id": "screw", "description": "screw", "actions": ["screw"]},
+    ]
+    reply = analyze(target, sources)
+    matrix = np.array(reply["matrix"])
+    assert matrix.shape == (5, 3)
+    np.testing.assert_allclose(matrix.sum(axis=1), 1.0, atol=1e-5)
+    assert (matrix > 0).all()
+    assert matrix[1].argmax() == 0 and matrix[2].argmax() == 0  # grasp, lift: pick
+    assert matrix[4].argmax() == 1  # place: place
+    assert matrix[0].argmax() == 0  # approach before a grasp: pick's approach
+    assert matrix[3].argmax() == 1  # approach before place: place's approach
+    # Exact scores: segment 1 (grasp): pick 1 + 0.5 + 0.5, place and screw the floor.
+    np.testing.assert_allclose(
+        matrix[1], np.array([2.0, FLOOR, FLOOR]) / (2.0 + 2 * FLOOR), atol=1e-5
+    )
+    assert "offline rule-based backend" in reply["reasoning"]
+
+
+def test_analyzer_reports_unreadable_input() -> None:
+    reply = OfflineClient().complete([{"role": "user", "content": "no blocks"}], purpose="analyze")
+    assert "error" in json_reply(reply[0])

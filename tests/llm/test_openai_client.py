@@ -1,0 +1,188 @@
+"""OpenAIClient against a local OpenAI-compatible server: samples, fallbacks, retries, accounting,
+errors and the reply cache; make_client's choice of backend."""
+
+from __future__ import annotations
+
+import json
+import socket
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from fake_openai import FakeOpenAIServer, Status, words
+
+from itskill.llm import LLMError, LLMUnavailableError, OfflineClient, make_client
+from itskill.llm.openai_client import OpenAIClient, RetryConfig, model_price
+
+FAST = RetryConfig(max_retries=2, backoff_initial_s=0.01, backoff_max_s=0.05, timeout_s=5.0)
+MESSAGES = [
+    {"role": "system", "content": "You write rewards."},
+    {"role": "user", "content": "Write one for picking up the nut."},
+]
+PROMPT_WORDS = sum(words(m["content"]) for m in MESSAGES)
+
+
+def client(server: FakeOpenAIServer, **kwargs) -> OpenAIClient:
+    return OpenAIClient("fake-model", base_url=server.base_url, retry=FAST, **kwargs)
+
+
+def test_n_samples_in_one_request_with_token_and_cost_accounting() -> None:
+    with FakeOpenAIServer(["alpha one", "beta two three", "gamma"]) as server:
+        c = client(server, price=(1.0, 2.0))
+        replies = c.complete(MESSAGES, n=3, purpose="reward", temperature=0.7)
+    assert replies == ["alpha one", "beta two three", "gamma"]
+    assert len(server.requests) == 1
+    body = server.requests[0]
+    assert body["n"] == 3 and body["temperature"] == 0.7 and body["model"] == "fake-model"
+    assert body["messages"] == MESSAGES
+    assert c.usage.requests == 1
+    assert c.usage.prompt_tokens == PROMPT_WORDS
+    assert c.usage.completion_tokens == 6
+    assert c.usage.cost_usd == pytest.approx((PROMPT_WORDS * 1.0 + 6 * 2.0) / 1e6)
+    assert c.n_supported is True
+
+
+@pytest.mark.parametrize("mode", ["reject", "ignore"])
+def test_falls_back_to_repeated_calls_when_n_is_not_served(mode: str) -> None:
+    with FakeOpenAIServer(["a", "b", "c", "d"], n_mode=mode) as server:
+        c = client(server)
+        assert c.complete(MESSAGES, n=3, purpose="plan") == ["a", "b", "c"]
+        assert c.n_supported is False
+        first = len(server.requests)
+        # Remembered: the next request goes straight to single samples.
+        assert c.complete(MESSAGES, n=1, purpose="plan") == ["d"]
+    assert first == (4 if mode == "reject" else 3)
+    assert all("n" not in body for body in server.requests[1:])
+
+
+@pytest.mark.parametrize("status", [429, 500, 503])
+def test_retries_rate_limits_and_server_errors_then_succeeds(status: int) -> None:
+    with FakeOpenAIServer([Status(status), Status(status), "finally"]) as server:
+        c = client(server)
+        assert c.complete(MESSAGES, purpose="reward") == ["finally"]
+    assert len(server.requests) == 3
+    assert c.usage.requests == 1  # only the answered request is accounted
+
+
+def test_gives_up_after_the_last_retry_with_advice() -> None:
+    with FakeOpenAIServer([Status(429)] * 10) as server:
+        c = client(server)
+        with pytest.raises(LLMUnavailableError) as err:
+            c.complete(MESSAGES, purpose="reward")
+    assert len(server.requests) == FAST.max_retries + 1
+    assert "rate-limited" in str(err.value) and "--llm offline" in str(err.value)
+
+
+def test_closed_port_is_a_clear_unavailable_error_quickly() -> None:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    url = f"http://127.0.0.1:{port}/v1"
+    c = OpenAIClient("llama3", base_url=url, retry=FAST)
+    start = time.monotonic()
+    with pytest.raises(LLMUnavailableError) as err:
+        c.complete(MESSAGES, purpose="plan")
+    assert time.monotonic() - start < 5
+    message = str(err.value)
+    assert f"cannot reach openai:llama3 at {url}" in message
+    assert "OPENAI_BASE_URL" in message and "--llm offline" in message
+
+
+def test_auth_failure_and_unknown_model_are_not_retried() -> None:
+    with FakeOpenAIServer([Status(401, "bad key")]) as server:
+        with pytest.raises(LLMUnavailableError, match="refused the API key"):
+            client(server).complete(MESSAGES, purpose="plan")
+        assert len(server.requests) == 1
+    with FakeOpenAIServer([Status(404, "no such model")]) as server:
+        with pytest.raises(LLMError, match="does not serve model 'fake-model'"):
+            client(server).complete(MESSAGES, purpose="plan")
+        assert len(server.requests) == 1
+
+
+def test_cache_replays_without_a_second_request(tmp_path: Path) -> None:
+    with FakeOpenAIServer(["one", "two", "three", "four"]) as server:
+        first = client(server, cache_dir=tmp_path)
+        a = first.complete(MESSAGES, n=2, purpose="reward")
+        b = first.complete(MESSAGES, n=2, purpose="reward")  # same request again: new samples
+        assert (a, b) == (["one", "two"], ["three", "four"])
+        assert len(server.requests) == 2 and first.usage.cache_hits == 0
+        # A rerun (a new client on the same cache) replays both, in order, for free.
+        rerun = client(server, cache_dir=tmp_path)
+        assert rerun.complete(MESSAGES, n=2, purpose="reward") == a
+        assert rerun.complete(MESSAGES, n=2, purpose="reward") == b
+        assert len(server.requests) == 2
+        assert rerun.usage.cache_hits == 2 and rerun.usage.requests == 0
+        assert rerun.usage.cost_usd == 0.0
+        # A different purpose, temperature or n is a different request.
+        assert rerun.complete(MESSAGES, n=2, purpose="reward", temperature=0.5) != a
+    files = sorted(tmp_path.glob("*.json"))
+    assert len(files) == 3
+    assert all(json.loads(f.read_text())["model"] == "openai:fake-model" for f in files)
+
+
+def test_cache_is_shared_across_endpoints_of_the_same_model(tmp_path: Path) -> None:
+    with FakeOpenAIServer(["from the first server"]) as server:
+        client(server, cache_dir=tmp_path).complete(MESSAGES, purpose="plan")
+    with FakeOpenAIServer(["from the second server"]) as server:
+        replay = client(server, cache_dir=tmp_path).complete(MESSAGES, purpose="plan")
+        assert not server.requests
+    assert replay == ["from the first server"]
+
+
+def test_a_corrupt_cache_entry_is_asked_again(tmp_path: Path) -> None:
+    with FakeOpenAIServer(["fresh", "fresh again"]) as server:
+        client(server, cache_dir=tmp_path).complete(MESSAGES, purpose="plan")
+        (entry,) = tmp_path.glob("*.json")
+        entry.write_text("{truncated")
+        assert client(server, cache_dir=tmp_path).complete(MESSAGES, purpose="plan") == [
+            "fresh again"
+        ]
+
+
+def test_price_table_and_unknown_models() -> None:
+    assert model_price("gpt-4o") == (2.5, 10.0)
+    assert model_price("gpt-4o-2024-08-06") == (2.5, 10.0)
+    assert model_price("llama3.1:8b") == (0.0, 0.0)
+    with FakeOpenAIServer(["a b c"]) as server:
+        c = OpenAIClient("llama3.1:8b", base_url=server.base_url, retry=FAST)
+        c.complete(MESSAGES, purpose="plan")
+    assert c.usage.completion_tokens == 3 and c.usage.cost_usd == 0.0
+
+
+def test_make_client_picks_the_backend(monkeypatch: pytest.MonkeyPatch) -> None:
+    for var in ("ITSKILL_LLM_MODEL", "OPENAI_BASE_URL", "OPENAI_API_KEY"):
+        monkeypatch.delenv(var, raising=False)
+    default = make_client()
+    assert isinstance(default, OfflineClient) and default.offline and default.name == "offline"
+    with pytest.raises(LLMUnavailableError, match="OPENAI_API_KEY"):
+        make_client("openai:gpt-4o")  # no key and no local endpoint
+    with pytest.raises(ValueError, match="expected 'offline' or 'openai:MODEL'"):
+        make_client("anthropic:claude")
+    with FakeOpenAIServer(["hello"]) as server:
+        # A local key-less server (Ollama) works: a dummy key is sent.
+        monkeypatch.setenv("ITSKILL_LLM_MODEL", "openai:llama3")
+        monkeypatch.setenv("OPENAI_BASE_URL", server.base_url)
+        c = make_client()
+        assert c.name == "openai:llama3" and not c.offline
+        assert c.complete(MESSAGES, purpose="plan") == ["hello"]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "problem"),
+    [
+        ({"purpose": "chat"}, "unknown purpose"),
+        ({"purpose": "plan", "n": 0}, "n must be a positive integer"),
+        ({"purpose": "plan", "temperature": 3.0}, "temperature"),
+    ],
+)
+def test_bad_requests_are_refused_before_sending(kwargs: dict, problem: str) -> None:
+    with FakeOpenAIServer(["x"]) as server:
+        with pytest.raises(ValueError, match=problem):
+            client(server).complete(MESSAGES, **kwargs)
+        with pytest.raises(ValueError, match="role"):
+            client(server).complete([{"role": "robot", "content": "x"}], purpose="plan")
+        assert not server.requests

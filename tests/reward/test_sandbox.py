@@ -1,0 +1,325 @@
+"""The reward sandbox: escape attempts refused, a valid reward computed right, limits enforced."""
+
+from __future__ import annotations
+
+import pickle
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from itskill.reward.sandbox import (
+    SandboxConfig,
+    SandboxError,
+    SandboxTimeout,
+    SandboxViolation,
+    apply_process_limits,
+    check_source,
+    compile_reward,
+)
+
+N = 3
+
+
+def ctx() -> dict[str, np.ndarray]:
+    """A small context: three environments, the grip point 0, 0.1 and 0.2 m from the part."""
+    obj_to_ee = np.zeros((N, 2, 3))
+    obj_to_ee[:, 0, 2] = [0.0, 0.1, 0.2]
+    return {
+        "ee_pos": np.zeros((N, 3)),
+        "obj_to_ee": obj_to_ee,
+        "grasped": np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 0.0]]),
+        "stage": np.array([1, 0, 0]),
+        "action": np.ones((N, 5)),
+    }
+
+
+VALID = """
+import numpy as np
+import math
+from math import exp as m_exp
+
+
+def closeness(d, temp):
+    return np.exp(-d / temp)
+
+
+def compute_reward(ctx):
+    temp_reach = 0.1
+    d = np.linalg.norm(ctx["obj_to_ee"][:, 0], axis=-1)
+    components = {
+        "reach": closeness(d, temp_reach),
+        "grasp": ctx["grasped"][:, 0] * m_exp(0.0),
+        "stage": ctx["stage"].astype(np.float64) * math.sqrt(4.0),
+        "action": -0.01 * np.mean(ctx["action"][:, :4] ** 2, axis=-1),
+    }
+    total = sum(components.values())
+    for k in range(2):
+        total = total + 0.0 * k
+    return total, components
+"""
+
+
+def test_a_valid_reward_computes_the_right_values() -> None:
+    reward = compile_reward(VALID)
+    total, comps = reward(ctx())
+    np.testing.assert_allclose(comps["reach"], np.exp(-np.array([0.0, 0.1, 0.2]) / 0.1))
+    np.testing.assert_allclose(comps["grasp"], [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(comps["stage"], [2.0, 0.0, 0.0])
+    np.testing.assert_allclose(comps["action"], [-0.01] * 3)
+    np.testing.assert_allclose(total, sum(comps.values()))
+    assert total.dtype == np.float64 and len(reward.sha256) == 64
+    # Survives pickling (re-checked on arrival), for process pools and Ray.
+    again = pickle.loads(pickle.dumps(reward))
+    np.testing.assert_allclose(again(ctx())[0], total)
+
+
+def wrap(body: str) -> str:
+    """``body`` inside a compute_reward that otherwise returns a valid result."""
+    inner = textwrap.indent(textwrap.dedent(body).strip(), "    ")
+    return (
+        "import numpy as np\n\ndef compute_reward(ctx):\n"
+        f"{inner}\n"
+        "    z = np.zeros(ctx['ee_pos'].shape[0])\n    return z, {'z': z}\n"
+    )
+
+
+ESCAPES = {
+    "import_os": ("import os", "import 'os'"),
+    "import_sys": ("import sys", "import 'sys'"),
+    "import_subprocess": ("import subprocess", "import 'subprocess'"),
+    "import_builtins": ("import builtins", "import 'builtins'"),
+    "import_importlib": ("import importlib", "import 'importlib'"),
+    "from_os_import": ("from os import system", "from os import"),
+    "import_numpy_unaliased": ("import numpy", "import 'numpy'"),
+    "dunder_import": ("__import__('os')", "'_'"),
+    "class_bases_subclasses": ("().__class__.__bases__[0].__subclasses__()", "'_'"),
+    "np_dict": ("np.__dict__", "'_'"),
+    "np_load": ("np.load('x.npy')", "np.load"),
+    "np_save": ("np.save('x.npy', ctx['ee_pos'])", "np.save"),
+    "np_savetxt": ("np.savetxt('x.txt', ctx['ee_pos'])", "np.savetxt"),
+    "np_fromfile": ("np.fromfile('/etc/passwd')", "np.fromfile"),
+    "np_frombuffer": ("np.frombuffer(b'abc', dtype=np.uint8)", "np.frombuffer"),
+    "np_memmap": ("np.memmap('x', mode='w+', shape=(2,))", "np.memmap"),
+    "np_ctypeslib": ("np.ctypeslib.as_ctypes(ctx['ee_pos'])", "np.ctypeslib"),
+    "np_lib_format": ("np.lib.format.open_memmap('x.npy')", "np.lib"),
+    "np_genfromtxt": ("np.genfromtxt('/etc/passwd')", "np.genfromtxt"),
+    "np_os": ("np.os.system('id')", "np.os"),
+    "np_testing": ("np.testing.assert_equal(1, 1)", "np.testing"),
+    "np_random": ("np.random.seed(0)", "np.random"),
+    "np_linalg_other": ("np.linalg.lapack_lite", "np.linalg.lapack_lite"),
+    "array_tofile": ("ctx['ee_pos'].tofile('/tmp/x')", ".tofile"),
+    "array_dump": ("ctx['ee_pos'].dump('/tmp/x')", ".dump"),
+    "array_ctypes": ("ctx['ee_pos'].ctypes", ".ctypes"),
+    "array_base": ("ctx['ee_pos'].base", ".base"),
+    "array_flags": ("ctx['ee_pos'].setflags(write=True)", ".setflags"),
+    "open_file": ("open('/etc/passwd').read()", "'open'"),
+    "eval": ("eval('1 + 1')", "'eval'"),
+    "exec": ("exec('x = 1')", "'exec'"),
+    "compile": ("compile('1', 'f', 'eval')", "'compile'"),
+    "getattr_concat": ("getattr(np, 'lo' + 'ad')('x.npy')", "'getattr'"),
+    "setattr": ("setattr(np, 'pi', 3)", "'setattr'"),
+    "globals": ("globals()", "'globals'"),
+    "locals": ("locals()", "'locals'"),
+    "vars": ("vars(np)", "'vars'"),
+    "type_call": ("type(ctx)", "'type'"),
+    "object_builtin": ("x = object()", "'object'"),
+    "format_string_attribute": ("'{0.__class__}'.format(ctx)", ".format"),
+    "format_builtin": ("format(ctx, '')", "'format'"),
+    "fstring_dunder": ("f'{ctx.__class__}'", "'_'"),
+    "generator_frame": ("g = (x for x in range(3))\ng.gi_frame", "generator"),
+    "lambda_code": ("f = lambda: 0\nf.__code__", "lambda"),
+    "function_globals": ("def f():\n    return 0\nf.__globals__", "'_'"),
+    "function_attribute": ("def f():\n    return 0\nf.func_globals", ".func_globals"),
+    "raise_system_exit": ("raise SystemExit(1)", "raise"),
+    "try_except": ("try:\n    x = 1\nexcept Exception:\n    x = 2", "try"),
+    "with_statement": ("with open('x') as fh:\n    pass", "with"),
+    "class_def": ("class A:\n    pass", "class"),
+    "global_statement": ("global np", "global"),
+    "del_statement": ("x = 1\ndel x", "del"),
+    "private_name": ("_secret = 1", "'_'"),
+    "rebind_np": ("np = None", "assigning to 'np'"),
+    "breakpoint": ("breakpoint()", "'breakpoint'"),
+    "input": ("input()", "'input'"),
+    "print": ("print('hi')", "'print'"),
+    "memoryview": ("memoryview(b'x')", "'memoryview'"),
+    "decorator": ("@staticmethod\ndef f():\n    return 0", "decorators"),
+    "constant_power_bomb": ("x = 10**10**10", "power too large"),
+    "string_repeat_bomb": ("x = 'a' * 10**12", "too large"),
+    "list_repeat_bomb": ("x = [0] * 10**10", "too large"),
+    "np_ones_bomb": ("x = np.ones(10**12)", "too large"),
+    "np_zeros_tuple_bomb": ("x = np.zeros((10**6, 10**6))", "too large"),
+    "range_bomb": ("x = list(range(10**12))", "too large"),
+}
+
+
+@pytest.mark.parametrize(("body", "expected"), list(ESCAPES.values()), ids=list(ESCAPES))
+def test_escape_attempt_is_refused_before_running(body: str, expected: str) -> None:
+    with pytest.raises(SandboxViolation) as err:
+        compile_reward(wrap(body))
+    message = str(err.value)
+    assert message.startswith("line "), message
+    assert expected in message, message
+
+
+def test_module_level_code_is_checked_too() -> None:
+    with pytest.raises(SandboxViolation, match="line 1: import 'os'"):
+        check_source("import os\ndef compute_reward(ctx):\n    return 0")
+
+
+def test_syntax_errors_and_oversized_code_are_refused() -> None:
+    with pytest.raises(SandboxViolation, match="line 1: syntax error"):
+        check_source("def compute_reward(ctx) return")
+    with pytest.raises(SandboxViolation, match="limit is 100"):
+        check_source("x = 1\n" * 50, SandboxConfig(max_source_chars=100))
+    with pytest.raises(SandboxViolation, match="empty"):
+        check_source("   ")
+
+
+@pytest.mark.parametrize(
+    ("body", "expected"),
+    [
+        ("while True:\n    pass", SandboxTimeout),
+        ("x = 0\nfor i in range(10**7):\n    x = x + i", SandboxTimeout),
+    ],
+    ids=["while_true", "long_loop"],
+)
+def test_runaway_loops_are_stopped_by_the_timeout(body: str, expected: type) -> None:
+    reward = compile_reward(wrap(body), SandboxConfig(call_timeout_s=0.3))
+    start = time.monotonic()
+    with pytest.raises(expected, match=r"longer than 0\.3 s"):
+        reward(ctx())
+    assert time.monotonic() - start < 3
+
+
+def test_the_timeout_works_outside_the_main_thread() -> None:
+    reward = compile_reward(wrap("while True:\n    pass"), SandboxConfig(call_timeout_s=0.3))
+    caught: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            reward(ctx())
+        except BaseException as err:
+            caught.append(err)
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join(5)
+    assert not thread.is_alive()
+    assert caught and isinstance(caught[0], SandboxTimeout)
+
+
+def test_an_infinite_loop_at_module_level_is_stopped() -> None:
+    with pytest.raises(SandboxTimeout):
+        compile_reward("while True:\n    pass\n", SandboxConfig(call_timeout_s=0.3))
+
+
+def test_deep_recursion_is_a_sandbox_error() -> None:
+    source = wrap("def f(k):\n    return f(k + 1)\nf(0)")
+    with pytest.raises(SandboxError, match="recursed too deeply"):
+        compile_reward(source)(ctx())
+
+
+def test_a_computed_memory_bomb_is_a_sandbox_error() -> None:
+    # Not constant, so only the run time can stop it: numpy refuses 8 TB at once.
+    source = wrap("k = ctx['ee_pos'].shape[0] * 10**12\nx = np.ones(k)")
+    with pytest.raises(SandboxError, match="out of memory"):
+        compile_reward(source)(ctx())
+
+
+def test_runtime_errors_carry_the_line_and_message() -> None:
+    source = wrap("x = ctx['no_such_key']")
+    with pytest.raises(SandboxError) as err:
+        compile_reward(source)(ctx())
+    assert "line 4" in str(err.value) and "KeyError: 'no_such_key'" in str(err.value)
+
+
+def test_the_context_is_read_only() -> None:
+    source = wrap("ctx['ee_pos'][:] = 1.0")
+    state = ctx()
+    with pytest.raises(SandboxError, match="read-only"):
+        compile_reward(source)(state)
+    assert not state["ee_pos"].any()
+    assert state["ee_pos"].flags.writeable  # the caller's own arrays stay writable
+
+
+@pytest.mark.parametrize(
+    ("returns", "problem"),
+    [
+        ("z", "must return (total, components)"),
+        ("np.zeros(2), {'a': z}", "total has shape (2,); expected (3,)"),
+        ("z / 0.0, {'a': z}", "non-finite"),
+        ("z, [z]", "components must be a dict"),
+        ("z, {'a': np.zeros((3, 2))}", "components['a'] has shape (3, 2)"),
+        ("z, {'a': z * np.nan}", "components['a'] has 3 non-finite"),
+        ("z, {1: z}", "component names must be strings"),
+        ("z, {'a': 'text'}", "not numeric"),
+    ],
+)
+@pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning")
+def test_outputs_are_validated(returns: str, problem: str) -> None:
+    source = (
+        f"import numpy as np\ndef compute_reward(ctx):\n    z = np.zeros(3)\n    return {returns}\n"
+    )
+    with pytest.raises(SandboxError) as err:
+        compile_reward(source)(ctx())
+    assert problem in str(err.value)
+
+
+def test_missing_compute_reward_is_an_error() -> None:
+    with pytest.raises(SandboxError, match="no function compute_reward"):
+        compile_reward("import numpy as np\ndef reward(ctx):\n    return 0\n")
+
+
+def test_process_limits_stop_a_memory_bomb_in_a_worker() -> None:
+    # 2 GB of ones under a 1 GB address-space cap: MemoryError inside the sandbox, reported.
+    script = textwrap.dedent(
+        """
+        import numpy as np
+        from itskill.reward.sandbox import SandboxConfig, SandboxError
+        from itskill.reward.sandbox import apply_process_limits, compile_reward
+        config = SandboxConfig(memory_limit_mb=1024, cpu_limit_s=60)
+        apply_process_limits(config)
+        import resource
+        assert resource.getrlimit(resource.RLIMIT_AS)[0] == 1024 * 1024 * 1024
+        src = (
+            "import numpy as np\\n"
+            "def compute_reward(ctx):\\n"
+            "    k = ctx['ee_pos'].shape[0] * 100_000_000\\n"
+            "    x = np.ones(k)\\n"
+            "    return x[:3], {'x': x[:3]}\\n"
+        )
+        try:
+            compile_reward(src, config)({'ee_pos': np.zeros((3, 3))})
+        except SandboxError as err:
+            print('STOPPED', err)
+        else:
+            print('NOT STOPPED')
+        """
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120
+    )
+    assert "STOPPED the reward code ran out of memory" in out.stdout, out.stdout + out.stderr
+
+
+def test_process_limits_only_go_down() -> None:
+    script = textwrap.dedent(
+        """
+        import resource
+        from itskill.reward.sandbox import SandboxConfig, apply_process_limits
+        apply_process_limits(SandboxConfig(cpu_limit_s=50))
+        apply_process_limits(SandboxConfig(cpu_limit_s=500))
+        print(resource.getrlimit(resource.RLIMIT_CPU)[0])
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.stdout.strip() == "50", out.stderr
+
+
+def test_apply_process_limits_is_callable_without_limits() -> None:
+    apply_process_limits(SandboxConfig())  # no limits configured: nothing changes
