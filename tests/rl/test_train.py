@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 from pathlib import Path
 
@@ -17,6 +18,8 @@ from itskill.rl.train import ResumeMismatchError, RewardLoadError, RewardSource,
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import CheckpointError, evaluate
 
+# The package re-exports the function ``train`` under the module's name.
+train_module = importlib.import_module("itskill.rl.train")
 FAST_PPO = {"n_steps": 16, "batch_size": 64, "n_epochs": 2}
 QUIET = LoggerConfig(progress=False, tensorboard=False, min_steps_per_row=1)
 TASK = "reach_nut_m12"
@@ -46,6 +49,9 @@ def test_resume_continues_step_count(tmp_path: Path, reach_reward: Path) -> None
     assert rows[0].startswith("step,") and "close" in rows[0] and len(rows) == len(steps) + 1
     resumed = load_policy(out).state_dict()
     assert not torch.equal(weights["action_net.weight"], resumed["action_net.weight"])
+    # The reward scale is saved with the checkpoint, and a resumed run starts from it.
+    stats = json.loads((out / "reward_norm.json").read_text())
+    assert stats["count"] > 256 and stats["var"] > 0
     # The target reached: nothing left to do.
     assert _train(out, reach_reward, 256).num_timesteps == 256
 
@@ -183,3 +189,19 @@ def test_ppo_learns_reach_better_than_random(tmp_path: Path, reach_reward: Path)
     trained = evaluate(spec, as_policy(out), episodes=64, seed=123)
     random = evaluate(spec, RandomPolicy(), episodes=64, seed=123)
     assert trained.success_rate >= random.success_rate + 0.1  # measured: 0.22 vs 0.0
+
+
+def test_resume_restores_reward_scale(tmp_path: Path, reach_reward: Path, monkeypatch) -> None:
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64)
+    saved = json.loads((out / "reward_norm.json").read_text())
+    seen = {}
+    real = train_module.restore_reward_norm
+
+    def spy(env, run_dir):
+        real(env, run_dir)
+        seen.update(mean=float(env.ret_rms.mean), count=float(env.ret_rms.count))
+
+    monkeypatch.setattr(train_module, "restore_reward_norm", spy)
+    _train(out, reach_reward, 128)
+    assert seen == {"mean": saved["mean"], "count": saved["count"]}

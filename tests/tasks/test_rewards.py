@@ -89,6 +89,17 @@ def test_approach_term_is_higher_at_the_nut() -> None:
     np.testing.assert_allclose(c_far["success"], 0.0)
 
 
+def test_hover_term_and_success_are_at_the_point_over_the_bolt() -> None:
+    over_bolt = np.tile([0.55, 0.12, 0.04 + 0.05], (N, 1))
+    at_nut = _ctx(ee_pos=np.tile([0.5, 0.0, 0.012], (N, 1)))
+    r_nut, c_nut = _reward("hover_bolt_m12", at_nut)
+    r_bolt, c_bolt = _reward("hover_bolt_m12", _ctx(ee_pos=over_bolt))
+    np.testing.assert_allclose(c_bolt["0.approach/reach"], 2 / 3)  # reach weighs 1, fine 0.5
+    assert (c_bolt["0.approach/reach"] > c_nut["0.approach/reach"]).all() and (r_bolt > r_nut).all()
+    np.testing.assert_allclose(c_bolt["success"], SUCCESS_BONUS)
+    np.testing.assert_allclose(c_nut["success"], 0.0)
+
+
 def test_lifted_beats_grasped_on_table_and_success_pays_bonus() -> None:
     grip = dict(grip_closed=np.ones(N), grasped=np.tile([1.0, 0.0], (N, 1)))
     on_table = _ctx(ee_pos=np.tile([0.5, 0.0, 0.012], (N, 1)), **grip)

@@ -16,6 +16,7 @@ both) calls ``as_policy`` before handing a policy reference down.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import platform
@@ -27,6 +28,8 @@ import numpy as np
 import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.vec_env import VecNormalize
 
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
 from itskill.sim.layout import OBSERVATION_LAYOUT
@@ -37,6 +40,7 @@ from itskill.tasks.spec import TaskSpec
 MODEL_FILE = "model.zip"
 POLICY_FILE = "policy.safetensors"
 META_FILE = "checkpoint.json"
+REWARD_NORM_FILE = "reward_norm.json"
 FORMAT_VERSION = 1
 REQUIRED_META = ("format", "task", "algo", "seed", "num_timesteps", "obs_size", "policy")
 
@@ -87,8 +91,27 @@ def save_checkpoint(model: Any, run_dir: Path, meta: Mapping[str, Any]) -> dict[
         "policy": model.policy.config.to_dict(),
         "versions": versions(),
     }
+    env = model.get_env()
+    if isinstance(env, VecNormalize):
+        rms = env.ret_rms
+        stats = {"mean": float(rms.mean), "var": float(rms.var), "count": float(rms.count)}
+        _atomic_write_text(run_dir / REWARD_NORM_FILE, json.dumps(stats) + "\n")
     _atomic_write_text(run_dir / META_FILE, json.dumps(full, indent=2) + "\n")
     return full
+
+
+def restore_reward_norm(env: VecNormalize, run_dir: Path) -> None:
+    """Give ``env`` the return statistics saved with the checkpoint in ``run_dir`` (if any), so a
+    resumed run scales rewards as the interrupted one did."""
+    path = Path(run_dir) / REWARD_NORM_FILE
+    if not path.is_file():
+        return
+    try:
+        stats = json.loads(path.read_text())
+        env.ret_rms.mean, env.ret_rms.var = float(stats["mean"]), float(stats["var"])
+        env.ret_rms.count = float(stats["count"])
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        raise CheckpointError(path, f"corrupt reward-normalisation statistics: {err}") from err
 
 
 def read_meta(run_dir: str | Path) -> dict[str, Any]:
@@ -135,18 +158,43 @@ def build_policy(config: PolicyConfig) -> StagedActorCriticPolicy:
     return StagedActorCriticPolicy(observation_space(), action_space(), lambda _: 0.0, **kwargs)
 
 
-def load_policy(run_dir: str | Path) -> StagedActorCriticPolicy:
+STAGED_POLICY_CLASS = f"{StagedActorCriticPolicy.__module__}.{StagedActorCriticPolicy.__qualname__}"
+
+
+def policy_from_meta(
+    policy_class: str, config: Mapping[str, Any], where: str | Path
+) -> ActorCriticPolicy:
+    """An untrained policy of the class and shape recorded in a checkpoint.
+
+    ``policy_class`` is the import path the trainer records (``module.Class``). The staged policy
+    is built from its :class:`PolicyConfig`; any other class must provide a classmethod
+    ``from_config(config)`` (the transfer policies do), so this layer never imports them.
+    """
+    try:
+        if policy_class == STAGED_POLICY_CLASS:
+            return build_policy(PolicyConfig(**{**config, "stages": tuple(config["stages"])}))
+        module, _, name = policy_class.rpartition(".")
+        cls = getattr(importlib.import_module(module), name)
+        return cls.from_config(dict(config))
+    except (TypeError, ValueError, KeyError) as err:
+        raise CheckpointError(where, f"corrupt policy description: {err}") from err
+    except (ImportError, AttributeError) as err:
+        raise CheckpointError(where, f"cannot build policy class {policy_class!r}: {err}") from err
+
+
+def load_policy(run_dir: str | Path) -> ActorCriticPolicy:
     """The policy of the last checkpoint in ``run_dir``: eval mode, statistics frozen, on CPU.
 
-    Raises :class:`CheckpointError` (a ``ValueError`` naming the path and the problem) if the
-    directory, its metadata or its weights are missing, corrupt or do not fit.
+    The class is the one recorded in ``checkpoint.json`` (``policy_class``; checkpoints without
+    it hold a :class:`StagedActorCriticPolicy`). Raises :class:`CheckpointError` (a
+    ``ValueError`` naming the path and the problem) if the directory, its metadata or its weights
+    are missing, corrupt or do not fit.
     """
     run_dir = Path(run_dir)
     meta = read_meta(run_dir)
-    try:
-        config = PolicyConfig(**{**meta["policy"], "stages": tuple(meta["policy"]["stages"])})
-    except (TypeError, ValueError, KeyError) as err:
-        raise CheckpointError(run_dir / META_FILE, f"corrupt policy description: {err}") from err
+    policy = policy_from_meta(
+        meta.get("policy_class", STAGED_POLICY_CLASS), meta["policy"], run_dir / META_FILE
+    )
     path = run_dir / POLICY_FILE
     if not path.is_file():
         raise CheckpointError(path, "missing policy weights")
@@ -154,7 +202,6 @@ def load_policy(run_dir: str | Path) -> StagedActorCriticPolicy:
         state = load_file(str(path))
     except (SafetensorError, OSError, ValueError) as err:
         raise CheckpointError(path, f"corrupt policy weights: {err}") from err
-    policy = build_policy(config)
     try:
         policy.load_state_dict(state, strict=True)
     except RuntimeError as err:

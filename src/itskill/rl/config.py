@@ -82,6 +82,11 @@ class Hyperparams:
     algo: Algo
     num_envs: int = 16
     checkpoint_every: int = 50_000
+    normalize_reward: bool = True
+    """Divide rewards by a running estimate of the discounted return's standard deviation before
+    the algorithm sees them (logged rewards stay raw). Staged rewards pay a bonus every step, so
+    returns reach the hundreds; unscaled, the critic's gradients dominate the shared gradient-norm
+    clip and shrink every actor update with them."""
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo_config: A2CConfig | PPOConfig = field(default_factory=PPOConfig)
 
@@ -91,13 +96,14 @@ class Hyperparams:
             "algo": self.algo,
             "num_envs": self.num_envs,
             "checkpoint_every": self.checkpoint_every,
+            "normalize_reward": self.normalize_reward,
             "policy": self.policy.to_dict(),
             self.algo: asdict(self.algo_config),
         }
 
 
 ALGO_CONFIGS: dict[str, type] = {"a2c": A2CConfig, "ppo": PPOConfig}
-_FAMILY_KEYS = {"num_envs": int, "checkpoint_every": int}
+_FAMILY_KEYS = {"num_envs": int, "checkpoint_every": int, "normalize_reward": bool}
 _POSITIVE = {"num_envs", "checkpoint_every", "n_steps", "batch_size", "n_epochs", "learning_rate"}
 
 
@@ -160,7 +166,8 @@ def load_hyperparams(
     """Hyper-parameters for ``family`` and ``algo`` from ``path`` (default: the packaged file).
 
     ``overrides`` are applied on top, with the same checks: algorithm fields by name, plus
-    ``num_envs``, ``checkpoint_every`` and ``policy`` (a dict of :class:`PolicyConfig` fields).
+    ``num_envs``, ``checkpoint_every``, ``normalize_reward`` and ``policy`` (a dict of
+    :class:`PolicyConfig` fields).
     """
     path = Path(path) if path is not None else default_path()
     if algo not in ALGO_CONFIGS:

@@ -24,8 +24,9 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import set_random_seed
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from itskill.rl.checkpoint import MODEL_FILE, read_meta, save_checkpoint
+from itskill.rl.checkpoint import MODEL_FILE, read_meta, restore_reward_norm, save_checkpoint
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
 from itskill.rl.eval_callback import DeterministicEvalCallback
 from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
@@ -231,11 +232,18 @@ def train(
     env = make_batch_env(
         spec.id, hp.num_envs, seed=env_seed, reward_fn=reward_fn, n_threads=n_threads
     )
+    train_env: VecEnv = env
+    if hp.normalize_reward:
+        train_env = VecNormalize(
+            env, norm_obs=False, norm_reward=True, gamma=hp.algo_config.gamma, clip_reward=10.0
+        )
+        if resuming:
+            restore_reward_norm(train_env, run_dir)
     cls = ALGO_CLASSES[algo]
     try:
         if resuming:
             try:
-                model = cls.load(model_path, env=env, device="cpu")
+                model = cls.load(model_path, env=train_env, device="cpu")
             except Exception as err:
                 raise CheckpointError(
                     model_path, f"cannot resume: {type(err).__name__}: {err}"
@@ -246,7 +254,7 @@ def train(
             set_random_seed(seed)
             model = cls(
                 policy_class,
-                env,
+                train_env,
                 policy_kwargs={**hp.policy.policy_kwargs(), **dict(policy_kwargs or {})},
                 seed=seed,
                 device="cpu",

@@ -26,6 +26,19 @@ def near(ctx: Context, i: int, dist: float = 0.02) -> np.ndarray:
     return np.linalg.norm(ctx["obj_to_ee"][:, i], axis=-1) < dist
 
 
+def fixture_offset(ctx: Context, i: int, height: float) -> np.ndarray:
+    """The point ``height`` metres above object ``i``'s fixture, minus the grip point (N, 3)."""
+    fix = ctx["obj_fixture"][:, i].astype(int)
+    point = ctx["fix_pos"][np.arange(len(fix)), fix].copy()
+    point[:, 2] += height
+    return point - ctx["ee_pos"]
+
+
+def over_fixture(ctx: Context, i: int, dist: float = 0.015, height: float = 0.05) -> np.ndarray:
+    """The grip point is within ``dist`` of the point ``height`` above object ``i``'s fixture."""
+    return np.linalg.norm(fixture_offset(ctx, i, height), axis=-1) < dist
+
+
 def grasped(ctx: Context, i: int) -> np.ndarray:
     """The closed fingers hold object ``i``."""
     return ctx["grasped"][:, i] > 0.5
@@ -90,8 +103,8 @@ def displaced(ctx: Context, i: int, dx: float, dy: float, tolerance: float = 0.0
 PREDICATES: dict[str, Callable[..., np.ndarray]] = {
     f.__name__: f
     for f in (
-        near, grasped, lifted, above_fixture, engaged, seated, inserted, aligned, released,
-        removed, displaced,
+        near, over_fixture, grasped, lifted, above_fixture, engaged, seated, inserted, aligned,
+        released, removed, displaced,
     )
 }  # fmt: skip
 

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from itskill.sim.task import Context, RewardFn
+from itskill.tasks.predicates import fixture_offset
 from itskill.tasks.spec import TaskSpec
 
 STAGE_BONUS = 1.0
@@ -91,6 +92,14 @@ def near_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, fl
     Two scales because one tanh either has no slope far away or none in the last centimetres.
     """
     d = _ee_dist(ctx, i)
+    return {"reach": _closeness(d, t["reach"]), "reach_fine": _closeness(d, t["reach_fine"])}
+
+
+def over_fixture_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Move the empty gripper over a fixture: the grip point's closeness to the point ``height``
+    above it, on the same two scales as approaching a part."""
+    height = args[1] if len(args) > 1 else 0.05
+    d = np.linalg.norm(fixture_offset(ctx, i, height), axis=-1)
     return {"reach": _closeness(d, t["reach"]), "reach_fine": _closeness(d, t["reach_fine"])}
 
 
@@ -203,6 +212,7 @@ def released_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str
 
 TERMS: dict[str, Term] = {
     "near": near_terms,
+    "over_fixture": over_fixture_terms,
     "grasped": grasped_terms,
     "lifted": lifted_terms,
     "above_fixture": above_fixture_terms,

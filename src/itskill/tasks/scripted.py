@@ -44,6 +44,7 @@ from itskill.sim.context import wrap_angle
 from itskill.sim.controller import ControllerConfig
 from itskill.sim.parts import NutSpec, PegSpec
 from itskill.sim.scene import TIMESTEP
+from itskill.tasks.predicates import fixture_offset
 from itskill.tasks.spec import TaskSpec
 
 Ctx = dict[str, np.ndarray]
@@ -215,6 +216,16 @@ def _reach(part: _Part) -> list[Phase]:
         return part.grip_point(ctx, rows), ctx["ee_yaw"][rows]
 
     return [Phase("reach", goal, False, _never)]
+
+
+def _hover(part: _Part, height: float = 0.05) -> list[Phase]:
+    """Move the grip point ``height`` over the part's fixture point and stay there."""
+
+    def goal(ctx, rows, st):
+        target = ctx["ee_pos"] + fixture_offset(ctx, part.index, height)
+        return target[rows], ctx["ee_yaw"][rows]
+
+    return [Phase("hover", goal, False, _never)]
 
 
 def _grasp(part: _Part, hover: float) -> list[Phase]:
@@ -420,6 +431,7 @@ def _push(part: _Part, dx: float, dy: float) -> list[Phase]:
 _PRIMITIVES: dict[str, tuple[Callable[..., list[Phase]], bool, int]] = {
     # name: (builder, takes an object slot first, how many extra numbers it accepts)
     "reach": (_reach, True, 0),
+    "hover": (_hover, True, 1),
     "pick": (_pick, True, 1),
     "carry": (_carry, True, 0),
     "place": (_place, True, 0),

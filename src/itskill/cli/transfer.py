@@ -1,0 +1,218 @@
+"""`itskill transfer`: train a task with a transfer method, show the analyzer's matrix, trace W.
+
+Imports of itskill.transfer stay inside the commands: the other commands should not pay for them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from itskill.cli.common import (
+    USAGE_ERROR,
+    JsonOpt,
+    TaskArg,
+    console,
+    err_console,
+    print_json,
+    user_errors,
+)
+
+transfer_app = typer.Typer(
+    no_args_is_help=True,
+    help="Transfer learned skills to a new task: ITN and its ablations, the analyzer.",
+)
+
+SourcesOpt = Annotated[
+    str,
+    typer.Option(
+        help="'auto' (retrieved for the task's command) or skill ids/names, comma-separated."
+    ),
+]
+KOpt = Annotated[
+    int | None, typer.Option("-k", "--k", min=1, help="Sources 'auto' retrieves (default 3).")
+]
+LLMOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--llm",
+        help="Analyzer: 'offline' or 'openai:MODEL' (default $ITSKILL_LLM_MODEL, else offline).",
+    ),
+]
+ConfigOpt = Annotated[
+    Path | None, typer.Option(help="A transfer settings TOML instead of the packaged one.")
+]
+
+
+@contextmanager
+def _transfer_errors() -> Iterator[None]:
+    """Errors in the user's input or environment: a red one-line message and exit code 2."""
+    from itskill.llm.client import LLMError
+    from itskill.rl.config import HyperparamError
+    from itskill.rl.train import ResumeMismatchError, RewardLoadError
+    from itskill.skills import SkillSpaceError
+    from itskill.transfer import AnalyzerError, SourceError, TransferConfigError
+
+    errors = (
+        AnalyzerError,
+        SourceError,
+        TransferConfigError,
+        SkillSpaceError,
+        LLMError,
+        HyperparamError,
+        RewardLoadError,
+        ResumeMismatchError,
+    )
+    try:
+        with user_errors():
+            yield
+    except errors as err:
+        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
+        raise typer.Exit(USAGE_ERROR) from err
+
+
+def _config(path: Path | None, k: int | None):
+    from dataclasses import replace
+
+    from itskill.transfer import load_transfer_config
+
+    config = load_transfer_config(path)
+    return config if k is None else replace(config, k=k)
+
+
+@transfer_app.command("train")
+def transfer_train(
+    target: TaskArg,
+    method: Annotated[str, typer.Option(help="itn, nia, dfs, pst or no_transfer.")] = "itn",
+    sources: SourcesOpt = "auto",
+    k: KOpt = None,
+    seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
+    steps: Annotated[int, typer.Option(min=1, help="Total env-steps (a rerun resumes).")] = 200_000,
+    algo: Annotated[str, typer.Option(help="a2c (the paper's algorithm) or ppo.")] = "a2c",
+    reward: Annotated[
+        str, typer.Option(help="'expert' or a .py file defining compute_reward(ctx).")
+    ] = "expert",
+    out: Annotated[Path, typer.Option(help="Run directory.")] = Path("runs/transfer"),
+    num_envs: Annotated[
+        int | None, typer.Option(min=1, help="Environments stepped together.")
+    ] = None,
+    eval_every: Annotated[
+        int | None, typer.Option(min=1, help="Evaluate the deterministic policy every N env-steps.")
+    ] = None,
+    eval_episodes: Annotated[int, typer.Option(min=1, help="Episodes per evaluation.")] = 50,
+    llm: LLMOpt = None,
+    config: ConfigOpt = None,
+) -> None:
+    """Train TARGET with a transfer method; rerun the same command to resume."""
+    from itskill.transfer import METHODS, train_transfer
+
+    if method not in METHODS:
+        raise typer.BadParameter(f"expected one of {', '.join(METHODS)}", param_hint="--method")
+    if algo not in ("a2c", "ppo"):
+        raise typer.BadParameter("expected a2c or ppo", param_hint="--algo")
+    try:
+        with _transfer_errors():
+            from itskill.llm.client import make_client
+
+            result = train_transfer(
+                target,
+                method,
+                sources=sources,
+                seed=seed,
+                steps=steps,
+                algo=algo,
+                out=out,
+                reward=reward,
+                num_envs=num_envs,
+                eval_every=eval_every,
+                eval_episodes=eval_episodes,
+                client=make_client(llm),
+                config=_config(config, k),
+                console=console,
+            )
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    console.print(
+        f"trained {target} with {method} ({algo}): {result.num_timesteps} env-steps in total"
+        + (f" (resumed from {result.resumed_from})" if result.resumed_from else "")
+        + f"; checkpoint in {result.run_dir}"
+    )
+
+
+@transfer_app.command("analyze")
+def transfer_analyze(
+    target: TaskArg,
+    sources: SourcesOpt = "auto",
+    k: KOpt = None,
+    llm: LLMOpt = None,
+    config: ConfigOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Print the analyzer's contribution matrix: TARGET's stages x the source skills."""
+    from itskill.llm.client import make_client
+    from itskill.tasks import get_task
+    from itskill.transfer import analyze, resolve_sources, target_entry
+
+    with _transfer_errors():
+        cfg = _config(config, k)
+        spec = get_task(target)
+        chosen = resolve_sources(spec.id, sources, cfg.k, distinct_actions=cfg.distinct_actions)
+        client = make_client(llm)
+        matrix = analyze(
+            target_entry(spec),
+            [s.analyzer_entry() for s in chosen],
+            client,
+            retries=cfg.analyzer_retries,
+        )
+    if as_json:
+        print_json({**matrix.to_dict(), "source_skills": [s.to_dict() for s in chosen]})
+        return
+    table = Table(title=f"contribution of {len(chosen)} sources to {spec.id} ({client.name})")
+    table.add_column("stage")
+    for s in chosen:
+        table.add_column(s.name, justify="right")
+    for i, segment in enumerate(matrix.segments):
+        table.add_row(f"{i} {segment}", *(f"{v:.2f}" for v in matrix.matrix[i]))
+    console.print(table)
+    if matrix.reasoning:
+        console.print(escape(matrix.reasoning), highlight=False)
+
+
+@transfer_app.command("trace")
+def transfer_trace(
+    run_dir: Annotated[Path, typer.Argument(help="A transfer run directory (itn, pst, nia).")],
+    episodes: Annotated[int, typer.Option(min=1, help="Deterministic episodes.")] = 1,
+    seed: Annotated[int, typer.Option(help="Seed of the initial states.")] = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """The contribution weights W at every step of an episode of a trained transfer policy."""
+    from itskill.transfer import attention_trace
+
+    try:
+        with user_errors():
+            trace = attention_trace(run_dir, episodes, seed)
+    except ValueError as err:
+        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
+        raise typer.Exit(USAGE_ERROR) from err
+    if as_json:
+        print_json(trace)
+        return
+    for n, ep in enumerate(trace["episodes"]):
+        table = Table(title=f"{trace['task']} episode {n}: success {ep['success']}")
+        table.add_column("step", justify="right")
+        table.add_column("stage")
+        for name in trace["sources"]:
+            table.add_column(f"W {name}", justify="right")
+        previous = None
+        for t, (stage, w) in enumerate(zip(ep["stage"], ep["weights"], strict=True)):
+            # One row per stage change and every 10th step keeps an episode on one screen.
+            if stage != previous or t % 10 == 0:
+                table.add_row(str(t), trace["segments"][stage], *(f"{v:.2f}" for v in w))
+            previous = stage
+        console.print(table)

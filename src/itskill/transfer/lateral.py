@@ -1,0 +1,358 @@
+"""The network every transfer method shares: frozen sources laterally connected to a target network.
+
+::
+
+    raw obs ─┬─▶ source 1 (own normaliser) ─▶ SO_1^1, SO_1^2, SO_1^3 ─▶ action mean pi_1(s)
+             ├─▶ ...                                                          │
+             ├─▶ source n ─▶ SO_n^1, SO_n^2, SO_n^3 ─▶ pi_n(s) ───────────────┤
+             │                                                        weighting (W)
+             └─▶ target normaliser ─▶ stage 1 ─▶ merge_1 ─▶ stage 2 ─▶ merge_2 ─▶ stage 3 ─▶ merge_3
+                                                                                          │
+                                                                          action head ◀───┘
+
+A method is a choice of ``weighting`` (intelligent attention, fixed analyzer values, none) and
+``merge`` (fusion MLP, plain sum): :class:`TransferPolicy` subclasses supply them in
+``_build_parts``. Design choices:
+
+- **Sources see what they were trained on**: each is a whole frozen policy (its normaliser, actor
+  trunk and action head), fed the raw observation. Its parameters have ``requires_grad = False``
+  and are not given to the optimiser, its normaliser statistics never update, and it stays in
+  eval mode through SB3's train/eval switches. Source outputs are computed without gradients:
+  they are inputs to the target network, nothing upstream of them trains.
+- **The critic** has its own trunk of the target's shape on the target-normalised observation
+  (``shared_trunk = False``, the default): the sources were trained for other rewards, so their
+  value is no estimate of this task's, and value-regression gradients stay out of the fused
+  features the action is made from (the staged policy's reasoning). ``shared_trunk = True`` puts
+  the value head on the fused actor features instead.
+- **Self-contained checkpoints**: source weights are part of the state dict, so ``model.zip`` and
+  ``policy.safetensors`` of a transfer run need no source directory once written. A new policy
+  reads its sources from their run directories (``sources[i]["run_dir"]``); one rebuilt for a
+  saved state dict (:meth:`TransferPolicy.from_config`, or SB3 loading a ``model.zip`` whose
+  sources have moved) gets them from that state dict, and refuses to act before it has.
+- **Initialisation**: the target trunk, critic, fusion blocks and heads as SB3 does it
+  (orthogonal, gains sqrt(2) / 0.01 / 1); the attention's final layer with gain 0.01, so the raw
+  weights start near uniform and the analyzer's prior decides the initial ``W``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.type_aliases import PyTorchObs
+from torch import nn
+
+from itskill.rl.checkpoint import META_FILE, policy_from_meta
+from itskill.rl.policy import ACTIVATIONS, PolicyConfig, RunningNormalizer, StagedTrunk
+from itskill.sim.vec_env import action_space, observation_space
+from itskill.transfer.analyzer import validate_matrix
+from itskill.transfer.sources import freeze, load_source
+
+NOT_READY = (
+    "the transfer policy's source weights were never loaded: build it with existing source run "
+    "directories, or load a saved transfer checkpoint into it"
+)
+
+
+@dataclass(frozen=True)
+class TransferPolicyConfig:
+    """Shape of a transfer policy: the target network, its sources and the method's settings.
+
+    ``sources`` are :meth:`itskill.transfer.sources.SourceSkill.spec` entries (name, task,
+    run_dir, the source's policy class and shape); ``prior`` is the analyzer's contribution
+    matrix (target stages x sources), None for methods that do not use it.
+    """
+
+    target: PolicyConfig
+    sources: tuple[dict[str, Any], ...]
+    prior: tuple[tuple[float, ...], ...] | None = None
+    attention_hidden: int = 32
+    prior_weight: float = 0.5
+    fusion_hidden: tuple[int, ...] = field(default=())
+
+    def to_dict(self) -> dict[str, Any]:
+        """The constructor keyword arguments, JSON-ready (``checkpoint.json``'s ``policy``)."""
+        return {
+            **self.target.to_dict(),
+            "sources": [dict(s) for s in self.sources],
+            "prior": None if self.prior is None else [list(r) for r in self.prior],
+            "attention_hidden": self.attention_hidden,
+            "prior_weight": self.prior_weight,
+            "fusion_hidden": list(self.fusion_hidden),
+        }
+
+
+def stage_widths(policy: ActorCriticPolicy) -> tuple[int, ...]:
+    """Widths of a staged or transfer policy's actor stages (the features it offers as a source)."""
+    config = policy.config
+    return tuple(getattr(config, "target", config).stages)
+
+
+def _build_source(spec: Mapping[str, Any]) -> tuple[ActorCriticPolicy, bool]:
+    """A frozen source policy and whether its trained weights are in it."""
+    for key in ("name", "policy_class", "policy"):
+        if key not in spec:
+            raise ValueError(f"a source entry lacks {key!r}: {dict(spec)!r}")
+    run_dir = spec.get("run_dir")
+    if run_dir and (Path(run_dir) / META_FILE).is_file():
+        return load_source(dict(spec)), True
+    where = f"source {spec['name']!r}"
+    return freeze(policy_from_meta(spec["policy_class"], spec["policy"], where)), False
+
+
+class LateralExtractor(nn.Module):
+    """SB3's ``mlp_extractor``: target trunk with sources, weighting and merge; critic trunk.
+
+    Its input is the raw observation (the policy does no normalisation of its own): the sources
+    normalise it their way, the target with ``obs_norm``.
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        target: PolicyConfig,
+        sources: Sequence[ActorCriticPolicy],
+        weighting: nn.Module | None,
+        merge: nn.Module,
+        ready: bool,
+    ) -> None:
+        super().__init__()
+        activation = ACTIVATIONS[target.activation]
+        self.obs_norm = (
+            RunningNormalizer(obs_dim, clip=target.obs_clip) if target.normalize_obs else None
+        )
+        self.actor = StagedTrunk(obs_dim, target.stages, activation)
+        self.critic = (
+            None if target.shared_trunk else StagedTrunk(obs_dim, target.stages, activation)
+        )
+        self.sources = nn.ModuleList(sources)
+        self.weighting = weighting
+        self.merge = merge
+        self.register_buffer("sources_ready", torch.tensor(ready))
+        self.latent_dim_pi = self.latent_dim_vf = target.stages[-1]
+
+    def normalize(self, obs: torch.Tensor) -> torch.Tensor:
+        return obs if self.obs_norm is None else self.obs_norm(obs.float())
+
+    @torch.no_grad()
+    def source_outputs(
+        self, obs: torch.Tensor
+    ) -> tuple[list[list[torch.Tensor]], list[torch.Tensor]]:
+        """Each source's stage outputs and action mean for raw observations ``obs``."""
+        if not bool(self.sources_ready):
+            raise RuntimeError(NOT_READY)
+        feats = [src.stage_outputs(obs) for src in self.sources]
+        actions = [src.action_net(f[-1]) for src, f in zip(self.sources, feats, strict=True)]
+        return feats, actions
+
+    def contribution(
+        self, obs: torch.Tensor, actions: list[torch.Tensor]
+    ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """``(raw, W)`` of the weighting (``(None, None)`` without one)."""
+        return (None, None) if self.weighting is None else self.weighting(obs, actions)
+
+    def actor_stages(self, obs: torch.Tensor) -> list[torch.Tensor]:
+        """The merged output after each target stage; the last one is the actor's latent."""
+        feats, actions = self.source_outputs(obs)
+        _, weights = self.contribution(obs, actions)
+        x, outs = self.normalize(obs), []
+        for j, stage in enumerate(self.actor.stages):
+            x = self.merge(j, stage(x), [f[j] for f in feats], weights)
+            outs.append(x)
+        return outs
+
+    def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
+        return self.actor_stages(features)[-1]
+
+    def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
+        if self.critic is None:
+            return self.forward_actor(features)
+        return self.critic(self.normalize(features))
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        pi = self.forward_actor(features)
+        return pi, (pi if self.critic is None else self.critic(self.normalize(features)))
+
+
+class TransferPolicy(ActorCriticPolicy):
+    """SB3 actor-critic policy over a :class:`LateralExtractor`; subclasses are the methods.
+
+    Keyword arguments: ``sources`` (source specs), ``prior`` (the contribution matrix, for
+    methods with ``uses_prior``), the target's :class:`PolicyConfig` fields (``stages``,
+    ``activation``, ``shared_trunk``, ``normalize_obs``, ``obs_clip``, ``grip_bias_init``,
+    ``log_std_init``, ``ortho_init``), ``attention_hidden``, ``prior_weight`` and
+    ``fusion_hidden``; everything else is :class:`ActorCriticPolicy`'s.
+    """
+
+    uses_prior: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        observation_space: gym.spaces.Space,
+        action_space: gym.spaces.Space,
+        lr_schedule,
+        sources: Sequence[Mapping[str, Any]],
+        prior: Sequence[Sequence[float]] | None = None,
+        stages: Sequence[int] = PolicyConfig.stages,
+        activation: str = PolicyConfig.activation,
+        shared_trunk: bool = PolicyConfig.shared_trunk,
+        normalize_obs: bool = PolicyConfig.normalize_obs,
+        obs_clip: float = PolicyConfig.obs_clip,
+        grip_bias_init: float = PolicyConfig.grip_bias_init,
+        attention_hidden: int = 32,
+        prior_weight: float = 0.5,
+        fusion_hidden: Sequence[int] = (),
+        **kwargs: Any,
+    ) -> None:
+        if not sources:
+            raise ValueError(f"{type(self).__name__} needs at least one source")
+        if self.uses_prior:
+            if prior is None:
+                raise ValueError(f"{type(self).__name__} needs the analyzer's contribution matrix")
+            matrix = np.asarray(prior, dtype=np.float64)
+            prior = validate_matrix(matrix, matrix.shape[0] if matrix.ndim else 0, len(sources))
+        target = PolicyConfig(
+            stages=tuple(stages),
+            activation=activation,
+            shared_trunk=shared_trunk,
+            normalize_obs=normalize_obs,
+            obs_clip=obs_clip,
+            log_std_init=kwargs.get("log_std_init", 0.0),
+            ortho_init=kwargs.get("ortho_init", True),
+            grip_bias_init=grip_bias_init,
+        )
+        self.config = TransferPolicyConfig(
+            target=target,
+            sources=tuple(dict(s) for s in sources),
+            prior=None if prior is None else tuple(tuple(float(v) for v in r) for r in prior),
+            attention_hidden=int(attention_hidden),
+            prior_weight=float(prior_weight),
+            fusion_hidden=tuple(int(w) for w in fusion_hidden),
+        )
+        # Read by _build_mlp_extractor, which the base constructor calls; a plain list so the
+        # modules are registered once, inside the extractor.
+        self._new_sources = [_build_source(s) for s in self.config.sources]
+        for spec, (src, _) in zip(self.config.sources, self._new_sources, strict=True):
+            if len(stage_widths(src)) != len(target.stages):
+                raise ValueError(
+                    f"source {spec['name']!r} has {len(stage_widths(src))} stages, the target "
+                    f"{len(target.stages)}: lateral connections join stage j to stage j"
+                )
+        kwargs["ortho_init"] = False  # _build initialises everything but the sources
+        kwargs.setdefault("activation_fn", ACTIVATIONS[activation])
+        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+        self.update_obs_stats = normalize_obs
+
+    # ------------------------------------------------------------------ construction
+    def _build_parts(
+        self, source_widths: list[tuple[int, ...]], action_dim: int
+    ) -> tuple[nn.Module | None, nn.Module]:
+        """The method's ``(weighting, merge)`` modules."""
+        raise NotImplementedError
+
+    def _build_mlp_extractor(self) -> None:
+        sources = [src for src, _ in self._new_sources]
+        ready = all(ok for _, ok in self._new_sources)
+        del self._new_sources
+        weighting, merge = self._build_parts(
+            [stage_widths(s) for s in sources], int(np.prod(self.action_space.shape))
+        )
+        self.mlp_extractor = LateralExtractor(
+            self.features_dim, self.config.target, sources, weighting, merge, ready
+        )
+
+    def _build(self, lr_schedule) -> None:
+        super()._build(lr_schedule)
+        ex = self.mlp_extractor
+        if self.config.target.ortho_init:
+            gains: list[tuple[nn.Module | None, float]] = [
+                (ex.actor, math.sqrt(2)),
+                (ex.critic, math.sqrt(2)),
+                (ex.merge, math.sqrt(2)),
+                (ex.weighting, math.sqrt(2)),
+                (getattr(ex.weighting, "mix", None), 0.01),
+                (self.action_net, 0.01),
+                (self.value_net, 1.0),
+            ]
+            for module, gain in gains:
+                if module is not None:
+                    module.apply(partial(self.init_weights, gain=gain))
+        with torch.no_grad():
+            self.action_net.bias[-1] = self.config.target.grip_bias_init
+        # Only target, fusion, attention and head parameters train.
+        trainable = [p for p in self.parameters() if p.requires_grad]
+        self.optimizer = self.optimizer_class(trainable, lr=lr_schedule(1), **self.optimizer_kwargs)
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> TransferPolicy:
+        """An untrained policy of the shape ``config`` (:meth:`TransferPolicyConfig.to_dict`)
+        describes, for a saved state dict to be loaded into; the sources are not read from disk."""
+        kwargs = dict(config)
+        kwargs["sources"] = [
+            {k: v for k, v in s.items() if k != "run_dir"} for s in kwargs["sources"]
+        ]
+        kwargs["ortho_init"] = False
+        return cls(observation_space(), action_space(), lambda _: 0.0, **kwargs)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.pop("net_arch", None)
+        data.update(self.config.to_dict())
+        return data
+
+    # ------------------------------------------------------------------ SB3 hooks
+    def forward(self, obs: torch.Tensor, deterministic: bool = False):
+        """SB3's rollout step; the only place the target normaliser's statistics are updated."""
+        norm = self.mlp_extractor.obs_norm
+        if norm is not None and self.update_obs_stats:
+            norm.update(obs)
+        return super().forward(obs, deterministic)
+
+    def train(self, mode: bool = True) -> TransferPolicy:
+        super().train(mode)
+        if "mlp_extractor" in self._modules:
+            self.mlp_extractor.sources.eval()
+        return self
+
+    # ------------------------------------------------------------------ transfer interface
+    @property
+    def source_names(self) -> list[str]:
+        return [s["name"] for s in self.config.sources]
+
+    def stage_outputs(self, obs: torch.Tensor, trunk: str = "actor") -> list[torch.Tensor]:
+        """Merged stage outputs of the actor (what this policy offers when it is a source in
+        turn) or the critic trunk's stage outputs, for raw observations."""
+        obs = obs.float()
+        if trunk == "actor":
+            return self.mlp_extractor.actor_stages(obs)
+        if trunk == "critic":
+            ex = self.mlp_extractor
+            return (
+                ex.actor_stages(obs)
+                if ex.critic is None
+                else ex.critic.stage_outputs(ex.normalize(obs))
+            )
+        raise ValueError(f"trunk must be 'actor' or 'critic', got {trunk!r}")
+
+    @torch.no_grad()
+    def attention(self, obs: PyTorchObs | np.ndarray) -> dict[str, np.ndarray | None]:
+        """Contribution weights for raw observations: ``raw`` (the learned softmax, None for
+        fixed weights) and ``weights`` (``W``, what scales the source features)."""
+        ex = self.mlp_extractor
+        if ex.weighting is None:
+            raise ValueError(f"{type(self).__name__} has no contribution weights")
+        x = torch.as_tensor(np.asarray(obs), dtype=torch.float32).reshape(-1, self.features_dim)
+        _, actions = ex.source_outputs(x)
+        raw, weights = ex.contribution(x, actions)
+        return {
+            "raw": None if raw is None else raw.numpy(),
+            "weights": weights.numpy(),
+        }

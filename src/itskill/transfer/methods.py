@@ -1,0 +1,61 @@
+"""The transfer methods by name: the paper's ITN and its ablations, and learning from scratch.
+
+| name | network | sources | analyzer |
+|---|---|---|---|
+| ``itn`` | :class:`~itskill.transfer.itn.ITNPolicy` | all retrieved | prior of the attention |
+| ``nia`` | :class:`~itskill.transfer.nia.NIAPolicy` | all retrieved | the fixed weights |
+| ``dfs`` | :class:`~itskill.transfer.dfs.DFSPolicy` | all retrieved | not used |
+| ``pst`` | :class:`~itskill.transfer.itn.ITNPolicy` | a subset (see ``pst.py``) | prior |
+| ``no_transfer`` | :class:`~itskill.rl.policy.StagedActorCriticPolicy` | none | not used |
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from stable_baselines3.common.policies import ActorCriticPolicy
+
+from itskill.rl.policy import StagedActorCriticPolicy
+from itskill.transfer.config import TransferConfig
+from itskill.transfer.dfs import DFSPolicy
+from itskill.transfer.itn import ITNPolicy
+from itskill.transfer.nia import NIAPolicy
+from itskill.transfer.pst import select_sources
+from itskill.transfer.sources import SourceSkill
+
+
+def all_sources(sources: list[SourceSkill], config: TransferConfig) -> list[SourceSkill]:
+    return sources
+
+
+@dataclass(frozen=True)
+class Method:
+    """A transfer method: its policy class, whether it uses sources and the analyzer's matrix,
+    and which of the resolved sources it keeps."""
+
+    name: str
+    summary: str
+    policy_class: type[ActorCriticPolicy]
+    uses_sources: bool
+    uses_prior: bool
+    select: Callable[[list[SourceSkill], TransferConfig], list[SourceSkill]] = all_sources
+
+
+METHODS: dict[str, Method] = {
+    m.name: m
+    for m in (
+        Method("itn", "ITN: intelligent attention + feature fusion", ITNPolicy, True, True),
+        Method("nia", "ITN with the analyzer's fixed contributions", NIAPolicy, True, True),
+        Method("dfs", "source features summed into the target's", DFSPolicy, True, False),
+        Method("pst", "ITN over a subset of the sources", ITNPolicy, True, True, select_sources),
+        Method("no_transfer", "the target network alone", StagedActorCriticPolicy, False, False),
+    )
+}
+
+
+def get_method(name: str) -> Method:
+    """The method called ``name``, or ``ValueError`` listing the known ones."""
+    if name not in METHODS:
+        raise ValueError(f"unknown transfer method {name!r}; expected one of {', '.join(METHODS)}")
+    return METHODS[name]

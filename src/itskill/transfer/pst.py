@@ -1,0 +1,16 @@
+"""PST (Partial Skills Transfer): the ITN network over only part of the retrieved sources.
+
+Which part is data: ``[pst] keep`` in ``transfer.toml`` keeps the first ``keep`` sources in
+retrieval order (default 1, the skill most similar to the target's command); sources named
+explicitly keep the order given. The analyzer is then asked about those sources only.
+"""
+
+from __future__ import annotations
+
+from itskill.transfer.config import TransferConfig
+from itskill.transfer.sources import SourceSkill
+
+
+def select_sources(sources: list[SourceSkill], config: TransferConfig) -> list[SourceSkill]:
+    """The sources PST transfers from: the first ``config.pst_keep``."""
+    return sources[: config.pst_keep]

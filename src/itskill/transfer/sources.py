@@ -1,0 +1,196 @@
+"""Source skills for a transfer: chosen from the skill space, loaded as frozen policies.
+
+``resolve_sources(target, "auto")`` retrieves skills by the similarity of their text to the target
+task's command (:func:`itskill.skills.retrieval.search`, the paper's SBERT retrieval). With
+``distinct_actions`` (the default) only the most similar skill of each action sequence is kept,
+so the ``k`` sources are ``k`` different behaviours rather than one primitive on several part sizes
+(for "Pick up the M12 nut and place it on the bolt" the top five are place M12, place M16,
+reach M12, reach M16, pick M12; de-duplicated, the first three are place, reach and pick).
+
+Every source must be a finished checkpoint on the shared observation layout and action space:
+:func:`itskill.rl.checkpoint.read_meta` checks the layout, and a missing skill or checkpoint is a
+:class:`SourceError` naming it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.policies import ActorCriticPolicy
+
+from itskill.rl.checkpoint import POLICY_FILE, STAGED_POLICY_CLASS, load_policy, read_meta
+from itskill.sim.vec_env import action_space
+from itskill.skills import SkillSpace, SkillSpaceError, open_skill_space, search
+from itskill.skills.store import Skill
+from itskill.tasks import get_task
+from itskill.tasks.evaluate import CheckpointError
+
+AUTO = "auto"
+
+
+class SourceError(ValueError):
+    """A source skill that cannot be used (unknown, no checkpoint, wrong layout)."""
+
+
+@dataclass(frozen=True)
+class SourceSkill:
+    """A skill chosen as a transfer source, with the checkpoint directory its policy is read from.
+
+    ``score`` is the retrieval similarity (None when the skill was named explicitly).
+    """
+
+    id: int | None
+    name: str
+    task_id: str
+    description: str
+    actions: tuple[str, ...]
+    run_dir: Path
+    success_rate: float | None
+    score: float | None
+    policy_class: str
+    policy: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "id": self.id,
+            "name": self.name,
+            "task": self.task_id,
+            "description": self.description,
+            "actions": list(self.actions),
+            "run_dir": str(self.run_dir),
+            "success_rate": self.success_rate,
+            "score": self.score,
+            "weights_sha256": weights_sha256(self.run_dir),
+        }
+
+    def spec(self) -> dict[str, Any]:
+        """What a transfer policy needs to rebuild this source (``sources=`` of its kwargs)."""
+        return {
+            "name": self.name,
+            "task": self.task_id,
+            "run_dir": str(self.run_dir),
+            "policy_class": self.policy_class,
+            "policy": self.policy,
+        }
+
+    def analyzer_entry(self) -> dict[str, Any]:
+        """The ``{id, description, actions}`` the analyzer prompt takes."""
+        return {"id": self.name, "description": self.description, "actions": list(self.actions)}
+
+
+def weights_sha256(run_dir: Path) -> str:
+    return hashlib.sha256((Path(run_dir) / POLICY_FILE).read_bytes()).hexdigest()
+
+
+def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSkill:
+    path = space.checkpoint_path(skill)
+    run_dir = path.parent if path.suffix == ".safetensors" else path
+    try:
+        meta = read_meta(run_dir)
+    except CheckpointError as err:
+        raise SourceError(f"skill {skill.name!r} (id {skill.id}): {err}") from err
+    n_actions = int(action_space().shape[0])
+    if meta.get("action_size", n_actions) != n_actions:
+        raise SourceError(
+            f"skill {skill.name!r}: its policy has {meta['action_size']} actions, "
+            f"the tasks have {n_actions}"
+        )
+    return SourceSkill(
+        id=skill.id,
+        name=skill.name,
+        task_id=skill.task_id,
+        description=skill.description,
+        actions=tuple(skill.actions),
+        run_dir=run_dir,
+        success_rate=skill.success_rate,
+        score=score,
+        policy_class=meta.get("policy_class", STAGED_POLICY_CLASS),
+        policy=meta["policy"],
+    )
+
+
+def _parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
+    items = sources.split(",") if isinstance(sources, str) else list(sources)
+    keys: list[int | str] = []
+    for item in items:
+        key = item.strip() if isinstance(item, str) else item
+        if key == "":
+            raise SourceError(f"empty skill name in the source list {sources!r}")
+        keys.append(int(key) if isinstance(key, str) and key.isdigit() else key)
+    return keys
+
+
+def resolve_sources(
+    target: str,
+    sources: str | Sequence[int | str] = AUTO,
+    k: int = 3,
+    space: SkillSpace | None = None,
+    exclude_target: bool = True,
+    distinct_actions: bool = True,
+) -> list[SourceSkill]:
+    """The source skills for ``target``: retrieved (``"auto"``) or named (ids or names).
+
+    ``"auto"`` takes the ``k`` skills most similar to the target's command, skipping the target's
+    own task when ``exclude_target`` and repeated action sequences when ``distinct_actions``.
+    Named skills (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in
+    that order. ``space`` defaults to the user's skill space (:func:`open_skill_space`).
+    """
+    spec = get_task(target)
+    if k < 1:
+        raise ValueError(f"k must be at least 1, got {k}")
+    own = space is None
+    space = open_skill_space() if space is None else space
+    try:
+        if isinstance(sources, str) and sources.strip() == AUTO:
+            exclude = {spec.id} if exclude_target else set()
+            ranked = search(space, spec.command, k=len(space), exclude_tasks=exclude)
+            chosen: list[tuple[Skill, float | None]] = []
+            seen: set[tuple[str, ...]] = set()
+            for skill, score in ranked:
+                if distinct_actions and tuple(skill.actions) in seen:
+                    continue
+                seen.add(tuple(skill.actions))
+                chosen.append((skill, score))
+            if not chosen:
+                raise SourceError(
+                    f"the skill space ({space.path}) has no skill to transfer to {target!r} from; "
+                    "train or install some (`itskill skills pretrain`, `itskill skills install`)"
+                )
+            chosen = chosen[:k]
+        else:
+            keys = _parse_keys(sources)
+            if not keys:
+                raise SourceError("no source skills given (expected 'auto' or ids/names)")
+            try:
+                chosen = [(space.get(key), None) for key in keys]
+            except SkillSpaceError as err:
+                raise SourceError(str(err)) from err
+            names = [s.name for s, _ in chosen]
+            dup = sorted({n for n in names if names.count(n) > 1})
+            if dup:
+                raise SourceError(f"source skill(s) given more than once: {', '.join(dup)}")
+        return [_source_of(space, skill, score) for skill, score in chosen]
+    finally:
+        if own:
+            space.close()
+
+
+def freeze(policy: ActorCriticPolicy) -> ActorCriticPolicy:
+    """``policy`` with every parameter frozen, in eval mode, normaliser statistics fixed."""
+    for p in policy.parameters():
+        p.requires_grad_(False)
+    policy.update_obs_stats = False
+    policy.set_training_mode(False)
+    return policy
+
+
+def load_source(spec: dict[str, Any]) -> ActorCriticPolicy:
+    """The frozen policy of a source ``spec`` (:meth:`SourceSkill.spec`), read from its run dir."""
+    try:
+        return freeze(load_policy(spec["run_dir"]))
+    except CheckpointError as err:
+        raise SourceError(f"source {spec.get('name')!r}: {err}") from err

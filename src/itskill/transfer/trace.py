@@ -1,0 +1,72 @@
+"""The contribution weights of a trained transfer policy over an episode (the paper's Fig. 8)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from itskill.rl.checkpoint import load_policy, read_meta
+from itskill.tasks import get_task, make_batch_env
+from itskill.transfer.attention import STAGE_SLICE
+from itskill.transfer.lateral import TransferPolicy
+from itskill.transfer.train import TRANSFER_FILE, read_transfer
+
+
+def attention_trace(run_dir: str | Path, episodes: int = 1, seed: int = 0) -> dict[str, Any]:
+    """Deterministic episodes of the policy in ``run_dir`` with its weights at every step.
+
+    Returns ``{"task", "method", "sources", "segments", "episodes": [{"stage": [...],
+    "raw": [[...]] | None, "weights": [[...]], "success", "length"}]}``: per step the stage the
+    observation shows (index into ``segments``), the attention's raw weights (None for fixed
+    weights) and the corrected weights ``W`` that scaled the source features for that action.
+    """
+    if episodes < 1:
+        raise ValueError(f"episodes must be positive, got {episodes}")
+    run_dir = Path(run_dir)
+    meta = read_meta(run_dir)
+    policy = load_policy(run_dir)
+    if not isinstance(policy, TransferPolicy) or policy.mlp_extractor.weighting is None:
+        raise ValueError(
+            f"{run_dir}: holds a {meta.get('policy_class', 'staged')} policy, which has no "
+            "contribution weights (the methods itn, pst and nia have them)"
+        )
+    spec = get_task(meta["task"])
+    method = None
+    if (run_dir / TRANSFER_FILE).is_file():
+        method = read_transfer(run_dir).get("method")
+    env = make_batch_env(spec.id, num_envs=1, seed=seed)
+    runs: list[dict[str, Any]] = []
+    try:
+        obs = env.reset()
+        while len(runs) < episodes:
+            stages, raws, weights = [], [], []
+            done, success = False, False
+            while not done:
+                att = policy.attention(obs)
+                stages.append(int(np.argmax(obs[0, STAGE_SLICE])))
+                raws.append(None if att["raw"] is None else att["raw"][0].tolist())
+                weights.append(att["weights"][0].tolist())
+                action, _ = policy.predict(obs, deterministic=True)
+                obs, _, dones, infos = env.step(action)
+                done = bool(dones[0])
+                success = bool(infos[0].get("is_success", False)) if done else False
+            runs.append(
+                {
+                    "stage": stages,
+                    "raw": None if raws[0] is None else raws,
+                    "weights": weights,
+                    "success": success,
+                    "length": len(stages),
+                }
+            )
+    finally:
+        env.close()
+    return {
+        "task": spec.id,
+        "method": method,
+        "sources": policy.source_names,
+        "segments": [st.name for st in spec.stages],
+        "episodes": runs,
+    }

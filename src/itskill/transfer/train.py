@@ -1,0 +1,188 @@
+"""Train a target task with a transfer method: sources, analyzer, network, then the trainer.
+
+:func:`train_transfer` resolves the sources, asks the analyzer for the contribution matrix (the
+methods that use it), writes ``transfer.json`` and hands the method's policy class to
+:func:`itskill.rl.train.train`, which checkpoints and resumes as usual. ``transfer.json`` is written
+before training starts and read back by a rerun on the same directory, which then resumes with the
+same sources and matrix without asking the analyzer again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+
+from itskill.llm.client import LLMClient
+from itskill.rl.logger import LoggerConfig
+from itskill.rl.train import EXPERT, ResumeMismatchError, RewardSource, TrainResult, train
+from itskill.skills import SkillSpace
+from itskill.tasks import get_task
+from itskill.tasks.spec import TaskSpec
+from itskill.transfer.analyzer import ContributionMatrix, analyze
+from itskill.transfer.config import TransferConfig, load_transfer_config
+from itskill.transfer.methods import get_method
+from itskill.transfer.sources import AUTO, SourceSkill, resolve_sources
+
+TRANSFER_FILE = "transfer.json"
+FORMAT_VERSION = 1
+
+
+def target_entry(spec: TaskSpec) -> dict[str, Any]:
+    """The target as the analyzer sees it: one segment per stage of the task.
+
+    The stage names, not the task's action list, are the segments: the attention reads the
+    current stage from the observation, and a few tasks list more actions than they have stages
+    (``pickplaceinsert_peg_round`` places and inserts in one stage).
+    """
+    return {
+        "id": spec.id,
+        "description": spec.command,
+        "actions": [st.name for st in spec.stages],
+    }
+
+
+def _request(sources: str | Sequence[int | str]) -> str | list[int | str]:
+    return sources.strip() if isinstance(sources, str) else list(sources)
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def read_transfer(run_dir: str | Path) -> dict[str, Any]:
+    """``transfer.json`` of a transfer run directory."""
+    path = Path(run_dir) / TRANSFER_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing (not a directory written by train_transfer)")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not valid JSON: {err}") from err
+
+
+def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
+    for key in ("target", "method", "algo", "seed", "sources_request", "k", "config"):
+        if old.get(key) != new[key]:
+            raise ResumeMismatchError(
+                f"{out}: holds a transfer run with {key}={old.get(key)!r}, this call asks for "
+                f"{key}={new[key]!r}; use another --out directory or the same settings"
+            )
+
+
+def train_transfer(
+    target: str,
+    method: str,
+    sources: str | Sequence[int | str] = AUTO,
+    seed: int = 0,
+    steps: int = 200_000,
+    algo: str = "a2c",
+    out: str | Path = Path("runs/transfer"),
+    reward: str | Path | RewardSource = EXPERT,
+    num_envs: int | None = None,
+    eval_every: int | None = None,
+    eval_episodes: int = 50,
+    n_threads: int | None = None,
+    client: LLMClient | None = None,
+    config: TransferConfig | None = None,
+    console: Console | None = None,
+    progress: bool = True,
+    space: SkillSpace | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    logger: LoggerConfig | None = None,
+) -> TrainResult:
+    """Train ``target`` with transfer ``method`` (``itn``, ``nia``, ``dfs``, ``pst``,
+    ``no_transfer``) until ``steps`` env-steps, in run directory ``out``.
+
+    ``sources`` is ``"auto"`` (the ``config.k`` skills retrieved for the target's command) or skill
+    ids/names. ``client`` answers the analyzer (default: :func:`itskill.llm.client.make_client`,
+    i.e. ``$ITSKILL_LLM_MODEL`` or the offline backend). ``reward``, ``num_envs``,
+    ``eval_every``, ``eval_episodes``, ``n_threads``, ``hyperparams`` and ``overrides`` are
+    :func:`itskill.rl.train.train`'s. Rerunning on the same ``out`` resumes.
+    """
+    spec = get_task(target)
+    meth = get_method(method)
+    config = config or load_transfer_config()
+    out = Path(out)
+    record: dict[str, Any] = {
+        "format": FORMAT_VERSION,
+        "target": spec.id,
+        "command": spec.command,
+        "method": meth.name,
+        "algo": algo,
+        "seed": seed,
+        "sources_request": _request(sources) if meth.uses_sources else None,
+        "k": config.k if meth.uses_sources else None,
+        "config": config.to_dict(),
+    }
+    if (out / TRANSFER_FILE).is_file():
+        old = read_transfer(out)
+        _check_resume(old, record, out)
+        record = old
+    else:
+        chosen: list[SourceSkill] = []
+        matrix: ContributionMatrix | None = None
+        if meth.uses_sources:
+            chosen = resolve_sources(
+                spec.id, sources, config.k, space, distinct_actions=config.distinct_actions
+            )
+            chosen = meth.select(chosen, config)
+        if meth.uses_prior:
+            if client is None:
+                from itskill.llm.client import make_client
+
+                client = make_client()
+            matrix = analyze(
+                target_entry(spec),
+                [s.analyzer_entry() for s in chosen],
+                client,
+                retries=config.analyzer_retries,
+            )
+        policy_class = meth.policy_class
+        record.update(
+            sources=[s.to_dict() for s in chosen],
+            source_specs=[s.spec() for s in chosen],
+            contribution=None if matrix is None else matrix.to_dict(),
+            policy_class=f"{policy_class.__module__}.{policy_class.__qualname__}",
+            created=time.time(),
+        )
+        out.mkdir(parents=True, exist_ok=True)
+        _write_json(out / TRANSFER_FILE, record)
+
+    policy_kwargs: dict[str, Any] | None = None
+    if meth.uses_sources:
+        contribution = record["contribution"]
+        policy_kwargs = {
+            "sources": record["source_specs"],
+            "prior": None if contribution is None else contribution["matrix"],
+            **config.policy_kwargs(),
+        }
+    if console is not None and record["sources"]:
+        names = ", ".join(s["name"] for s in record["sources"])
+        console.print(f"{meth.name} on {spec.id}: sources {names}")
+    return train(
+        spec.id,
+        algo,
+        steps,
+        seed,
+        reward,
+        out,
+        num_envs=num_envs,
+        hyperparams=hyperparams,
+        overrides=overrides,
+        logger=logger or LoggerConfig(progress=progress),
+        n_threads=n_threads,
+        console=console,
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
+        policy_class=meth.policy_class,
+        policy_kwargs=policy_kwargs,
+    )

@@ -1,0 +1,62 @@
+"""`itskill transfer`: analyze prints the matrix, train runs a method, errors exit 2."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from typer.testing import CliRunner
+
+from itskill.cli import app
+
+runner = CliRunner()
+
+
+def test_analyze_json_and_table(home: Path) -> None:
+    res = runner.invoke(
+        app, ["transfer", "analyze", "pickplace_nut_m12", "--sources", "pick_nut_m12,place_nut_m12",
+              "--llm", "offline", "--json"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.output)
+    assert data["sources"] == ["pick_nut_m12", "place_nut_m12"]
+    np.testing.assert_allclose(np.sum(data["matrix"], axis=1), 1.0)
+    table = runner.invoke(app, ["transfer", "analyze", "pickplace_nut_m12", "-k", "2"])
+    assert table.exit_code == 0, table.output
+    assert (
+        "3 approach" in table.output
+        and "4 place" in table.output
+        and "place_nut_m12" in table.output
+    )
+
+
+def test_train_then_trace(home: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    args = ["transfer", "train", "pickplace_nut_m12", "--method", "pst",
+            "--sources", "place_nut_m12,pick_nut_m12",
+            "--steps", "16", "--num-envs", "2", "--out", str(out)]  # fmt: skip
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert "16 env-steps" in res.output
+    assert [s["name"] for s in json.loads((out / "transfer.json").read_text())["sources"]] == [
+        "place_nut_m12"
+    ]
+    trace = runner.invoke(app, ["transfer", "trace", str(out)])
+    assert trace.exit_code == 0 and "W place_nut_m12" in trace.output
+
+
+def test_errors_are_one_line_and_exit_2(home: Path, tmp_path: Path) -> None:
+    bad_source = runner.invoke(
+        app, ["transfer", "analyze", "pickplace_nut_m12", "--sources", "pick_nut_m99"]
+    )
+    assert bad_source.exit_code == 2 and "unknown skill 'pick_nut_m99'" in bad_source.output
+    bad_method = runner.invoke(app, ["transfer", "train", "pickplace_nut_m12", "--method", "xyz"])
+    assert bad_method.exit_code == 2 and "itn, nia, dfs, pst, no_transfer" in bad_method.output
+    bad_task = runner.invoke(app, ["transfer", "analyze", "nothing"])
+    assert bad_task.exit_code == 2 and "unknown task" in bad_task.output
+    not_transfer = tmp_path / "plain"
+    runner.invoke(app, ["train", "reach_nut_m12", "--steps", "16", "--num-envs", "2", "--algo",
+                        "a2c", "--out", str(not_transfer)])  # fmt: skip
+    trace = runner.invoke(app, ["transfer", "trace", str(not_transfer)])
+    assert trace.exit_code == 2 and "no contribution weights" in trace.output

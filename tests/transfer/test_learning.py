@@ -1,0 +1,28 @@
+"""Slow: the ITN learns the pick-and-place task from the shipped pick and place skills."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import pytest
+
+from itskill.rl.logger import LoggerConfig
+from itskill.transfer import train_transfer
+
+STEPS = 200_000
+
+
+@pytest.mark.slow
+def test_itn_improves_success_on_pick_and_place(home: Path, tmp_path: Path) -> None:
+    out = tmp_path / "itn"
+    train_transfer(
+        "pickplace_nut_m12", "itn", "auto", seed=0, steps=STEPS, algo="a2c", out=out,
+        eval_every=STEPS // 5, eval_episodes=50,
+        logger=LoggerConfig(progress=False, tensorboard=False),
+    )  # fmt: skip
+    with open(out / "eval.csv", newline="") as fh:
+        success = [float(row["success"]) for row in csv.DictReader(fh)]
+    assert len(success) >= 5
+    assert success[-1] >= 0.3
+    assert success[-1] > success[0] + 0.2

@@ -1,0 +1,205 @@
+"""The transfer networks: frozen sources, gradients, the analyzer prior in W, checkpoints."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import A2C
+from torch import nn
+from transfer_helpers import TINY, make_source
+
+from itskill.rl.checkpoint import load_policy
+from itskill.rl.logger import LoggerConfig
+from itskill.rl.train import train
+from itskill.sim.layout import OBSERVATION_LAYOUT
+from itskill.sim.vec_env import action_space, observation_space
+from itskill.transfer import DFSPolicy, ITNPolicy, NIAPolicy, TransferPolicy
+from itskill.transfer.attention import STAGE_SLICE
+from itskill.transfer.lateral import NOT_READY
+
+PRIOR = [[0.9, 0.1], [0.2, 0.8], [0.5, 0.5], [0.3, 0.7], [0.6, 0.4]]  # 5 stages x 2 sources
+
+
+def build(cls: type[TransferPolicy], sources: list[dict], **kw) -> TransferPolicy:
+    kwargs = {"prior": PRIOR, "stages": TINY, **kw}
+    return cls(observation_space(), action_space(), lambda _: 1e-3, sources=sources, **kwargs)
+
+
+def obs_at(stage: int, n: int = 4, seed: int = 0) -> torch.Tensor:
+    obs = np.random.default_rng(seed).normal(size=(n, OBSERVATION_LAYOUT.size)).astype(np.float32)
+    obs[:, STAGE_SLICE] = 0.0
+    obs[:, STAGE_SLICE.start + stage] = 1.0
+    return torch.as_tensor(obs)
+
+
+def source_params(policy: TransferPolicy) -> dict[str, torch.Tensor]:
+    return {k: v.clone() for k, v in policy.mlp_extractor.sources.state_dict().items()}
+
+
+def test_sources_are_the_saved_policies_with_their_own_normalisers(tiny_sources) -> None:
+    policy = build(ITNPolicy, tiny_sources)
+    obs = obs_at(0)
+    for spec, src in zip(tiny_sources, policy.mlp_extractor.sources, strict=True):
+        saved = load_policy(spec["run_dir"])
+        assert saved.obs_norm.count.item() == 100.0
+        for mine, theirs in zip(src.stage_outputs(obs), saved.stage_outputs(obs), strict=True):
+            assert torch.equal(mine, theirs)
+        assert not any(p.requires_grad for p in src.parameters())
+
+
+def test_gradients_reach_target_fusion_attention_but_not_sources(tiny_sources) -> None:
+    policy = build(ITNPolicy, tiny_sources)
+    policy.set_training_mode(True)
+    obs = torch.cat([obs_at(0), obs_at(3, seed=1)])
+    values, log_prob, _ = policy.evaluate_actions(obs, torch.zeros(len(obs), 5))
+    (values.sum() - log_prob.sum()).backward()
+    ex = policy.mlp_extractor
+    for name, module in [
+        ("target stage 1", ex.actor.stages[0]),
+        ("fusion", ex.merge),
+        ("attention encoders", ex.weighting.encoders),
+        ("attention mix", ex.weighting.mix),
+        ("critic", ex.critic),
+    ]:
+        grads = [p.grad for p in module.parameters()]
+        assert all(g is not None and g.abs().sum() > 0 for g in grads), name
+    assert all(p.grad is None for p in ex.sources.parameters())
+    optimised = {id(p) for group in policy.optimizer.param_groups for p in group["params"]}
+    assert optimised == {id(p) for p in policy.parameters() if p.requires_grad}
+    assert not optimised & {id(p) for p in ex.sources.parameters()}
+    # SB3 switches the whole policy to train mode around updates; the sources stay in eval mode.
+    assert policy.training and not any(m.training for m in ex.sources.modules())
+
+
+def test_the_prior_row_of_the_current_stage_corrects_w(tiny_sources) -> None:
+    beta = 0.5
+    policy = build(ITNPolicy, tiny_sources, prior_weight=beta)
+    weights = {}
+    for stage in (0, 1, 4):
+        att = policy.attention(obs_at(stage))
+        # W = (1 - beta) * raw + beta * prior[stage], rows sum to 1.
+        np.testing.assert_allclose(
+            att["weights"] - (1 - beta) * att["raw"],
+            beta * np.tile(PRIOR[stage], (4, 1)),
+            atol=1e-6,
+        )
+        np.testing.assert_allclose(att["weights"].sum(1), 1.0, atol=1e-6)
+        weights[stage] = att["weights"]
+    assert np.abs(weights[0] - weights[1]).max() > 0.2
+    # The final attention layer starts small: the raw weights begin near uniform.
+    np.testing.assert_allclose(att["raw"], 0.5, atol=0.05)
+    np.testing.assert_allclose(policy.mlp_extractor.weighting.last_weights.numpy(), weights[4])
+
+
+def test_nia_uses_the_prior_as_fixed_weights_and_dfs_sums(tiny_sources) -> None:
+    nia = build(NIAPolicy, tiny_sources)
+    att = nia.attention(obs_at(1))
+    assert att["raw"] is None
+    np.testing.assert_allclose(att["weights"], np.tile(PRIOR[1], (4, 1)), atol=1e-6)
+    assert not hasattr(nia.mlp_extractor.weighting, "mix")
+
+    dfs = build(DFSPolicy, tiny_sources, prior=None)
+    obs = obs_at(2)
+    ex = dfs.mlp_extractor
+    feats, _ = ex.source_outputs(obs)
+    first = ex.actor.stages[0](ex.normalize(obs)) + feats[0][0] + feats[1][0]
+    assert torch.allclose(dfs.stage_outputs(obs)[0], first)
+    with pytest.raises(ValueError, match="no contribution weights"):
+        dfs.attention(obs)
+
+
+def test_bad_network_settings_are_clear_errors(tiny_sources, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="needs the analyzer's contribution matrix"):
+        build(ITNPolicy, tiny_sources, prior=None)
+    with pytest.raises(ValueError, match=r"shape \(5, 3\), expected \(5, 2\)"):
+        build(ITNPolicy, tiny_sources, prior=[[1, 0, 0]] * 5)
+    with pytest.raises(ValueError, match="as wide as the target's"):
+        build(DFSPolicy, tiny_sources, prior=None, stages=(16, 8, 8))
+    two_stage = make_source(tmp_path / "two", seed=7, stages=(8, 8))
+    with pytest.raises(ValueError, match="has 2 stages, the target 3"):
+        build(ITNPolicy, [two_stage], prior=[[1.0]] * 5)
+    with pytest.raises(ValueError, match="at least one source"):
+        build(ITNPolicy, [], prior=None)
+
+
+@pytest.mark.parametrize("algo", ["a2c", "ppo"])
+def test_sources_bit_identical_after_training(tiny_sources, tmp_path: Path, algo: str) -> None:
+    frozen = source_params(build(ITNPolicy, tiny_sources))
+    out = tmp_path / "run"
+    overrides = {"n_steps": 16, "batch_size": 32, "n_epochs": 2} if algo == "ppo" else {}
+
+    def run(steps: int) -> ITNPolicy:
+        train(
+            "pickplace_nut_m12", algo, steps, 0, "expert", out, num_envs=2, overrides=overrides,
+            logger=LoggerConfig(progress=False, tensorboard=False), policy_class=ITNPolicy,
+            policy_kwargs={"sources": tiny_sources, "prior": PRIOR, "stages": TINY},
+        )  # fmt: skip
+        return load_policy(out)
+
+    early, late = run(32), run(128)
+    for policy in (early, late):
+        for key, value in source_params(policy).items():
+            assert torch.equal(value, frozen[key]), key
+    # ...while the target, fusion and attention did learn in between.
+    ex_early, ex_late = early.mlp_extractor, late.mlp_extractor
+    for a, b in [(ex_early.actor, ex_late.actor), (ex_early.merge, ex_late.merge),
+                 (ex_early.weighting, ex_late.weighting)]:  # fmt: skip
+        assert not all(
+            torch.equal(p, q) for p, q in zip(a.parameters(), b.parameters(), strict=True)
+        )
+    assert ex_late.obs_norm.count.item() > ex_early.obs_norm.count.item()
+
+
+def test_a_saved_itn_is_self_contained(tiny_sources, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    train(
+        "pickplace_nut_m12", "a2c", 32, 0, "expert", out, num_envs=2,
+        logger=LoggerConfig(progress=False, tensorboard=False), policy_class=ITNPolicy,
+        policy_kwargs={"sources": tiny_sources, "prior": PRIOR, "stages": TINY},
+    )  # fmt: skip
+    reference = load_policy(out)
+    obs = obs_at(1).numpy()
+    expected, _ = reference.predict(obs, deterministic=True)
+    for spec in tiny_sources:
+        shutil.rmtree(spec["run_dir"])
+    moved = tmp_path / "elsewhere"
+    shutil.move(out, moved)
+    again, _ = load_policy(moved).predict(obs, deterministic=True)
+    np.testing.assert_array_equal(again, expected)
+    zipped, _ = A2C.load(moved / "model.zip", device="cpu").policy.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(zipped, expected)
+
+
+def test_a_policy_without_source_weights_refuses_to_act(tiny_sources) -> None:
+    config = build(ITNPolicy, tiny_sources).config.to_dict()
+    empty = ITNPolicy.from_config(config)
+    with pytest.raises(RuntimeError, match="never loaded"):
+        empty.predict(obs_at(0).numpy())
+    assert "never loaded" in NOT_READY
+
+
+def test_a_trained_transfer_policy_can_be_a_source(tiny_sources, tmp_path: Path) -> None:
+    out = tmp_path / "itn"
+    train(
+        "pickplace_nut_m12", "a2c", 16, 0, "expert", out, num_envs=2,
+        logger=LoggerConfig(progress=False, tensorboard=False), policy_class=ITNPolicy,
+        policy_kwargs={"sources": tiny_sources, "prior": PRIOR, "stages": TINY},
+    )  # fmt: skip
+    inner = load_policy(out)
+    spec = {
+        "name": "itn_skill",
+        "task": "pickplace_nut_m12",
+        "run_dir": str(out),
+        "policy_class": "itskill.transfer.itn.ITNPolicy",
+        "policy": inner.config.to_dict(),
+    }
+    outer = build(ITNPolicy, [spec, tiny_sources[0]])
+    obs = obs_at(2)
+    nested = outer.mlp_extractor.sources[0]
+    for a, b in zip(nested.stage_outputs(obs), inner.stage_outputs(obs), strict=True):
+        assert torch.equal(a, b)
+    assert isinstance(outer.mlp_extractor.sources[0].mlp_extractor.merge, nn.Module)

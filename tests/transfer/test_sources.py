@@ -1,0 +1,78 @@
+"""Choosing source skills: retrieval for a target, explicit ids and names, clear errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from itskill.skills import open_skill_space
+from itskill.transfer import SourceError, resolve_sources
+
+
+def test_auto_sources_for_pick_and_place_are_the_pick_and_place_skills(home: Path) -> None:
+    sources = resolve_sources("pickplace_nut_m12", "auto", k=3)
+    names = [s.name for s in sources]
+    assert "pick_nut_m12" in names and "place_nut_m12" in names
+    assert len(names) == 3
+    # One skill per action sequence: not place_nut_m12 *and* place_nut_m16.
+    assert len({s.actions for s in sources}) == 3
+    assert all(s.task_id != "pickplace_nut_m12" for s in sources)
+    scores = [s.score for s in sources]
+    assert scores == sorted(scores, reverse=True)
+    for s in sources:
+        assert (s.run_dir / "checkpoint.json").is_file()
+        assert s.to_dict()["weights_sha256"]
+    # Without de-duplication the two place skills outrank the pick skill.
+    plain = [
+        s.name for s in resolve_sources("pickplace_nut_m12", "auto", 2, distinct_actions=False)
+    ]
+    assert plain == ["place_nut_m12", "place_nut_m16"]
+
+
+def test_named_sources_by_name_and_id(home: Path) -> None:
+    with open_skill_space() as space:
+        pick_id = space.get("pick_nut_m12").id
+    by_name = resolve_sources("pickplace_nut_m12", "place_nut_m12, pick_nut_m12")
+    assert [s.name for s in by_name] == ["place_nut_m12", "pick_nut_m12"]
+    assert all(s.score is None for s in by_name)
+    by_id = resolve_sources("pickplace_nut_m12", [pick_id])
+    assert [s.name for s in by_id] == ["pick_nut_m12"]
+    assert resolve_sources("pickplace_nut_m12", str(pick_id))[0].name == "pick_nut_m12"
+
+
+def test_source_errors_name_the_problem(home: Path, tmp_path: Path) -> None:
+    with pytest.raises(SourceError, match=r"unknown skill 'pick_nut_m13'.*pick_nut_m12"):
+        resolve_sources("pickplace_nut_m12", "pick_nut_m13")
+    with pytest.raises(SourceError, match="more than once: pick_nut_m12"):
+        resolve_sources("pickplace_nut_m12", "pick_nut_m12,pick_nut_m12")
+    with pytest.raises(SourceError, match="empty skill name"):
+        resolve_sources("pickplace_nut_m12", "pick_nut_m12,")
+    with pytest.raises(KeyError, match="unknown task"):
+        resolve_sources("pickplace_nut_m99", "auto")
+    with pytest.raises(ValueError, match="k must be at least 1"):
+        resolve_sources("pickplace_nut_m12", "auto", k=0)
+
+
+def test_a_skill_whose_checkpoint_is_gone(tmp_path: Path, monkeypatch) -> None:
+    from itskill.skills import Skill, SkillSpace
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "policy.safetensors").write_bytes(b"x")
+    with SkillSpace() as space:
+        space.add(
+            Skill(
+                "half",
+                "pick_nut_m12",
+                "Pick up the nut",
+                ("grasp",),
+                str(run / "policy.safetensors"),
+            )
+        )
+        with pytest.raises(SourceError, match=r"skill 'half'.*checkpoint\.json: missing"):
+            resolve_sources("pickplace_nut_m12", "half", space=space)
+        space.remove("half")
+        with pytest.raises(SourceError, match="no skill to transfer"):
+            resolve_sources("pickplace_nut_m12", "auto", space=space)

@@ -1,0 +1,125 @@
+"""train_transfer: every method trains, the run directory evaluates, resumes and traces W."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from itskill.cli import app
+from itskill.llm.client import make_client
+from itskill.rl.checkpoint import load_policy, read_meta
+from itskill.rl.logger import LoggerConfig
+from itskill.rl.policy import StagedActorCriticPolicy
+from itskill.rl.train import ResumeMismatchError
+from itskill.transfer import (
+    METHODS,
+    DFSPolicy,
+    ITNPolicy,
+    NIAPolicy,
+    attention_trace,
+    read_transfer,
+    train_transfer,
+)
+
+TARGET = "pickplace_nut_m12"
+SOURCES = "pick_nut_m12,place_nut_m12"
+QUIET = LoggerConfig(progress=False, tensorboard=False)
+
+
+class CountingClient:
+    """The offline analyzer, counting how often it is asked."""
+
+    def __init__(self) -> None:
+        self.inner, self.calls = make_client("offline"), 0
+        self.name, self.offline = self.inner.name, True
+
+    def complete(self, messages, n=1, *, purpose, temperature=1.0):
+        self.calls += 1
+        return self.inner.complete(messages, n, purpose=purpose, temperature=temperature)
+
+
+def run(out: Path, method: str, steps: int = 16, client=None, **kw):
+    return train_transfer(
+        TARGET, method, SOURCES, seed=0, steps=steps, algo="a2c", out=out, num_envs=2,
+        client=client or CountingClient(), logger=QUIET, **kw,
+    )  # fmt: skip
+
+
+EXPECTED = {
+    "itn": (ITNPolicy, ["pick_nut_m12", "place_nut_m12"], True),
+    "nia": (NIAPolicy, ["pick_nut_m12", "place_nut_m12"], True),
+    "dfs": (DFSPolicy, ["pick_nut_m12", "place_nut_m12"], False),
+    "pst": (ITNPolicy, ["pick_nut_m12"], True),
+    "no_transfer": (StagedActorCriticPolicy, [], False),
+}
+
+
+def test_every_method_is_listed() -> None:
+    assert set(METHODS) == set(EXPECTED)
+
+
+@pytest.mark.parametrize("method", list(EXPECTED))
+def test_each_method_builds_and_trains_one_update(home: Path, tmp_path: Path, method: str) -> None:
+    cls, sources, analyzed = EXPECTED[method]
+    client = CountingClient()
+    result = run(tmp_path / method, method, client=client)
+    assert result.num_timesteps == 16  # A2C: n_steps 8 x 2 environments, one update
+    policy = load_policy(tmp_path / method)
+    assert type(policy) is cls
+    record = read_transfer(tmp_path / method)
+    assert record["method"] == method and record["target"] == TARGET
+    assert [s["name"] for s in record["sources"]] == sources
+    assert client.calls == (1 if analyzed else 0)
+    if analyzed:
+        matrix = np.asarray(record["contribution"]["matrix"])
+        assert matrix.shape == (5, len(sources))
+        np.testing.assert_allclose(policy.config.prior, matrix)
+    else:
+        assert record["contribution"] is None
+    meta = read_meta(tmp_path / method)
+    assert meta["policy_class"] == f"{cls.__module__}.{cls.__qualname__}"
+
+
+def test_resume_continues_without_asking_the_analyzer_again(home: Path, tmp_path: Path) -> None:
+    out = tmp_path / "itn"
+    first = run(out, "itn", steps=16)
+    before = (out / "transfer.json").read_text()
+    client = CountingClient()
+    second = run(out, "itn", steps=48, client=client)
+    assert second.resumed_from == first.num_timesteps == 16
+    assert second.num_timesteps == 48
+    assert client.calls == 0 and (out / "transfer.json").read_text() == before
+    with pytest.raises(ResumeMismatchError, match=r"method='itn'.*method='nia'"):
+        run(out, "nia", steps=64)
+    with pytest.raises(ResumeMismatchError, match="sources_request"):
+        train_transfer(TARGET, "itn", "pick_nut_m12", steps=64, algo="a2c", out=out, num_envs=2,
+                       logger=QUIET)  # fmt: skip
+
+
+def test_run_dir_evaluates_and_traces_attention(home: Path, tmp_path: Path) -> None:
+    out = tmp_path / "itn"
+    run(out, "itn")
+    res = CliRunner().invoke(
+        app, ["eval", TARGET, "--policy", str(out), "--episodes", "2", "--num-envs", "2", "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["episodes"] == 2
+
+    trace = attention_trace(out)
+    assert trace["sources"] == ["pick_nut_m12", "place_nut_m12"]
+    assert trace["segments"] == ["approach", "grasp", "lift", "approach", "place"]
+    assert trace["method"] == "itn"
+    (episode,) = trace["episodes"]
+    assert episode["length"] == len(episode["stage"]) == len(episode["weights"]) == 100
+    weights, raw = np.asarray(episode["weights"]), np.asarray(episode["raw"])
+    np.testing.assert_allclose(weights.sum(1), 1.0, atol=1e-5)
+    prior = np.asarray(read_transfer(out)["contribution"]["matrix"])
+    np.testing.assert_allclose(weights - 0.5 * raw, 0.5 * prior[episode["stage"]], atol=1e-5)
+
+    run(tmp_path / "dfs", "dfs")
+    with pytest.raises(ValueError, match="no contribution weights"):
+        attention_trace(tmp_path / "dfs")
