@@ -146,6 +146,11 @@ def plan(command: str, catalogue: list[dict]) -> dict:
     parts = [Part.from_name(n) for n in sorted(objects)]
     fixture_parts = [Part.from_name(n) for n in sorted(fixtures)]
     grounded, notes = _ground_objects(command, parts)
+    # A command may name only a fixture ("move the gripper over the M12 bolt"): match tasks on
+    # their fixtures then.
+    by_fixture = not grounded
+    if by_fixture:
+        grounded, notes = _ground_objects(command, fixture_parts)
     words = set(_words(command))
     if not grounded:
         known = ", ".join(sorted({p.label for p in parts}))
@@ -162,7 +167,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
     wanted = {p.name for p in grounded}
     candidates = []
     for entry in catalogue:
-        if set(entry["objects"]) != wanted:
+        if set(entry["fixtures"] if by_fixture else entry["objects"]) != wanted:
             continue
         if named_fixtures - {Part.from_name(f).kind for f in entry["fixtures"]}:
             continue

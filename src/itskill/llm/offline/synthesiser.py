@@ -56,6 +56,7 @@ _SUCCESS_RATE = re.compile(r"success rate:\s*([0-9.]+)", re.I)
 # Which recipe a stage gets when its action is not a recipe name: by its condition.
 _RECIPE_OF_PREDICATE = {
     "near": "approach",
+    "over_fixture": "hover",
     "grasped": "grasp",
     "lifted": "lift",
     "above_fixture": "carry",
@@ -183,6 +184,8 @@ def parse_description(text: str) -> TaskStructure:
 def _recipe(action: str, predicates: list[str], holding: bool) -> str:
     recipes = vocabulary()["recipes"]
     action = _ACTION_ALIASES.get(action, action)
+    if action == "approach" and "over_fixture" in predicates:
+        return "hover"
     if action == "approach" and ("above_fixture" in predicates or holding):
         return "carry"
     if action == "lift" and "removed" in predicates:
@@ -202,6 +205,7 @@ def _fields(slot: int, fixture_of: dict[int, int], terms) -> dict[str, Any]:
         "j": j,
         "target": f'3.0 * ctx["obj_height"][:, {slot}]',
         "hover": 0.015,
+        "hover_height": 0.05,
         "tolerance": 0.0,
         "fraction": 0.5,
         "height": 0.02,
@@ -216,6 +220,8 @@ def _fields(slot: int, fixture_of: dict[int, int], terms) -> dict[str, Any]:
             fields["target"] = f'{float(p["heights"])!r} * ctx["obj_height"][:, {slot}]'
         elif name == "above_fixture":
             fields["hover"] = 0.5 * float(p["height"])
+        elif name == "over_fixture":
+            fields["hover_height"] = float(p["height"])
         elif name == "seated":
             fields["tolerance"] = float(p["tolerance"])
         elif name == "inserted":

@@ -1,0 +1,95 @@
+"""`itskill experiment run FILE.toml` and `itskill report RUN`: experiments and their reports."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+
+from itskill.cli.common import USAGE_ERROR, console, err_console, user_errors
+
+experiment_app = typer.Typer(
+    no_args_is_help=True,
+    help="Experiments: tasks × methods × seeds, resumable, on local processes or Ray.",
+)
+
+
+def _fail(err: BaseException) -> typer.Exit:
+    err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
+    return typer.Exit(USAGE_ERROR)
+
+
+@experiment_app.command("run")
+def experiment_run(
+    file: Annotated[Path, typer.Argument(help="Experiment file (see experiments/*.toml).")],
+    out: Annotated[
+        Path | None, typer.Option(help="Run directory (default: runs/experiments/<name>).")
+    ] = None,
+    executor: Annotated[
+        str | None, typer.Option(help="local or ray (default: the file's [execution]).")
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="Cells run at once (default: one per core).")
+    ] = None,
+    ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,
+    resume: Annotated[
+        bool, typer.Option("--resume", help="Continue a run: finished cells are skipped.")
+    ] = False,
+    report: Annotated[
+        bool, typer.Option("--report/--no-report", help="Write the report at the end.")
+    ] = True,
+) -> None:
+    """Train every task × method × seed cell of FILE, then write the report."""
+    from itskill.executors import EXECUTORS, ExecutorError
+    from itskill.experiments.config import ExperimentConfigError, load_experiment
+    from itskill.experiments.report import experiment_report
+    from itskill.experiments.runner import ExperimentRunError, run_experiment
+    from itskill.transfer.sources import SourceError
+
+    if executor is not None and executor not in EXECUTORS:
+        raise typer.BadParameter(f"expected one of {list(EXECUTORS)}", param_hint="--executor")
+    try:
+        with user_errors():
+            config = load_experiment(file)
+            run_dir = out or Path("runs/experiments") / config.name
+            summary = run_experiment(
+                config, run_dir, executor, workers, ray_address, resume, file, console
+            )
+    except (ExperimentConfigError, ExperimentRunError, ExecutorError, SourceError) as err:
+        raise _fail(err) from err
+    except KeyboardInterrupt:
+        err_console.print(f"interrupted; continue with: itskill experiment run {file} --resume")
+        raise typer.Exit(130) from None
+    console.print(
+        f"{len(summary.finished)} cells trained, {len(summary.skipped)} already done, "
+        f"{len(summary.failed)} failed; run directory {summary.run_dir}"
+    )
+    if report:
+        files = experiment_report(summary.run_dir)
+        console.print(f"report: {files.markdown} and {files.html}")
+    if summary.failed:
+        raise typer.Exit(1)
+
+
+def report_cmd(
+    run: Annotated[Path, typer.Argument(help="An experiment run directory.")],
+    out: Annotated[
+        Path | None, typer.Option(help="Where to write the report (default: inside RUN).")
+    ] = None,
+    video: Annotated[
+        bool, typer.Option("--video/--no-video", help="Render a rollout of the best policy.")
+    ] = True,
+) -> None:
+    """Write report.md and report.html (figures, tables, video) for an experiment run."""
+    from itskill.experiments.report import ReportError, experiment_report
+
+    try:
+        with user_errors():
+            files = experiment_report(run, out, video=video)
+    except ReportError as err:
+        raise _fail(err) from err
+    for note in files.notes:
+        err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)
+    console.print(f"report: {files.markdown} and {files.html}")

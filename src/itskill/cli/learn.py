@@ -1,0 +1,59 @@
+"""`itskill learn "COMMAND"`: plan, generate the reward, transfer, evaluate, add the skill."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+
+from itskill.cli.common import USAGE_ERROR, console, err_console
+
+
+def learn_cmd(
+    command: Annotated[
+        str,
+        typer.Argument(
+            help="What the robot should do, e.g. 'Pick up the nut and place it on the bolt'."
+        ),
+    ],
+    budget: Annotated[
+        str, typer.Option(help="tiny (a few minutes), default, or full (the paper's settings).")
+    ] = "default",
+    steps: Annotated[
+        int | None,
+        typer.Option(min=1, help="Env-steps of the transfer training (overrides the budget's)."),
+    ] = None,
+    llm: Annotated[
+        str | None,
+        typer.Option(
+            help="offline (default: rule-based, no network) or openai:MODEL "
+            "(OPENAI_BASE_URL/OPENAI_API_KEY; any OpenAI-compatible server)."
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Run directory (default: runs/learn/<command slug>).")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the transfer training.")] = 0,
+    resume: Annotated[
+        bool, typer.Option("--resume", help="Continue an interrupted run in the same directory.")
+    ] = False,
+    budgets: Annotated[
+        Path | None, typer.Option(help="A budgets file instead of the packaged learn.toml.")
+    ] = None,
+    video: Annotated[
+        bool, typer.Option("--video/--no-video", help="Film the final policy in the report.")
+    ] = True,
+) -> None:
+    """Learn a new task from a command, end to end, and add it to the skill space."""  # fmt: skip
+    from itskill.experiments.learn import learn, user_errors
+
+    try:
+        learn(command, budget, steps, llm, out, seed, resume, budgets, video, console)
+    except user_errors() as err:
+        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
+        raise typer.Exit(USAGE_ERROR) from None
+    except KeyboardInterrupt:
+        err_console.print("interrupted; continue with the same command and --resume")
+        raise typer.Exit(130) from None

@@ -1,0 +1,314 @@
+"""Statistics of an experiment: learning curves over seeds, success at budget fractions, time to a
+success threshold with censoring, and the time-efficiency gain of a method over a baseline.
+
+Everything here works on plain arrays (one :class:`Curve` per seed), so it is tested on hand-made
+curves with known answers; reading run directories is :func:`read_curve`'s only job.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from itskill.stats import mean_interval, steps_to_threshold
+
+EVAL_FILE = "eval.csv"
+
+
+class CurveError(ValueError):
+    """An evaluation file that cannot be read as a learning curve: names the file and problem."""
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path, self.problem = str(path), problem
+
+
+@dataclass(frozen=True)
+class Curve:
+    """One run's deterministic success against env-steps, with cumulative training wall time.
+
+    ``budget`` is the env-step count the run was asked to reach; a run that never reaches a
+    threshold is censored there.
+    """
+
+    steps: np.ndarray
+    success: np.ndarray
+    wall_s: np.ndarray
+    budget: float
+
+    def __post_init__(self) -> None:
+        if not (len(self.steps) == len(self.success) == len(self.wall_s)):
+            raise ValueError("steps, success and wall_s must have the same length")
+        if len(self.steps) and np.any(np.diff(self.steps) <= 0):
+            raise ValueError("steps must be strictly increasing")
+
+
+def read_curve(run_dir: str | Path, budget: float) -> Curve:
+    """The learning curve in ``run_dir/eval.csv`` (written by the trainer's evaluation callback).
+
+    A run resumed after a crash appends a new session to the file: its wall time restarts from
+    zero and its first rows may repeat env-steps the crashed session had evaluated after its last
+    checkpoint. Those superseded rows are dropped, and each session's wall time is offset by the
+    time of the previous session's last kept row, so ``wall_s`` counts training time across
+    sessions (the time between that row and the crash is not counted: its work was thrown away).
+    """
+    path = Path(run_dir) / EVAL_FILE
+    if not path.is_file():
+        raise CurveError(path, "missing: the run was not trained with evaluations (eval_every)")
+    with open(path, newline="") as fh:
+        reader = csv.DictReader(fh)
+        missing = {"env_steps", "wall_s", "success"} - set(reader.fieldnames or ())
+        if missing:
+            raise CurveError(path, f"missing column(s) {', '.join(sorted(missing))}")
+        try:
+            raw = [(float(r["env_steps"]), float(r["wall_s"]), float(r["success"])) for r in reader]
+        except (TypeError, ValueError) as err:
+            raise CurveError(path, f"not a number: {err}") from err
+    kept: list[list[float]] = []  # [step, session-relative wall, success, wall offset]
+    offset = 0.0
+    for step, wall, success in raw:
+        if kept and (step <= kept[-1][0] or wall < kept[-1][1]):
+            # A new session: the rows it re-evaluates belong to the thrown-away trajectory.
+            while kept and kept[-1][0] >= step:
+                kept.pop()
+            offset = kept[-1][1] + kept[-1][3] if kept else 0.0
+        kept.append([step, wall, success, offset])
+    data = np.asarray(kept, dtype=float).reshape(-1, 4)
+    return Curve(data[:, 0], data[:, 2], data[:, 1] + data[:, 3], float(budget))
+
+
+def common_grid(curves: Sequence[Curve], points: int = 101) -> np.ndarray:
+    """Evenly spaced env-steps from the earliest evaluation of any curve to the largest budget."""
+    if not curves:
+        raise ValueError("no curves")
+    starts = [c.steps[0] for c in curves if len(c.steps)]
+    if not starts:
+        raise ValueError("every curve is empty")
+    return np.linspace(min(starts), max(c.budget for c in curves), points)
+
+
+def interpolate(curve: Curve, grid: np.ndarray) -> np.ndarray:
+    """Success on ``grid`` by linear interpolation; NaN outside the evaluated range.
+
+    No extrapolation: before the first evaluation nothing was measured, and after the last one a
+    run that stopped early (not finished yet) has nothing to say either.
+    """
+    grid = np.asarray(grid, dtype=float)
+    out = np.full(grid.shape, np.nan)
+    if len(curve.steps) == 0:
+        return out
+    inside = (grid >= curve.steps[0]) & (grid <= curve.steps[-1])
+    out[inside] = np.interp(grid[inside], curve.steps, curve.success)
+    return out
+
+
+@dataclass(frozen=True)
+class Band:
+    """Mean over seeds on a grid with its 95% t-interval; ``n`` seeds contribute at each point."""
+
+    grid: np.ndarray
+    mean: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    n: np.ndarray
+
+
+def mean_band(curves: Sequence[Curve], grid: np.ndarray, confidence: float = 0.95) -> Band:
+    """Mean success over ``curves`` at each grid point with its Student-t interval.
+
+    At a point only some seeds reach (a run still in progress) the statistics use those seeds;
+    ``n`` says how many. The interval is clipped to [0, 1]: a success rate cannot leave it.
+    """
+    values = np.stack([interpolate(c, grid) for c in curves])
+    mean = np.full(len(grid), np.nan)
+    low, high = mean.copy(), mean.copy()
+    n = np.sum(~np.isnan(values), axis=0)
+    for j in np.flatnonzero(n):
+        column = values[:, j]
+        mean[j], low[j], high[j] = mean_interval(column[~np.isnan(column)], confidence)
+    return Band(grid, mean, np.clip(low, 0, 1), np.clip(high, 0, 1), n)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A mean over seeds with its 95% interval; NaN where nothing was measured."""
+
+    mean: float
+    low: float
+    high: float
+    n: int
+
+    def format(self, percent: bool = True, digits: int = 1) -> str:
+        if self.n == 0 or math.isnan(self.mean):
+            return "n/a"
+        scale, unit = (100.0, "%") if percent else (1.0, "")
+        text = f"{self.mean * scale:.{digits}f}{unit}"
+        if self.n > 1:
+            text += f" ± {(self.high - self.low) / 2 * scale:.{digits}f}"
+        return text
+
+
+def estimate(values: Sequence[float], confidence: float = 0.95) -> Estimate:
+    """Mean and t-interval of the finite ``values`` (NaNs are runs that measured nothing)."""
+    data = np.asarray(values, dtype=float)
+    data = data[~np.isnan(data)]
+    if data.size == 0:
+        return Estimate(math.nan, math.nan, math.nan, 0)
+    return Estimate(*mean_interval(data, confidence), int(data.size))
+
+
+def success_at(curves: Sequence[Curve], steps: float, confidence: float = 0.95) -> Estimate:
+    """Success at ``steps`` env-steps over seeds (interpolated between evaluations)."""
+    return estimate([interpolate(c, np.array([steps]))[0] for c in curves], confidence)
+
+
+def success_at_fractions(
+    curves: Sequence[Curve], budget: float, fractions: Sequence[float]
+) -> list[Estimate]:
+    """Table II: success at each fraction of ``budget``, mean over seeds with its interval."""
+    return [success_at(curves, f * budget) for f in fractions]
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """Env-steps and wall time to reach a success threshold, one value per seed.
+
+    A seed that never reaches it is censored at its budget (``reached`` False): its value is the
+    budget, so the mean is a lower bound whenever any seed is censored.
+    """
+
+    steps: np.ndarray
+    wall_s: np.ndarray
+    reached: np.ndarray
+
+    @property
+    def censored(self) -> int:
+        return int(np.sum(~self.reached))
+
+    @property
+    def n(self) -> int:
+        return len(self.reached)
+
+    def steps_estimate(self) -> Estimate:
+        return estimate(self.steps)
+
+    def wall_estimate(self) -> Estimate:
+        return estimate(self.wall_s)
+
+    def format_steps(self) -> str:
+        return self._format(self.steps_estimate(), lambda v: f"{v:,.0f}")
+
+    def format_minutes(self) -> str:
+        return self._format(self.wall_estimate(), lambda v: f"{v / 60:.1f}")
+
+    def _format(self, est: Estimate, fmt) -> str:
+        if self.n == 0:
+            return "n/a"
+        if self.censored == self.n:
+            return f"≥ budget ({self.n}/{self.n} never reached)"
+        text = fmt(est.mean)
+        if est.n > 1:
+            text += f" [{fmt(est.low)}, {fmt(est.high)}]"
+        if self.censored:
+            return f"≥ {text} ({self.censored}/{self.n} never reached)"
+        return text
+
+
+def time_to_threshold(curves: Sequence[Curve], threshold: float) -> Threshold:
+    """First evaluated env-step (and training wall time) at which success ≥ ``threshold``.
+
+    Censored at the budget, and at the training wall time of the last evaluation, for a seed that
+    never reaches it.
+    """
+    steps, walls, reached = [], [], []
+    for c in curves:
+        hit = steps_to_threshold(c.steps, c.success, threshold)
+        if hit is None:
+            steps.append(c.budget)
+            walls.append(float(c.wall_s[-1]) if len(c.wall_s) else math.nan)
+            reached.append(False)
+        else:
+            steps.append(hit)
+            walls.append(float(c.wall_s[np.searchsorted(c.steps, hit)]))
+            reached.append(True)
+    return Threshold(np.array(steps, float), np.array(walls, float), np.array(reached, bool))
+
+
+@dataclass(frozen=True)
+class Gain:
+    """``1 - mean(method) / mean(baseline)`` with a seeded bootstrap interval over seeds.
+
+    ``bound`` says how censoring affects the point estimate: "exact" (no seed censored),
+    "lower" (only the baseline has censored seeds: its true mean is larger, so the true gain is
+    too), "upper" (only the method has), "unknown" (both have).
+    """
+
+    value: float
+    low: float
+    high: float
+    bound: str
+
+    def format(self) -> str:
+        if math.isnan(self.value):
+            return "n/a"
+        prefix = {"exact": "", "lower": "≥ ", "upper": "≤ ", "unknown": "~"}[self.bound]
+        text = f"{prefix}{self.value:.1%} [{self.low:.1%}, {self.high:.1%}]"
+        return text + (" (censored on both sides)" if self.bound == "unknown" else "")
+
+
+def efficiency_gain(
+    method: Sequence[float],
+    baseline: Sequence[float],
+    method_censored: int = 0,
+    baseline_censored: int = 0,
+    resamples: int = 10_000,
+    seed: int = 0,
+    confidence: float = 0.95,
+) -> Gain:
+    """Time-efficiency gain of ``method`` over ``baseline`` from per-seed times to threshold.
+
+    The interval is a percentile bootstrap: the seeds of each side are resampled independently
+    (different methods' seeds are not paired), ``resamples`` times with a fixed ``seed`` so a
+    report is reproducible.
+    """
+    m = np.asarray(method, float)
+    b = np.asarray(baseline, float)
+    m, b = m[~np.isnan(m)], b[~np.isnan(b)]
+    if m.size == 0 or b.size == 0 or b.mean() <= 0:
+        return Gain(math.nan, math.nan, math.nan, "exact")
+    value = 1.0 - m.mean() / b.mean()
+    rng = np.random.default_rng(seed)
+    m_boot = m[rng.integers(0, m.size, (resamples, m.size))].mean(axis=1)
+    b_boot = b[rng.integers(0, b.size, (resamples, b.size))].mean(axis=1)
+    ratios = 1.0 - m_boot / np.where(b_boot > 0, b_boot, np.nan)
+    alpha = (1 - confidence) / 2
+    low, high = np.nanquantile(ratios, [alpha, 1 - alpha])
+    bound = {
+        (False, False): "exact",
+        (False, True): "lower",
+        (True, False): "upper",
+        (True, True): "unknown",
+    }[(method_censored > 0, baseline_censored > 0)]
+    return Gain(float(value), float(low), float(high), bound)
+
+
+def threshold_gain(
+    method: Threshold, baseline: Threshold, use: str = "steps", seed: int = 0
+) -> Gain:
+    """:func:`efficiency_gain` from two :class:`Threshold` results, in env-steps or wall time."""
+    if use not in ("steps", "wall_s"):
+        raise ValueError(f"use must be 'steps' or 'wall_s', got {use!r}")
+    if method.censored == method.n and baseline.censored == baseline.n:
+        return Gain(math.nan, math.nan, math.nan, "unknown")  # neither ever reached it
+    return efficiency_gain(
+        getattr(method, use),
+        getattr(baseline, use),
+        method.censored,
+        baseline.censored,
+        seed=seed,
+    )

@@ -1,0 +1,348 @@
+"""Experiment files: a TOML file naming tasks × methods × seeds and the training budget.
+
+``experiments/validation.toml`` (the paper's validation experiment) is the worked example. Every
+problem is reported with the file, the field and what was expected, before any training starts.
+
+Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but ``tasks``,
+``methods``, ``steps`` and ``eval.every`` has a default)::
+
+    name, description
+    tasks = [task ids]           methods = [itn, nia, dfs, pst, no_transfer]
+    seeds = 5 | [0, 1, ...]      algo = "a2c" | "ppo"       steps = env-steps per cell
+    num_envs = N                 (default: the family's, from the hyper-parameter table)
+    reward = "expert" | {task = "file.py", ...}   (paths relative to the experiment file)
+    sources = "auto" | {task = [skill names or ids], ...}   k = sources retrieved by "auto"
+    llm = "offline" | "openai:MODEL"              (the analyzer's client)
+    [eval] every, episodes       [report] threshold, fractions, baseline, grid_points, paper_gain
+    [execution] executor, workers, ray_address
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from itskill.executors import EXECUTORS
+from itskill.tasks import UnknownTaskError, get_task
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+ALGOS = ("a2c", "ppo")
+EXPERT = "expert"
+AUTO = "auto"
+
+
+class ExperimentConfigError(ValueError):
+    """An experiment file that does not validate: names the file, the field and the problem."""
+
+    def __init__(self, path: str | Path, where: str, problem: str) -> None:
+        super().__init__(f"{path}: {where}: {problem}")
+        self.path, self.where, self.problem = str(path), where, problem
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """Deterministic evaluation during training: every ``every`` env-steps, ``episodes`` each."""
+
+    every: int
+    episodes: int = 50
+
+
+@dataclass(frozen=True)
+class ReportSettings:
+    """What the report measures; the defaults are the paper's (80% success, Table II's fifths)."""
+
+    threshold: float = 0.8
+    fractions: tuple[float, ...] = (0.2, 0.4, 0.6, 0.8, 1.0)
+    baseline: str = "no_transfer"
+    grid_points: int = 101
+    paper_gain: dict[str, float] = field(default_factory=dict)
+    """The paper's reported gain per task, printed next to the measured one."""
+
+
+@dataclass(frozen=True)
+class ExecutionSettings:
+    """Where the cells run (:func:`itskill.executors.run_jobs`); command-line options override."""
+
+    executor: str = "local"
+    workers: int | None = None
+    ray_address: str | None = None
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """A validated experiment file."""
+
+    name: str
+    tasks: tuple[str, ...]
+    methods: tuple[str, ...]
+    seeds: tuple[int, ...]
+    steps: int
+    eval: EvalSettings
+    algo: str = "a2c"
+    num_envs: int | None = None
+    reward: dict[str, str] = field(default_factory=dict)
+    """Task -> ``"expert"`` or an absolute path to a reward file."""
+    sources: dict[str, str | tuple[str, ...]] = field(default_factory=dict)
+    """Task -> ``"auto"`` or the source skills' names/ids."""
+    k: int = 3
+    llm: str = "offline"
+    description: str = ""
+    report: ReportSettings = field(default_factory=ReportSettings)
+    execution: ExecutionSettings = field(default_factory=ExecutionSettings)
+
+    def training_settings(self) -> dict[str, Any]:
+        """What decides a cell's training: a resumed run must have the same."""
+        return {
+            "algo": self.algo,
+            "steps": self.steps,
+            "num_envs": self.num_envs,
+            "reward": self.reward,
+            "sources": {t: list(s) if isinstance(s, tuple) else s for t, s in self.sources.items()},
+            "k": self.k,
+            "llm": self.llm,
+            "eval": asdict(self.eval),
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form (written to the run directory as ``config.json``)."""
+        return json.loads(json.dumps(asdict(self)))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ExperimentConfig:
+        """Inverse of :meth:`to_dict` (for a run directory's ``config.json``)."""
+        d = dict(data)
+        d["eval"] = EvalSettings(**d["eval"])
+        rep = dict(d.get("report", {}))
+        rep["fractions"] = tuple(rep.get("fractions", ReportSettings.fractions))
+        d["report"] = ReportSettings(**rep)
+        d["execution"] = ExecutionSettings(**d.get("execution", {}))
+        for key in ("tasks", "methods", "seeds"):
+            d[key] = tuple(d[key])
+        d["sources"] = {t: s if isinstance(s, str) else tuple(s) for t, s in d["sources"].items()}
+        return cls(**d)
+
+
+# ---------------------------------------------------------------------- loading
+_TOP = {
+    "name", "description", "tasks", "methods", "seeds", "algo", "steps", "num_envs", "reward",
+    "sources", "k", "llm", "eval", "report", "execution",
+}  # fmt: skip
+
+
+def _typed(path: Path, where: str, value: Any, kind: type | tuple[type, ...]) -> Any:
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if not isinstance(value, kind) or (isinstance(value, bool) and kind in (int, float)):
+        name = kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
+        raise ExperimentConfigError(
+            path, where, f"expected {name}, got {type(value).__name__} {value!r}"
+        )
+    return value
+
+
+def _table(path: Path, where: str, value: Any, allowed: set[str]) -> dict[str, Any]:
+    table = _typed(path, where, value, dict)
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise ExperimentConfigError(
+            path, f"{where}.{unknown[0]}" if where else unknown[0],
+            f"unknown field; allowed: {', '.join(sorted(allowed))}",
+        )  # fmt: skip
+    return table
+
+
+def _positive(path: Path, where: str, value: Any) -> int:
+    if _typed(path, where, value, int) < 1:
+        raise ExperimentConfigError(path, where, f"must be positive, got {value}")
+    return value
+
+
+def _strings(path: Path, where: str, value: Any) -> tuple[str, ...]:
+    items = _typed(path, where, value, list)
+    if not items:
+        raise ExperimentConfigError(path, where, "must not be empty")
+    for i, item in enumerate(items):
+        _typed(path, f"{where}[{i}]", item, str)
+    if len(set(items)) != len(items):
+        raise ExperimentConfigError(path, where, f"duplicate entries in {items}")
+    return tuple(items)
+
+
+def _per_task(
+    path: Path, where: str, value: Any, tasks: tuple[str, ...], default: Any
+) -> dict[str, Any]:
+    """A value for every task: one for all, or a table ``{task = value}`` (missing -> default)."""
+    if not isinstance(value, dict):
+        return dict.fromkeys(tasks, value)
+    unknown = sorted(set(value) - set(tasks))
+    if unknown:
+        raise ExperimentConfigError(
+            path, f"{where}.{unknown[0]}", f"not one of the experiment's tasks {list(tasks)}"
+        )
+    return {t: value.get(t, default) for t in tasks}
+
+
+def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
+    """Validate a parsed experiment file; relative reward paths are resolved against ``path``."""
+    from itskill.transfer import METHODS
+
+    raw = _table(path, "", data, _TOP)
+    for key in ("tasks", "methods", "steps", "eval"):
+        if key not in raw:
+            raise ExperimentConfigError(path, key, "missing (required)")
+    tasks = _strings(path, "tasks", raw["tasks"])
+    for i, task in enumerate(tasks):
+        try:
+            get_task(task)
+        except UnknownTaskError as err:
+            raise ExperimentConfigError(path, f"tasks[{i}]", str(err)) from err
+    methods = _strings(path, "methods", raw["methods"])
+    for i, method in enumerate(methods):
+        if method not in METHODS:
+            raise ExperimentConfigError(
+                path, f"methods[{i}]", f"unknown method {method!r}; expected one of {list(METHODS)}"
+            )
+    seeds_raw = raw.get("seeds", 5)
+    if isinstance(seeds_raw, list):
+        seeds = tuple(_typed(path, f"seeds[{i}]", s, int) for i, s in enumerate(seeds_raw))
+        if not seeds or len(set(seeds)) != len(seeds):
+            raise ExperimentConfigError(path, "seeds", "expected distinct seeds, at least one")
+    else:
+        seeds = tuple(range(_positive(path, "seeds", seeds_raw)))
+    algo = _typed(path, "algo", raw.get("algo", "a2c"), str)
+    if algo not in ALGOS:
+        raise ExperimentConfigError(path, "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
+    steps = _positive(path, "steps", raw["steps"])
+    num_envs = raw.get("num_envs")
+    if num_envs is not None:
+        _positive(path, "num_envs", num_envs)
+
+    reward = {}
+    for task, value in _per_task(path, "reward", raw.get("reward", EXPERT), tasks, EXPERT).items():
+        where = f"reward.{task}" if isinstance(raw.get("reward"), dict) else "reward"
+        _typed(path, where, value, str)
+        if value == EXPERT:
+            reward[task] = EXPERT
+            continue
+        file = (path.parent / value).resolve()
+        if file.suffix != ".py" or not file.is_file():
+            raise ExperimentConfigError(
+                path, where, f"expected {EXPERT!r} or an existing .py reward file, got {value!r}"
+            )
+        reward[task] = str(file)
+
+    sources: dict[str, str | tuple[str, ...]] = {}
+    for task, value in _per_task(path, "sources", raw.get("sources", AUTO), tasks, AUTO).items():
+        where = f"sources.{task}" if isinstance(raw.get("sources"), dict) else "sources"
+        if value == AUTO:
+            sources[task] = AUTO
+        elif isinstance(value, list) and value:
+            sources[task] = tuple(str(_typed(path, where, v, (str, int))) for v in value)
+        else:
+            raise ExperimentConfigError(
+                path, where, f"expected {AUTO!r} or a list of skill names/ids, got {value!r}"
+            )
+
+    ev = _table(path, "eval", raw["eval"], {"every", "episodes"})
+    if "every" not in ev:
+        raise ExperimentConfigError(path, "eval.every", "missing (required)")
+    evaluation = EvalSettings(
+        _positive(path, "eval.every", ev["every"]),
+        _positive(path, "eval.episodes", ev.get("episodes", 50)),
+    )
+    if evaluation.every > steps:
+        raise ExperimentConfigError(
+            path, "eval.every", f"{evaluation.every} is more than steps ({steps}): no curve"
+        )
+    report = _parse_report(path, raw.get("report", {}), methods, tasks)
+    execution = _parse_execution(path, raw.get("execution", {}))
+    return ExperimentConfig(
+        name=_typed(path, "name", raw.get("name", path.stem), str),
+        description=_typed(path, "description", raw.get("description", ""), str),
+        tasks=tasks,
+        methods=methods,
+        seeds=seeds,
+        steps=steps,
+        eval=evaluation,
+        algo=algo,
+        num_envs=num_envs,
+        reward=reward,
+        sources=sources,
+        k=_positive(path, "k", raw.get("k", 3)),
+        llm=_typed(path, "llm", raw.get("llm", "offline"), str),
+        report=report,
+        execution=execution,
+    )
+
+
+def _parse_report(
+    path: Path, value: Any, methods: tuple[str, ...], tasks: tuple[str, ...]
+) -> ReportSettings:
+    allowed = {"threshold", "fractions", "baseline", "grid_points", "paper_gain"}
+    rep = _table(path, "report", value, allowed)
+    default = ReportSettings()
+    threshold = _typed(path, "report.threshold", rep.get("threshold", default.threshold), float)
+    if not 0 < threshold <= 1:
+        raise ExperimentConfigError(path, "report.threshold", f"expected (0, 1], got {threshold}")
+    fractions_raw = _typed(
+        path, "report.fractions", rep.get("fractions", [0.2, 0.4, 0.6, 0.8, 1]), list
+    )
+    fractions = tuple(
+        _typed(path, f"report.fractions[{i}]", f, float) for i, f in enumerate(fractions_raw)
+    )
+    if (
+        not fractions
+        or any(not 0 < f <= 1 for f in fractions)
+        or list(fractions) != sorted(fractions)
+    ):
+        raise ExperimentConfigError(
+            path, "report.fractions", f"expected increasing values in (0, 1], got {fractions_raw}"
+        )
+    baseline = _typed(path, "report.baseline", rep.get("baseline", default.baseline), str)
+    # Without the default baseline among the methods the report just has no gain column.
+    if "baseline" in rep and baseline not in methods:
+        raise ExperimentConfigError(
+            path, "report.baseline", f"{baseline!r} is not one of the methods {list(methods)}"
+        )
+    points = _typed(path, "report.grid_points", rep.get("grid_points", default.grid_points), int)
+    if points < 2:
+        raise ExperimentConfigError(path, "report.grid_points", f"expected ≥ 2, got {points}")
+    paper = _table(path, "report.paper_gain", rep.get("paper_gain", {}), set(tasks))
+    paper_gain = {t: _typed(path, f"report.paper_gain.{t}", g, float) for t, g in paper.items()}
+    return ReportSettings(threshold, fractions, baseline, points, paper_gain)
+
+
+def _parse_execution(path: Path, value: Any) -> ExecutionSettings:
+    ex = _table(path, "execution", value, {"executor", "workers", "ray_address"})
+    executor = _typed(path, "execution.executor", ex.get("executor", "local"), str)
+    if executor not in EXECUTORS:
+        raise ExperimentConfigError(
+            path, "execution.executor", f"expected one of {list(EXECUTORS)}, got {executor!r}"
+        )
+    workers = ex.get("workers")
+    if workers is not None:
+        _positive(path, "execution.workers", workers)
+    address = ex.get("ray_address")
+    if address is not None:
+        _typed(path, "execution.ray_address", address, str)
+    return ExecutionSettings(executor, workers, address)
+
+
+def load_experiment(path: str | Path) -> ExperimentConfig:
+    """Read and validate an experiment file (:class:`ExperimentConfigError` says what is wrong)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ExperimentConfigError(path, "file", "no such experiment file")
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as err:
+        raise ExperimentConfigError(path, "TOML syntax", str(err)) from err
+    return parse_experiment(data, path)

@@ -1,0 +1,614 @@
+"""``itskill learn "COMMAND"``: the whole method on a new command, end to end.
+
+plan the command → generate its reward (the Eureka-style search) → retrieve source skills →
+analyze their contributions → train the transfer network with the generated reward → evaluate it
+→ add it to the skill space as a new skill → write the report.
+
+Everything lands in one run directory (``runs/learn/<slug>/`` by default)::
+
+    learn.json        the command, budget, seed and LLM backend (a resume must match them)
+    provenance.json   sessions: command line, machine, start, end
+    llm_cache/        every LLM reply (a resumed or repeated step asks nothing twice)
+    plan.json         the validated plan
+    reward/           the reward search's run directory (best_reward.py, summary.json, fig6.png)
+    sources.json      the retrieved source skills
+    analysis.json     the analyzer's contribution matrix
+    transfer/         the transfer training run (checkpoints, metrics.csv, eval.csv, transfer.json)
+    evaluation.json   the final held-out evaluation
+    skill.json        the skill added to the skill space
+    summary.json      all of the above in one file; report.md, report.html, figures/, videos/
+
+A step whose file exists is not redone on ``--resume``; the reward search and the training
+resume from their own checkpoints. Budgets are data (``itskill/experiments/data/learn.toml``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import shutil
+import sys
+from dataclasses import asdict, dataclass, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.markup import escape
+
+from itskill.experiments.analysis import read_curve
+from itskill.experiments.provenance import Sessions
+from itskill.experiments.report import PROVENANCE_FILE, ReportFiles, learn_report
+from itskill.reward.files import read_json, write_json
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+LEARN_FILE = "learn.json"
+EVAL_SEED = 10_000
+"""Seed of the final evaluation's episodes: other initial states than training's."""
+STEPS = ("plan", "reward", "sources", "analyze", "train", "evaluate", "skill", "report")
+
+
+class LearnError(ValueError):
+    """A run directory or budget that cannot be used; the message says what to do."""
+
+
+class BudgetError(ValueError):
+    """A budgets file that does not validate: names the file, the field and the problem."""
+
+    def __init__(self, path: str | Path, where: str, problem: str) -> None:
+        super().__init__(f"{path}: {where}: {problem}")
+
+
+@dataclass(frozen=True)
+class TransferBudget:
+    """The transfer training of ``itskill learn``."""
+
+    steps: int
+    eval_every: int
+    method: str = "itn"
+    algo: str = "a2c"
+    num_envs: int | None = None
+    eval_episodes: int = 50
+    k: int = 3
+
+
+@dataclass(frozen=True)
+class LearnBudget:
+    """One named budget: reward search settings, transfer training, final evaluation."""
+
+    name: str
+    transfer: TransferBudget
+    reward: dict[str, Any]
+    """Overrides of :class:`itskill.reward.RewardSearchConfig`'s packaged defaults."""
+    eval_episodes: int = 100
+    compare_expert: bool = True
+    description: str = ""
+
+    def search_config(self) -> Any:
+        """The reward search settings (validated by the reward package)."""
+        from itskill.reward import load_search_config
+
+        return load_search_config(overrides=self.reward)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def default_budgets_path() -> Path:
+    """The packaged budgets file."""
+    return Path(str(resources.files("itskill.experiments") / "data" / "learn.toml"))
+
+
+def _field(path: Path, where: str, table: dict, key: str, kind: type, default: Any = ...) -> Any:
+    if key not in table:
+        if default is ...:
+            raise BudgetError(path, f"{where}.{key}", "missing (required)")
+        return default
+    value = table[key]
+    if isinstance(value, bool) != (kind is bool) or not isinstance(value, kind):
+        raise BudgetError(path, f"{where}.{key}", f"expected {kind.__name__}, got {value!r}")
+    if kind is int and value < 1:
+        raise BudgetError(path, f"{where}.{key}", f"must be positive, got {value}")
+    return value
+
+
+def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
+    from itskill.transfer import METHODS
+
+    if not isinstance(raw, dict):
+        raise BudgetError(path, name, "expected a table")
+    allowed = {"description", "compare_expert", "reward", "transfer", "evaluation"}
+    for key in raw:
+        if key not in allowed:
+            raise BudgetError(path, f"{name}.{key}", f"unknown field; allowed: {sorted(allowed)}")
+    tr = raw.get("transfer")
+    if not isinstance(tr, dict):
+        raise BudgetError(path, f"{name}.transfer", "missing table (required)")
+    t_allowed = {f for f in TransferBudget.__dataclass_fields__}
+    for key in tr:
+        if key not in t_allowed:
+            raise BudgetError(
+                path, f"{name}.transfer.{key}", f"unknown field; allowed: {sorted(t_allowed)}"
+            )
+    where = f"{name}.transfer"
+    transfer = TransferBudget(
+        steps=_field(path, where, tr, "steps", int),
+        eval_every=_field(path, where, tr, "eval_every", int),
+        method=_field(path, where, tr, "method", str, "itn"),
+        algo=_field(path, where, tr, "algo", str, "a2c"),
+        num_envs=_field(path, where, tr, "num_envs", int, None),
+        eval_episodes=_field(path, where, tr, "eval_episodes", int, 50),
+        k=_field(path, where, tr, "k", int, 3),
+    )
+    if transfer.method not in METHODS:
+        raise BudgetError(path, f"{where}.method", f"expected one of {list(METHODS)}")
+    if transfer.algo not in ("a2c", "ppo"):
+        raise BudgetError(path, f"{where}.algo", "expected a2c or ppo")
+    reward = raw.get("reward", {})
+    if not isinstance(reward, dict):
+        raise BudgetError(path, f"{name}.reward", "expected a table")
+    ev = raw.get("evaluation", {})
+    if not isinstance(ev, dict) or set(ev) - {"episodes"}:
+        raise BudgetError(path, f"{name}.evaluation", "expected a table with only 'episodes'")
+    budget = LearnBudget(
+        name=name,
+        transfer=transfer,
+        reward=dict(reward),
+        eval_episodes=_field(path, f"{name}.evaluation", ev, "episodes", int, 100),
+        compare_expert=_field(path, name, raw, "compare_expert", bool, True),
+        description=_field(path, name, raw, "description", str, ""),
+    )
+    try:
+        budget.search_config()
+    except ValueError as err:
+        raise BudgetError(path, f"{name}.reward", str(err)) from err
+    return budget
+
+
+def load_budgets(path: str | Path | None = None) -> dict[str, LearnBudget]:
+    """Every budget in ``path`` (default: the packaged ``learn.toml``), validated."""
+    path = Path(path) if path is not None else default_budgets_path()
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError as err:
+        raise BudgetError(path, "file", "no such file") from err
+    except tomllib.TOMLDecodeError as err:
+        raise BudgetError(path, "TOML syntax", str(err)) from err
+    if not data:
+        raise BudgetError(path, "file", "defines no budget")
+    return {name: _budget(path, name, raw) for name, raw in data.items()}
+
+
+def slugify(command: str) -> str:
+    """A directory name for a command: lower case words joined by hyphens, at most 60 chars."""
+    slug = re.sub(r"[^a-z0-9]+", "-", command.lower()).strip("-")[:60].rstrip("-")
+    if not slug:
+        raise LearnError(f"command {command!r} has no letters or digits")
+    return slug
+
+
+@dataclass(frozen=True)
+class LearnResult:
+    """What ``learn`` produced."""
+
+    run_dir: Path
+    summary: dict[str, Any]
+    report: ReportFiles
+
+
+class _Steps:
+    """Prints ``[i/n] step`` lines and skips a step whose result file exists."""
+
+    def __init__(self, console: Console, run_dir: Path) -> None:
+        self.console, self.run_dir, self.i = console, run_dir, 0
+
+    def begin(self, name: str, text: str) -> None:
+        self.i += 1
+        self.console.print(f"[bold cyan][{self.i}/{len(STEPS)}] {name}[/bold cyan]: {text}")
+
+    def done(self, text: str, cached: bool = False) -> None:
+        mark = "(kept from the previous session) " if cached else ""
+        self.console.print(f"    [green]✓[/green] {mark}{text}", highlight=False)
+
+    def cached(self, file: str) -> dict[str, Any] | None:
+        path = self.run_dir / file
+        return read_json(path) if path.is_file() else None
+
+
+def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> None:
+    path = run_dir / LEARN_FILE
+    if path.is_file():
+        if not resume:
+            raise LearnError(
+                f"{run_dir} already holds a learn run; pass --resume to continue it or "
+                "--out to start another"
+            )
+        old = read_json(path)
+        for key, value in settings.items():
+            if old.get(key) != value:
+                raise LearnError(
+                    f"{run_dir} was started with {key}={old.get(key)!r}, this call gives "
+                    f"{value!r}; resume with the same settings or use another --out"
+                )
+    elif resume and run_dir.is_dir() and any(run_dir.iterdir()):
+        raise LearnError(f"{run_dir} is not a learn run directory (no {LEARN_FILE})")
+    write_json(path, settings)
+
+
+def learn(
+    command: str,
+    budget: str = "default",
+    steps: int | None = None,
+    llm: str | None = None,
+    out: str | Path | None = None,
+    seed: int = 0,
+    resume: bool = False,
+    budgets_file: str | Path | None = None,
+    video: bool = True,
+    console: Console | None = None,
+) -> LearnResult:
+    """Learn ``command`` end to end (see the module docstring); returns the run and its report.
+
+    ``steps`` overrides the budget's transfer env-steps; ``llm`` is ``"offline"`` (the default,
+    no network) or ``"openai:MODEL"``.
+    """
+    from itskill.llm import make_client
+
+    console = console or Console()
+    budgets = load_budgets(budgets_file)
+    if budget not in budgets:
+        raise LearnError(f"unknown budget {budget!r}; expected one of {list(budgets)}")
+    b = budgets[budget]
+    if steps is not None:
+        if steps < 1:
+            raise LearnError(f"--steps must be positive, got {steps}")
+        b = replace(b, transfer=replace(b.transfer, steps=steps))
+    command = command.strip()
+    run_dir = Path(out) if out else Path("runs/learn") / slugify(command)
+    created = not run_dir.exists()
+    client = make_client(llm, cache_dir=run_dir / "llm_cache")
+    settings = {"command": command, "budget": b.to_dict(), "seed": seed, "llm": client.name}
+    _check_run_dir(run_dir, settings, resume)
+    sessions = Sessions(run_dir / PROVENANCE_FILE)
+    sessions.start()
+    try:
+        summary = _pipeline(command, b, seed, client, run_dir, video, console)
+    except BaseException as err:
+        if created and not (run_dir / "plan.json").is_file():
+            # Nothing was learned (an ungroundable command, no LLM): leave no directory that
+            # a retry would have to --resume.
+            shutil.rmtree(run_dir, ignore_errors=True)
+        else:
+            failed = isinstance(err, Exception)
+            sessions.finish(status=f"failed: {err}" if failed else "interrupted")
+        raise
+    sessions.finish(status="complete")
+    report = learn_report(run_dir, summary)
+    console.print(
+        f"[bold green]learned[/bold green] {escape(command)!r}: success "
+        f"{summary['evaluation']['success_rate']:.0%}; skill "
+        f"{summary['skill']['name']!r} added; report {report.markdown}"
+    )
+    return LearnResult(run_dir, summary, report)
+
+
+def _pipeline(
+    command: str, b: LearnBudget, seed: int, client: Any, run_dir: Path, video: bool, console
+) -> dict[str, Any]:
+    steps = _Steps(console, run_dir)
+
+    steps.begin("plan", f"grounding {command!r} in the task catalogue ({client.name})")
+    plan = _plan(command, client, steps)
+
+    steps.begin("reward", "generating the reward (generate, train candidates, reflect)")
+    reward = _reward(command, b, client, run_dir, steps, console)
+
+    steps.begin("sources", f"retrieving up to {b.transfer.k} source skills for {plan['task']}")
+    sources = _sources(plan["task"], b, steps)
+
+    steps.begin("analyze", "contribution of each source to each stage of the task")
+    _analyze(plan["task"], b, sources["used"], client, steps)
+
+    steps.begin(
+        "train",
+        f"{b.transfer.method.upper()} with {b.transfer.algo.upper()} for "
+        f"{b.transfer.steps:,} env-steps on the generated reward",
+    )
+    transfer = _train(plan["task"], b, seed, sources, reward, client, run_dir, steps, console)
+
+    steps.begin("evaluate", f"{b.eval_episodes} held-out episodes, deterministic policy")
+    evaluation = _evaluate(plan["task"], run_dir / "transfer", b.eval_episodes, steps)
+
+    steps.begin("skill", "adding the new skill to the skill space")
+    skill = _add_skill(command, plan, b, seed, transfer, evaluation, run_dir, steps)
+
+    steps.begin("report", "writing report.md and report.html")
+    summary = {
+        "command": command,
+        "budget": b.name,
+        "seed": seed,
+        "llm": client.name,
+        "plan": plan,
+        "reward": reward,
+        "sources": sources,
+        "transfer": transfer,
+        "evaluation": evaluation,
+        "skill": skill,
+        "video": video,
+        "usage": client.usage.to_dict(),
+    }
+    write_json(run_dir / "summary.json", summary)
+    return summary
+
+
+def _plan(command: str, client: Any, steps: _Steps) -> dict[str, Any]:
+    from itskill.reward import plan_command
+
+    cached = steps.cached("plan.json")
+    if cached is None:
+        cached = plan_command(command, client).to_dict()
+        write_json(steps.run_dir / "plan.json", cached)
+        was_cached = False
+    else:
+        was_cached = True
+    steps.done(
+        f"task {cached['task']}: {' → '.join(cached['actions'])}"
+        + (f" ({cached['notes']})" if cached.get("notes") else ""),
+        was_cached,
+    )
+    return cached
+
+
+def _reward(
+    command: str, b: LearnBudget, client: Any, run_dir: Path, steps: _Steps, console
+) -> dict[str, Any]:
+    from itskill.reward import generate_reward
+
+    cached = steps.cached("reward.json")
+    was_cached = cached is not None
+    if cached is None:
+        config = b.search_config()
+        out = run_dir / "reward"
+        res = generate_reward(
+            command,
+            client,
+            out,
+            config,
+            resume=out.is_dir() and any(out.iterdir()),
+            compare_expert=b.compare_expert,
+            console=console,
+        )
+        cached = {
+            "run_dir": str(res.run_dir),
+            "best_path": str(res.best_path),
+            "best_success": res.best_success,
+            "expert_success": res.expert_success,
+            "iterations": config.iterations,
+            "samples": config.samples,
+            "llm": client.name,
+        }
+        write_json(run_dir / "reward.json", cached)
+    expert = cached["expert_success"]
+    steps.done(
+        f"best reward {cached['best_success']:.0%} success"
+        + (f" (expert {expert:.0%})" if expert is not None else "")
+        + f" → {cached['best_path']}",
+        was_cached,
+    )
+    return cached
+
+
+def _sources(task: str, b: LearnBudget, steps: _Steps) -> dict[str, list[dict[str, Any]]]:
+    """The retrieved skills and those the method uses (PST keeps a subset)."""
+    from itskill.transfer import get_method, load_transfer_config, resolve_sources
+
+    cached = steps.cached("sources.json")
+    was_cached = cached is not None
+    if cached is None:
+        method = get_method(b.transfer.method)
+        retrieved = used = []
+        if method.uses_sources:
+            retrieved = resolve_sources(task, "auto", k=b.transfer.k)
+            used = method.select(retrieved, load_transfer_config())
+        cached = {
+            "retrieved": [s.to_dict() for s in retrieved],
+            "used": [s.to_dict() for s in used],
+        }
+        write_json(steps.run_dir / "sources.json", cached)
+    names = ", ".join(s["name"] for s in cached["used"])
+    steps.done(names or f"none ({b.transfer.method} uses no source)", was_cached)
+    return cached
+
+
+def _analyze(
+    task: str, b: LearnBudget, sources: list[dict[str, Any]], client: Any, steps: _Steps
+) -> dict[str, Any] | None:
+    """The analyzer's contribution matrix, asked exactly as the transfer training asks it (with
+    the same cached client, so it is answered once)."""
+    from itskill.tasks import get_task
+    from itskill.transfer import analyze, get_method, load_transfer_config, target_entry
+
+    cached = steps.cached("analysis.json")
+    was_cached = cached is not None
+    if cached is None:
+        if get_method(b.transfer.method).uses_prior and sources:
+            entries = [
+                {"id": s["name"], "description": s["description"], "actions": s["actions"]}
+                for s in sources
+            ]
+            retries = load_transfer_config().analyzer_retries
+            cached = analyze(target_entry(get_task(task)), entries, client, retries).to_dict()
+        else:
+            cached = {}
+        write_json(steps.run_dir / "analysis.json", cached)
+    if not cached:
+        steps.done(f"not used by {b.transfer.method}", was_cached)
+        return None
+    rows = [
+        f"{seg}: " + " ".join(f"{v:.2f}" for v in row)
+        for seg, row in zip(cached["segments"], cached["matrix"], strict=True)
+    ]
+    steps.done(f"columns {', '.join(cached['sources'])}; " + "; ".join(rows), was_cached)
+    return cached
+
+
+def _train(
+    task: str,
+    b: LearnBudget,
+    seed: int,
+    sources: dict[str, list[dict[str, Any]]],
+    reward: dict[str, Any],
+    client: Any,
+    run_dir: Path,
+    steps: _Steps,
+    console,
+) -> dict[str, Any]:
+    from itskill.reward.sandbox import compile_reward
+    from itskill.rl.train import RewardSource
+    from itskill.transfer import read_transfer, train_transfer
+
+    out = run_dir / "transfer"
+    code = Path(reward["best_path"]).read_text()
+    # Generated code runs only through the sandbox, also here in the main process.
+    fn = compile_reward(code)
+    meta = {
+        "kind": "generated",
+        "sha256": hashlib.sha256(code.encode()).hexdigest(),
+        "path": reward["best_path"],
+    }
+    t = b.transfer
+    res = train_transfer(
+        task,
+        t.method,
+        sources=[s["name"] for s in sources["retrieved"]] or "auto",
+        seed=seed,
+        steps=t.steps,
+        algo=t.algo,
+        out=out,
+        reward=RewardSource(fn, meta),
+        num_envs=t.num_envs,
+        eval_every=t.eval_every,
+        eval_episodes=t.eval_episodes,
+        client=client,
+        console=console,
+    )
+    curve = read_curve(out, t.steps)
+    wall = float(curve.wall_s[-1])
+    record = read_transfer(out)  # what was trained: PST keeps only some of the sources
+    summary = {
+        "run_dir": str(out),
+        "method": t.method,
+        "algo": t.algo,
+        "steps": int(res.num_timesteps),
+        "wall_s": wall,
+        "sources": [s["name"] for s in record["sources"]],
+        "contribution": record.get("contribution"),
+        "final_success": float(curve.success[-1]),
+    }
+    resumed = f" (resumed from {res.resumed_from:,})" if res.resumed_from else ""
+    steps.done(
+        f"{res.num_timesteps:,} env-steps{resumed}, {wall / 60:.1f} min of training; last "
+        f"evaluation {curve.success[-1]:.0%} → {out}"
+    )
+    return summary
+
+
+def _evaluate(task: str, run_dir: Path, episodes: int, steps: _Steps) -> dict[str, Any]:
+    from itskill.rl.checkpoint import as_policy
+    from itskill.tasks import get_task
+    from itskill.tasks.evaluate import evaluate
+
+    cached = steps.cached("evaluation.json")
+    was_cached = cached is not None
+    if cached is None:
+        res = evaluate(get_task(task), as_policy(run_dir), episodes, seed=EVAL_SEED, num_envs=25)
+        cached = res.to_dict()
+        write_json(steps.run_dir / "evaluation.json", cached)
+    steps.done(
+        f"{cached['success_rate']:.1%} success over {cached['episodes']} episodes "
+        f"(95% CI {cached['ci_low']:.1%}–{cached['ci_high']:.1%})",
+        was_cached,
+    )
+    return cached
+
+
+def _add_skill(
+    command: str,
+    plan: dict[str, Any],
+    b: LearnBudget,
+    seed: int,
+    transfer: dict[str, Any],
+    evaluation: dict[str, Any],
+    run_dir: Path,
+    steps: _Steps,
+) -> dict[str, Any]:
+    from itskill.rl.checkpoint import META_FILE, POLICY_FILE
+    from itskill.skills import Skill, itskill_home, open_skill_space
+
+    cached = steps.cached("skill.json")
+    was_cached = cached is not None
+    if cached is None:
+        with open_skill_space() as space:
+            taken = {s.name for s in space.list()}
+            base = f"learned-{slugify(command)}"
+            name = base
+            for i in range(2, 10_000):
+                if name not in taken:
+                    break
+                name = f"{base}-{i}"
+            store = itskill_home() / "learned" / name
+            store.mkdir(parents=True, exist_ok=True)
+            src = Path(transfer["run_dir"])
+            for file in (POLICY_FILE, META_FILE, "transfer.json"):
+                if (src / file).is_file():
+                    shutil.copyfile(src / file, store / file)
+            skill = space.add(
+                Skill(
+                    name=name,
+                    task_id=plan["task"],
+                    description=command,
+                    actions=tuple(plan["actions"]),
+                    checkpoint=str(store / POLICY_FILE),
+                    success_rate=evaluation["success_rate"],
+                    success_ci=(evaluation["ci_low"], evaluation["ci_high"]),
+                    train_steps=transfer["steps"],
+                    train_wall_s=round(transfer["wall_s"], 1),
+                    algo=b.transfer.algo,
+                    seed=seed,
+                )
+            )
+            cached = {
+                "id": skill.id,
+                "name": skill.name,
+                "task": skill.task_id,
+                "checkpoint": skill.checkpoint,
+                "skill_space": str(space.path),
+                "success_rate": skill.success_rate,
+            }
+        write_json(steps.run_dir / "skill.json", cached)
+    steps.done(f"skill {cached['id']} {cached['name']!r} in {cached['skill_space']}", was_cached)
+    return cached
+
+
+def user_errors() -> tuple[type[BaseException], ...]:
+    """The errors ``itskill learn`` reports as a one-line message (bad input, no LLM, ...)."""
+    from itskill.llm import LLMError
+    from itskill.reward import PlanError, RewardSearchError
+    from itskill.rl.train import ResumeMismatchError
+    from itskill.skills import SkillSpaceError
+    from itskill.tasks import TaskFileError, UnknownTaskError
+    from itskill.tasks.evaluate import CheckpointError
+    from itskill.transfer.analyzer import AnalyzerError
+    from itskill.transfer.config import TransferConfigError
+    from itskill.transfer.sources import SourceError
+
+    return (
+        LearnError, BudgetError, LLMError, PlanError, RewardSearchError, ResumeMismatchError,
+        SkillSpaceError, TaskFileError, UnknownTaskError, CheckpointError, AnalyzerError,
+        TransferConfigError, SourceError,
+    )  # fmt: skip

@@ -1,0 +1,463 @@
+"""Reports: Markdown + self-contained HTML from an experiment run or an ``itskill learn`` run.
+
+An experiment report has, per task: learning curves with 95% bands (the paper's Fig. 7), success
+at fixed fractions of the budget (Table II), env-steps and wall time to the success threshold with
+the time-efficiency gain over the baseline (next to the paper's figures), the ITN's attention
+weights over one episode (Fig. 8) and a rollout video of the best method's final policy. Its
+header records the configuration, the commands that produced the run, the machine and the time.
+Only finished cells (with ``result.json``) enter the statistics; cells still running are listed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from itskill.experiments.analysis import (
+    Curve,
+    CurveError,
+    Threshold,
+    common_grid,
+    mean_band,
+    read_curve,
+    success_at_fractions,
+    threshold_gain,
+    time_to_threshold,
+)
+from itskill.experiments.config import ExperimentConfig
+from itskill.experiments.document import (
+    Bullets,
+    Code,
+    Document,
+    Figure,
+    Heading,
+    Paragraph,
+    Video,
+    write_document,
+)
+from itskill.experiments.plots import method_label, plot_attention, plot_learning_curves
+from itskill.experiments.provenance import Sessions, machine_facts, now
+from itskill.experiments.runner import (
+    CONFIG_FILE,
+    ERROR_FILE,
+    EXPERIMENT_FILE,
+    PROVENANCE_FILE,
+    RESULT_FILE,
+    SOURCES_FILE,
+    Cell,
+    cells,
+)
+from itskill.reward.files import read_json
+
+REPORT_MD = "report.md"
+REPORT_HTML = "report.html"
+FIGURES_DIR = "figures"
+VIDEOS_DIR = "videos"
+
+
+class ReportError(ValueError):
+    """A directory that is not a run this module can report on."""
+
+
+@dataclass(frozen=True)
+class ReportFiles:
+    """The written report."""
+
+    markdown: Path
+    html: Path
+    notes: tuple[str, ...]
+    """Parts that could not be produced (no finished ITN run, no OpenGL...), and why."""
+
+
+# ---------------------------------------------------------------------- shared sections
+def header_section(doc: Document, sessions: Sessions, extra: dict[str, str]) -> None:
+    """Date, commands, total wall time and the machine."""
+    runs = sessions.data.get("sessions", [])
+    machine = runs[-1]["machine"] if runs else machine_facts()
+    items = [f"{k}: {v}" for k, v in extra.items()]
+    items.append(f"report written: {now()}")
+    for i, s in enumerate(runs, 1):
+        wall = f"{s['wall_s'] / 60:.1f} min" if s.get("wall_s") is not None else "did not finish"
+        status = f", {s['status']}" if s.get("status") else ""
+        items.append(f"session {i}: `{s['command']}` started {s['started']} ({wall}{status})")
+    items.append(f"total wall time of the sessions: {sessions.wall_s / 60:.1f} min")
+    items.append(
+        f"machine: {machine['cpu_count']} × {machine['cpu_model']}, {machine['os']}, "
+        f"GPU {machine.get('gpu') or 'none'}"
+    )
+    items.append(
+        "versions: "
+        + ", ".join(
+            f"{k} {machine[k]}"
+            for k in ("python", "itskill", "torch", "mujoco", "stable_baselines3", "numpy")
+            if k in machine
+        )
+    )
+    doc.add(Heading("Provenance"), Bullets(tuple(items)))
+
+
+def attention_section(
+    doc: Document, run_dir: Path, task: str, figures: Path, notes: list[str]
+) -> None:
+    """Fig. 8: the trained policy's source weights over one deterministic episode, stages marked."""
+    from itskill.transfer import attention_trace
+
+    try:
+        trace = attention_trace(run_dir, episodes=1, seed=0)
+    except Exception as err:  # a failed trace must not cost the rest of the report
+        notes.append(f"attention trace of {run_dir} failed: {type(err).__name__}: {err}")
+        doc.add(Paragraph(f"No attention figure: {type(err).__name__}: {err}"))
+        return
+    episode = trace["episodes"][0]
+    weights = np.asarray(episode["weights"], dtype=float)
+    raw = None if episode["raw"] is None else np.asarray(episode["raw"], dtype=float)
+    stages, segments = np.asarray(episode["stage"]), trace["segments"]
+    path = plot_attention(
+        weights,
+        stages,
+        trace["sources"],
+        f"{task}: source weights over one episode",
+        figures / f"attention_{task}.png",
+        stage_names=segments,
+        raw=raw,
+    )
+    outcome = "succeeded" if episode["success"] else "failed"
+    doc.add(
+        Figure(
+            path,
+            f"Fig. 8 ({task}): corrected weights W of each source (solid; the attention's raw "
+            f"weights dashed) at every step of one deterministic episode ({outcome}, "
+            f"{episode['length']} steps); dotted lines are stage changes.",
+        )
+    )
+    doc.table(
+        ["stage", "steps", *trace["sources"]],
+        [
+            [segments[s] if s < len(segments) else str(s), str(int(np.sum(stages == s)))]
+            + [f"{w:.2f}" for w in weights[stages == s].mean(axis=0)]
+            for s in np.unique(stages)
+        ],
+        "Mean corrected weight W per stage of the episode",
+    )
+
+
+def video_section(
+    doc: Document, task: str, run_dir: Path, label: str, videos: Path, notes: list[str]
+) -> None:
+    """A rollout video of ``run_dir``'s final policy; says why when it cannot render."""
+    from itskill.rl.checkpoint import as_policy
+    from itskill.tasks import get_task
+    from itskill.tasks.render import RenderError, record
+
+    out = videos / f"{task}_{label}.mp4"
+    try:
+        res = record(get_task(task), as_policy(run_dir), out, episodes=1, seed=0)
+    except RenderError as err:
+        notes.append(f"no video: {err}")
+        doc.add(Paragraph(f"No video: offscreen rendering is not available here ({err})."))
+        return
+    outcome = "success" if res.successes[0] else "failure"
+    doc.add(Video(res.path, f"{task}, {label}: one deterministic episode ({outcome})"))
+
+
+# ---------------------------------------------------------------------- experiment report
+def _curves(config: ExperimentConfig, run_dir: Path) -> tuple[dict, list[Cell], list[str]]:
+    """Finished cells' curves by (task, method), the cells not finished, and unreadable ones."""
+    curves: dict[tuple[str, str], list[tuple[int, Curve]]] = {}
+    pending, broken = [], []
+    for cell in cells(config):
+        out = cell.dir(run_dir)
+        if not (out / RESULT_FILE).is_file():
+            pending.append(cell)
+            continue
+        try:
+            curve = read_curve(out, config.steps)
+        except CurveError as err:
+            broken.append(str(err))
+            continue
+        curves.setdefault((cell.task, cell.method), []).append((cell.seed, curve))
+    return curves, pending, broken
+
+
+def experiment_report(
+    run_dir: str | Path, out: str | Path | None = None, video: bool = True
+) -> ReportFiles:
+    """Write ``report.md`` and ``report.html`` (and ``figures/``, ``videos/``) for a run."""
+    run_dir = Path(run_dir)
+    if not (run_dir / CONFIG_FILE).is_file():
+        raise ReportError(
+            f"{run_dir}: not an experiment run directory (no {CONFIG_FILE}); "
+            "run `itskill experiment run FILE.toml` first"
+        )
+    out = Path(out) if out else run_dir
+    figures, videos = out / FIGURES_DIR, out / VIDEOS_DIR
+    config = ExperimentConfig.from_dict(read_json(run_dir / CONFIG_FILE))
+    curves, pending, broken = _curves(config, run_dir)
+    notes: list[str] = list(broken)
+    sources = read_json(run_dir / SOURCES_FILE) if (run_dir / SOURCES_FILE).is_file() else {}
+
+    doc = Document(f"Experiment report: {config.name}")
+    if config.description:
+        doc.add(Paragraph(config.description))
+    finished = sum(len(v) for v in curves.values())
+    seeds = len(config.seeds)
+    doc.add(
+        Paragraph(
+            f"{len(config.tasks)} task(s) × {len(config.methods)} method(s) × {seeds} seed(s); "
+            f"{config.algo.upper()}, {config.steps:,} env-steps per run, deterministic evaluation "
+            f"over {config.eval.episodes} held-out episodes every {config.eval.every:,} env-steps. "
+            f"{finished} of {len(cells(config))} runs finished."
+        )
+    )
+    header_section(
+        doc,
+        Sessions(run_dir / PROVENANCE_FILE),
+        {"run directory": str(run_dir.resolve())},
+    )
+    toml_path = run_dir / EXPERIMENT_FILE
+    doc.add(Heading("Configuration", 3))
+    if toml_path.is_file():
+        doc.add(Code(toml_path.read_text(), "toml"))
+    doc.add(Code(json.dumps(config.to_dict(), indent=2), "json"))
+
+    for task in config.tasks:
+        _task_section(doc, config, task, curves, sources.get(task), run_dir, figures, notes)
+        if video:
+            best = _best_run(config, task, curves)
+            if best is not None:
+                method, seed = best
+                doc.add(Heading("Rollout of the best method's final policy", 3))
+                cell_dir = Cell(task, method, seed).dir(run_dir)
+                video_section(doc, task, cell_dir, f"{method}_seed{seed}", videos, notes)
+
+    if pending:
+        doc.add(Heading("Runs not finished"))
+        doc.add(Bullets(tuple(_pending_line(c, run_dir) for c in pending)))
+    if notes:
+        doc.add(Heading("Notes"), Bullets(tuple(notes)))
+    md, html_path = out / REPORT_MD, out / REPORT_HTML
+    write_document(doc, md, html_path)
+    return ReportFiles(md, html_path, tuple(notes))
+
+
+def _pending_line(cell: Cell, run_dir: Path) -> str:
+    out = cell.dir(run_dir)
+    if (out / ERROR_FILE).is_file():
+        return f"{cell.name}: failed: {(out / ERROR_FILE).read_text().strip()}"
+    if (out / "checkpoint.json").is_file():
+        steps = read_json(out / "checkpoint.json").get("num_timesteps", 0)
+        return f"{cell.name}: in progress ({steps:,} env-steps checkpointed)"
+    return f"{cell.name}: not started"
+
+
+def _best_run(config: ExperimentConfig, task: str, curves: dict) -> tuple[str, int] | None:
+    """The method with the highest mean final success (then the fewest steps to threshold) and
+    its best seed."""
+    scored = []
+    for method in config.methods:
+        runs = curves.get((task, method), [])
+        if not runs:
+            continue
+        final = float(np.mean([c.success[-1] for _, c in runs]))
+        steps = time_to_threshold([c for _, c in runs], config.report.threshold).steps.mean()
+        seed = max(runs, key=lambda sc: (sc[1].success[-1], -sc[0]))[0]
+        scored.append((-final, steps, method, seed))
+    if not scored:
+        return None
+    _, _, method, seed = min(scored)
+    return method, seed
+
+
+def _task_section(
+    doc: Document,
+    config: ExperimentConfig,
+    task: str,
+    curves: dict,
+    sources: list[str] | None,
+    run_dir: Path,
+    figures: Path,
+    notes: list[str],
+) -> None:
+    rep = config.report
+    doc.add(Heading(f"Task {task}"))
+    if sources:
+        doc.add(
+            Paragraph(
+                f"Source skills: {', '.join(sources)} (retrieved once for every method and "
+                "seed; PST keeps a subset, No_Transfer none)."
+            )
+        )
+    by_method = {
+        m: [c for _, c in curves.get((task, m), [])]
+        for m in config.methods
+        if curves.get((task, m))
+    }
+    if not by_method:
+        doc.add(Paragraph("No finished run yet."))
+        return
+    grid = common_grid([c for cs in by_method.values() for c in cs], rep.grid_points)
+    bands = {m: mean_band(cs, grid) for m, cs in by_method.items()}
+    fig = plot_learning_curves(
+        bands, f"{task} ({config.algo.upper()})", figures / f"curves_{task}.png", rep.threshold
+    )
+    doc.add(
+        Heading("Learning curves (Fig. 7)", 3),
+        Figure(
+            fig,
+            f"Deterministic success against env-steps, mean over seeds with the 95% t-interval; "
+            f"dotted line: {rep.threshold:.0%}.",
+        ),
+    )
+    doc.add(Heading("Success at fractions of the budget (Table II)", 3))
+    doc.table(
+        ["method", "seeds", *(f"{f:.0%} ({f * config.steps:,.0f})" for f in rep.fractions)],
+        [
+            [method_label(m), str(len(cs))]
+            + [e.format() for e in success_at_fractions(cs, config.steps, rep.fractions)]
+            for m, cs in by_method.items()
+        ],
+        "mean ± half-width of the 95% t-interval over seeds",
+    )
+    thresholds = {m: time_to_threshold(cs, rep.threshold) for m, cs in by_method.items()}
+    base = thresholds.get(rep.baseline)
+    paper = rep.paper_gain.get(task)
+    header = [
+        "method",
+        f"env-steps to {rep.threshold:.0%}",
+        "wall-minutes",
+        f"gain over {method_label(rep.baseline)} (env-steps)",
+        "gain (wall time)",
+    ]
+    rows = []
+    for m, th in thresholds.items():
+        gain_steps = gain_wall = "—"
+        if base is not None and m != rep.baseline:
+            gain_steps = threshold_gain(th, base, "steps").format()
+            gain_wall = threshold_gain(th, base, "wall_s").format()
+        rows.append(
+            [method_label(m), th.format_steps(), th.format_minutes(), gain_steps, gain_wall]
+        )
+    doc.add(Heading(f"Time to {rep.threshold:.0%} success and time efficiency", 3))
+    doc.table(header, rows, "mean [95% t-interval]; gain: 1 − method/baseline, bootstrap interval")
+    doc.add(Paragraph(_gain_explanation(rep.threshold, thresholds, paper, rep.baseline)))
+    if "itn" in by_method:
+        doc.add(Heading("Attention over one episode (Fig. 8)", 3))
+        runs = curves[(task, "itn")]
+        seed = max(runs, key=lambda sc: (sc[1].success[-1], -sc[0]))[0]
+        attention_section(doc, Cell(task, "itn", seed).dir(run_dir), task, figures, notes)
+
+
+def _gain_explanation(
+    threshold: float, thresholds: dict[str, Threshold], paper: float | None, baseline: str
+) -> str:
+    text = (
+        f"A seed that never reaches {threshold:.0%} counts as the full budget (censored), which "
+        "makes a mean a lower bound (≥). The gain is marked ≥ when only the baseline has such "
+        "seeds, ≤ when only the method has, ~ when both have. Intervals of the gain: percentile "
+        "bootstrap over seeds (10,000 resamples, seed 0)."
+    )
+    if paper is not None and "itn" in thresholds and baseline in thresholds:
+        measured = threshold_gain(thresholds["itn"], thresholds[baseline], "steps")
+        verdict = (
+            "not measurable"
+            if math.isnan(measured.value)
+            else ("meets or beats" if measured.value >= paper else "falls short of")
+        )
+        text += (
+            f" The paper reports ITN {paper:.2%} more time-efficient than No_Transfer on this "
+            f"task; measured here: {measured.format()}, which {verdict} it."
+        )
+    return text
+
+
+def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
+    """The single-run report of ``itskill learn``: plan, reward, sources, curve, attention,
+    evaluation and the skill added (``summary`` is the pipeline's ``summary.json``)."""
+    learn_dir = Path(learn_dir)
+    figures, videos = learn_dir / FIGURES_DIR, learn_dir / VIDEOS_DIR
+    notes: list[str] = []
+    plan = summary["plan"]
+    doc = Document(f"itskill learn: {summary['command']}")
+    header_section(
+        doc,
+        Sessions(learn_dir / PROVENANCE_FILE),
+        {"run directory": str(learn_dir.resolve()), "budget": summary["budget"]},
+    )
+    doc.add(Heading("Plan"))
+    doc.add(Paragraph(f"Task {plan['task']}; objects: {', '.join(plan['objects'])}."))
+    doc.add(Bullets(tuple(plan["subtasks"])))
+    doc.add(Paragraph(f"Action sequence: {' → '.join(plan['actions'])}."))
+    if plan.get("notes"):
+        doc.add(Paragraph(f"Notes: {plan['notes']}"))
+    reward = summary["reward"]
+    doc.add(Heading("Generated reward"))
+    expert = reward.get("expert_success")
+    doc.add(
+        Paragraph(
+            f"{reward['iterations']} iteration(s) of {reward['samples']} sample(s) with the "
+            f"{reward['llm']} backend; best candidate success {reward['best_success']:.0%}"
+            + (f" (expert reward, same budget: {expert:.0%})" if expert is not None else "")
+            + f". Search run: {reward['run_dir']}."
+        )
+    )
+    doc.add(Code(Path(reward["best_path"]).read_text(), "python"))
+    transfer = summary["transfer"]
+    doc.add(Heading("Transfer"))
+    doc.add(
+        Paragraph(
+            f"{method_label(transfer['method'])} with sources {', '.join(transfer['sources'])}, "
+            f"{transfer['algo'].upper()}, {transfer['steps']:,} env-steps in "
+            f"{transfer['wall_s'] / 60:.1f} min."
+        )
+    )
+    contribution = transfer.get("contribution")
+    if contribution:
+        doc.table(
+            ["segment", *contribution["sources"]],
+            [
+                [seg, *(f"{v:.2f}" for v in row)]
+                for seg, row in zip(contribution["segments"], contribution["matrix"], strict=True)
+            ],
+            f"Analyzer contribution matrix ({contribution.get('client', '')}): the prior of the "
+            "attention for each stage",
+        )
+    run_dir = Path(transfer["run_dir"])
+    try:
+        curve = read_curve(run_dir, transfer["steps"])
+        grid = common_grid([curve], 101)
+        fig = plot_learning_curves(
+            {transfer["method"]: mean_band([curve], grid)},
+            f"{plan['task']}: learning curve",
+            figures / "curve.png",
+            summary.get("threshold", 0.8),
+        )
+        doc.add(Figure(fig, "Deterministic success against env-steps during training."))
+    except CurveError as err:
+        notes.append(str(err))
+    if transfer["method"] != "no_transfer":
+        doc.add(Heading("Attention over one episode", 3))
+        attention_section(doc, run_dir, plan["task"], figures, notes)
+    ev = summary["evaluation"]
+    doc.add(Heading("Evaluation"))
+    doc.add(
+        Paragraph(
+            f"Deterministic success {ev['success_rate']:.1%} over {ev['episodes']} held-out "
+            f"episodes (95% Wilson interval {ev['ci_low']:.1%}–{ev['ci_high']:.1%})."
+        )
+    )
+    if summary.get("video", True):
+        video_section(doc, plan["task"], run_dir, "final", videos, notes)
+    skill = summary.get("skill")
+    if skill:
+        doc.add(Heading("Skill added to the skill space"))
+        doc.add(Bullets(tuple(f"{k}: {v}" for k, v in skill.items())))
+    if notes:
+        doc.add(Heading("Notes"), Bullets(tuple(notes)))
+    md, html_path = learn_dir / REPORT_MD, learn_dir / REPORT_HTML
+    write_document(doc, md, html_path)
+    return ReportFiles(md, html_path, tuple(notes))

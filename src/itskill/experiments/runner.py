@@ -1,0 +1,297 @@
+"""Run an experiment: every task × method × seed cell as a job, locally or on Ray, resumably.
+
+Run directory layout::
+
+    <run>/experiment.toml        the experiment file as given
+    <run>/config.json            the validated configuration (a resume must match its training part)
+    <run>/sources.json           the source skills of each task, resolved once for every cell
+    <run>/provenance.json        one entry per session: command, machine, start, end, wall time
+    <run>/llm_cache/             the analyzer's cached replies (an LLM is asked once per question)
+    <run>/cells/<task>/<method>/seed_<s>/   the transfer run (checkpoints, metrics.csv, eval.csv,
+                                           transfer.json) and, once finished, result.json
+
+A cell with ``result.json`` is done and skipped; a cell with only a checkpoint resumes from it
+(the trainer continues the step count); the others start. Each ``result.json`` is written by the
+worker that trained the cell, atomically, so a killed run loses only the cells in flight.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from itskill.executors import run_jobs
+from itskill.experiments.analysis import read_curve, time_to_threshold
+from itskill.experiments.config import AUTO, ExperimentConfig
+from itskill.experiments.provenance import Sessions
+from itskill.reward.files import read_json, write_json
+
+CELLS_DIR = "cells"
+RESULT_FILE = "result.json"
+CONFIG_FILE = "config.json"
+SOURCES_FILE = "sources.json"
+PROVENANCE_FILE = "provenance.json"
+EXPERIMENT_FILE = "experiment.toml"
+ERROR_FILE = "error.txt"
+
+
+class ExperimentRunError(ValueError):
+    """A run directory that cannot be used for this experiment: says why and what to do."""
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One training run of the experiment."""
+
+    task: str
+    method: str
+    seed: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.task}/{self.method}/seed_{self.seed}"
+
+    def dir(self, run_dir: Path) -> Path:
+        return Path(run_dir) / CELLS_DIR / self.task / self.method / f"seed_{self.seed}"
+
+
+def cells(config: ExperimentConfig) -> list[Cell]:
+    """Every cell, seed by seed: a run stopped half-way has whole seeds of every method."""
+    return [
+        Cell(task, method, seed)
+        for seed in config.seeds
+        for task in config.tasks
+        for method in config.methods
+    ]
+
+
+@dataclass(frozen=True)
+class CellSettings:
+    """What a worker needs to train one cell (picklable, for local processes and Ray)."""
+
+    algo: str
+    steps: int
+    num_envs: int | None
+    reward: str
+    sources: tuple[str, ...]
+    llm: str
+    eval_every: int
+    eval_episodes: int
+    threshold: float
+    llm_cache: str
+
+
+def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
+    """Train one cell into ``out`` (resuming a partial run) and write its ``result.json``."""
+    from itskill.llm import make_client
+    from itskill.transfer import train_transfer
+
+    client = make_client(settings.llm, cache_dir=Path(settings.llm_cache))
+    res = train_transfer(
+        cell.task,
+        cell.method,
+        sources=list(settings.sources),
+        seed=cell.seed,
+        steps=settings.steps,
+        algo=settings.algo,
+        out=out,
+        reward=settings.reward,
+        num_envs=settings.num_envs,
+        eval_every=settings.eval_every,
+        eval_episodes=settings.eval_episodes,
+        n_threads=1,
+        client=client,
+        progress=False,
+    )
+    curve = read_curve(out, settings.steps)
+    hit = time_to_threshold([curve], settings.threshold)
+    result = {
+        "task": cell.task,
+        "method": cell.method,
+        "seed": cell.seed,
+        "num_timesteps": res.num_timesteps,
+        "resumed_from": res.resumed_from,
+        "session_wall_s": round(res.wall_s, 2),
+        "train_wall_s": round(float(curve.wall_s[-1]), 2),
+        "final_success": float(curve.success[-1]),
+        "threshold": settings.threshold,
+        "steps_to_threshold": float(hit.steps[0]) if hit.reached[0] else None,
+        "wall_s_to_threshold": float(hit.wall_s[0]) if hit.reached[0] else None,
+    }
+    write_json(out / RESULT_FILE, result)
+    (out / ERROR_FILE).unlink(missing_ok=True)  # a failure of an earlier session is fixed
+    return result
+
+
+@dataclass
+class RunSummary:
+    """What a call of :func:`run_experiment` did."""
+
+    run_dir: Path
+    finished: list[Cell] = field(default_factory=list)
+    skipped: list[Cell] = field(default_factory=list)
+    resumed: list[Cell] = field(default_factory=list)
+    failed: dict[Cell, str] = field(default_factory=dict)
+
+
+def _prepare_dir(
+    config: ExperimentConfig, run_dir: Path, resume: bool, source_file: Path | None
+) -> None:
+    config_path = run_dir / CONFIG_FILE
+    if config_path.is_file():
+        if not resume:
+            raise ExperimentRunError(
+                f"{run_dir} already holds an experiment run; pass --resume to continue it, "
+                "or choose another --out"
+            )
+        old = ExperimentConfig.from_dict(read_json(config_path))
+        have, want = old.training_settings(), config.training_settings()
+        for key in want:
+            if have.get(key) != want[key]:
+                raise ExperimentRunError(
+                    f"{run_dir}: was run with {key}={have.get(key)!r}, the experiment file now "
+                    f"says {key}={want[key]!r}; resume with the same training settings or use "
+                    "another --out (tasks, methods and seeds may change)"
+                )
+    elif resume and run_dir.exists() and any(run_dir.iterdir()):
+        raise ExperimentRunError(f"{run_dir} is not an experiment run directory (no {CONFIG_FILE})")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_json(config_path, config.to_dict())
+    if source_file is not None:
+        shutil.copyfile(source_file, run_dir / EXPERIMENT_FILE)
+
+
+def resolve_all_sources(config: ExperimentConfig, run_dir: Path) -> dict[str, list[str]]:
+    """Each task's source skills (names), resolved once and stored so every cell uses the same.
+
+    A resumed run keeps the stored ones: the skill space may have grown since.
+    """
+    from itskill.transfer import resolve_sources
+
+    path = run_dir / SOURCES_FILE
+    stored: dict[str, list[str]] = read_json(path) if path.is_file() else {}
+    for task in config.tasks:
+        if task in stored:
+            continue
+        wanted = config.sources.get(task, AUTO)
+        found = resolve_sources(task, wanted if wanted == AUTO else list(wanted), k=config.k)
+        stored[task] = [s.name for s in found]
+    write_json(path, stored)
+    return stored
+
+
+def run_experiment(
+    config: ExperimentConfig,
+    run_dir: Path,
+    executor: str | None = None,
+    workers: int | None = None,
+    ray_address: str | None = None,
+    resume: bool = False,
+    source_file: Path | None = None,
+    console: Console | None = None,
+) -> RunSummary:
+    """Run every unfinished cell of ``config`` in ``run_dir``; returns what was done.
+
+    ``executor``, ``workers`` and ``ray_address`` default to the file's ``[execution]`` table.
+    A cell that fails is reported (and its error saved in ``error.txt``); the others go on.
+    """
+    console = console or Console(stderr=True)
+    run_dir = Path(run_dir)
+    _prepare_dir(config, run_dir, resume, source_file)
+    sources = resolve_all_sources(config, run_dir)
+    summary = RunSummary(run_dir)
+    todo: list[Cell] = []
+    for cell in cells(config):
+        out = cell.dir(run_dir)
+        if (out / RESULT_FILE).is_file():
+            summary.skipped.append(cell)
+            continue
+        if (out / "checkpoint.json").is_file():
+            summary.resumed.append(cell)
+        todo.append(cell)
+    jobs = [
+        (
+            cell,
+            CellSettings(
+                algo=config.algo,
+                steps=config.steps,
+                num_envs=config.num_envs,
+                reward=config.reward[cell.task],
+                sources=tuple(sources[cell.task]),
+                llm=config.llm,
+                eval_every=config.eval.every,
+                eval_episodes=config.eval.episodes,
+                threshold=config.report.threshold,
+                llm_cache=str(run_dir / "llm_cache"),
+            ),
+            cell.dir(run_dir),
+        )
+        for cell in todo
+    ]
+    console.print(
+        f"experiment [bold]{escape(config.name)}[/bold]: {len(summary.skipped) + len(todo)} cells, "
+        f"{len(summary.skipped)} done, {len(summary.resumed)} to resume, "
+        f"{len(todo) - len(summary.resumed)} to start → {escape(str(run_dir))}"
+    )
+    sessions = Sessions(run_dir / PROVENANCE_FILE)
+    ex = executor or config.execution.executor
+    sessions.start(executor=ex, workers=workers or config.execution.workers, cells=len(todo))
+    status = "interrupted"
+    try:
+        with Progress(
+            TextColumn("[bold]cells"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=console,
+        ) as progress:
+            bar = progress.add_task("cells", total=len(jobs))
+            results = run_jobs(
+                run_cell,
+                jobs,
+                ex,
+                workers or config.execution.workers,
+                ray_address or config.execution.ray_address,
+            )
+            for res in results:
+                cell = todo[res.index]
+                progress.advance(bar)
+                if res.ok:
+                    summary.finished.append(cell)
+                    progress.console.print(_describe(cell, res.value))
+                else:
+                    message = f"{type(res.error).__name__}: {res.error}"
+                    summary.failed[cell] = message
+                    cell.dir(run_dir).mkdir(parents=True, exist_ok=True)
+                    (cell.dir(run_dir) / ERROR_FILE).write_text(message + "\n")
+                    progress.console.print(
+                        f"[red]failed[/red] {cell.name}: {escape(message)}", highlight=False
+                    )
+        status = "failed cells" if summary.failed else "complete"
+    finally:
+        sessions.finish(status=status)
+    return summary
+
+
+def _describe(cell: Cell, result: dict[str, Any]) -> str:
+    t = result.get("steps_to_threshold")
+    reached = f"{t:,.0f} steps to {result['threshold']:.0%}" if t else "threshold not reached"
+    return (
+        f"[green]done[/green] {cell.name}: success {result['final_success']:.0%}, {reached}, "
+        f"{result['train_wall_s'] / 60:.1f} min"
+    )
+
+
+def load_cell_results(run_dir: Path) -> dict[Cell, dict[str, Any]]:
+    """Every finished cell's ``result.json`` in ``run_dir``."""
+    found = {}
+    for path in sorted((Path(run_dir) / CELLS_DIR).glob(f"*/*/seed_*/{RESULT_FILE}")):
+        data = read_json(path)
+        found[Cell(data["task"], data["method"], int(data["seed"]))] = data
+    return found

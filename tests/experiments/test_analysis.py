@@ -1,0 +1,144 @@
+"""Statistics of experiments on hand-made curves with known answers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import t as t_dist
+
+from itskill.experiments.analysis import (
+    Curve,
+    CurveError,
+    common_grid,
+    efficiency_gain,
+    interpolate,
+    mean_band,
+    read_curve,
+    success_at_fractions,
+    threshold_gain,
+    time_to_threshold,
+)
+
+
+def curve(steps, success, wall=None, budget=1000.0) -> Curve:
+    steps = np.asarray(steps, float)
+    wall = np.asarray(wall if wall is not None else steps / 10, float)
+    return Curve(steps, np.asarray(success, float), wall, budget)
+
+
+def test_interpolation_is_linear_inside_and_nan_outside_the_evaluated_range():
+    c = curve([100, 200, 300], [0.0, 0.5, 1.0])
+    got = interpolate(c, np.array([50, 100, 150, 300, 350]))
+    assert np.isnan(got[0]) and np.isnan(got[-1])
+    np.testing.assert_allclose(got[1:4], [0.0, 0.25, 1.0])
+
+
+def test_common_grid_spans_first_evaluation_to_largest_budget():
+    grid = common_grid(
+        [curve([100, 200], [0, 1], budget=300), curve([50, 200], [0, 1], budget=400)], 8
+    )
+    assert grid[0] == 50 and grid[-1] == 400 and len(grid) == 8
+
+
+def test_band_is_mean_with_student_t_interval_and_counts_seeds_per_point():
+    curves = [curve([100, 200], [v, v]) for v in (0.5, 0.6, 0.7)]
+    curves.append(curve([100], [0.9]))  # a run that stopped after its first evaluation
+    band = mean_band(curves, np.array([100.0, 200.0]))
+    assert list(band.n) == [4, 3]
+    half = t_dist.ppf(0.975, 2) * 0.1 / math.sqrt(3)
+    assert band.mean[1] == pytest.approx(0.6)
+    assert band.low[1] == pytest.approx(0.6 - half)
+    assert band.high[1] == pytest.approx(0.6 + half)
+    assert band.mean[0] == pytest.approx((0.5 + 0.6 + 0.7 + 0.9) / 4)
+
+
+def test_band_interval_is_clipped_to_valid_success_rates():
+    band = mean_band([curve([100], [0.0]), curve([100], [1.0])], np.array([100.0]))
+    assert band.low[0] == 0.0 and band.high[0] == 1.0
+
+
+def test_success_at_budget_fractions_interpolates_each_seed():
+    curves = [curve([200, 400, 600, 800, 1000], [0.2, 0.4, 0.6, 0.8, 1.0])] * 2
+    got = success_at_fractions(curves, 1000, (0.1, 0.2, 0.5, 1.0))
+    assert got[0].n == 0 and got[0].format() == "n/a"  # before the first evaluation
+    assert [g.mean for g in got[1:]] == pytest.approx([0.2, 0.5, 1.0])
+    assert got[2].format() == "50.0% ± 0.0"
+
+
+def test_threshold_steps_and_wall_time_with_censoring():
+    reached = curve([100, 200, 300], [0.1, 0.5, 0.85], wall=[5, 12, 30])
+    never = curve([100, 200, 1000], [0.1, 0.5, 0.7], wall=[6, 13, 70])
+    th = time_to_threshold([reached, never], 0.8)
+    assert list(th.steps) == [300, 1000]  # the second is censored at its budget
+    assert list(th.wall_s) == [30, 70]
+    assert list(th.reached) == [True, False] and th.censored == 1
+    assert th.format_steps().startswith("≥ 650")
+    assert th.format_steps().endswith("(1/2 never reached)")
+    none = time_to_threshold([never, never], 0.8)
+    assert none.format_steps() == "≥ budget (2/2 never reached)"
+    exact = time_to_threshold([reached, reached], 0.8)
+    assert exact.format_steps() == "300 [300, 300]" and exact.format_minutes() == "0.5 [0.5, 0.5]"
+
+
+def test_threshold_is_reached_at_equality():
+    th = time_to_threshold([curve([100, 200], [0.8, 0.9])], 0.8)
+    assert th.steps[0] == 100 and th.reached[0]
+
+
+def test_gain_point_estimate_and_bootstrap_interval():
+    g = efficiency_gain([100, 100, 100], [400, 400, 400])
+    assert (g.value, g.low, g.high, g.bound) == (pytest.approx(0.75), 0.75, 0.75, "exact")
+    g = efficiency_gain([100, 200, 300], [400, 500, 600])
+    assert g.value == pytest.approx(1 - 200 / 500)
+    assert g.low < g.value < g.high
+    # The resampling is seeded: the same data give the same interval.
+    again = efficiency_gain([100, 200, 300], [400, 500, 600])
+    assert (again.low, again.high) == (g.low, g.high)
+    # The worst resample pairs the slowest method draw with the fastest baseline draw.
+    assert g.low >= 1 - 300 / 400 and g.high <= 1 - 100 / 600
+
+
+def test_gain_marks_the_direction_of_censoring():
+    assert efficiency_gain([1], [2], 0, 1).bound == "lower"
+    assert efficiency_gain([1], [2], 1, 0).bound == "upper"
+    assert efficiency_gain([1], [2], 1, 1).bound == "unknown"
+    assert efficiency_gain([1], [2], 0, 1).format().startswith("≥ 50.0%")
+    assert math.isnan(efficiency_gain([], [2]).value)
+
+
+def test_threshold_gain_in_steps_and_wall_time():
+    fast = time_to_threshold([curve([100, 200], [0.9, 0.9], wall=[10, 20])], 0.8)
+    slow = time_to_threshold([curve([100, 400], [0.1, 0.9], wall=[10, 80])], 0.8)
+    assert threshold_gain(fast, slow, "steps").value == pytest.approx(0.75)
+    assert threshold_gain(fast, slow, "wall_s").value == pytest.approx(1 - 10 / 80)
+    never = time_to_threshold([curve([100, 400], [0.1, 0.2])], 0.8)
+    assert threshold_gain(never, never).format() == "n/a"  # nothing to compare
+    with pytest.raises(ValueError, match="use must be"):
+        threshold_gain(fast, slow, "minutes")
+
+
+def test_read_curve_drops_rows_superseded_by_a_resumed_session(tmp_path):
+    # Session 1 evaluated at 100..300 and was killed; its last checkpoint was at 200.
+    # Session 2 resumed from 200: its wall time restarts and it re-evaluates 300.
+    (tmp_path / "eval.csv").write_text(
+        "env_steps,wall_s,success,ci_low,ci_high,mean_length\n"
+        "100,10,0.1,0,1,50\n200,20,0.3,0,1,50\n300,30,0.5,0,1,50\n"
+        "300,9,0.4,0,1,50\n400,19,0.6,0,1,50\n"
+    )
+    c = read_curve(tmp_path, 400)
+    assert list(c.steps) == [100, 200, 300, 400]
+    assert list(c.success) == [0.1, 0.3, 0.4, 0.6]
+    assert list(c.wall_s) == [10, 20, 29, 39]
+
+
+def test_read_curve_errors_name_the_file_and_problem(tmp_path):
+    with pytest.raises(CurveError, match=r"eval\.csv: missing"):
+        read_curve(tmp_path, 100)
+    (tmp_path / "eval.csv").write_text("env_steps,success\n100,0.5\n")
+    with pytest.raises(CurveError, match="missing column"):
+        read_curve(tmp_path, 100)
+    (tmp_path / "eval.csv").write_text("env_steps,wall_s,success\n100,x,0.5\n")
+    with pytest.raises(CurveError, match="not a number"):
+        read_curve(tmp_path, 100)

@@ -1,0 +1,163 @@
+"""`itskill learn`: the whole pipeline on a tiny budget, resume, budgets, and clear errors."""
+
+from __future__ import annotations
+
+import json
+import socket
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from itskill.cli import app
+from itskill.experiments.learn import BudgetError, load_budgets
+
+runner = CliRunner()
+COMMAND = "Pick up the nut and place it on the bolt"
+
+# Smaller than the packaged "tiny": every step runs, nothing is learned, in well under a minute.
+TEST_BUDGETS = """
+[test]
+compare_expert = false
+[test.reward]
+iterations = 1
+samples = 1
+steps = 256
+num_envs = 2
+final_seeds = 1
+evaluations = 1
+eval_episodes = 2
+correlation_envs = 2
+[test.transfer]
+method = "itn"
+algo = "a2c"
+steps = 256
+num_envs = 2
+eval_every = 128
+eval_episodes = 2
+[test.evaluation]
+episodes = 4
+"""
+
+
+def flat(text: str) -> str:
+    return " ".join(text.split())
+
+
+@pytest.fixture
+def budgets(tmp_path: Path) -> Path:
+    path = tmp_path / "budgets.toml"
+    path.write_text(TEST_BUDGETS)
+    return path
+
+
+def learn(*args: str):
+    return runner.invoke(app, ["learn", *args])
+
+
+def test_learn_completes_adds_a_skill_and_resumes_without_redoing(tmp_path, budgets, home):
+    from itskill.rl.checkpoint import load_policy
+    from itskill.skills import open_skill_space
+
+    out = tmp_path / "run"
+    args = [COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out)]
+    result = learn(*args, "--no-video")
+    assert result.exit_code == 0, result.output
+    text = flat(result.output)
+    for i, step in enumerate(("plan", "reward", "sources", "analyze", "train", "evaluate"), 1):
+        assert f"[{i}/8] {step}" in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["plan"]["task"] == "pickplace_nut_m12"
+    assert summary["transfer"]["steps"] >= 256 and summary["evaluation"]["episodes"] == 4
+    assert summary["transfer"]["sources"] == [s["name"] for s in summary["sources"]["used"]]
+    assert summary["transfer"]["contribution"]["sources"] == summary["transfer"]["sources"]
+
+    with open_skill_space() as space:
+        skill = space.get(summary["skill"]["name"])
+        checkpoint = space.checkpoint_path(skill)
+    assert skill.description == COMMAND and skill.task_id == "pickplace_nut_m12"
+    assert skill.actions == ("approach", "grasp", "lift", "approach", "place")
+    assert skill.success_rate == summary["evaluation"]["success_rate"]
+    assert checkpoint.is_file() and str(home) in str(checkpoint)
+    assert load_policy(checkpoint.parent) is not None  # the stored skill is a loadable policy
+
+    md = (out / "report.md").read_text()
+    for section in ("## Plan", "## Generated reward", "## Transfer", "## Evaluation",
+                    "Attention over one episode", "## Skill added to the skill space"):  # fmt: skip
+        assert section in md, section
+    assert (out / "report.html").read_text().count("data:image/png;base64,") == 2
+
+    again = learn(*args, "--no-video")
+    assert again.exit_code == 2 and "--resume" in flat(again.output)
+
+    model = out / "transfer" / "model.zip"
+    stamp = model.stat().st_mtime_ns
+    resumed = learn(*args, "--no-video", "--resume")
+    assert resumed.exit_code == 0, resumed.output
+    assert flat(resumed.output).count("kept from the previous session") >= 5
+    assert model.stat().st_mtime_ns == stamp
+    with open_skill_space() as space:
+        assert [s.name for s in space.list(task_id="pickplace_nut_m12")] == [skill.name]
+
+
+def test_ungroundable_command_is_one_clear_line(tmp_path, budgets):
+    result = learn("make me a sandwich", "--budgets", str(budgets), "--budget", "test",
+                   "--out", str(tmp_path / "run"))  # fmt: skip
+    assert result.exit_code == 2
+    assert "error:" in result.output and "Traceback" not in result.output
+    assert "sandwich" in result.output
+    assert not (tmp_path / "run").exists()  # nothing to resume: a retry starts afresh
+
+
+def test_unreachable_llm_is_one_clear_line(tmp_path, budgets, monkeypatch):
+    from itskill.llm import openai_client
+
+    class FastClient(openai_client.OpenAIClient):
+        def __init__(self, *args, **kwargs):
+            fast = openai_client.RetryConfig(max_retries=1, backoff_initial_s=0.01, timeout_s=2)
+            super().__init__(*args, **{**kwargs, "retry": fast})
+
+    monkeypatch.setattr(openai_client, "OpenAIClient", FastClient)
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    monkeypatch.setenv("OPENAI_BASE_URL", f"http://127.0.0.1:{port}/v1")
+    result = learn(COMMAND, "--llm", "openai:some-model", "--budgets", str(budgets),
+                   "--budget", "test", "--out", str(tmp_path / "run"))  # fmt: skip
+    assert result.exit_code == 2, result.output
+    assert "error:" in result.output and "Traceback" not in result.output
+    assert f"127.0.0.1:{port}" in flat(result.output)
+
+
+def test_packaged_budgets_load_and_tiny_is_smallest():
+    budgets = load_budgets()
+    assert {"tiny", "default", "full"} <= set(budgets)
+    assert budgets["tiny"].transfer.steps < budgets["default"].transfer.steps
+    assert budgets["default"].transfer.steps < budgets["full"].transfer.steps
+    assert budgets["full"].search_config().iterations == 5  # the paper's 5 x 10 samples
+    assert budgets["full"].search_config().samples == 10
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (("steps = 256\nnum_envs = 2\neval_every", "steps = 0\nnum_envs = 2\neval_every"),
+         "test.transfer.steps: must be positive"),
+        (('method = "itn"', 'method = "xyz"'), "test.transfer.method: expected one of"),
+        (("iterations = 1", "iterations = 0"), "test.reward"),
+        (("[test.evaluation]", "[test.evaluation]\nseeds = 3"), "test.evaluation"),
+        (("compare_expert = false", "compare_expert = 1"), "test.compare_expert: expected bool"),
+    ],
+)  # fmt: skip
+def test_bad_budget_fields_are_named(tmp_path, edit, message):
+    path = tmp_path / "b.toml"
+    path.write_text(TEST_BUDGETS.replace(*edit))
+    with pytest.raises(BudgetError) as info:
+        load_budgets(path)
+    assert message in str(info.value) and str(path) in str(info.value)
+
+
+def test_unknown_budget_is_a_clear_error(tmp_path, budgets):
+    result = learn(COMMAND, "--budgets", str(budgets), "--budget", "huge",
+                   "--out", str(tmp_path / "run"))  # fmt: skip
+    assert result.exit_code == 2 and "unknown budget 'huge'" in flat(result.output)

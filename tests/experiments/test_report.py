@@ -1,0 +1,124 @@
+"""The experiment report: every section, from a run directory with known curves."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from itskill.experiments.config import EvalSettings, ExperimentConfig, ReportSettings
+from itskill.experiments.provenance import Sessions
+from itskill.experiments.report import ReportError, experiment_report
+from itskill.experiments.runner import Cell
+from itskill.reward.files import write_json
+from itskill.transfer import train_transfer
+
+TASK = "pickplace_nut_m12"
+# env-steps 200..1000; ITN reaches 80% at 400 in every seed; No_Transfer at 800, 800 and never.
+ITN = [0.5, 0.8, 0.9, 0.9, 0.95]
+SCRATCH = {
+    0: [0.1, 0.3, 0.6, 0.8, 0.9],
+    1: [0.2, 0.4, 0.6, 0.85, 0.9],
+    2: [0.1, 0.2, 0.3, 0.5, 0.7],
+}
+
+
+def write_cell(run: Path, cell: Cell, success: list[float]) -> None:
+    out = cell.dir(run)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = [f"{200 * (i + 1)},{20.0 * (i + 1)},{s},0,1,100" for i, s in enumerate(success)]
+    (out / "eval.csv").write_text(
+        "env_steps,wall_s,success,ci_low,ci_high,mean_length\n" + "\n".join(rows) + "\n"
+    )
+    write_json(out / "result.json", {"task": cell.task, "method": cell.method, "seed": cell.seed})
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    run = tmp_path_factory.mktemp("run")
+    config = ExperimentConfig(
+        name="synthetic",
+        tasks=(TASK,),
+        methods=("itn", "no_transfer"),
+        seeds=(0, 1, 2, 3),
+        steps=1000,
+        eval=EvalSettings(every=200, episodes=10),
+        reward={TASK: "expert"},
+        sources={TASK: "auto"},
+        report=ReportSettings(paper_gain={TASK: 0.7222}),
+    )
+    write_json(run / "config.json", config.to_dict())
+    write_json(run / "sources.json", {TASK: ["place_nut_m12", "reach_nut_m12", "pick_nut_m12"]})
+    (run / "experiment.toml").write_text('name = "synthetic"\n')
+    sessions = Sessions(run / "provenance.json")
+    sessions.start()
+    sessions.finish(status="complete")
+    # The ITN cells hold a real (barely trained) ITN checkpoint for the attention figure and video.
+    home = tmp_path_factory.mktemp("home")
+    mp = pytest.MonkeyPatch()
+    mp.setenv("ITSKILL_HOME", str(home))
+    try:
+        train_transfer(
+            TASK, "itn", seed=0, steps=32, algo="a2c", out=Cell(TASK, "itn", 0).dir(run),
+            num_envs=2, n_threads=1, progress=False,
+        )  # fmt: skip
+    finally:
+        mp.undo()
+    for seed in range(3):
+        write_cell(run, Cell(TASK, "itn", seed), ITN)
+        write_cell(run, Cell(TASK, "no_transfer", seed), SCRATCH[seed])
+    return run
+
+
+def test_report_has_every_section_with_the_known_numbers(run, tmp_path):
+    files = experiment_report(run, tmp_path / "report", video=False)
+    md = files.markdown.read_text()
+    for section in (
+        "# Experiment report: synthetic",
+        "## Provenance",
+        "### Configuration",
+        "## Task pickplace_nut_m12",
+        "Learning curves (Fig. 7)",
+        "Success at fractions of the budget (Table II)",
+        "Time to 80% success and time efficiency",
+        "Attention over one episode (Fig. 8)",
+        "## Runs not finished",
+    ):
+        assert section in md, section
+    assert "Source skills: place_nut_m12, reach_nut_m12, pick_nut_m12" in md
+    # Table II at 20% of the budget (200 env-steps): ITN 50% in every seed.
+    assert "| ITN | 3 | 50.0% ± 0.0 |" in md
+    # ITN: 400 env-steps in every seed; No_Transfer: 800, 800 and censored at 1000.
+    assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | ≥ 53.8% [" in md
+    assert "≥ 867 [" in md and "(1/3 never reached)" in md
+    assert "72.22%" in md and "falls short of" in md
+    assert "pickplace_nut_m12/itn/seed_3: not started" in md
+    assert (tmp_path / "report" / "figures" / f"curves_{TASK}.png").stat().st_size > 10_000
+    assert (tmp_path / "report" / "figures" / f"attention_{TASK}.png").is_file()
+    html = files.html.read_text()
+    assert html.count("data:image/png;base64,") == 2
+    assert "<table>" in html and "Fig. 8" in html
+    assert not files.notes
+
+
+@pytest.mark.slow  # software rendering: about 0.1-0.4 s per frame
+def test_report_films_the_best_methods_final_policy(run, tmp_path):
+    files = experiment_report(run, tmp_path / "report")
+    md, html = files.markdown.read_text(), files.html.read_text()
+    assert "Rollout of the best method's final policy" in md
+    if files.notes:  # no OpenGL here: the report says so instead of failing
+        assert any("no video" in n for n in files.notes) and "No video" in md
+    else:
+        video = tmp_path / "report" / "videos" / f"{TASK}_itn_seed0.mp4"
+        assert video.stat().st_size > 0 and "<video controls" in html
+
+
+def test_report_refuses_a_directory_that_is_not_a_run(tmp_path):
+    with pytest.raises(ReportError, match="not an experiment run directory"):
+        experiment_report(tmp_path)
+
+
+def test_config_json_round_trips_for_the_report(run):
+    data = json.loads((run / "config.json").read_text())
+    assert ExperimentConfig.from_dict(data).report.paper_gain == {TASK: 0.7222}

@@ -1,0 +1,123 @@
+"""The runner trains every cell once: a rerun skips finished cells, a partial cell resumes."""
+
+from __future__ import annotations
+
+import json
+import pickle
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from itskill.experiments.config import load_experiment
+from itskill.experiments.runner import (
+    RESULT_FILE,
+    Cell,
+    ExperimentRunError,
+    cells,
+    load_cell_results,
+    run_experiment,
+)
+from itskill.transfer import train_transfer
+
+TOY = """
+name = "toy"
+tasks = ["pickplace_nut_m12"]
+methods = ["itn", "no_transfer"]
+seeds = 2
+algo = "a2c"
+steps = 256
+num_envs = 2
+[eval]
+every = 128
+episodes = 2
+"""
+
+
+@pytest.fixture
+def toy(tmp_path: Path):
+    path = tmp_path / "toy.toml"
+    path.write_text(TOY)
+    return load_experiment(path), path
+
+
+def quiet() -> Console:
+    return Console(quiet=True)
+
+
+def test_runs_every_cell_then_skips_them_all_on_rerun(toy, tmp_path):
+    config, path = toy
+    run = tmp_path / "run"
+    summary = run_experiment(
+        config, run, "local", 2, resume=False, source_file=path, console=quiet()
+    )
+    assert not summary.failed, summary.failed
+    assert sorted(c.name for c in summary.finished) == sorted(c.name for c in cells(config))
+    results = load_cell_results(run)
+    assert len(results) == 4
+    for cell, result in results.items():
+        assert result["num_timesteps"] >= 256 and result["resumed_from"] == 0
+        assert (cell.dir(run) / "eval.csv").is_file()
+    assert (run / "experiment.toml").read_text() == TOY
+    sources = json.loads((run / "sources.json").read_text())["pickplace_nut_m12"]
+    assert sources and all(isinstance(s, str) for s in sources)
+    itn = json.loads((Cell("pickplace_nut_m12", "itn", 0).dir(run) / "transfer.json").read_text())
+    assert [s["name"] for s in itn["sources"]] == sources
+
+    stamps = {
+        c: (
+            (c.dir(run) / RESULT_FILE).stat().st_mtime_ns,
+            (c.dir(run) / "model.zip").stat().st_mtime_ns,
+        )
+        for c in results
+    }
+    with pytest.raises(ExperimentRunError, match="--resume"):
+        run_experiment(config, run, "local", 1, console=quiet())
+    again = run_experiment(config, run, "local", 1, resume=True, console=quiet())
+    assert again.finished == [] and len(again.skipped) == 4
+    for c, stamp in stamps.items():
+        assert stamp == (
+            (c.dir(run) / RESULT_FILE).stat().st_mtime_ns,
+            (c.dir(run) / "model.zip").stat().st_mtime_ns,
+        )
+    provenance = json.loads((run / "provenance.json").read_text())
+    assert [s["status"] for s in provenance["sessions"]] == ["complete", "complete"]
+
+
+def test_jobs_can_be_sent_to_worker_processes(toy, tmp_path):
+    """Local workers are spawned and Ray pickles its tasks: a job must pickle."""
+    from itskill.experiments.runner import CellSettings, run_cell
+
+    settings = CellSettings("a2c", 256, 2, "expert", ("pick_nut_m12",), "offline", 128, 2, 0.8, "c")
+    job = (run_cell, Cell("pickplace_nut_m12", "itn", 0), settings, tmp_path)
+    assert pickle.loads(pickle.dumps(job))[1:3] == job[1:3]
+
+
+def test_partial_cell_resumes_from_its_checkpoint(toy, tmp_path):
+    config, _ = toy
+    config = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
+    run = tmp_path / "run"
+    cell = Cell("pickplace_nut_m12", "no_transfer", 0)
+    # A killed cell: a checkpoint half-way and no result.json.
+    train_transfer(
+        cell.task, cell.method, seed=0, steps=128, algo="a2c", out=cell.dir(run), num_envs=2,
+        eval_every=128, eval_episodes=2, n_threads=1, progress=False,
+    )  # fmt: skip
+    run_dir_config = run / "config.json"
+    assert not run_dir_config.exists()
+    with pytest.raises(ExperimentRunError, match="not an experiment run directory"):
+        run_experiment(config, run, "local", 1, resume=True, console=quiet())
+    summary = run_experiment(config, run, "local", 1, console=quiet())
+    assert summary.resumed == [cell] and summary.finished == [cell]
+    result = json.loads((cell.dir(run) / RESULT_FILE).read_text())
+    assert result["resumed_from"] == 128 and result["num_timesteps"] >= 256
+
+
+def test_resume_refuses_other_training_settings(toy, tmp_path):
+    config, _ = toy
+    run = tmp_path / "run"
+    small = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
+    run_experiment(small, run, "local", 1, console=quiet())
+    longer = type(config)(**{**small.__dict__, "steps": 512})
+    with pytest.raises(ExperimentRunError, match="steps=256"):
+        run_experiment(longer, run, "local", 1, resume=True, console=quiet())
