@@ -8,9 +8,13 @@ from __future__ import annotations
 import typer
 
 from itskill.cli.episodes import demo, eval_cmd, render_cmd
+from itskill.cli.experiment import experiment_app, report_cmd
+from itskill.cli.learn import learn_cmd
+from itskill.cli.reward import plan_cmd, reward_app
 from itskill.cli.skills import skills_app
 from itskill.cli.tasks import tasks_app
 from itskill.cli.train import train_cmd
+from itskill.cli.transfer import transfer_app
 
 app = typer.Typer(
     no_args_is_help=True,
@@ -23,5 +27,11 @@ app.command("eval")(eval_cmd)
 app.command("train")(train_cmd)
 app.command("render")(render_cmd)
 app.command("demo")(demo)
+app.command("plan")(plan_cmd)
+app.add_typer(reward_app, name="reward")
+app.add_typer(transfer_app, name="transfer")
+app.add_typer(experiment_app, name="experiment")
+app.command("report")(report_cmd)
+app.command("learn")(learn_cmd)
 
 __all__ = ["app"]

@@ -20,30 +20,21 @@ Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but 
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from itskill.datafile import DataFileError, read_toml
 from itskill.executors import EXECUTORS
 from itskill.tasks import UnknownTaskError, get_task
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 ALGOS = ("a2c", "ppo")
 EXPERT = "expert"
 AUTO = "auto"
 
 
-class ExperimentConfigError(ValueError):
+class ExperimentConfigError(DataFileError):
     """An experiment file that does not validate: names the file, the field and the problem."""
-
-    def __init__(self, path: str | Path, where: str, problem: str) -> None:
-        super().__init__(f"{path}: {where}: {problem}")
-        self.path, self.where, self.problem = str(path), where, problem
 
 
 @dataclass(frozen=True)
@@ -340,9 +331,5 @@ def load_experiment(path: str | Path) -> ExperimentConfig:
     path = Path(path)
     if not path.is_file():
         raise ExperimentConfigError(path, "file", "no such experiment file")
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as err:
-        raise ExperimentConfigError(path, "TOML syntax", str(err)) from err
+    data = read_toml(path, ExperimentConfigError)
     return parse_experiment(data, path)

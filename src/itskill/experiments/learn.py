@@ -27,7 +27,6 @@ from __future__ import annotations
 import hashlib
 import re
 import shutil
-import sys
 from dataclasses import asdict, dataclass, replace
 from importlib import resources
 from pathlib import Path
@@ -36,15 +35,11 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
+from itskill.datafile import DataFileError, read_toml
 from itskill.experiments.analysis import read_curve
 from itskill.experiments.provenance import Sessions
 from itskill.experiments.report import PROVENANCE_FILE, ReportFiles, learn_report
 from itskill.reward.files import read_json, write_json
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 LEARN_FILE = "learn.json"
 EVAL_SEED = 10_000
@@ -56,11 +51,8 @@ class LearnError(ValueError):
     """A run directory or budget that cannot be used; the message says what to do."""
 
 
-class BudgetError(ValueError):
+class BudgetError(DataFileError):
     """A budgets file that does not validate: names the file, the field and the problem."""
-
-    def __init__(self, path: str | Path, where: str, problem: str) -> None:
-        super().__init__(f"{path}: {where}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -172,13 +164,7 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
 def load_budgets(path: str | Path | None = None) -> dict[str, LearnBudget]:
     """Every budget in ``path`` (default: the packaged ``learn.toml``), validated."""
     path = Path(path) if path is not None else default_budgets_path()
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError as err:
-        raise BudgetError(path, "file", "no such file") from err
-    except tomllib.TOMLDecodeError as err:
-        raise BudgetError(path, "TOML syntax", str(err)) from err
+    data = read_toml(path, BudgetError)
     if not data:
         raise BudgetError(path, "file", "defines no budget")
     return {name: _budget(path, name, raw) for name, raw in data.items()}

@@ -7,29 +7,20 @@ and what was expected (:class:`HyperparamError`).
 
 from __future__ import annotations
 
-import sys
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
+from itskill.datafile import DataFileError, read_toml
 from itskill.rl.policy import PolicyConfig
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 Algo = Literal["a2c", "ppo"]
 ALGOS: tuple[str, ...] = ("a2c", "ppo")
 
 
-class HyperparamError(ValueError):
+class HyperparamError(DataFileError):
     """A hyper-parameter file or override that does not validate."""
-
-    def __init__(self, path: str | Path, where: str, problem: str) -> None:
-        super().__init__(f"{path}: {where}: {problem}")
-        self.path, self.where, self.problem = str(path), where, problem
 
 
 @dataclass(frozen=True)
@@ -172,13 +163,7 @@ def load_hyperparams(
     path = Path(path) if path is not None else default_path()
     if algo not in ALGO_CONFIGS:
         raise HyperparamError(path, "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError as err:
-        raise HyperparamError(path, "file", "no such file") from err
-    except tomllib.TOMLDecodeError as err:
-        raise HyperparamError(path, "TOML syntax", str(err)) from err
+    data = read_toml(path, HyperparamError)
     if family not in data:
         raise HyperparamError(
             path, family, f"no table for this task family; the file has {sorted(data)}"

@@ -8,34 +8,25 @@ file is reported with the file, the field and what was expected.
 from __future__ import annotations
 
 import os
-import sys
 from dataclasses import dataclass, field
 from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from itskill.datafile import DataFileError, read_toml
 from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec, PlacedFixture
 from itskill.sim.scene import SceneSpec
 from itskill.sim.task import InitSpec, ObjectInit, Range, SimTask
 from itskill.tasks.predicates import Expression, PredicateError, parse
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 TASKS_DIR_ENV = "ITSKILL_TASKS_DIR"
 _PART_KINDS = {"nut": NutSpec, "bolt": BoltSpec, "peg": PegSpec, "hole": HoleSpec}
 _INIT_MODES = ("table", "gripper", "bolt", "hole")
 
 
-class TaskFileError(ValueError):
+class TaskFileError(DataFileError):
     """A task or parts file that does not validate: names the file, the field and the problem."""
-
-    def __init__(self, path: str | Path, where: str, problem: str) -> None:
-        super().__init__(f"{path}: {where}: {problem}")
-        self.path, self.where, self.problem = str(path), where, problem
 
 
 class UnknownTaskError(KeyError):
@@ -158,11 +149,7 @@ class _Reader:
 
 
 def _load_toml(path: Path) -> dict[str, Any]:
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as err:
-        raise TaskFileError(path, "TOML syntax", str(err)) from err
+    return read_toml(path, TaskFileError)
 
 
 def load_parts(path: Path) -> dict[str, Any]:

@@ -7,24 +7,16 @@ same shape) and checks every field, reporting the file, the field and what was e
 
 from __future__ import annotations
 
-import sys
 from dataclasses import asdict, dataclass, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from itskill.datafile import DataFileError, read_toml
 
 
-class TransferConfigError(ValueError):
+class TransferConfigError(DataFileError):
     """A transfer settings file that does not validate: names the file, field and problem."""
-
-    def __init__(self, path: str | Path, where: str, problem: str) -> None:
-        super().__init__(f"{path}: {where}: {problem}")
-        self.path, self.where, self.problem = str(path), where, problem
 
 
 @dataclass(frozen=True)
@@ -100,13 +92,7 @@ def _check(path: Path, where: str, value: Any, default: Any) -> Any:
 def load_transfer_config(path: str | Path | None = None) -> TransferConfig:
     """The settings in ``path`` (default: the packaged ``transfer.toml``), every field checked."""
     path = Path(path) if path is not None else default_path()
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError as err:
-        raise TransferConfigError(path, "file", "no such file") from err
-    except tomllib.TOMLDecodeError as err:
-        raise TransferConfigError(path, "TOML syntax", str(err)) from err
+    data = read_toml(path, TransferConfigError)
     defaults = {f.name: f.default for f in fields(TransferConfig)}
     values: dict[str, Any] = {}
     for table, entries in data.items():

@@ -124,6 +124,13 @@ def _parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
     return keys
 
 
+def _covered(actions: tuple[str, ...] | list[str], target: tuple[str, ...] | list[str]) -> int:
+    """Length of ``actions`` if it occurs as a contiguous run in ``target``, else 0."""
+    n = len(actions)
+    runs = {tuple(target[i : i + n]) for i in range(len(target) - n + 1)}
+    return n if n and tuple(actions) in runs else 0
+
+
 def resolve_sources(
     target: str,
     sources: str | Sequence[int | str] = AUTO,
@@ -134,8 +141,10 @@ def resolve_sources(
 ) -> list[SourceSkill]:
     """The source skills for ``target``: retrieved (``"auto"``) or named (ids or names).
 
-    ``"auto"`` takes the ``k`` skills most similar to the target's command, skipping the target's
-    own task when ``exclude_target`` and repeated action sequences when ``distinct_actions``.
+    ``"auto"`` takes ``k`` skills: first those whose action sequence is a contiguous run of the
+    target's (longest first), then the rest, each group by similarity to the target's command;
+    skipping the target's own task when ``exclude_target`` and repeated action sequences when
+    ``distinct_actions``.
     Named skills (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in
     that order. ``space`` defaults to the user's skill space (:func:`open_skill_space`).
     """
@@ -148,6 +157,10 @@ def resolve_sources(
         if isinstance(sources, str) and sources.strip() == AUTO:
             exclude = {spec.id} if exclude_target else set()
             ranked = search(space, spec.command, k=len(space), exclude_tasks=exclude)
+            # Skills that perform a run of the target's own steps come first, the longest run
+            # first (a pick covers approach, grasp and lift of a pick-and-place, a lift only one
+            # of them); the sort is stable, so similarity orders the rest.
+            ranked.sort(key=lambda hit: -_covered(hit[0].actions, spec.actions))
             chosen: list[tuple[Skill, float | None]] = []
             seen: set[tuple[str, ...]] = set()
             for skill, score in ranked:

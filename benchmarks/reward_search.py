@@ -1,0 +1,106 @@
+"""The reward search with the offline backend, next to the expert reward with the same budget.
+
+For each task, run the full loop (:func:`itskill.reward.generate_reward`, default 5 iterations x
+10 samples, the packaged candidate budget), then report the wall time on this machine and the
+chosen reward's final success (mean over the final seeds, 95% interval) beside the expert
+reward's (same env-steps, same seeds). Results go to ``results/reward_search/<task>/`` (the
+search's ``summary.json`` and ``fig6.png``); the run directories to ``--runs`` (resumable:
+rerunning the same command continues an interrupted search).
+
+Targets (issue 4): the basic-skill loop under 60 minutes on 2 cores; generated reward success >=
+the expert's.
+
+    python benchmarks/reward_search.py                       # pick_nut_m12 and pickplace_nut_m12
+    python benchmarks/reward_search.py --tasks pick_nut_m12 --iterations 1 --samples 2 --steps 2048
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import time
+from pathlib import Path
+
+from rich.console import Console
+
+from itskill.executors import EXECUTORS
+from itskill.reward import generate_reward, load_search_config, search_client
+from itskill.reward.search import CONFIG_FILE, FIGURE_FILE, SUMMARY_FILE
+
+DEFAULT_TASKS = ("pick_nut_m12", "pickplace_nut_m12")
+
+
+def _interval(band: dict | None) -> str:
+    if not band or band.get("mean") is None:
+        return "-"
+    low, high = max(band["ci_low"], 0.0), min(band["ci_high"], 1.0)
+    return f"{band['mean']:.0%} [{low:.0%}, {high:.0%}]"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--tasks", nargs="+", default=list(DEFAULT_TASKS))
+    parser.add_argument("--iterations", type=int)
+    parser.add_argument("--samples", type=int)
+    parser.add_argument("--steps", type=int, help="env-steps per candidate and final run")
+    parser.add_argument("--final-seeds", type=int)
+    parser.add_argument("--workers", type=int, help="parallel candidates (default one per core)")
+    parser.add_argument("--executor", choices=EXECUTORS)
+    parser.add_argument("--runs", type=Path, default=Path("runs/reward_search"))
+    parser.add_argument("--results", type=Path, default=Path("results/reward_search"))
+    args = parser.parse_args()
+    config = load_search_config(
+        overrides={
+            "iterations": args.iterations,
+            "samples": args.samples,
+            "steps": args.steps,
+            "final_seeds": args.final_seeds,
+            "workers": args.workers,
+            "executor": args.executor,
+        }
+    )
+    console = Console(stderr=True)
+    rows = []
+    for task in args.tasks:
+        run_dir = args.runs / task
+        start = time.perf_counter()
+        result = generate_reward(
+            task,
+            search_client(run_dir, "offline"),
+            run_dir,
+            config,
+            resume=(run_dir / CONFIG_FILE).is_file(),
+            console=console,
+        )
+        wall = time.perf_counter() - start
+        target = args.results / task
+        target.mkdir(parents=True, exist_ok=True)
+        summary = json.loads((run_dir / SUMMARY_FILE).read_text())
+        summary["benchmark"] = {
+            "wall_s_this_call": round(wall, 1),
+            "cpus": os.cpu_count(),
+            "machine": platform.machine(),
+            "python": platform.python_version(),
+        }
+        (target / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+        shutil.copyfile(run_dir / FIGURE_FILE, target / FIGURE_FILE)
+        rows.append((task, summary, result))
+    print(
+        f"\n{config.iterations} iterations x {config.samples} samples, {config.steps} env-steps "
+        f"per candidate, {config.final_seeds} final seeds, {os.cpu_count()} cores"
+    )
+    print(f"{'task':<22} {'wall min':>9}  {'generated':<20} {'expert':<20}")
+    for task, summary, _ in rows:
+        final = summary["final"]
+        minutes = summary["usage"]["wall_s"] / 60
+        print(
+            f"{task:<22} {minutes:>9.1f}  {_interval(final['generated']):<20} "
+            f"{_interval(final['expert']):<20}"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,297 @@
+"""`itskill plan` and `itskill reward generate|show`: the planner and the reward search.
+
+Imports of itskill.reward and itskill.llm stay inside the commands: the other commands should not
+pay for them.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.markup import escape
+from rich.syntax import Syntax
+from rich.table import Table
+
+from itskill.cli.common import USAGE_ERROR, JsonOpt, console, err_console, print_json, user_errors
+
+reward_app = typer.Typer(
+    no_args_is_help=True,
+    help="Reward generation with a language model: search a reward for a task, show a search.",
+)
+
+LlmOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--llm",
+        help="'offline' (the embedded rule-based backend) or 'openai:MODEL' for any "
+        "OpenAI-compatible server; default $ITSKILL_LLM_MODEL, else offline.",
+    ),
+]
+BaseUrlOpt = Annotated[
+    str | None,
+    typer.Option(help="OpenAI-compatible endpoint (default $OPENAI_BASE_URL, else OpenAI's)."),
+]
+
+
+@contextmanager
+def _errors() -> Iterator[None]:
+    """What the user can fix (bad command, model unreachable, unusable run dir): exit code 2."""
+    from itskill.executors import ExecutorError
+    from itskill.llm.client import LLMError
+    from itskill.llm.prompts import PromptError
+    from itskill.reward.config import SearchConfigError
+    from itskill.reward.plan import PlanError
+    from itskill.reward.search import RewardSearchError
+
+    try:
+        with user_errors():
+            yield
+    except (
+        PlanError,
+        LLMError,
+        PromptError,
+        RewardSearchError,
+        SearchConfigError,
+        ExecutorError,
+    ) as err:
+        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
+        raise typer.Exit(USAGE_ERROR) from err
+
+
+def plan_cmd(
+    command: Annotated[
+        str,
+        typer.Argument(
+            help='What the robot should do ("Pick up the M12 nut and place it on the bolt") or '
+            "a task id."
+        ),
+    ],
+    llm: LlmOpt = None,
+    base_url: BaseUrlOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Plan a command: the task it means, its ordered subtasks, actions and objects."""
+    from itskill.llm import make_client
+    from itskill.reward.plan import plan_command, plan_for_task
+    from itskill.reward.search import OFFLINE_NOTE, resolve_target
+
+    with _errors():
+        task = resolve_target(command)
+        client = None
+        if task is not None:
+            plan = plan_for_task(task)
+        else:
+            client = make_client(llm, base_url=base_url)
+            plan = plan_command(command, client)
+    if as_json:
+        print_json(plan.to_dict())
+        return
+    console.print(f"[bold]{escape(plan.command)}[/bold] → task [bold]{plan.task}[/bold]")
+    for sentence in plan.subtasks:
+        console.print(f"  {escape(sentence)}", highlight=False)
+    console.print(f"actions: {' → '.join(plan.actions)}; objects: {', '.join(plan.objects)}")
+    if plan.notes:
+        console.print(f"notes: {escape(plan.notes)}", highlight=False)
+    if client is None:
+        console.print("planned from the task file (no language model)", style="dim")
+    elif client.offline:
+        console.print(f"planned by {client.name}: {OFFLINE_NOTE}", style="dim")
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")[:60] or "reward"
+
+
+@reward_app.command("generate")
+def generate_cmd(
+    target: Annotated[
+        str | None,
+        typer.Argument(help="A task id or a command to plan (optional with --resume)."),
+    ] = None,
+    llm: LlmOpt = None,
+    base_url: BaseUrlOpt = None,
+    iterations: Annotated[int | None, typer.Option(min=1, help="Iterations (default 5).")] = None,
+    samples: Annotated[
+        int | None, typer.Option(min=1, help="Reward samples per iteration (default 10).")
+    ] = None,
+    steps: Annotated[
+        int | None, typer.Option(min=1, help="Env-steps per candidate and seed.")
+    ] = None,
+    executor: Annotated[
+        str | None, typer.Option(help="local (process pool) or ray (default local).")
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="Parallel candidates (local; default: one per core).")
+    ] = None,
+    ray_address: Annotated[
+        str | None, typer.Option(help="Ray cluster address (default: a local Ray instance).")
+    ] = None,
+    final_seeds: Annotated[
+        int | None, typer.Option(min=1, help="Seeds of the final retraining (default 3).")
+    ] = None,
+    config_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--config", help="A search settings TOML file (the shape of reward/data/search.toml)."
+        ),
+    ] = None,
+    expert: Annotated[
+        bool | None,
+        typer.Option(
+            "--expert/--no-expert",
+            help="Retrain the expert reward with the same budget to compare (default: yes, or "
+            "what the resumed run did).",
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Run directory (default runs/reward/<target>).")
+    ] = None,
+    resume: Annotated[
+        Path | None, typer.Option(help="Continue the search in this run directory.")
+    ] = None,
+) -> None:
+    """Search a reward for a task or command: plan, generate, train candidates, keep the best,
+    compare it with the expert reward (Fig. 6). Rerun with --resume RUN after an interruption."""
+    from itskill.reward.search import (
+        config_from_run,
+        generate_reward,
+        load_search_config,
+        read_run,
+        search_client,
+    )
+
+    overrides: dict[str, Any] = {
+        "iterations": iterations,
+        "samples": samples,
+        "steps": steps,
+        "executor": executor,
+        "workers": workers,
+        "ray_address": ray_address,
+        "final_seeds": final_seeds,
+    }
+    with _errors():
+        if resume is not None:
+            if out is not None and out != resume:
+                raise typer.BadParameter("give --resume RUN or --out, not both", param_hint="--out")
+            stored = read_run(resume)["config"]
+            target = target or stored["target"]
+            llm = llm or stored["llm"]
+            expert = stored["compare_expert"] if expert is None else expert
+            if config_file is not None:
+                raise typer.BadParameter("a resumed run keeps its settings", param_hint="--config")
+            config = config_from_run(resume, overrides)
+            run_dir = resume
+        else:
+            if target is None:
+                raise typer.BadParameter(
+                    "give a task id or a command (or --resume RUN)", param_hint="TARGET"
+                )
+            config = load_search_config(config_file, overrides)
+            run_dir = out or Path("runs/reward") / _slug(target)
+        client = search_client(run_dir, llm, base_url)
+        try:
+            result = generate_reward(
+                target,
+                client,
+                run_dir,
+                config,
+                resume=resume is not None,
+                compare_expert=expert is not False,
+                console=console,
+            )
+        except KeyboardInterrupt:
+            err_console.print(
+                f"interrupted: finished candidates are saved; continue with "
+                f"itskill reward generate --resume {run_dir}"
+            )
+            raise typer.Exit(130) from None
+    console.print(f"best reward: {result.best_path}; details: itskill reward show {run_dir}")
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0%}"
+
+
+@reward_app.command("show")
+def show_cmd(
+    run: Annotated[Path, typer.Argument(help="A reward search run directory.")],
+    as_json: JsonOpt = False,
+) -> None:
+    """Show a reward search: plan, iterations, the best reward, the comparison, LLM usage."""
+    from itskill.reward.search import OFFLINE_NOTE, read_run
+
+    with _errors():
+        data = read_run(run)
+    if as_json:
+        print_json(data)
+        return
+    config, summary, usage = data["config"], data["summary"], data["usage"]
+    llm = config.get("llm", "?")
+    console.print(f"[bold]{escape(str(run))}[/bold]: target {escape(config.get('target', '?'))}")
+    if config.get("offline"):
+        console.print(f"replies by {llm}: {OFFLINE_NOTE}", style="yellow")
+    else:
+        console.print(f"replies by {llm}")
+    plan = data["plan"]
+    if plan:
+        console.print(f"plan: task {plan['task']}", highlight=False)
+        for sentence in plan["subtasks"]:
+            console.print(f"  {escape(sentence)}", highlight=False)
+    table = Table(title="iterations")
+    for column in ("iteration", "accepted", "trained", "best sample", "best success",
+                   "correlation", "best so far"):  # fmt: skip
+        table.add_column(column)
+    settings = config.get("settings", {})
+    for it in data["iterations"]:
+        corr = it.get("best_correlation")
+        table.add_row(
+            str(it["iteration"] + 1),
+            f"{it['accepted']}/{len(it['samples'])}",
+            str(it["trained"]),
+            "-" if it["best_sample"] is None else str(it["best_sample"]),
+            _pct(it["best_success"]),
+            "-" if corr is None else f"{corr:+.2f}",
+            _pct(it["best_so_far"]),
+        )
+    console.print(table)
+    if data["best_code"]:
+        console.print("best reward so far:" if summary is None else "best reward:")
+        console.print(Syntax(data["best_code"], "python", word_wrap=True))
+    if summary is None:
+        done = len(data["iterations"])
+        console.print(
+            f"unfinished: {done}/{settings.get('iterations', '?')} iterations done; continue "
+            f"with itskill reward generate --resume {run}",
+            style="yellow",
+        )
+    else:
+        final = summary["final"]
+        for key, label in (("generated", "generated (best)"), ("expert", "expert")):
+            band = final.get(key)
+            if band and band.get("mean") is not None:
+                console.print(
+                    f"{label}: success {_pct(band['mean'])} (95% CI {_pct(band['ci_low'])}–"
+                    f"{_pct(band['ci_high'])}) over seeds {band['seeds']}, "
+                    f"{final['steps']} env-steps each",
+                    highlight=False,
+                )
+        best = summary["best"]
+        console.print(
+            f"chosen: iteration {best['iteration'] + 1}, sample {best['sample']} "
+            f"(search success {_pct(best['success'])}); figure: {Path(run) / 'fig6.png'}",
+            highlight=False,
+        )
+    if usage:
+        total = usage["total"]
+        console.print(
+            f"LLM usage ({llm}): {total['requests']} requests, {total['prompt_tokens']} prompt + "
+            f"{total['completion_tokens']} completion tokens, ${total['cost_usd']:.4f}, "
+            f"{total['cache_hits']} cache hits; {len(usage['sessions'])} session(s), "
+            f"{total['wall_s'] / 60:.1f} min",
+            highlight=False,
+        )

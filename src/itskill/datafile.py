@@ -1,0 +1,36 @@
+"""The TOML data files a user reads and edits (tasks, hyper-parameters, budgets, experiments...).
+
+Every loader reports a problem the same way: the file, where in it, and what was expected, so a
+user can fix the file without reading our code. Each loader has its own subclass of
+:class:`DataFileError` so callers can tell which kind of file was wrong.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+
+class DataFileError(ValueError):
+    """A data file that does not validate: names the file, the field and the problem."""
+
+    def __init__(self, path: str | Path, where: str, problem: str) -> None:
+        super().__init__(f"{path}: {where}: {problem}")
+        self.path, self.where, self.problem = str(path), where, problem
+
+
+def read_toml(path: str | Path, error: type[DataFileError] = DataFileError) -> dict[str, Any]:
+    """The parsed TOML file at ``path``; a missing file or bad syntax raises ``error``."""
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError as err:
+        raise error(path, "file", "no such file") from err
+    except tomllib.TOMLDecodeError as err:
+        raise error(path, "TOML syntax", str(err)) from err

@@ -1,0 +1,203 @@
+"""Settings of the reward optimisation loop, with defaults from ``itskill/reward/data/search.toml``.
+
+:func:`load_search_config` reads that file (or a user's of the same shape) and applies overrides;
+every problem names the file, the field and what was expected (:class:`SearchConfigError`).
+"""
+
+from __future__ import annotations
+
+import typing
+from dataclasses import asdict, dataclass, field, replace
+from functools import cache
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from itskill.datafile import DataFileError, read_toml
+from itskill.executors import EXECUTORS
+from itskill.reward.sandbox import SandboxConfig
+from itskill.rl.config import ALGOS
+
+
+class SearchConfigError(DataFileError):
+    """A search setting that does not validate: names the source, the field and the problem."""
+
+
+_KINDS: dict[str, type] = {
+    "iterations": int, "samples": int, "steps": int, "num_envs": int, "algo": str,
+    "seeds": tuple, "final_seeds": int, "evaluations": int, "eval_episodes": int,
+    "correlation_envs": int, "executor": str, "workers": int, "ray_address": str,
+    "max_regenerations": int, "probe_envs": int, "probe_steps": int,
+    "candidate_timeout_s": float, "temperature": float,
+}  # fmt: skip
+"""Type of every ``[search]`` field."""
+_OPTIONAL = {"workers", "ray_address"}
+_POSITIVE = {
+    "iterations", "samples", "steps", "num_envs", "final_seeds", "evaluations", "eval_episodes",
+    "correlation_envs", "probe_envs", "probe_steps", "candidate_timeout_s",
+}  # fmt: skip
+
+
+def default_path() -> Path:
+    """The packaged defaults file."""
+    return Path(str(resources.files("itskill.reward") / "data" / "search.toml"))
+
+
+def _coerce(source: str | Path, where: str, value: Any, kind: type, optional: bool) -> Any:
+    if value is None and optional:
+        return None
+    if kind is tuple:
+        if not isinstance(value, list | tuple) or not all(
+            isinstance(v, int) and not isinstance(v, bool) for v in value
+        ):
+            raise SearchConfigError(source, where, f"expected a list of integers, got {value!r}")
+        return tuple(value)
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise SearchConfigError(source, where, f"expected {kind.__name__}, got {value!r}")
+    return value
+
+
+def _sandbox(source: str | Path, table: Any, base: SandboxConfig | None = None) -> SandboxConfig:
+    """A :class:`SandboxConfig` from a table of its fields (over ``base``)."""
+    if not isinstance(table, dict):
+        raise SearchConfigError(source, "sandbox", f"expected a table, got {table!r}")
+    hints = typing.get_type_hints(SandboxConfig)
+    values = {}
+    for key, value in table.items():
+        if key not in hints:
+            raise SearchConfigError(
+                source, f"sandbox.{key}", f"unknown field; expected one of {', '.join(hints)}"
+            )
+        kind = next(a for a in (*typing.get_args(hints[key]), hints[key]) if a is not type(None))
+        optional = type(None) in typing.get_args(hints[key])
+        values[key] = _coerce(source, f"sandbox.{key}", value, kind, optional)
+    return replace(base or SandboxConfig(), **values)
+
+
+def _read(path: Path) -> dict[str, Any]:
+    """The fields a search file sets, type-checked (values are range-checked by the dataclass)."""
+    data = read_toml(path, SearchConfigError)
+    unknown = sorted(set(data) - {"search", "sandbox"})
+    if unknown:
+        raise SearchConfigError(path, unknown[0], "unknown table; expected [search] and [sandbox]")
+    table = data.get("search", {})
+    values: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in _KINDS:
+            raise SearchConfigError(
+                path, f"search.{key}", f"unknown field; expected one of {', '.join(_KINDS)}"
+            )
+        values[key] = _coerce(path, f"search.{key}", value, _KINDS[key], key in _OPTIONAL)
+    values["sandbox"] = _sandbox(path, data.get("sandbox", {}))
+    return values
+
+
+@cache
+def _defaults() -> dict[str, Any]:
+    """The packaged file's values: the dataclass defaults below come from here."""
+    values = _read(default_path())
+    missing = sorted(set(_KINDS) - _OPTIONAL - set(values))
+    if missing:
+        raise SearchConfigError(default_path(), f"search.{missing[0]}", "missing (required)")
+    return values
+
+
+@dataclass(frozen=True)
+class RewardSearchConfig:
+    """Budget and settings of one reward search (the paper's: 5 iterations x 10 samples)."""
+
+    iterations: int = _defaults()["iterations"]
+    samples: int = _defaults()["samples"]
+    steps: int = _defaults()["steps"]
+    """Env-steps per candidate and seed (and per final run)."""
+    num_envs: int = _defaults()["num_envs"]
+    algo: str = _defaults()["algo"]
+    seeds: tuple[int, ...] = _defaults()["seeds"]
+    """Training seeds of every candidate; its success is the mean over them."""
+    final_seeds: int = _defaults()["final_seeds"]
+    evaluations: int = _defaults()["evaluations"]
+    """Deterministic evaluations spread evenly through each training run."""
+    eval_episodes: int = _defaults()["eval_episodes"]
+    correlation_envs: int = _defaults()["correlation_envs"]
+    executor: str = _defaults()["executor"]
+    workers: int | None = _defaults().get("workers")
+    ray_address: str | None = _defaults().get("ray_address")
+    max_regenerations: int = _defaults()["max_regenerations"]
+    probe_envs: int = _defaults()["probe_envs"]
+    probe_steps: int = _defaults()["probe_steps"]
+    candidate_timeout_s: float = _defaults()["candidate_timeout_s"]
+    temperature: float = _defaults()["temperature"]
+    sandbox: SandboxConfig = field(default_factory=lambda: _defaults()["sandbox"])
+
+    def __post_init__(self) -> None:
+        where = "RewardSearchConfig"
+        for name in _POSITIVE:
+            value = getattr(self, name)
+            if not value > 0:
+                raise SearchConfigError(where, name, f"expected a positive number, got {value!r}")
+        if self.algo not in ALGOS:
+            raise SearchConfigError(where, "algo", f"expected one of {ALGOS}, got {self.algo!r}")
+        if self.executor not in EXECUTORS:
+            raise SearchConfigError(
+                where, "executor", f"expected one of {EXECUTORS}, got {self.executor!r}"
+            )
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
+            raise SearchConfigError(where, "seeds", f"expected distinct seeds, got {self.seeds!r}")
+        if self.workers is not None and self.workers < 1:
+            raise SearchConfigError(where, "workers", f"expected at least 1, got {self.workers}")
+        if self.max_regenerations < 0:
+            raise SearchConfigError(where, "max_regenerations", "expected 0 or more")
+        if not 0.0 <= self.temperature <= 2.0:
+            raise SearchConfigError(where, "temperature", "expected a value in [0, 2]")
+
+    @property
+    def eval_every(self) -> int:
+        """Env-steps between evaluations (there is always one at the end of training)."""
+        return max(1, -(-self.steps // self.evaluations))
+
+    def to_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["seeds"] = list(self.seeds)
+        return data
+
+    def result_settings(self) -> dict[str, Any]:
+        """The settings that change results: a resumed run must keep them (where and on how many
+        workers the jobs run does not matter)."""
+        data = self.to_dict()
+        for key in ("executor", "workers", "ray_address"):
+            data.pop(key)
+        return data
+
+
+def load_search_config(
+    path: str | Path | None = None, overrides: dict[str, Any] | None = None
+) -> RewardSearchConfig:
+    """The search settings from ``path`` (default: the packaged file) with ``overrides`` on top.
+
+    ``overrides`` may set any field; ``sandbox`` may be a :class:`SandboxConfig` or a dict of some
+    of its fields. ``None`` values are ignored (a command-line option that was not given).
+    """
+    values = _read(Path(path)) if path is not None else {}
+    try:
+        base = RewardSearchConfig(**values)
+    except SearchConfigError as err:
+        raise SearchConfigError(path or default_path(), err.where, err.problem) from err
+    over: dict[str, Any] = {}
+    for key, value in (overrides or {}).items():
+        if value is None:
+            continue
+        if key == "sandbox":
+            sandbox = value if isinstance(value, SandboxConfig) else None
+            over[key] = sandbox or _sandbox("overrides", value, base.sandbox)
+        elif key in _KINDS:
+            over[key] = _coerce("overrides", key, value, _KINDS[key], key in _OPTIONAL)
+        else:
+            raise SearchConfigError(
+                "overrides", key, f"unknown field; expected one of {', '.join(_KINDS)}, sandbox"
+            )
+    try:
+        return replace(base, **over)
+    except SearchConfigError as err:
+        raise SearchConfigError("overrides", err.where, err.problem) from err

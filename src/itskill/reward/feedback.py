@@ -1,0 +1,72 @@
+"""What a candidate's training says about its reward: the numbers fed back to the language model.
+
+The paper's strategy-optimisation stage records the maximum success rate and every subtask's and
+the total reward through training; the model then retunes each subtask's temperature. Here they
+come from the training run's files: ``metrics.csv`` (one row per update, the mean of every reward
+component over its steps, the episode return) and ``eval.csv`` (deterministic evaluations).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterable
+from pathlib import Path
+
+from itskill.rl.eval_callback import EVAL_FILE
+from itskill.rl.logger import FIXED_COLUMNS
+
+EPISODE_RETURN = "episode_return"
+"""Key of the total reward (return per episode) in the statistics, beside the components."""
+
+
+def _float(text: str | None) -> float | None:
+    if text is None or text == "":
+        return None
+    value = float(text)
+    return value if math.isfinite(value) else None
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    if not path.is_file():
+        return []
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def component_stats(run_dirs: Iterable[Path]) -> dict[str, dict[str, float]]:
+    """Max, mean and min of every reward component, and of the episode return, through training.
+
+    Each ``metrics.csv`` row holds a component's mean per step over one logging window; the
+    statistics are over the windows of every run in ``run_dirs`` (one per seed). A component with
+    no finite value is left out.
+    """
+    series: dict[str, list[float]] = {}
+    for run_dir in run_dirs:
+        for row in _rows(Path(run_dir) / "metrics.csv"):
+            for column, text in row.items():
+                name = EPISODE_RETURN if column == "ep_return" else column
+                if column in FIXED_COLUMNS and column != "ep_return":
+                    continue
+                value = _float(text)
+                if value is not None:
+                    series.setdefault(name, []).append(value)
+    return {
+        name: {"max": max(v), "mean": sum(v) / len(v), "min": min(v)}
+        for name, v in sorted(series.items())
+    }
+
+
+def eval_curve(run_dir: Path) -> list[tuple[int, float]]:
+    """``(env-steps, deterministic success)`` of every evaluation in ``run_dir``'s ``eval.csv``."""
+    curve = []
+    for row in _rows(Path(run_dir) / EVAL_FILE):
+        success = _float(row.get("success"))
+        if success is not None:
+            curve.append((int(float(row["env_steps"])), success))
+    return curve
+
+
+def peak_success(curve: list[tuple[int, float]]) -> float:
+    """The best deterministic success through training (0 if never evaluated)."""
+    return max((s for _, s in curve), default=0.0)

@@ -1,0 +1,167 @@
+"""The reward generator: K samples per iteration, each checked and, if broken, regenerated.
+
+A sample is the code in a reply's ```python fence (or the whole reply if it has none). It is
+accepted once it compiles in the sandbox and runs on a probe batch: real reward contexts from a
+few random steps of the task, on which it must return finite ``(total, components)`` within the
+sandbox's time limit. Otherwise the model gets the error back (``execution_error_feedback``) and
+writes the sample again, up to ``max_regenerations`` times; a sample still broken then is recorded
+as failed with every reply and the reason each was rejected. Nothing here raises for a bad reply.
+
+The probe is the only place generated code runs in the main process, and it runs through
+:func:`itskill.reward.sandbox.compile_reward` like everywhere else.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from itskill.llm.client import LLMClient, Message
+from itskill.llm.prompts import execution_error_feedback
+from itskill.reward.sandbox import (
+    SandboxConfig,
+    SandboxError,
+    SandboxTimeout,
+    SandboxViolation,
+    compile_reward,
+)
+from itskill.sim.task import Context
+from itskill.tasks import make_batch_env
+
+_FENCE = re.compile(r"```[ \t]*([A-Za-z0-9_+-]*)[ \t]*\n(.*?)(?:```|\Z)", re.DOTALL)
+
+
+def extract_code(reply: str) -> str:
+    """The reward code in a reply.
+
+    The first fenced block that defines ``compute_reward``; else the first ``python`` block; else
+    the whole reply (a model that answers with bare code). An unclosed fence (a reply cut off by
+    the token limit) runs to the end of the reply.
+    """
+    blocks = [(m.group(1).lower(), m.group(2)) for m in _FENCE.finditer(reply)]
+    for _, code in blocks:
+        if "def compute_reward" in code:
+            return code.strip()
+    for lang, code in blocks:
+        if lang in ("python", "py", "python3"):
+            return code.strip()
+    return reply.strip()
+
+
+def probe_contexts(task: str, num_envs: int, steps: int, seed: int = 0) -> list[Context]:
+    """Reward contexts of ``task`` at reset and after each of ``steps`` uniformly random actions.
+
+    Deterministic for a seed, so a resumed run probes exactly as the original one did.
+    """
+    env = make_batch_env(task, num_envs, seed=seed)
+    rng = np.random.default_rng(seed)
+    try:
+        env.reset()
+        contexts = [env.context()]
+        for _ in range(steps):
+            contexts.append(env.advance(rng.uniform(-1.0, 1.0, (num_envs, 5))).context)
+    finally:
+        env.close()
+    return contexts
+
+
+def check_code(code: str, contexts: list[Context], sandbox: SandboxConfig) -> str | None:
+    """Why ``code`` cannot be used (a message for the model), or None if it passes the probe."""
+    if not code.strip():
+        return "the reply contains no code: write compute_reward(ctx) in a ```python fence"
+    try:
+        reward = compile_reward(code, sandbox)
+        for ctx in contexts:
+            reward(ctx)  # the sandbox hands the code read-only views: ctx stays intact
+    except SandboxViolation as err:
+        return f"rejected by the sandbox: {err}"
+    except SandboxTimeout as err:
+        return f"timed out on the probe batch: {err}"
+    except SandboxError as err:
+        return f"failed on the probe batch: {err}"
+    return None
+
+
+@dataclass
+class Attempt:
+    """One reply for a sample: the code taken from it and why it was rejected (None: accepted)."""
+
+    reply: str
+    code: str
+    error: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"reply": self.reply, "code": self.code, "error": self.error}
+
+
+@dataclass
+class Sample:
+    """Sample ``index`` of an iteration: its replies in order; the last one decides."""
+
+    index: int
+    attempts: list[Attempt] = field(default_factory=list)
+
+    @property
+    def accepted(self) -> bool:
+        return bool(self.attempts) and self.attempts[-1].error is None
+
+    @property
+    def code(self) -> str:
+        return self.attempts[-1].code
+
+    @property
+    def reply(self) -> str:
+        return self.attempts[-1].reply
+
+    @property
+    def error(self) -> str | None:
+        return self.attempts[-1].error
+
+    def to_status(self) -> dict[str, Any]:
+        return {
+            "sample": self.index,
+            "accepted": self.accepted,
+            "regenerations": len(self.attempts) - 1,
+            "error": self.error,
+            "attempts": [a.to_dict() for a in self.attempts],
+        }
+
+
+def fenced(code: str) -> str:
+    """``code`` as an assistant reply: one python fence."""
+    return f"```python\n{code.strip()}\n```"
+
+
+def generate_samples(
+    messages: list[Message],
+    client: LLMClient,
+    k: int,
+    contexts: list[Context],
+    sandbox: SandboxConfig,
+    max_regenerations: int,
+    temperature: float = 1.0,
+) -> list[Sample]:
+    """``k`` samples for ``messages``, each regenerated with its error up to ``max_regenerations``
+    times. The requests are made in a fixed order, so a rerun replays them from the reply cache."""
+    samples = []
+    for index, reply in enumerate(
+        client.complete(messages, n=k, purpose="reward", temperature=temperature)
+    ):
+        sample = Sample(index)
+        while True:
+            code = extract_code(reply)
+            error = check_code(code, contexts, sandbox)
+            sample.attempts.append(Attempt(reply, code, error))
+            if error is None or len(sample.attempts) > max_regenerations:
+                break
+            retry = [
+                *messages,
+                {"role": "assistant", "content": reply},
+                {"role": "user", "content": execution_error_feedback(code, error)},
+            ]
+            reply = client.complete(retry, n=1, purpose="reward", temperature=temperature)[0]
+        samples.append(sample)
+    return samples

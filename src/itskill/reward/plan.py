@@ -1,0 +1,283 @@
+"""The task planner: a short command becomes a validated :class:`TaskPlan`.
+
+The language model reads the command and the task catalogue (every task the scene can run, with its
+actions and parts) and answers with the task it means, ordered "First, ... Second, ..." subtasks,
+the action sequence and the objects. The reply is checked against the task files: the task must
+exist, the actions must be its stage names in order and the objects its parts. A reply that does
+not validate is sent back with what is wrong, a few times, before :class:`PlanError`.
+
+A task id needs no model: :func:`plan_for_task` writes the plan straight from the task file.
+:meth:`TaskPlan.describe` renders the task-description part of the reward generator's prompt.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from dataclasses import asdict, dataclass
+from functools import cache
+from importlib import resources
+from typing import Any
+
+from itskill.llm.client import LLMClient, Message
+from itskill.llm.prompts import planner_messages, task_description
+from itskill.sim.parts import BoltSpec, NutSpec
+from itskill.tasks import all_tasks, get_task
+from itskill.tasks.spec import TaskSpec
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+PLAN_ATTEMPTS = 3
+"""How many replies the planner asks for before giving up on a command."""
+
+_HOLDING_AFTER = {"grasp", "lift", "carry"}
+_RELEASED_AFTER = {"place", "insert", "release", "screw"}
+
+
+class PlanError(ValueError):
+    """A command that cannot be grounded in the scene; the message says why and lists what is
+    known (tasks and objects)."""
+
+
+@dataclass(frozen=True)
+class TaskPlan:
+    """What the robot must do: the task, its ordered subtasks and action sequence, its parts."""
+
+    command: str
+    task: str
+    subtasks: tuple[str, ...]
+    actions: tuple[str, ...]
+    objects: tuple[str, ...]
+    notes: str = ""
+
+    def describe(self) -> str:
+        """The task-description part of the reward generator's prompt.
+
+        Everything a reward writer needs beyond the reward context's documentation: the command,
+        the subtasks in order, the stages as ``ctx["stage"]`` counts them with the condition that
+        ends each, the parts in their slots, what counts as success, and the planner's notes.
+        """
+        text = task_description(self.command, self.subtasks, get_task(self.task))
+        return f"{text}\nNotes: {self.notes}" if self.notes else text
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str = "plan") -> TaskPlan:
+        """A plan from :meth:`to_dict`'s output; ``ValueError`` naming ``where`` and the field."""
+        if not isinstance(data, dict):
+            raise ValueError(f"{where}: expected a JSON object, got {type(data).__name__}")
+        values: dict[str, Any] = {}
+        for key in ("command", "task", "notes"):
+            value = data.get(key, "" if key == "notes" else None)
+            if not isinstance(value, str):
+                raise ValueError(f"{where}.{key}: expected a string, got {value!r}")
+            values[key] = value
+        for key in ("subtasks", "actions", "objects"):
+            value = data.get(key)
+            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                raise ValueError(f"{where}.{key}: expected a list of strings, got {value!r}")
+            values[key] = tuple(value)
+        return cls(**values)
+
+
+@cache
+def _plan_data() -> dict[str, Any]:
+    path = resources.files("itskill.reward") / "data" / "plan.toml"
+    with path.open("rb") as fh:
+        data = tomllib.load(fh)
+    for key, kind in (("ordinals", list), ("correction", str), ("phrases", dict)):
+        if not isinstance(data.get(key), kind):
+            raise ValueError(f"{path}: {key}: missing or not a {kind.__name__}")
+    return data
+
+
+def _shape(shape: str) -> str:
+    return "rectangular" if shape == "rect" else shape
+
+
+def _part_name(part: Any) -> str:
+    """What a sentence calls a part: "the M12 nut", "the round hole"."""
+    if isinstance(part, NutSpec | BoltSpec):
+        return f"the M{part.thread_diameter * 1000:.0f} {part.kind}"
+    return f"the {_shape(part.shape)} {part.kind}"
+
+
+def subtask_sentences(spec: TaskSpec) -> tuple[str, ...]:
+    """The task's stages as ordered sentences: "First, move the gripper to the M12 nut.", ..."""
+    data = _plan_data()
+    ordinals, phrases = data["ordinals"], data["phrases"]
+    if len(spec.stages) > len(ordinals):
+        raise ValueError(f"{spec.id}: {len(spec.stages)} stages, plan.toml has {len(ordinals)}")
+    sentences = []
+    holding = False
+    for k, stage in enumerate(spec.stages):
+        # The last term is the stage's own goal (``engaged(0) and near(1, 0.02)``: object 1).
+        slot = int(stage.done.terms[-1][2][0])
+        key = stage.name
+        if key == "approach" and holding:
+            key = "approach_holding"
+        if key not in phrases:
+            raise ValueError(f"plan.toml: phrases: no entry for action {stage.name!r}")
+        fixture = spec.fixtures[spec.object_fixture[slot]].part if spec.fixtures else None
+        text = phrases[key].format(
+            object=_part_name(spec.objects[slot]),
+            fixture=_part_name(fixture) if fixture is not None else "its target",
+        )
+        sentences.append(f"{ordinals[k]}, {text}.")
+        if stage.name in _HOLDING_AFTER:
+            holding = True
+        elif stage.name in _RELEASED_AFTER:
+            holding = False
+    return tuple(sentences)
+
+
+def task_catalogue() -> list[dict[str, Any]]:
+    """Every task the planner may choose, as the planner prompt shows it.
+
+    ``actions`` are the task's stage names in order (what ``ctx["stage"]`` counts), the sequence a
+    plan must reproduce exactly.
+    """
+    return [
+        {
+            "task": t.id,
+            "family": t.family,
+            "command": t.command,
+            "actions": [s.name for s in t.stages],
+            "objects": [o.name for o in t.objects],
+            "fixtures": [f.part.name for f in t.fixtures],
+        }
+        for t in all_tasks().values()
+    ]
+
+
+def plan_for_task(task_id: str) -> TaskPlan:
+    """The plan of a known task, straight from its file (no language model)."""
+    spec = get_task(task_id)
+    return TaskPlan(
+        command=spec.command,
+        task=spec.id,
+        subtasks=subtask_sentences(spec),
+        actions=tuple(s.name for s in spec.stages),
+        objects=tuple(o.name for o in spec.objects),
+        notes="",
+    )
+
+
+def plan_command(command: str, client: LLMClient, attempts: int = PLAN_ATTEMPTS) -> TaskPlan:
+    """Plan ``command`` with ``client``; re-ask up to ``attempts`` times while the reply is invalid.
+
+    Raises :class:`PlanError` when the model says the command cannot be grounded in the scene, or
+    gives no valid plan in ``attempts`` replies; the message lists the known tasks and objects.
+    """
+    command = " ".join(command.split())
+    if not command:
+        raise PlanError("empty command: say what the robot should do. " + known_text())
+    messages: list[Message] = planner_messages(command, task_catalogue())
+    problem = ""
+    for _ in range(attempts):
+        reply = client.complete(messages, n=1, purpose="plan", temperature=0.0)[0]
+        try:
+            data = parse_json_reply(reply)
+            if "error" in data:
+                raise PlanError(
+                    f"cannot plan {command!r} ({client.name}): {data['error']}. " + known_text()
+                )
+            return validate_plan(command, data)
+        except _InvalidPlan as err:
+            problem = str(err)
+        messages = [
+            *messages,
+            {"role": "assistant", "content": reply},
+            {"role": "user", "content": _plan_data()["correction"].format(problem=problem)},
+        ]
+    raise PlanError(
+        f"no valid plan for {command!r} from {client.name} in {attempts} replies; "
+        f"the last one: {problem}. " + known_text()
+    )
+
+
+class _InvalidPlan(ValueError):
+    """A planner reply that does not validate; its message is sent back to the model."""
+
+
+_FENCE = re.compile(r"```[ \t]*(?:json)?[ \t]*\n(.*?)```", re.DOTALL | re.IGNORECASE)
+
+
+def parse_json_reply(reply: str) -> dict[str, Any]:
+    """The JSON object in a reply: inside a ```json fence, or the outermost braces."""
+    match = _FENCE.search(reply)
+    text = match.group(1) if match else reply
+    if not match and "{" in text:
+        text = text[text.index("{") : text.rindex("}") + 1]
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise _InvalidPlan(f"the reply holds no valid JSON object ({err})") from err
+    if not isinstance(data, dict):
+        raise _InvalidPlan(f"expected a JSON object, got {type(data).__name__}")
+    return data
+
+
+def validate_plan(command: str, data: dict[str, Any]) -> TaskPlan:
+    """Check a planner reply against the task files; :class:`_InvalidPlan` says what is wrong."""
+    tasks = all_tasks()
+    task = data.get("task")
+    if not isinstance(task, str) or task not in tasks:
+        raise _InvalidPlan(f"task {task!r} is not in the catalogue")
+    spec = tasks[task]
+    stage_names = [s.name for s in spec.stages]
+    actions = data.get("actions")
+    if actions != stage_names:
+        raise _InvalidPlan(
+            f"actions {actions!r} are not task {task!r}'s action sequence {stage_names!r}"
+        )
+    object_names = [o.name for o in spec.objects]
+    allowed = object_names + [f.part.name for f in spec.fixtures]
+    objects = data.get("objects")
+    if (
+        not isinstance(objects, list)
+        or not all(isinstance(o, str) for o in objects)
+        or not set(object_names) <= set(objects) <= set(allowed)
+    ):
+        raise _InvalidPlan(
+            f"objects {objects!r} do not match task {task!r}: expected its parts {object_names!r}"
+        )
+    subtasks = data.get("subtasks")
+    if (
+        not isinstance(subtasks, list)
+        or len(subtasks) != len(stage_names)
+        or not all(isinstance(s, str) and s.strip() for s in subtasks)
+    ):
+        raise _InvalidPlan(
+            f"subtasks must be {len(stage_names)} non-empty sentences, one per action, "
+            f"got {subtasks!r}"
+        )
+    notes = data.get("notes", "")
+    if not isinstance(notes, str):
+        raise _InvalidPlan(f"notes must be a string, got {notes!r}")
+    return TaskPlan(
+        command=command,
+        task=task,
+        subtasks=tuple(s.strip() for s in subtasks),
+        actions=tuple(stage_names),
+        objects=tuple(object_names),
+        notes=notes.strip(),
+    )
+
+
+def known_text() -> str:
+    """The tasks and objects the planner can ground a command in, for error messages."""
+    tasks = all_tasks().values()
+    objects = sorted({o.name for t in tasks for o in t.objects})
+    fixtures = sorted({f.part.name for t in tasks for f in t.fixtures})
+    listing = "; ".join(f"{t.id} ({t.command})" for t in tasks)
+    return (
+        f"Known objects: {', '.join(objects)}; fixtures: {', '.join(fixtures)}. "
+        f"Known tasks: {listing}."
+    )

@@ -1,0 +1,575 @@
+"""The reward optimisation loop (the paper's section III-A; Eureka's loop, made resumable).
+
+For each of ``iterations`` iterations: ask the model for ``samples`` rewards (with, after the
+first, the best reward so far and how its policy trained), check each in the sandbox and on a probe
+batch (regenerating broken ones with the error), train every accepted one as a job on the executor,
+and keep the best: highest success, ties broken by correlation with the expert reward. Then retrain
+the best reward with ``final_seeds`` fresh seeds, and the expert reward with the same budget and
+seeds, and plot success per iteration against the expert (Fig. 6).
+
+Run directory (every file written atomically; see ``docs/reward.md``)::
+
+    config.json  plan.json  usage.json  llm_cache/
+    iter_<i>/sample_<k>/{reply.txt, reward.py, status.json, result.json, train/seed_<s>/}
+    iter_<i>/summary.json
+    best_reward.py  final/{generated,expert}_seed<s>/  summary.json  fig6.png
+
+Resuming (``resume=True``) replays the model's replies from ``llm_cache/`` in the original order,
+never retrains a candidate whose ``result.json`` exists, and restarts the others (their training
+continues from its last checkpoint).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+import itskill
+from itskill.executors import JobResult, default_workers, run_jobs
+from itskill.llm.client import LLMClient, Message, make_client
+from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
+from itskill.reward.candidate import RESULT_FILE, CandidateJob, run_candidate
+from itskill.reward.config import RewardSearchConfig, load_search_config
+from itskill.reward.files import read_json, write_json, write_text
+from itskill.reward.generator import Sample, fenced, generate_samples, probe_contexts
+from itskill.reward.plan import TaskPlan, plan_command, plan_for_task
+from itskill.stats import mean_interval
+from itskill.tasks import all_tasks, get_task
+
+RUN_KIND = "itskill-reward-search"
+RUN_FORMAT = 1
+CONFIG_FILE = "config.json"
+PLAN_FILE = "plan.json"
+USAGE_FILE = "usage.json"
+SUMMARY_FILE = "summary.json"
+BEST_FILE = "best_reward.py"
+FIGURE_FILE = "fig6.png"
+CACHE_DIR = "llm_cache"
+OFFLINE_NOTE = "offline rule-based backend (not a language model)"
+
+__all__ = [
+    "RewardSearchConfig",
+    "RewardSearchError",
+    "RewardSearchResult",
+    "generate_reward",
+    "load_search",
+    "load_search_config",
+    "read_run",
+    "search_client",
+]
+
+
+class RewardSearchError(ValueError):
+    """A run directory that cannot be used, or a search that produced no usable reward."""
+
+
+@dataclass
+class RewardSearchResult:
+    """A finished search: the plan, the chosen reward and how it compares with the expert's.
+
+    ``best_success`` and ``expert_success`` are means over the final seeds of the best
+    deterministic success through training, with the same budget (``expert_success`` is None
+    when the expert was not compared). ``history`` has one entry per iteration.
+    """
+
+    run_dir: Path
+    plan: TaskPlan
+    best_code: str
+    best_path: Path
+    best_success: float
+    expert_success: float | None
+    history: list[dict[str, Any]]
+    best: dict[str, Any] = field(default_factory=dict)
+    final: dict[str, Any] = field(default_factory=dict)
+    llm: str = ""
+    offline: bool = False
+
+
+def search_client(
+    run_dir: str | Path,
+    llm: str | None = None,
+    base_url: str | None = None,
+    api_key: str | None = None,
+) -> LLMClient:
+    """The client for a search in ``run_dir``: ``llm`` as :func:`itskill.llm.make_client` takes it,
+    with its reply cache in ``run_dir/llm_cache`` so that a resumed run replays the replies."""
+    return make_client(llm, base_url=base_url, api_key=api_key, cache_dir=Path(run_dir) / CACHE_DIR)
+
+
+def resolve_target(target: str) -> str | None:
+    """The task id ``target`` names, or None if it is a command to plan.
+
+    A single word that is no task id is an unknown task (:class:`UnknownTaskError`), not a
+    command: "pick_nut_m21" is a typo, not an instruction.
+    """
+    target = target.strip()
+    if target in all_tasks():
+        return target
+    if len(target.split()) == 1:
+        get_task(target)  # raises UnknownTaskError listing the known tasks
+    return None
+
+
+def _rank(entry: dict[str, Any]) -> tuple[float, float]:
+    corr = entry.get("correlation")
+    return (entry["success"], corr if corr is not None else -math.inf)
+
+
+class _Run:
+    """One search's run directory and its bookkeeping."""
+
+    def __init__(self, out: Path, client: LLMClient, console: Console) -> None:
+        self.out, self.client, self.console = out, client, console
+        self.started = time.monotonic()
+        self.sessions: list[dict[str, Any]] = []
+        path = out / USAGE_FILE
+        if path.is_file():
+            self.sessions = read_json(path).get("sessions", [])
+        self.session = {"started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+
+    def save_usage(self) -> dict[str, Any]:
+        self.session.update(
+            wall_s=round(time.monotonic() - self.started, 1), **self.client.usage.to_dict()
+        )
+        sessions = [*self.sessions, self.session]
+        keys = ("prompt_tokens", "completion_tokens", "requests", "cache_hits", "cost_usd")
+        total = {k: sum(s.get(k, 0) for s in sessions) for k in keys}
+        total["wall_s"] = round(sum(s.get("wall_s", 0.0) for s in sessions), 1)
+        data = {
+            "llm": self.client.name,
+            "offline": self.client.offline,
+            "total": total,
+            "sessions": sessions,
+        }
+        write_json(self.out / USAGE_FILE, data)
+        return data
+
+    def run_jobs(self, jobs: list[CandidateJob], config: RewardSearchConfig, label: str) -> dict:
+        """Run the jobs without a ``result.json``; return every job's result by index.
+
+        A job whose worker itself failed (not its candidate: that writes a failed result) gets
+        an in-memory failure without a result file, so a resumed run tries it again.
+        """
+        results: dict[int, dict[str, Any]] = {}
+        todo = []
+        for i, job in enumerate(jobs):
+            path = Path(job.out) / RESULT_FILE
+            if path.is_file():
+                results[i] = read_json(path)
+            else:
+                todo.append(i)
+        if not todo:
+            return results
+        workers = min(config.workers or default_workers(), len(todo))
+        progress = Progress(
+            TextColumn(f"[bold]{label}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=self.console,
+            transient=True,
+        )
+        with progress:
+            bar = progress.add_task(label, total=len(jobs), completed=len(results))
+            stream = run_jobs(
+                run_candidate,
+                [(jobs[i],) for i in todo],
+                config.executor,  # type: ignore[arg-type]
+                workers,
+                config.ray_address,
+            )
+            for res in stream:
+                index = todo[res.index]
+                results[index] = _job_value(res)
+                progress.advance(bar)
+                self.console.print(f"  {_job_line(jobs[index], results[index])}", highlight=False)
+        return results
+
+
+def _job_value(res: JobResult) -> dict[str, Any]:
+    if res.ok:
+        return res.value
+    return {"status": "failed", "error": f"worker error: {type(res.error).__name__}: {res.error}"}
+
+
+def _job_line(job: CandidateJob, result: dict[str, Any]) -> str:
+    where = "/".join(Path(job.out).parts[-2:])
+    if result.get("status") != "ok":
+        return f"{where}: failed: {result.get('error')}"
+    corr = result.get("correlation")
+    return (
+        f"{where}: success {result['success']:.0%}"
+        + (f", correlation with expert {corr:+.2f}" if corr is not None else "")
+        + f" ({result.get('wall_s', 0):.0f} s)"
+    )
+
+
+def _check_resume(out: Path, header: dict[str, Any]) -> dict[str, Any]:
+    path = out / CONFIG_FILE
+    if not path.is_file():
+        raise RewardSearchError(
+            f"{out}: not a reward search run (no {CONFIG_FILE}); "
+            "start one with itskill reward generate ... --out DIR"
+        )
+    try:
+        stored = read_json(path)
+    except ValueError as err:
+        raise RewardSearchError(str(err)) from err
+    if not isinstance(stored, dict) or stored.get("kind") != RUN_KIND:
+        raise RewardSearchError(f"{path}: not a reward search run (kind {stored.get('kind')!r})")
+    if stored.get("format") != RUN_FORMAT:
+        raise RewardSearchError(
+            f"{path}: run format {stored.get('format')!r}, this version reads {RUN_FORMAT}"
+        )
+    for key in ("target", "llm", "compare_expert"):
+        if stored.get(key) != header[key]:
+            raise RewardSearchError(
+                f"{out}: made with {key}={stored.get(key)!r}, this call has {header[key]!r}; "
+                "resume with the same settings or start a new run with another --out"
+            )
+    have, want = stored.get("settings", {}), json.loads(json.dumps(header["settings"]))
+    differ = sorted(k for k in set(have) | set(want) if have.get(k) != want.get(k))
+    if differ:
+        changes = ", ".join(f"{k}={have.get(k)!r} (now {want.get(k)!r})" for k in differ)
+        raise RewardSearchError(
+            f"{out}: made with other settings: {changes}; resume with the same settings or start "
+            "a new run with another --out"
+        )
+    return stored
+
+
+def _plan(target: str, client: LLMClient, out: Path) -> TaskPlan:
+    path = out / PLAN_FILE
+    if path.is_file():
+        return TaskPlan.from_dict(read_json(path), where=str(path))
+    task = resolve_target(target)
+    plan = plan_for_task(task) if task is not None else plan_command(target, client)
+    write_json(path, plan.to_dict())
+    return plan
+
+
+def _write_sample(sample_dir: Path, sample: Sample) -> None:
+    status = sample.to_status()
+    path = sample_dir / "status.json"
+    if path.is_file() and read_json(path) == json.loads(json.dumps(status)):
+        return  # a resumed run regenerated the same sample: leave the files as they are
+    write_text(sample_dir / "reply.txt", sample.reply)
+    write_text(sample_dir / "reward.py", sample.code + "\n")
+    write_json(path, status)
+
+
+def _feedback(best: dict[str, Any] | None, failure: tuple[str, str] | None) -> list[Message]:
+    """What follows the base prompt in the next iteration: the best reward so far and how its
+    policy trained (the Eureka reflection), or, while nothing has trained, the last failure."""
+    if best is not None:
+        text = policy_feedback(best["code"], min(max(best["success"], 0.0), 1.0), best["stats"])
+        code = best["code"]
+    elif failure is not None:
+        code, error = failure
+        text = execution_error_feedback(code, error)
+    else:
+        return []
+    return [{"role": "assistant", "content": fenced(code)}, {"role": "user", "content": text}]
+
+
+def _job(config: RewardSearchConfig, task: str, out: Path, code: str | None, seeds) -> CandidateJob:
+    return CandidateJob(
+        task=task,
+        out=out,
+        code=code,
+        seeds=tuple(seeds),
+        steps=config.steps,
+        num_envs=config.num_envs,
+        algo=config.algo,
+        eval_every=config.eval_every,
+        eval_episodes=config.eval_episodes,
+        correlation_envs=config.correlation_envs,
+        sandbox=config.sandbox,
+        timeout_s=config.candidate_timeout_s,
+    )
+
+
+def _entry(sample: Sample, result: dict[str, Any] | None) -> dict[str, Any]:
+    """A sample's line in an iteration summary."""
+    entry: dict[str, Any] = {"sample": sample.index, "regenerations": len(sample.attempts) - 1}
+    if not sample.accepted:
+        return {**entry, "status": "rejected", "error": sample.error}
+    assert result is not None
+    entry["status"] = result.get("status", "failed")
+    if entry["status"] != "ok":
+        return {**entry, "error": result.get("error"), "wall_s": result.get("wall_s")}
+    keys = ("success", "final_success", "correlation", "env_steps", "wall_s", "sha256")
+    return {**entry, **{k: result.get(k) for k in keys}}
+
+
+def _summarise_final(results: list[dict[str, Any]], seeds: list[int]) -> dict[str, Any]:
+    ok = [(s, r) for s, r in zip(seeds, results, strict=True) if r.get("status") == "ok"]
+    data: dict[str, Any] = {
+        "seeds": [s for s, _ in ok],
+        "success": [r["success"] for _, r in ok],
+        "final_success": [r["final_success"] for _, r in ok],
+        "failed": {str(s): r.get("error") for s, r in zip(seeds, results, strict=True)
+                   if r.get("status") != "ok"},
+    }  # fmt: skip
+    if ok:
+        data["mean"], data["ci_low"], data["ci_high"] = mean_interval(data["success"])
+        data["final_mean"] = sum(data["final_success"]) / len(ok)
+    else:
+        data["mean"] = data["ci_low"] = data["ci_high"] = data["final_mean"] = None
+    return data
+
+
+def generate_reward(
+    target: str,
+    client: LLMClient,
+    out: str | Path,
+    config: RewardSearchConfig | None = None,
+    resume: bool = False,
+    compare_expert: bool = True,
+    console: Console | None = None,
+) -> RewardSearchResult:
+    """Search a reward for ``target`` (a task id or a command) with ``client``, in run dir ``out``.
+
+    Pass a client made by :func:`search_client` (its reply cache in ``out``) so that ``resume``
+    can replay the model. ``resume=True`` continues a run in ``out`` made with the same target,
+    model and settings; without it, ``out`` must not hold a search yet. Raises
+    :class:`RewardSearchError` for an unusable run directory or when no candidate trained,
+    :class:`~itskill.reward.plan.PlanError` for a command that cannot be grounded, and the
+    client's :class:`~itskill.llm.client.LLMError` when the model cannot be reached.
+    """
+    config = config or RewardSearchConfig()
+    console = console or Console(stderr=True)
+    out = Path(out)
+    resolve_target(target)  # an unknown task id fails before anything is written
+    header = {
+        "kind": RUN_KIND,
+        "format": RUN_FORMAT,
+        "target": target,
+        "llm": client.name,
+        "compare_expert": compare_expert,
+        "settings": config.result_settings(),
+    }
+    if resume:
+        _check_resume(out, header)
+    elif (out / CONFIG_FILE).exists():
+        raise RewardSearchError(
+            f"{out} already holds a reward search: continue it with --resume {out} "
+            "(resume=True) or choose another --out"
+        )
+    else:
+        write_json(
+            out / CONFIG_FILE,
+            {
+                **header,
+                "offline": client.offline,
+                "config": config.to_dict(),
+                "itskill": itskill.__version__,
+                "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            },
+        )
+    run = _Run(out, client, console)
+    backend = f"{client.name}: {OFFLINE_NOTE}" if client.offline else client.name
+    console.print(f"reward search in {out} with {backend}", highlight=False)
+    plan = _plan(target, client, out)
+    run.save_usage()
+    console.print(f"plan: task {plan.task}; " + " ".join(plan.subtasks), highlight=False)
+
+    contexts = probe_contexts(plan.task, config.probe_envs, config.probe_steps)
+    base = reward_messages(plan.describe())
+    history: list[dict[str, Any]] = []
+    best: dict[str, Any] | None = None
+    failure: tuple[str, str] | None = None
+    for i in range(config.iterations):
+        label = f"iteration {i + 1}/{config.iterations}"
+        samples = generate_samples(
+            base + _feedback(best, failure),
+            client,
+            config.samples,
+            contexts,
+            config.sandbox,
+            config.max_regenerations,
+            config.temperature,
+        )
+        run.save_usage()
+        it_dir = out / f"iter_{i}"
+        for sample in samples:
+            _write_sample(it_dir / f"sample_{sample.index}", sample)
+        accepted = [s for s in samples if s.accepted]
+        console.print(
+            f"{label}: {len(accepted)}/{len(samples)} samples pass the sandbox and the probe",
+            highlight=False,
+        )
+        jobs = [
+            _job(config, plan.task, it_dir / f"sample_{s.index}", s.code, config.seeds)
+            for s in accepted
+        ]
+        results = run.run_jobs(jobs, config, f"{label}: training")
+        by_sample = {s.index: results[j] for j, s in enumerate(accepted)}
+        entries = [_entry(s, by_sample.get(s.index)) for s in samples]
+        trained = [e for e in entries if e["status"] == "ok"]
+        it_best = max(trained, key=_rank) if trained else None
+        if it_best is not None and (best is None or _rank(it_best) > _rank(best)):
+            code = samples[it_best["sample"]].code
+            stats = by_sample[it_best["sample"]]["stats"]
+            best = {**it_best, "iteration": i, "code": code, "stats": stats}
+            write_text(out / BEST_FILE, code + "\n")
+        if not trained:  # every sample was rejected or failed: feed the last error back
+            last = samples[-1]
+            error = by_sample[last.index].get("error") if last.accepted else last.error
+            failure = (last.code, str(error))
+        summary = {
+            "iteration": i,
+            "samples": entries,
+            "accepted": len(accepted),
+            "trained": len(trained),
+            "best_sample": it_best["sample"] if it_best else None,
+            "best_success": it_best["success"] if it_best else None,
+            "best_correlation": it_best.get("correlation") if it_best else None,
+            "best_so_far": best["success"] if best else None,
+        }
+        write_json(it_dir / SUMMARY_FILE, summary)
+        history.append(summary)
+        console.print(
+            f"{label}: best success {_pct(summary['best_success'])}, "
+            f"best so far {_pct(summary['best_so_far'])}",
+            highlight=False,
+        )
+
+    if best is None:
+        run.save_usage()
+        raise RewardSearchError(
+            f"no candidate reward trained in {config.iterations} iteration(s): every sample was "
+            f"rejected or failed; see {out}/iter_*/sample_*/status.json and result.json"
+        )
+    final_seeds = [max(config.seeds) + 1 + s for s in range(config.final_seeds)]
+    kinds = [("generated", best["code"])] + ([("expert", None)] if compare_expert else [])
+    jobs = [
+        _job(config, plan.task, out / "final" / f"{kind}_seed{s}", code, (s,))
+        for kind, code in kinds
+        for s in final_seeds
+    ]
+    results = run.run_jobs(jobs, config, "final: retraining best and expert rewards")
+    n = len(final_seeds)
+    final = {
+        "seeds": final_seeds,
+        "steps": config.steps,
+        "generated": _summarise_final([results[j] for j in range(n)], final_seeds),
+        "expert": _summarise_final([results[j] for j in range(n, 2 * n)], final_seeds)
+        if compare_expert
+        else None,
+    }
+    usage = run.save_usage()
+    best_info = {k: v for k, v in best.items() if k not in ("code", "stats")}
+    best_info["path"] = BEST_FILE
+    summary = {
+        "status": "complete",
+        "task": plan.task,
+        "command": plan.command,
+        "llm": client.name,
+        "offline": client.offline,
+        "plan": plan.to_dict(),
+        "iterations": history,
+        "best": best_info,
+        "final": final,
+        "best_success": final["generated"]["mean"],
+        "expert_success": final["expert"]["mean"] if final["expert"] else None,
+        "usage": usage["total"],
+    }
+    from itskill.reward.figure import plot_fig6
+
+    plot_fig6(summary, out / FIGURE_FILE)
+    write_json(out / SUMMARY_FILE, summary)
+    console.print(
+        f"best reward: iteration {best['iteration'] + 1}, sample {best['sample']}, in "
+        f"{out / BEST_FILE}; over seeds {final_seeds}: generated {_pct(summary['best_success'])}"
+        + (f", expert {_pct(summary['expert_success'])}" if compare_expert else ""),
+        highlight=False,
+    )
+    return load_search(out)
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0%}"
+
+
+def load_search(run_dir: str | Path) -> RewardSearchResult:
+    """The result of the finished search in ``run_dir``; :class:`RewardSearchError` if it is not
+    a reward search run or has not finished (resume it)."""
+    run_dir = Path(run_dir)
+    data = read_run(run_dir)
+    summary = data["summary"]
+    if summary is None:
+        raise RewardSearchError(
+            f"{run_dir}: the search has not finished (no {SUMMARY_FILE}); continue it with "
+            f"itskill reward generate --resume {run_dir}"
+        )
+    best_path = run_dir / BEST_FILE
+    return RewardSearchResult(
+        run_dir=run_dir,
+        plan=TaskPlan.from_dict(summary["plan"], where=f"{run_dir / SUMMARY_FILE}: plan"),
+        best_code=best_path.read_text(),
+        best_path=best_path,
+        best_success=summary["best_success"],
+        expert_success=summary["expert_success"],
+        history=summary["iterations"],
+        best=summary["best"],
+        final=summary["final"],
+        llm=summary["llm"],
+        offline=summary["offline"],
+    )
+
+
+def read_run(run_dir: str | Path) -> dict[str, Any]:
+    """Everything on disk about a search, finished or not: ``config``, ``plan`` (or None),
+    ``iterations`` (the iteration summaries written so far), ``summary`` (None until it finishes),
+    ``usage`` and ``best_code`` (or None)."""
+    run_dir = Path(run_dir)
+    path = run_dir / CONFIG_FILE
+    if not run_dir.is_dir():
+        raise RewardSearchError(f"{run_dir}: no such run directory")
+    if not path.is_file():
+        raise RewardSearchError(f"{run_dir}: not a reward search run (no {CONFIG_FILE})")
+    try:
+        config = read_json(path)
+        if not isinstance(config, dict) or config.get("kind") != RUN_KIND:
+            raise RewardSearchError(f"{path}: not a reward search run")
+
+        def optional(name: str) -> Any:
+            return read_json(run_dir / name) if (run_dir / name).is_file() else None
+
+        iterations = []
+        i = 0
+        while (run_dir / f"iter_{i}" / SUMMARY_FILE).is_file():
+            iterations.append(read_json(run_dir / f"iter_{i}" / SUMMARY_FILE))
+            i += 1
+        plan = optional(PLAN_FILE)
+        return {
+            "run_dir": str(run_dir),
+            "config": config,
+            "plan": plan,
+            "iterations": iterations,
+            "summary": optional(SUMMARY_FILE),
+            "usage": optional(USAGE_FILE),
+            "best_code": (run_dir / BEST_FILE).read_text()
+            if (run_dir / BEST_FILE).is_file()
+            else None,
+        }
+    except ValueError as err:
+        if isinstance(err, RewardSearchError):
+            raise
+        raise RewardSearchError(str(err)) from err
+
+
+def config_from_run(run_dir: str | Path, overrides: dict[str, Any] | None = None):
+    """The settings a run was made with (for resuming it), ``overrides`` on top."""
+    stored = read_run(run_dir)["config"].get("config", {})
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    return load_search_config(overrides={**stored, **given})

@@ -1,0 +1,63 @@
+"""Feedback statistics from a candidate's training files, checked on hand-written ones."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from itskill.reward.feedback import EPISODE_RETURN, component_stats, eval_curve, peak_success
+
+METRICS = """\
+step,wall_s,updates,episodes,success_rate,ep_return,ep_length,steps_per_s,0.approach/reach,stage_bonus
+1024,1.0,1,4,0,2.5,60,900,0.1,0
+2048,2.0,1,6,0.5,4.5,60,910,0.3,0.5
+3072,3.0,1,0,,,,905,0.2,
+"""
+
+EVAL = """\
+env_steps,wall_s,success,ci_low,ci_high,mean_length
+1024,1.0,0.0,0.0,0.1,60
+2048,2.0,0.4,0.2,0.6,60
+3072,3.0,0.2,0.1,0.4,60
+"""
+
+
+def _run(tmp_path: Path, name: str, metrics: str = METRICS, evals: str | None = EVAL) -> Path:
+    run = tmp_path / name
+    run.mkdir()
+    (run / "metrics.csv").write_text(metrics)
+    if evals is not None:
+        (run / "eval.csv").write_text(evals)
+    return run
+
+
+def test_component_stats_are_max_mean_min_over_logging_windows(tmp_path: Path) -> None:
+    stats = component_stats([_run(tmp_path, "a")])
+    assert set(stats) == {"0.approach/reach", "stage_bonus", EPISODE_RETURN}
+    assert stats["0.approach/reach"] == pytest.approx({"max": 0.3, "mean": 0.2, "min": 0.1})
+    # Empty cells (a window without finished episodes, a component not paid) are skipped.
+    assert stats["stage_bonus"] == pytest.approx({"max": 0.5, "mean": 0.25, "min": 0.0})
+    assert stats[EPISODE_RETURN] == pytest.approx({"max": 4.5, "mean": 3.5, "min": 2.5})
+
+
+def test_component_stats_pool_the_windows_of_every_seed(tmp_path: Path) -> None:
+    other = METRICS.replace("0.1,0\n", "0.9,0\n")
+    stats = component_stats([_run(tmp_path, "a"), _run(tmp_path, "b", other)])
+    assert stats["0.approach/reach"]["max"] == pytest.approx(0.9)
+    assert stats["0.approach/reach"]["mean"] == pytest.approx((0.6 + 1.4) / 6)
+
+
+def test_eval_curve_and_peak_success(tmp_path: Path) -> None:
+    run = _run(tmp_path, "a")
+    curve = eval_curve(run)
+    assert curve == [(1024, 0.0), (2048, 0.4), (3072, 0.2)]
+    assert peak_success(curve) == pytest.approx(0.4)
+
+
+def test_a_run_without_files_has_no_stats(tmp_path: Path) -> None:
+    run = tmp_path / "empty"
+    run.mkdir()
+    assert component_stats([run]) == {}
+    assert eval_curve(run) == []
+    assert peak_success([]) == 0.0

@@ -1,0 +1,130 @@
+"""The optimisation loop against a local OpenAI-compatible server serving scripted replies."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from conftest import tiny_config
+from fake_openai import FakeOpenAIServer
+from replies import (
+    CONSTANT,
+    EMPTY,
+    ENDLESS,
+    ESCAPE,
+    GOOD,
+    RAISES,
+    RAISES_LATER,
+    SYNTAX_ERROR,
+)
+
+from itskill.llm import LLMUnavailableError
+from itskill.llm.openai_client import RetryConfig
+from itskill.reward import RewardSearchError, generate_reward, load_search, search_client
+from itskill.reward.generator import extract_code
+from itskill.reward.plan import PlanError
+from itskill.reward.search import _feedback, _rank
+from itskill.tasks import UnknownTaskError
+
+
+def _status(run: Path, k: int) -> dict:
+    return json.loads((run / "iter_0" / f"sample_{k}" / "status.json").read_text())
+
+
+def test_every_broken_reply_is_handled_and_the_good_one_wins(tmp_path: Path, quiet) -> None:
+    script = [
+        *(GOOD, SYNTAX_ERROR, RAISES, ENDLESS, ESCAPE, EMPTY),  # the 6 samples, in one request
+        CONSTANT,  # sample 1 rewritten after its syntax error: trains, but nothing to learn
+        RAISES_LATER,  # sample 2 rewritten after its KeyError: passes the probe, fails in training
+        ENDLESS,  # sample 3 again: rejected after max_regenerations = 1
+        ESCAPE,  # sample 4 again: rejected
+        EMPTY,  # sample 5 again: rejected
+    ]
+    run = tmp_path / "run"
+    with FakeOpenAIServer(script) as server:
+        client = search_client(run, "openai:fake-model", server.base_url)
+        result = generate_reward(
+            "pick_nut_m12", client, run, tiny_config(samples=6), compare_expert=False, console=quiet
+        )
+        requests = server.requests
+
+    # One request for the 6 samples, then one regeneration per broken reply, with its error.
+    assert [r.get("n", 1) for r in requests] == [6, 1, 1, 1, 1, 1]
+    errors = [r["messages"][-1]["content"] for r in requests[1:]]
+    assert all("<execution_error>" in e for e in errors)
+    assert "syntax error" in errors[0]
+    assert "KeyError: 'no_such_key'" in errors[1]
+    assert "ran longer than 0.5 s" in errors[2]
+    assert "import 'os' is not allowed" in errors[3]
+    assert "contains no code" in errors[4]
+
+    statuses = [e["status"] for e in result.history[0]["samples"]]
+    assert statuses == ["ok", "ok", "failed", "rejected", "rejected", "rejected"]
+    assert _status(run, 1)["regenerations"] == 1 and _status(run, 1)["accepted"]
+    assert "timed out" in _status(run, 3)["error"]
+    assert "import 'os'" in _status(run, 4)["error"]
+    # Every reply is kept with the reason it was rejected.
+    assert [a["reply"] for a in _status(run, 4)["attempts"]] == [ESCAPE, ESCAPE]
+    failed = json.loads((run / "iter_0" / "sample_2" / "result.json").read_text())
+    assert "non-finite" in failed["error"]
+
+    assert (result.best["iteration"], result.best["sample"]) == (0, 0)
+    assert result.best_code.strip() == extract_code(GOOD)
+    assert (run / "best_reward.py").read_text().strip() == extract_code(GOOD)
+    assert result.expert_success is None and 0.0 <= result.best_success <= 1.0
+    assert (run / "fig6.png").stat().st_size > 0
+    usage = json.loads((run / "usage.json").read_text())
+    assert usage["total"]["requests"] == 6 and usage["total"]["prompt_tokens"] > 0
+    assert load_search(run).best == result.best
+
+
+def test_feedback_carries_the_best_code_and_its_statistics() -> None:
+    best = {"code": "def compute_reward(ctx): ...", "success": 0.25,
+            "stats": {"0.approach/reach": {"max": 0.9, "mean": 0.5, "min": 0.1}}}  # fmt: skip
+    assistant, user = _feedback(best, None)
+    assert assistant["role"] == "assistant" and best["code"] in assistant["content"]
+    assert "0.250" in user["content"] and "0.approach/reach" in user["content"]
+    assert "temperature" in user["content"]
+    _, error = _feedback(None, ("x = (", "line 1: syntax error"))
+    assert "<execution_error>" in error["content"]
+    assert _feedback(None, None) == []
+
+
+def test_ranking_is_by_success_then_expert_correlation() -> None:
+    entries = [
+        {"sample": 0, "success": 0.2, "correlation": None},
+        {"sample": 1, "success": 0.2, "correlation": 0.1},
+        {"sample": 2, "success": 0.1, "correlation": 0.99},
+        {"sample": 3, "success": 0.2, "correlation": -0.5},
+    ]
+    assert max(entries, key=_rank)["sample"] == 1
+
+
+def test_unreachable_model_and_unusable_run_dirs(tmp_path: Path, quiet) -> None:
+    run = tmp_path / "run"
+    client = search_client(run, "openai:fake-model", "http://127.0.0.1:9/v1")
+    client.retry = RetryConfig(max_retries=0, timeout_s=2.0)
+    with pytest.raises(LLMUnavailableError, match=r"127\.0\.0\.1:9"):
+        generate_reward("Pick up the M12 nut", client, run, tiny_config(), console=quiet)
+    with pytest.raises(RewardSearchError, match="already holds a reward search"):
+        generate_reward("Pick up the M12 nut", client, run, tiny_config(), console=quiet)
+    with pytest.raises(RewardSearchError, match=r"other settings: samples=2 \(now 3\)"):
+        generate_reward(
+            "Pick up the M12 nut", client, run, tiny_config(samples=3), resume=True, console=quiet
+        )
+    with pytest.raises(RewardSearchError, match="made with target="):
+        generate_reward("pick_nut_m12", client, run, tiny_config(), resume=True, console=quiet)
+    with pytest.raises(RewardSearchError, match="not a reward search run"):
+        generate_reward("pick_nut_m12", client, tmp_path, tiny_config(), resume=True)
+    with pytest.raises(RewardSearchError, match="has not finished"):
+        load_search(run)
+
+
+def test_unknown_task_and_ungroundable_command(tmp_path: Path, quiet) -> None:
+    client = search_client(tmp_path / "a", "offline")
+    with pytest.raises(UnknownTaskError, match="pick_nut_m21"):
+        generate_reward("pick_nut_m21", client, tmp_path / "a", tiny_config(), console=quiet)
+    assert not (tmp_path / "a" / "config.json").exists()  # nothing to resume: nothing written
+    with pytest.raises(PlanError, match=r"Known objects: .*nut_m12"):
+        generate_reward("make me a sandwich", client, tmp_path / "b", tiny_config(), console=quiet)

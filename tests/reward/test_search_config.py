@@ -1,0 +1,79 @@
+"""Search settings: packaged defaults, a user's file, overrides, clear errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from itskill.reward.config import (
+    RewardSearchConfig,
+    SearchConfigError,
+    default_path,
+    load_search_config,
+)
+from itskill.reward.sandbox import SandboxConfig
+
+
+def test_defaults_come_from_the_packaged_file() -> None:
+    config = RewardSearchConfig()
+    assert (config.iterations, config.samples) == (5, 10)  # the paper's loop
+    assert config == load_search_config()
+    assert isinstance(config.sandbox, SandboxConfig)
+    assert "steps = " in default_path().read_text()
+
+
+def test_overrides_apply_and_none_means_not_given() -> None:
+    config = load_search_config(
+        overrides={
+            "iterations": 2,
+            "samples": None,
+            "seeds": [3, 4],
+            "sandbox": {"call_timeout_s": 1},
+        }
+    )
+    assert config.iterations == 2
+    assert config.samples == RewardSearchConfig().samples
+    assert config.seeds == (3, 4)
+    assert config.sandbox.call_timeout_s == 1.0
+
+
+def test_eval_every_spreads_the_evaluations() -> None:
+    assert load_search_config(overrides={"steps": 1000, "evaluations": 4}).eval_every == 250
+    assert load_search_config(overrides={"steps": 1001, "evaluations": 4}).eval_every == 251
+
+
+def test_user_file(tmp_path: Path) -> None:
+    path = tmp_path / "search.toml"
+    path.write_text("[search]\nsamples = 3\n[sandbox]\nmemory_limit_mb = 2048\n")
+    config = load_search_config(path)
+    assert config.samples == 3
+    assert config.sandbox.memory_limit_mb == 2048
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[search]\nsampels = 3\n", "search.sampels: unknown field"),
+        ("[search]\nsamples = 'ten'\n", "search.samples: expected int"),
+        ("[search]\nsamples = 0\n", "samples: expected a positive number"),
+        ("[search]\nalgo = 'sac'\n", "algo: expected one of"),
+        ("[search]\nseeds = [1, 1]\n", "seeds: expected distinct seeds"),
+        ("[sandbox]\ntimeout = 1\n", "sandbox.timeout: unknown field"),
+        ("[serach]\n", "serach: unknown table"),
+        ("[search\n", "TOML syntax"),
+    ],
+)
+def test_file_errors_name_the_file_and_field(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(SearchConfigError, match=message) as info:
+        load_search_config(path)
+    assert str(path) in str(info.value)
+
+
+def test_override_errors() -> None:
+    with pytest.raises(SearchConfigError, match="overrides: executor: expected one of"):
+        load_search_config(overrides={"executor": "slurm"})
+    with pytest.raises(SearchConfigError, match="overrides: iteratoins: unknown field"):
+        load_search_config(overrides={"iteratoins": 2})
