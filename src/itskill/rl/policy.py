@@ -43,10 +43,7 @@ class PolicyConfig:
 
     ``stages`` are the widths of the three feature stages (the paper's network has three stages
     before the output layer). ``obs_clip`` bounds normalised observations; ``log_std_init`` is the
-    initial log standard deviation of the Gaussian action distribution. ``grip_bias_init`` is the
-    initial mean of the grip action (the last one; the fingers close above 0): a negative value
-    starts with the fingers open, so exploration closes them now and then instead of flipping them
-    every other step, and a closing around the part stands out from the noise.
+    initial log standard deviation of the Gaussian action distribution.
     """
 
     stages: tuple[int, ...] = (256, 256, 128)
@@ -56,7 +53,6 @@ class PolicyConfig:
     obs_clip: float = 10.0
     log_std_init: float = -0.5
     ortho_init: bool = True
-    grip_bias_init: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.stages or any(int(w) < 1 for w in self.stages):
@@ -80,7 +76,6 @@ class PolicyConfig:
             "obs_clip": self.obs_clip,
             "log_std_init": self.log_std_init,
             "ortho_init": self.ortho_init,
-            "grip_bias_init": self.grip_bias_init,
         }
 
 
@@ -186,7 +181,6 @@ class StagedActorCriticPolicy(ActorCriticPolicy):
         shared_trunk: bool = PolicyConfig.shared_trunk,
         normalize_obs: bool = PolicyConfig.normalize_obs,
         obs_clip: float = PolicyConfig.obs_clip,
-        grip_bias_init: float = PolicyConfig.grip_bias_init,
         **kwargs: Any,
     ) -> None:
         # Read by _build_mlp_extractor, which the base constructor calls.
@@ -198,13 +192,10 @@ class StagedActorCriticPolicy(ActorCriticPolicy):
             obs_clip=obs_clip,
             log_std_init=kwargs.get("log_std_init", 0.0),
             ortho_init=kwargs.get("ortho_init", True),
-            grip_bias_init=grip_bias_init,
         )
         kwargs.setdefault("activation_fn", ACTIVATIONS[activation])
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
         obs_size = int(gym.spaces.flatdim(observation_space))
-        with torch.no_grad():
-            self.action_net.bias[-1] = grip_bias_init
         self.obs_norm = RunningNormalizer(obs_size, clip=obs_clip) if normalize_obs else None
         self.update_obs_stats = normalize_obs
         self._frozen: list[str] = []
@@ -227,7 +218,6 @@ class StagedActorCriticPolicy(ActorCriticPolicy):
             shared_trunk=self.config.shared_trunk,
             normalize_obs=self.config.normalize_obs,
             obs_clip=self.config.obs_clip,
-            grip_bias_init=self.config.grip_bias_init,
         )
         return data
 

@@ -187,7 +187,7 @@ class TransferPolicy(ActorCriticPolicy):
 
     Keyword arguments: ``sources`` (source specs), ``prior`` (the contribution matrix, for
     methods with ``uses_prior``), the target's :class:`PolicyConfig` fields (``stages``,
-    ``activation``, ``shared_trunk``, ``normalize_obs``, ``obs_clip``, ``grip_bias_init``,
+    ``activation``, ``shared_trunk``, ``normalize_obs``, ``obs_clip``,
     ``log_std_init``, ``ortho_init``), ``attention_hidden``, ``prior_weight`` and
     ``fusion_hidden``; everything else is :class:`ActorCriticPolicy`'s.
     """
@@ -206,7 +206,6 @@ class TransferPolicy(ActorCriticPolicy):
         shared_trunk: bool = PolicyConfig.shared_trunk,
         normalize_obs: bool = PolicyConfig.normalize_obs,
         obs_clip: float = PolicyConfig.obs_clip,
-        grip_bias_init: float = PolicyConfig.grip_bias_init,
         attention_hidden: int = 32,
         prior_weight: float = 0.5,
         fusion_hidden: Sequence[int] = (),
@@ -227,7 +226,6 @@ class TransferPolicy(ActorCriticPolicy):
             obs_clip=obs_clip,
             log_std_init=kwargs.get("log_std_init", 0.0),
             ortho_init=kwargs.get("ortho_init", True),
-            grip_bias_init=grip_bias_init,
         )
         self.config = TransferPolicyConfig(
             target=target,
@@ -285,8 +283,6 @@ class TransferPolicy(ActorCriticPolicy):
             for module, gain in gains:
                 if module is not None:
                     module.apply(partial(self.init_weights, gain=gain))
-        with torch.no_grad():
-            self.action_net.bias[-1] = self.config.target.grip_bias_init
         # Only target, fusion, attention and head parameters train.
         trainable = [p for p in self.parameters() if p.requires_grad]
         self.optimizer = self.optimizer_class(trainable, lr=lr_schedule(1), **self.optimizer_kwargs)
