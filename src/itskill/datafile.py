@@ -34,3 +34,27 @@ def read_toml(path: str | Path, error: type[DataFileError] = DataFileError) -> d
         raise error(path, "file", "no such file") from err
     except tomllib.TOMLDecodeError as err:
         raise error(path, "TOML syntax", str(err)) from err
+
+
+def check_like(
+    path: str | Path, where: str, value: Any, default: Any, error: type[DataFileError]
+) -> Any:
+    """``value`` converted to the type of the field's ``default`` (bool, int, float, str or a
+    tuple of ints, read from a TOML list), or ``error`` naming the type expected."""
+    if isinstance(default, bool):
+        ok, want = isinstance(value, bool), "a boolean"
+    elif isinstance(default, int):
+        ok, want = isinstance(value, int) and not isinstance(value, bool), "an integer"
+    elif isinstance(default, float):
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        want, value = "a number", float(value) if ok else value
+    elif isinstance(default, str):
+        ok, want = isinstance(value, str), "a string"
+    else:
+        ok = isinstance(value, list) and all(
+            isinstance(v, int) and not isinstance(v, bool) for v in value
+        )
+        want, value = "a list of integers", tuple(value) if ok else value
+    if not ok:
+        raise error(path, where, f"expected {want}, got {type(value).__name__} {value!r}")
+    return value

@@ -1,7 +1,8 @@
-"""Atomic writes for the reward run directory: a file is either absent or complete.
+"""Atomic writes for run directories, caches and libraries: a file is either absent or complete.
 
 A run killed at any moment (kill -9 included) leaves no half-written file behind, so a resumed run
-can trust every file it finds: a ``result.json`` that exists is a finished candidate.
+can trust every file it finds: a ``result.json`` that exists is a finished candidate, a
+``checkpoint.json`` a finished checkpoint.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ def write_text(path: Path, text: str) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w") as fh:
+    with open(tmp, "w", encoding="utf-8") as fh:
         fh.write(text)
         fh.flush()
         os.fsync(fh.fileno())

@@ -11,7 +11,7 @@ from itskill.experiments.config import EvalSettings, ExperimentConfig, ReportSet
 from itskill.experiments.provenance import Sessions
 from itskill.experiments.report import ReportError, experiment_report
 from itskill.experiments.runner import Cell
-from itskill.reward.files import write_json
+from itskill.files import write_json
 from itskill.transfer import train_transfer
 
 TASK = "pickplace_nut_m12"

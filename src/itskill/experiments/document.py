@@ -14,6 +14,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from itskill.files import write_text
+
 
 @dataclass(frozen=True)
 class Heading:
@@ -170,7 +172,4 @@ def write_document(doc: Document, markdown_path: Path, html_path: Path) -> None:
         (markdown_path, to_markdown(doc, markdown_path.parent)),
         (html_path, to_html(doc, html_path.parent)),
     ):
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)
+        write_text(path, text)

@@ -39,7 +39,7 @@ from itskill.datafile import DataFileError, read_toml
 from itskill.experiments.analysis import read_curve
 from itskill.experiments.provenance import Sessions
 from itskill.experiments.report import PROVENANCE_FILE, ReportFiles, learn_report
-from itskill.reward.files import read_json, write_json
+from itskill.files import read_json, write_json
 
 LEARN_FILE = "learn.json"
 EVAL_SEED = 10_000

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from itskill.reward.files import read_json, write_json
+from itskill.files import read_json, write_json
 
 
 def command_line() -> str:

@@ -52,7 +52,7 @@ from itskill.experiments.runner import (
     Cell,
     cells,
 )
-from itskill.reward.files import read_json
+from itskill.files import read_json
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"

@@ -30,7 +30,7 @@ from itskill.executors import run_jobs
 from itskill.experiments.analysis import read_curve, time_to_threshold
 from itskill.experiments.config import AUTO, ExperimentConfig
 from itskill.experiments.provenance import Sessions
-from itskill.reward.files import read_json, write_json
+from itskill.files import read_json, write_json
 
 CELLS_DIR = "cells"
 RESULT_FILE = "result.json"

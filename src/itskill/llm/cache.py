@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from collections import Counter
 from pathlib import Path
 from typing import Any
+
+from itskill.files import write_text
 
 CACHE_VERSION = 1
 
@@ -40,19 +40,6 @@ def request_key(
         ensure_ascii=False,
     )
     return hashlib.sha256(payload.encode()).hexdigest()
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write ``data`` as JSON to ``path`` through a temporary file in the same directory."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=1, ensure_ascii=False)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class ReplyCache:
@@ -87,4 +74,5 @@ class ReplyCache:
         return replies
 
     def put(self, key: str, replies: list[str], meta: dict[str, Any]) -> None:
-        write_json_atomic(self.path(key), {**meta, "version": CACHE_VERSION, "replies": replies})
+        record = {**meta, "version": CACHE_VERSION, "replies": replies}
+        write_text(self.path(key), json.dumps(record, indent=1, ensure_ascii=False))

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from itskill.reward.files import read_json, write_json
+from itskill.files import read_json, write_json
 from itskill.reward.sandbox import SandboxConfig, apply_process_limits, compile_reward
 
 RESULT_FILE = "result.json"

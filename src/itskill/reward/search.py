@@ -34,11 +34,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 import itskill
 from itskill.executors import JobResult, default_workers, run_jobs
+from itskill.files import read_json, write_json, write_text
 from itskill.llm.client import LLMClient, Message, make_client
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
 from itskill.reward.candidate import RESULT_FILE, CandidateJob, run_candidate
 from itskill.reward.config import RewardSearchConfig, load_search_config
-from itskill.reward.files import read_json, write_json, write_text
 from itskill.reward.generator import Sample, fenced, generate_samples, probe_contexts
 from itskill.reward.plan import TaskPlan, plan_command, plan_for_task
 from itskill.stats import mean_interval

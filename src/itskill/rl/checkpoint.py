@@ -31,6 +31,7 @@ from safetensors.torch import load_file, save_file
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecNormalize
 
+from itskill.files import write_text
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.sim.vec_env import action_space, observation_space
@@ -62,12 +63,6 @@ def versions() -> dict[str, str]:
     }
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def save_checkpoint(model: Any, run_dir: Path, meta: Mapping[str, Any]) -> dict[str, Any]:
     """Write ``model.zip``, ``policy.safetensors`` and ``checkpoint.json`` into ``run_dir``.
 
@@ -95,8 +90,8 @@ def save_checkpoint(model: Any, run_dir: Path, meta: Mapping[str, Any]) -> dict[
     if isinstance(env, VecNormalize):
         rms = env.ret_rms
         stats = {"mean": float(rms.mean), "var": float(rms.var), "count": float(rms.count)}
-        _atomic_write_text(run_dir / REWARD_NORM_FILE, json.dumps(stats) + "\n")
-    _atomic_write_text(run_dir / META_FILE, json.dumps(full, indent=2) + "\n")
+        write_text(run_dir / REWARD_NORM_FILE, json.dumps(stats) + "\n")
+    write_text(run_dir / META_FILE, json.dumps(full, indent=2) + "\n")
     return full
 
 

@@ -12,7 +12,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
-from itskill.datafile import DataFileError, read_toml
+from itskill.datafile import DataFileError, check_like, read_toml
 from itskill.rl.policy import PolicyConfig
 
 Algo = Literal["a2c", "ppo"]
@@ -104,26 +104,7 @@ def default_path() -> Path:
 
 def _check_value(path: Path, where: str, value: Any, default: Any) -> Any:
     """``value`` as the type of ``default``, or a HyperparamError naming the expected type."""
-    if isinstance(default, bool):
-        ok, want = isinstance(value, bool), "a boolean"
-    elif isinstance(default, int):
-        ok, want = isinstance(value, int) and not isinstance(value, bool), "an integer"
-    elif isinstance(default, float):
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        want = "a number"
-        value = float(value) if ok else value
-    elif isinstance(default, str):
-        ok, want = isinstance(value, str), "a string"
-    elif isinstance(default, tuple):
-        ok = isinstance(value, list) and all(
-            isinstance(v, int) and not isinstance(v, bool) for v in value
-        )
-        want = "a list of integers"
-        value = tuple(value) if ok else value
-    else:  # pragma: no cover - every dataclass field above has one of these types
-        ok, want = True, ""
-    if not ok:
-        raise HyperparamError(path, where, f"expected {want}, got {type(value).__name__} {value!r}")
+    value = check_like(path, where, value, default, HyperparamError)
     if where.rsplit(".", 1)[-1] in _POSITIVE and value <= 0:
         raise HyperparamError(path, where, f"expected a positive value, got {value!r}")
     return value

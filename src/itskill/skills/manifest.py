@@ -17,13 +17,12 @@ Format (``format`` is bumped on incompatible changes)::
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from itskill.files import write_text
 from itskill.skills.store import Skill, SkillSpace, SkillSpaceError
 
 MANIFEST_NAME = "manifest.json"
@@ -135,10 +134,7 @@ def write_manifest(library_dir: Path | str, entries: Sequence[ManifestEntry]) ->
     text = json.dumps(
         {"format": MANIFEST_FORMAT, "skills": [e.to_json() for e in entries]}, indent=2
     )
-    fd, tmp = tempfile.mkstemp(dir=library_dir, prefix=".manifest.", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text + "\n")
-    os.replace(tmp, path)
+    write_text(path, text + "\n")
     return path
 
 

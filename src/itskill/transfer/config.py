@@ -12,7 +12,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, read_toml
+from itskill.datafile import DataFileError, check_like, read_toml
 
 
 class TransferConfigError(DataFileError):
@@ -69,26 +69,6 @@ def default_path() -> Path:
     return Path(str(resources.files("itskill.transfer") / "data" / "transfer.toml"))
 
 
-def _check(path: Path, where: str, value: Any, default: Any) -> Any:
-    if isinstance(default, bool):
-        ok, want = isinstance(value, bool), "a boolean"
-    elif isinstance(default, int):
-        ok, want = isinstance(value, int) and not isinstance(value, bool), "an integer"
-    elif isinstance(default, float):
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        want, value = "a number", float(value) if ok else value
-    else:
-        ok = isinstance(value, list) and all(
-            isinstance(v, int) and not isinstance(v, bool) for v in value
-        )
-        want, value = "a list of integers", tuple(value) if ok else value
-    if not ok:
-        raise TransferConfigError(
-            path, where, f"expected {want}, got {type(value).__name__} {value!r}"
-        )
-    return value
-
-
 def load_transfer_config(path: str | Path | None = None) -> TransferConfig:
     """The settings in ``path`` (default: the packaged ``transfer.toml``), every field checked."""
     path = Path(path) if path is not None else default_path()
@@ -111,7 +91,9 @@ def load_transfer_config(path: str | Path | None = None) -> TransferConfig:
                     path, f"{table}.{key}", f"unknown field; expected one of {known}"
                 )
             name = _LAYOUT[table][key]
-            values[name] = _check(path, f"{table}.{key}", value, defaults[name])
+            values[name] = check_like(
+                path, f"{table}.{key}", value, defaults[name], TransferConfigError
+            )
     try:
         return TransferConfig(**values)
     except ValueError as err:

@@ -10,7 +10,6 @@ same sources and matrix without asking the analyzer again.
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any
 
 from rich.console import Console
 
+from itskill.files import write_json
 from itskill.llm.client import LLMClient
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import EXPERT, ResumeMismatchError, RewardSource, TrainResult, train
@@ -49,12 +49,6 @@ def target_entry(spec: TaskSpec) -> dict[str, Any]:
 
 def _request(sources: str | Sequence[int | str]) -> str | list[int | str]:
     return sources.strip() if isinstance(sources, str) else list(sources)
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)
 
 
 def read_transfer(run_dir: str | Path) -> dict[str, Any]:
@@ -155,7 +149,7 @@ def train_transfer(
             created=time.time(),
         )
         out.mkdir(parents=True, exist_ok=True)
-        _write_json(out / TRANSFER_FILE, record)
+        write_json(out / TRANSFER_FILE, record)
 
     policy_kwargs: dict[str, Any] | None = None
     if meth.uses_sources:
