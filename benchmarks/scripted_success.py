@@ -12,25 +12,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 
+from itskill.stats import wilson_interval
 from itskill.tasks import all_tasks, get_task
 from itskill.tasks.scripted import run_episodes
 
 THRESHOLD = 0.9
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson score interval for a binomial proportion."""
-    if n == 0:
-        return 0.0, 1.0
-    p = successes / n
-    denom = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -295,11 +295,12 @@ class BatchSim:
         cfg = self.cfg
         a = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
         self.last_action[:] = a
+        self.grip_closed = a[:, 4] > cfg.grip_threshold
         target = self.target_pos + a[:, :3] * cfg.pos_step
         target = np.clip(target, cfg.workspace_low, cfg.workspace_high)
-        self.target_pos = self.ee_pos + np.clip(target - self.ee_pos, -cfg.max_lead, cfg.max_lead)
+        lead = np.where(self.grip_closed, cfg.max_lead_closed, cfg.max_lead)[:, None]
+        self.target_pos = self.ee_pos + np.clip(target - self.ee_pos, -lead, lead)
         self.target_yaw = np.clip(self.target_yaw + a[:, 3] * cfg.yaw_step, *cfg.yaw_limits)
-        self.grip_closed = a[:, 4] > cfg.grip_threshold
 
         # The commanded posture's kinematics are normally up to date (simulate evaluates them in
         # parallel); only a caller that changed q_des some other way pays for them here.

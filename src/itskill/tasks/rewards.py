@@ -51,12 +51,12 @@ TEMPERATURES: dict[str, float] = {
     "reach": 0.15,  # grip point to part, coarse: still has a slope 30 cm away (m)
     "reach_fine": 0.015,  # grip point to part, fine: the last centimetres before a grasp (m)
     "grasp_align": 0.01,  # grip point to the part's grip zone while closing (m)
-    "fixture": 0.06,  # part bottom to a point over its fixture, coarse (m)
+    "fixture": 0.15,  # part bottom to a point over its fixture, coarse: slope 30 cm away (m)
     "fixture_fine": 0.006,  # part bottom over its fixture, fine (a bolt tip is ~12 mm wide) (m)
     "yaw": 0.15,  # part yaw to fixture yaw (rad)
     "engage": 0.008,  # part bottom to the fixture point while placing (m)
     "screw": 0.004,  # nut seat gap left to travel (m; M12 pitch is 1.75 mm)
-    "push": 0.04,  # part centre to the push target (m)
+    "push": 0.1,  # part centre to the push target: slope from the start 15 cm away (m)
     "push_reach": 0.06,  # grip point to the pushed part (m)
 }
 """Distance scale of each tanh-shaped term: ``1 - tanh(distance / temperature)``."""
