@@ -298,7 +298,8 @@ class BatchSim:
         self.grip_closed = a[:, 4] > cfg.grip_threshold
         target = self.target_pos + a[:, :3] * cfg.pos_step
         target = np.clip(target, cfg.workspace_low, cfg.workspace_high)
-        lead = np.where(self.grip_closed, cfg.max_lead_closed, cfg.max_lead)[:, None]
+        holding = self.grip_closed & (self.finger_q.sum(axis=1) > cfg.holding_width)
+        lead = np.where(holding, cfg.max_lead_closed, cfg.max_lead)[:, None]
         self.target_pos = self.ee_pos + np.clip(target - self.ee_pos, -lead, lead)
         self.target_yaw = np.clip(self.target_yaw + a[:, 3] * cfg.yaw_step, *cfg.yaw_limits)
 

@@ -28,10 +28,13 @@ class ControllerConfig:
     max_lead: float = 0.03
     """The commanded position never runs further than this ahead of the measured one."""
     max_lead_closed: float = 0.015
-    """``max_lead`` while the fingers are commanded closed: a payload speed limit (about 0.11 m/s
+    """``max_lead`` while the closed fingers hold something: a payload speed limit (about 0.11 m/s
     instead of 0.23). At full speed the arm's servo lag shakes a held part along the pads: moving
     straight up, 31 of 32 held M12 nuts (and every peg) slid out within 20 steps, whatever the pad
     friction, contact stiffness or solver iterations; at this limit none did."""
+    holding_width: float = 0.002
+    """Closed fingers further apart than this are taken to hold a part (the thinnest, the round
+    peg, keeps them 4 mm apart); closed on nothing they touch, and the hand keeps full speed."""
     workspace_low: tuple[float, float, float] = (0.25, -0.35, 0.011)
     workspace_high: tuple[float, float, float] = (0.75, 0.35, 0.45)
     yaw_limits: tuple[float, float] = (-2.0, 3.0)
