@@ -2,7 +2,8 @@
 
 A skill's success in ``manifest.json`` was measured when it was trained. After a change to the
 simulator or a task (control limits, step limits, success predicates) those figures may no longer
-hold; this evaluates each skill's deterministic policy over N held-out episodes, prints the old
+hold; this evaluates each skill's deterministic policy over the same held-out episodes that
+pretraining measured it on (:func:`itskill.skills.pretrain.measure_skill`), prints the old
 and new success side by side, and with ``--update`` writes the new figures into the manifest
 (budget and everything else unchanged). Skills that fall below ``--min-success`` are listed, and
 kept in the manifest with their new figure: removing one is a decision for a person.
@@ -21,23 +22,23 @@ import time
 from pathlib import Path
 
 from itskill.files import write_json
-from itskill.rl import as_policy
 from itskill.skills.library import SHIPPED_LIBRARY
 from itskill.skills.manifest import read_manifest, write_manifest
+from itskill.skills.pretrain import PretrainConfig, measure_skill
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import evaluate
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--library", type=Path, default=SHIPPED_LIBRARY)
     parser.add_argument("--skills", nargs="+", help="skill names (default: all)")
-    parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--episodes", type=int, default=PretrainConfig.eval_episodes)
+    parser.add_argument("--seed", type=int, default=PretrainConfig.eval_seed)
     parser.add_argument("--min-success", type=float, default=0.5)
     parser.add_argument("--update", action="store_true", help="write the figures to the manifest")
     parser.add_argument("--json", type=Path, help="also write the results as JSON")
     args = parser.parse_args(argv)
+    config = PretrainConfig(eval_episodes=args.episodes, eval_seed=args.seed)
 
     entries = read_manifest(args.library)
     chosen = [e for e in entries if not args.skills or e.name in args.skills]
@@ -45,12 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     results, updated = [], {}
     for entry in chosen:
         start = time.perf_counter()
-        ev = evaluate(
-            get_task(entry.task),
-            as_policy((args.library / entry.checkpoint).parent),
-            episodes=args.episodes,
-            seed=args.seed,
-        )
+        ev = measure_skill(get_task(entry.task), (args.library / entry.checkpoint).parent, config)
         before = "-" if entry.success is None else f"{entry.success:.0%}"
         print(
             f"{entry.name:22s} {before:>7s} {ev.success_rate:6.0%} "

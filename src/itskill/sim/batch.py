@@ -219,6 +219,11 @@ class BatchSim:
         self.obj_vel[env] = 0.0
 
     @property
+    def finger_width(self) -> np.ndarray:
+        """Distance between the fingers per environment (m): 0 closed on nothing, 0.08 open."""
+        return self.finger_q.sum(axis=1)
+
+    @property
     def cfg_open(self) -> float:
         return float(self.model.actuator_ctrlrange[7, 1])
 
@@ -298,7 +303,7 @@ class BatchSim:
         self.grip_closed = a[:, 4] > cfg.grip_threshold
         target = self.target_pos + a[:, :3] * cfg.pos_step
         target = np.clip(target, cfg.workspace_low, cfg.workspace_high)
-        holding = self.grip_closed & (self.finger_q.sum(axis=1) > cfg.holding_width)
+        holding = self.grip_closed & (self.finger_width > cfg.holding_width)
         lead = np.where(holding, cfg.max_lead_closed, cfg.max_lead)[:, None]
         self.target_pos = self.ee_pos + np.clip(target - self.ee_pos, -lead, lead)
         self.target_yaw = np.clip(self.target_yaw + a[:, 3] * cfg.yaw_step, *cfg.yaw_limits)
@@ -396,7 +401,7 @@ class BatchSim:
         tilt = np.arccos(np.clip(self.obj_rot[..., 2, 2], -1.0, 1.0)) * om
         obj_yaw = np.arctan2(self.obj_rot[..., 1, 0], self.obj_rot[..., 0, 0]) * om
         bottom = (obj_pos[..., 2] - 0.5 * self.obj_height * np.cos(tilt)) * om
-        width = self.finger_q.sum(axis=1)
+        width = self.finger_width
         to_ee = (self.ee_pos[:, None] - obj_pos) * om[..., None]
 
         closed = self.grip_closed[:, None]

@@ -22,7 +22,8 @@ from itskill.rl.train import train
 from itskill.skills.manifest import MANIFEST_NAME, ManifestEntry, read_manifest, write_manifest
 from itskill.skills.store import SkillSpace, UnknownSkillError
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import evaluate
+from itskill.tasks.evaluate import EvalResult, evaluate
+from itskill.tasks.spec import TaskSpec
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,14 @@ class PretrainConfig:
     min_success: float = 0.5
     """A policy below this deterministic success is reported but not exported or registered:
     it has not learned the skill, and would only mislead retrieval and transfer."""
+
+
+def measure_skill(spec: TaskSpec, policy_dir: Path, config: PretrainConfig) -> EvalResult:
+    """Deterministic success of the policy in ``policy_dir`` over the held-out evaluation episodes
+    (``config.eval_seed``): the figure a library's manifest records, so re-measuring a skill later
+    runs exactly the same episodes."""
+    policy = as_policy(policy_dir)
+    return evaluate(spec, policy, config.eval_episodes, seed=config.eval_seed, num_envs=25)
 
 
 def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir: Path) -> dict:
@@ -60,9 +69,7 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
         num_envs=config.num_envs,
         n_threads=1,
     )
-    ev = evaluate(
-        spec, as_policy(run_dir), episodes=config.eval_episodes, seed=config.eval_seed, num_envs=25
-    )
+    ev = measure_skill(spec, run_dir, config)
     entry = ManifestEntry(
         name=task,
         task=task,
