@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 
@@ -34,3 +40,52 @@ def test_unknown_executor_is_a_clear_error() -> None:
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="ray is not installed")
 def test_ray_executor_on_a_local_instance() -> None:
     _check(run_jobs(math.sqrt, JOBS, "ray"))
+
+
+PARENT_SCRIPT = """
+import os, sys, time
+from itskill.executors import run_jobs
+
+def work(path):
+    with open(path, "w") as fh:
+        fh.write(str(os.getpid()))
+    time.sleep(120)
+
+if __name__ == "__main__":
+    list(run_jobs(work, [(sys.argv[1],), (sys.argv[2],)], "local", 2))
+"""
+
+
+def _alive(pid: int) -> bool:
+    """Running and not a zombie (an orphan's zombie waits for a reaper that may never come)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc to inspect processes")
+def test_local_workers_end_when_the_parent_is_killed(tmp_path) -> None:
+    script = tmp_path / "parent.py"
+    script.write_text(PARENT_SCRIPT)
+    marks = [tmp_path / "a.pid", tmp_path / "b.pid"]
+    parent = subprocess.Popen([sys.executable, str(script), *map(str, marks)])
+    try:
+        deadline = time.monotonic() + 60
+        while not all(m.exists() and m.read_text() for m in marks):
+            assert time.monotonic() < deadline, "workers did not start"
+            time.sleep(0.1)
+        workers = [int(m.read_text()) for m in marks]
+        parent.send_signal(signal.SIGTERM)
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not any(_alive(pid) for pid in workers)
+    finally:
+        parent.kill()
+        for m in marks:
+            if m.exists() and m.read_text():
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(int(m.read_text()), signal.SIGKILL)

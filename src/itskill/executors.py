@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -73,7 +75,12 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
                 yield JobResult(i, error=err)
         return
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+    with ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=context,
+        initializer=_exit_with_parent,
+        initargs=(os.getpid(),),
+    ) as pool:
         pending: dict[Future, int] = {pool.submit(fn, *args): i for i, args in enumerate(jobs)}
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -81,6 +88,21 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
                 index = pending.pop(future)
                 error = future.exception()
                 yield JobResult(index, value=None if error else future.result(), error=error)
+
+
+def _exit_with_parent(parent: int, poll_s: float = 1.0) -> None:
+    """Worker initializer: end this worker when the process that started it is gone.
+
+    A parent killed by SIGTERM or SIGKILL runs no clean-up, and its pool workers would otherwise
+    go on training (and holding the cores) with nobody to collect their results.
+    """
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 def _call(fn: Callable[..., Any], *args: Any) -> Any:
