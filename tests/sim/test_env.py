@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
 from itskill.sim.layout import OBSERVATION_LAYOUT as L
+from itskill.sim.task import TrainingStart
+from itskill.sim.vec_env import BatchEnv
 from itskill.tasks import get_task, make_batch_env, make_env
 
 FREE = np.array([0.0, 0.0, 0.0, 0.0, -1.0])
@@ -215,6 +218,52 @@ def test_a_held_part_stays_in_the_grip_at_full_speed(name):
     held_speed = (ctx["ee_pos"][:, 2] - z0).mean() / 25
     assert (free.context()["ee_pos"][0, 2] - start) / 5 > 1.5 * held_speed
     free.close()
+
+
+@pytest.mark.parametrize("name", ["grasp_nut_m12", "grasp_peg_rect"])
+def test_a_part_started_between_the_open_fingers_is_grasped_by_closing(name):
+    env = make_batch_env(name, num_envs=4, seed=5, n_threads=1)
+    env.reset()
+    ctx = env.context()
+    assert (ctx["gripper_width"] > 0.075).all() and not ctx["grasped"].any()
+    assert (np.linalg.norm(ctx["obj_to_ee"][:, 0, :2], axis=-1) < 0.003).all()  # centred
+    assert (np.abs(ctx["obj_bottom_z"][:, 0]) < 0.002).all()  # standing on the table
+    for _ in range(6):
+        env.step(np.tile([0.0, 0.0, 0.0, 0.0, 1.0], (4, 1)))
+    held = env.context()["grasped"][:, 0]
+    env.close()
+    assert (held > 0.5).all()
+
+
+def _starts(env, episodes: int) -> tuple[int, list[bool]]:
+    """Episodes begun in the fingers (grasped right after reset), and each episode's
+    ``training_start`` flag, over ``episodes`` episodes of the single environment of ``env``."""
+    in_hand, flags = 0, []
+    env.reset()
+    for _ in range(episodes):
+        in_hand += int(env.context()["grasped"][0, 0] > 0.5)
+        for _ in range(env.task.max_steps):
+            _, _, done, infos = env.step(np.array([[0.0, 0.0, 0.0, 0.0, 1.0]]))
+        assert done[0]
+        flags.append(infos[0].get("training_start", False))
+    return in_hand, flags
+
+
+def test_training_environments_draw_the_tasks_training_starts_and_say_so():
+    spec = get_task("lift_nut_m12")
+    # lift_nut_m12 starts with the nut in the fingers; a training start from the table (pick's
+    # start) with share 0.5 must show up in about half the training episodes and in no other.
+    table = get_task("pick_nut_m12").init
+    task = replace(spec.to_sim_task(), max_steps=1, training_starts=(TrainingStart(table, 0.5),))
+    training = BatchEnv(task, num_envs=1, seed=0, n_threads=1, training=True)
+    held, flags = _starts(training, 40)
+    training.close()
+    assert 10 <= 40 - held <= 30
+    assert flags.count(True) == 40 - held  # exactly the table starts are flagged
+    evaluation = BatchEnv(task, num_envs=1, seed=0, n_threads=1)
+    held, flags = _starts(evaluation, 10)
+    evaluation.close()
+    assert held == 10 and not any(flags)
 
 
 # ---------------------------------------------------------------------- observation layout

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from itskill.rl import load_policy
@@ -10,11 +12,11 @@ from itskill.skills import ManifestEntry, open_skill_space, read_manifest, write
 from itskill.skills.library import SHIPPED_LIBRARY as SHIPPED
 
 
-def test_fresh_skill_space_gets_the_shipped_library_once(tmp_path, monkeypatch, home) -> None:
-    shipped = tmp_path / "shipped"
+def _ship(shipped: Path, tasks: tuple[str, ...]) -> None:
+    """Write a shipped library of ``tasks`` (placeholder weights) with its manifest."""
     entries = []
-    for task in ("reach_nut_m12", "pick_nut_m12"):
-        (shipped / task).mkdir(parents=True)
+    for task in tasks:
+        (shipped / task).mkdir(parents=True, exist_ok=True)
         (shipped / task / "policy.safetensors").write_bytes(b"weights")
         entries.append(
             ManifestEntry(
@@ -28,6 +30,11 @@ def test_fresh_skill_space_gets_the_shipped_library_once(tmp_path, monkeypatch, 
             )
         )
     write_manifest(shipped, entries)
+
+
+def test_fresh_skill_space_gets_the_shipped_library_once(tmp_path, monkeypatch, home) -> None:
+    shipped = tmp_path / "shipped"
+    _ship(shipped, ("reach_nut_m12", "pick_nut_m12"))
     monkeypatch.setattr("itskill.skills.library.SHIPPED_LIBRARY", shipped)
 
     with open_skill_space() as space:
@@ -38,6 +45,24 @@ def test_fresh_skill_space_gets_the_shipped_library_once(tmp_path, monkeypatch, 
     # A user's removal sticks: the library is not installed a second time.
     with open_skill_space() as space:
         assert [s.name for s in space.list()] == ["reach_nut_m12"]
+    # An upgrade that ships a new skill adds it, and only it.
+    _ship(shipped, ("reach_nut_m12", "pick_nut_m12", "grasp_nut_m12"))
+    with open_skill_space() as space:
+        assert sorted(s.name for s in space.list()) == ["grasp_nut_m12", "reach_nut_m12"]
+
+
+def test_a_space_marked_by_an_older_release_gets_the_skills_it_lacks(
+    tmp_path, monkeypatch, home
+) -> None:
+    shipped = tmp_path / "shipped"
+    _ship(shipped, ("reach_nut_m12",))
+    monkeypatch.setattr("itskill.skills.library.SHIPPED_LIBRARY", shipped)
+    with open_skill_space() as space:
+        marker = space.path.with_name(space.path.name + ".shipped-library-installed")
+    marker.write_text(f"{shipped}\n")  # the older marker: the library's path only
+    _ship(shipped, ("reach_nut_m12", "lift_nut_m12"))
+    with open_skill_space() as space:
+        assert sorted(s.name for s in space.list()) == ["lift_nut_m12", "reach_nut_m12"]
 
 
 def test_every_shipped_skill_loads_and_acts() -> None:

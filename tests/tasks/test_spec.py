@@ -73,6 +73,14 @@ BROKEN = {
         "expected 2",
     ),
     "object_slot": (('success = "lifted(0, 3)', 'success = "lifted(1, 3)'), "success", "slot 1"),
+    "start_share": (
+        (
+            "max_steps = 60",
+            'max_steps = 60\ntraining_starts = [{ task = "lift_nut_m12", share = 1.5 }]',
+        ),
+        "training_starts[0].share",
+        "0 < share < 1",
+    ),
 }
 
 
@@ -88,6 +96,46 @@ def test_malformed_task_file_names_the_file_and_the_field(tmp_path, parts, case)
     assert field in message and field in err.value.where
     assert problem in message
     assert err.value.path == str(path)
+
+
+def _user_registry(monkeypatch, tmp_path, starts: str) -> dict:
+    """Every task, packaged and ``VALID`` with ``training_starts = starts`` in a user directory."""
+    write(tmp_path, VALID.replace("max_steps = 60", f"max_steps = 60\ntraining_starts = {starts}"))
+    monkeypatch.setenv(spec_module.TASKS_DIR_ENV, str(tmp_path))
+    spec_module._registry.cache_clear()
+    try:
+        return all_tasks()
+    finally:
+        spec_module._registry.cache_clear()
+
+
+def test_training_starts_take_the_named_tasks_start(monkeypatch, tmp_path):
+    starts = '[{ task = "lift_nut_m12", share = 0.2 }, { task = "grasp_nut_m12", share = 0.1 }]'
+    tasks = _user_registry(monkeypatch, tmp_path, starts)
+    lift, grasp = tasks["my_pick"].training_starts
+    assert (lift.name, lift.share, lift.init) == ("lift_nut_m12", 0.2, tasks["lift_nut_m12"].init)
+    assert (grasp.share, grasp.init) == (0.1, tasks["grasp_nut_m12"].init)
+    assert tasks["my_pick"].to_sim_task().training_starts == (lift, grasp)
+
+
+@pytest.mark.parametrize(
+    ("starts", "problem"),
+    [
+        ('[{ task = "lift_nut_m99", share = 0.2 }]', "unknown task 'lift_nut_m99'"),
+        ('[{ task = "lift_nut_m16", share = 0.2 }]', "other parts or fixtures"),
+        (
+            '[{ task = "lift_nut_m12", share = 0.6 }, { task = "grasp_nut_m12", share = 0.4 }]',
+            "sum to less than 1",
+        ),
+    ],
+)
+def test_a_training_start_from_another_scene_or_task_is_refused(
+    monkeypatch, tmp_path, starts, problem
+):
+    with pytest.raises(TaskFileError, match="training_starts") as err:
+        _user_registry(monkeypatch, tmp_path, starts)
+    assert problem in str(err.value)
+    assert "mytasks.toml" in str(err.value)
 
 
 def test_unknown_task_name_lists_known_tasks():
@@ -177,7 +225,7 @@ def test_stage_index_is_one_past_the_furthest_done_stage():
 def test_all_packaged_tasks_load(monkeypatch):
     monkeypatch.delenv(spec_module.TASKS_DIR_ENV, raising=False)
     tasks = all_tasks()
-    assert len(tasks) == 43
+    assert len(tasks) == 47
     for name, task in tasks.items():
         assert task.id == name
         assert 1 <= len(task.stages) <= 8, name

@@ -1,7 +1,8 @@
 """Training metrics: one row per update to ``metrics.csv``, ``metrics.jsonl`` and TensorBoard.
 
 A row holds the env-steps done, wall time, the success rate and mean return and length of the
-episodes that ended since the previous row, the mean of every reward component over the steps
+episodes that ended since the previous row (those begun from the task's own start: training starts,
+see ``BatchEnv``, are left out), the mean of every reward component over the steps
 since the previous row, and end-to-end env-steps per second (rollouts and gradient updates).
 
 A2C updates are small (``n_steps * num_envs`` env-steps), so a row is written at the end of the
@@ -195,9 +196,12 @@ class MetricsCallback(BaseCallback):
             self._comp_sums[key] = self._comp_sums.get(key, 0.0) + float(np.sum(value))
         self._comp_count += self.env.num_envs
         for e in np.flatnonzero(dones):
-            self._successes.append(bool(infos[e].get("is_success", False)))
-            self._returns.append(float(self._ret[e]))
-            self._lengths.append(int(self._len[e]))
+            # Episodes begun from a training start (the part already grasped, say) would flatter
+            # the task's success rate, return and length: only the task's own starts count.
+            if not infos[e].get("training_start", False):
+                self._successes.append(bool(infos[e].get("is_success", False)))
+                self._returns.append(float(self._ret[e]))
+                self._lengths.append(int(self._len[e]))
             self._ret[e] = 0.0
             self._len[e] = 0
         return True

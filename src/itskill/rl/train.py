@@ -230,7 +230,12 @@ def train(
     # A resumed run draws fresh initial states, not a replay of the first ones.
     env_seed = int(np.random.SeedSequence([seed, resumed_from]).generate_state(1)[0])
     env = make_batch_env(
-        spec.id, hp.num_envs, seed=env_seed, reward_fn=reward_fn, n_threads=n_threads
+        spec.id,
+        hp.num_envs,
+        seed=env_seed,
+        reward_fn=reward_fn,
+        n_threads=n_threads,
+        training=True,
     )
     train_env: VecEnv = env
     if hp.normalize_reward:

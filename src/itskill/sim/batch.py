@@ -27,7 +27,7 @@ from itskill.sim.controller import (
 from itskill.sim.panda import HOME_QPOS
 from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec
 from itskill.sim.scene import build_scene, fixture_anchor
-from itskill.sim.task import ObjectInit, SimTask
+from itskill.sim.task import InitSpec, ObjectInit, SimTask
 from itskill.sim.thread import ThreadConfig, ThreadCoupling
 
 GRIPPER_OPEN_WIDTH = 0.08
@@ -173,10 +173,11 @@ class BatchSim:
             self._pool = None
 
     # ------------------------------------------------------------------ reset
-    def reset_env(self, env: int, rng: np.random.Generator) -> None:
-        """Sample env ``env``'s initial state from the task's distribution and let it settle."""
+    def reset_env(self, env: int, rng: np.random.Generator, init: InitSpec | None = None) -> None:
+        """Sample env ``env``'s initial state from ``init`` (default: the task's) and let it
+        settle."""
         m, d, sc = self.model, self.datas[env], self.scene
-        init = self.task.init
+        init = init or self.task.init
         mujoco.mj_resetData(m, d)
         self._divergences[env] = 0
         self.unstable[env] = False
@@ -185,13 +186,14 @@ class BatchSim:
         ee_yaw = init.ee_yaw.sample(rng)
         finger = GRIPPER_OPEN_WIDTH / 2
         closed = False
-        held = [o for o in init.objects if o.mode == "gripper"]
-        if held:
-            obj_init = held[0]
-            part = self._objects[init.objects.index(obj_init)]
+        in_hand = [o for o in init.objects if o.mode in ("gripper", "fingers")]
+        if in_hand:
+            obj_init = in_hand[0]
             ee = np.array([obj_init.x.sample(rng), obj_init.y.sample(rng), obj_init.z.sample(rng)])
-            finger = max(part.grasp_width / 2 - 0.0003, 0.0)
-            closed = True
+            if obj_init.mode == "gripper":
+                part = self._objects[init.objects.index(obj_init)]
+                finger = max(part.grasp_width / 2 - 0.0003, 0.0)
+                closed = True
         q = self._solve_ik(d, ee, ee_yaw)
         d.qpos[sc.finger_qpos] = finger
         d.ctrl[:7] = q
@@ -255,9 +257,10 @@ class BatchSim:
 
     def _place_object(self, d, i, part, init: ObjectInit, rng, ee, ee_yaw) -> None:
         adr = self.scene.obj_qpos[i]
-        if init.mode == "gripper":
-            pos = ee
+        if init.mode in ("gripper", "fingers"):
+            # Turned so that a nut's flats face the pads.
             yaw = ee_yaw + (NUT_GRIP_YAW if isinstance(part, NutSpec) else 0.0)
+            pos = ee if init.mode == "gripper" else np.array([ee[0], ee[1], part.height / 2 + 2e-4])
         elif init.mode == "table":
             pos = np.array([init.x.sample(rng), init.y.sample(rng), part.height / 2 + 0.0002])
             yaw = init.yaw.sample(rng)

@@ -41,11 +41,12 @@ class ObjectInit:
 
     - ``table``: lying on the table at (x, y) with yaw.
     - ``gripper``: held between the fingers, its centre at (x, y, z) (z is the grip point).
+    - ``fingers``: standing on the table between the open fingers, the grip point at (x, y, z).
     - ``bolt``: threaded on fixture ``fixture``, its bottom ``turns`` pitches above the seat.
     - ``hole``: standing in fixture ``fixture``'s hole, inserted ``depth`` metres.
     """
 
-    mode: Literal["table", "gripper", "bolt", "hole"]
+    mode: Literal["table", "gripper", "fingers", "bolt", "hole"]
     x: Range = Range(0.0, 0.0)
     y: Range = Range(0.0, 0.0)
     z: Range = Range(0.0, 0.0)
@@ -67,13 +68,32 @@ class InitSpec:
 
 
 @dataclass(frozen=True)
+class TrainingStart:
+    """A start used only while training: a share of training episodes begin from ``init``.
+
+    Used to start some episodes where a later subtask begins (the part already in the fingers), so
+    the learner meets that subtask's reward before it can reach it on its own; evaluation always
+    uses the task's own start.
+    """
+
+    init: InitSpec
+    share: float
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.share < 1.0:
+            raise ValueError(f"training start share must be in (0, 1), got {self.share}")
+
+
+@dataclass(frozen=True)
 class SimTask:
     """A task as the simulator sees it.
 
     ``stage_fn`` returns each environment's current subtask index (0-based, < ``n_stages``),
     ``success_fn`` whether it has succeeded, and ``reward_fn`` (optional) the reward; all take the
     reward context of the current state. ``object_fixture[i]`` names the fixture that object ``i``
-    is meant for (its offset to that fixture appears in observations).
+    is meant for (its offset to that fixture appears in observations). ``training_starts`` are
+    drawn instead of ``init`` by environments built for training (see ``BatchEnv``).
     """
 
     name: str
@@ -86,3 +106,8 @@ class SimTask:
     reward_fn: RewardFn | None = None
     object_fixture: tuple[int, ...] = field(default=())
     terminate_on_success: bool = False
+    training_starts: tuple[TrainingStart, ...] = ()
+
+    def __post_init__(self) -> None:
+        if sum(s.share for s in self.training_starts) >= 1.0:
+            raise ValueError(f"{self.name}: training start shares must sum to less than 1")

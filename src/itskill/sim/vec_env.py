@@ -17,7 +17,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 from itskill.sim.batch import BatchSim
 from itskill.sim.controller import ControllerConfig
 from itskill.sim.layout import MAX_STAGES, OBSERVATION_LAYOUT
-from itskill.sim.task import RewardFn, SimTask
+from itskill.sim.task import RewardFn, SimTask, TrainingStart
 
 
 def observation_space() -> gym.spaces.Box:
@@ -47,7 +47,10 @@ class BatchEnv(VecEnv):
     """``num_envs`` copies of ``task``, stepped together on ``n_threads`` threads.
 
     ``reward_fn`` overrides the task's own reward (the trainer passes the reward under test);
-    with neither, the reward is zero and only success is reported.
+    with neither, the reward is zero and only success is reported. With ``training=True`` each
+    episode starts from one of the task's ``training_starts`` with its share of probability, and
+    such an episode's final ``info`` says so (``"training_start"``) so that logs can leave it out
+    of the task's success rate; evaluation environments leave ``training`` off.
     """
 
     def __init__(
@@ -58,12 +61,15 @@ class BatchEnv(VecEnv):
         reward_fn: RewardFn | None = None,
         n_threads: int | None = None,
         controller: ControllerConfig | None = None,
+        training: bool = False,
     ) -> None:
         if task.n_stages > MAX_STAGES:
             raise ValueError(f"{task.name}: {task.n_stages} stages, the layout holds {MAX_STAGES}")
         self.task = task
         self.sim = BatchSim(task, num_envs, n_threads=n_threads, controller=controller)
         self.reward_fn = reward_fn or task.reward_fn
+        self.training = training
+        self.from_training_start = np.zeros(num_envs, dtype=bool)
         self.steps = np.zeros(num_envs, dtype=np.int64)
         self.episode_return = np.zeros(num_envs)
         self._actions = np.zeros((num_envs, 5))
@@ -92,9 +98,26 @@ class BatchEnv(VecEnv):
         return self.observe()
 
     def _reset_env(self, e: int) -> None:
-        self.sim.reset_env(e, self._rngs[e])
+        start = self._draw_start(self._rngs[e])
+        self.from_training_start[e] = start is not None
+        self.sim.reset_env(e, self._rngs[e], start.init if start else None)
         self.steps[e] = 0
         self.episode_return[e] = 0.0
+
+    def _draw_start(self, rng: np.random.Generator) -> TrainingStart | None:
+        """A training start with its share of probability, or None for the task's own start.
+
+        Draws nothing from ``rng`` when not training, so evaluation episodes are the same whether
+        or not the task has training starts.
+        """
+        if not (self.training and self.task.training_starts):
+            return None
+        u = rng.random()
+        for start in self.task.training_starts:
+            if u < start.share:
+                return start
+            u -= start.share
+        return None
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions)
@@ -111,6 +134,8 @@ class BatchEnv(VecEnv):
                 info["TimeLimit.truncated"] = bool(res.truncated[e] and not res.terminated[e])
                 info["is_success"] = bool(res.success[e])
                 info["episode_success"] = bool(res.success[e])
+                if self.from_training_start[e]:
+                    info["training_start"] = True
                 if self.sim.unstable[e]:
                     info["unstable"] = True
                 self._reset_env(e)

@@ -3,15 +3,18 @@
 ``itskill skills pretrain --library src/itskill/skills/library`` writes the shipped library: each
 skill's policy weights and normaliser (``policy.safetensors``, no optimiser state) with its
 ``checkpoint.json``, and a ``manifest.json`` with each skill's measured success and budget.
-:func:`open_skill_space` registers it in a new skill space once, so a fresh install has the
-skills without training; a user who later removes some does not get them back.
+:func:`open_skill_space` registers each shipped skill in the skill space once: a fresh install
+has the skills without training, an upgrade that ships new skills adds those, and a user who
+removes a skill does not get it back.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
-from itskill.skills.manifest import MANIFEST_NAME, install_library
+from itskill.files import write_json
+from itskill.skills.manifest import MANIFEST_NAME, install_library, read_manifest
 from itskill.skills.store import SkillSpace, SkillSpaceConfig
 
 SHIPPED_LIBRARY = Path(__file__).resolve().parent / "library"
@@ -20,10 +23,32 @@ SHIPPED_LIBRARY = Path(__file__).resolve().parent / "library"
 def open_skill_space(
     path: Path | str | None = None, config: SkillSpaceConfig | None = None
 ) -> SkillSpace:
-    """Open the skill space; the first time, register the shipped library in it."""
+    """Open the skill space, registering the shipped skills it has not been offered yet."""
     space = SkillSpace(path, config)
-    marker = space.path.with_name(space.path.name + ".shipped-library-installed")
-    if not marker.exists() and (SHIPPED_LIBRARY / MANIFEST_NAME).is_file():
-        install_library(space, SHIPPED_LIBRARY)
-        marker.write_text(str(SHIPPED_LIBRARY) + "\n")
+    if (SHIPPED_LIBRARY / MANIFEST_NAME).is_file():
+        marker = space.path.with_name(space.path.name + ".shipped-library-installed")
+        offered = _offered(marker, space)
+        shipped = {e.name for e in read_manifest(SHIPPED_LIBRARY)}
+        if shipped - offered:
+            install_library(space, SHIPPED_LIBRARY, only=shipped - offered)
+            write_json(marker, sorted(offered | shipped))
     return space
+
+
+def _offered(marker: Path, space: SkillSpace) -> set[str]:
+    """Names of the shipped skills this space was already given (listed in its marker file).
+
+    An older marker held only the library's path; for it, the skills now in the space count as
+    offered (a skill removed before the upgrade comes back once: the old marker cannot tell it
+    from a skill the new release added).
+    """
+    if not marker.exists():
+        return set()
+    text = marker.read_text()
+    try:
+        names = json.loads(text)
+    except json.JSONDecodeError:
+        names = None
+    if isinstance(names, list) and all(isinstance(n, str) for n in names):
+        return set(names)
+    return {s.name for s in space.list()}

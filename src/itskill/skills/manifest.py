@@ -17,7 +17,7 @@ Format (``format`` is bumped on incompatible changes)::
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -139,9 +139,13 @@ def write_manifest(library_dir: Path | str, entries: Sequence[ManifestEntry]) ->
 
 
 def install_library(
-    space: SkillSpace, library_dir: Path | str, skip_existing: bool = True
+    space: SkillSpace,
+    library_dir: Path | str,
+    skip_existing: bool = True,
+    only: Collection[str] | None = None,
 ) -> list[Skill]:
-    """Register every manifest entry of ``library_dir`` in ``space``; returns the added skills.
+    """Register the manifest entries of ``library_dir`` in ``space`` (those named in ``only``, if
+    given); returns the added skills.
 
     Every checkpoint must exist, or nothing is installed and the error names each missing file.
     Entries whose name is already in the space are skipped when ``skip_existing`` (so installing
@@ -149,7 +153,7 @@ def install_library(
     library directory (relocatable with it) and absolute otherwise.
     """
     library_dir = Path(library_dir).expanduser().resolve()
-    entries = read_manifest(library_dir)
+    entries = [e for e in read_manifest(library_dir) if only is None or e.name in only]
     missing = [str(library_dir / e.checkpoint) for e in entries]
     missing = [m for m in missing if not Path(m).is_file()]
     if missing:

@@ -25,14 +25,17 @@ def make_batch_env(
     seed: int | None = None,
     reward_fn: RewardFn | None = None,
     n_threads: int | None = None,
+    training: bool = False,
 ) -> BatchEnv:
-    """``num_envs`` copies of task ``name`` stepped together (an SB3 ``VecEnv``)."""
+    """``num_envs`` copies of task ``name`` stepped together (an SB3 ``VecEnv``); ``training``
+    turns on the task's training starts."""
     return BatchEnv(
         get_task(name).to_sim_task(),
         num_envs=num_envs,
         seed=seed,
         reward_fn=reward_fn,
         n_threads=n_threads,
+        training=training,
     )
 
 

@@ -433,6 +433,7 @@ _PRIMITIVES: dict[str, tuple[Callable[..., list[Phase]], bool, int]] = {
     "reach": (_reach, True, 0),
     "hover": (_hover, True, 1),
     "pick": (_pick, True, 1),
+    "grasp": (lambda part: _grasp(part, hover=0.0), True, 0),
     "carry": (_carry, True, 0),
     "place": (_place, True, 0),
     "insert": (_insert, True, 0),

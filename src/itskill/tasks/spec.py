@@ -8,7 +8,7 @@ file is reported with the file, the field and what was expected.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -17,12 +17,12 @@ from typing import Any
 from itskill.datafile import DataFileError, read_toml
 from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec, PlacedFixture
 from itskill.sim.scene import SceneSpec
-from itskill.sim.task import InitSpec, ObjectInit, Range, SimTask
+from itskill.sim.task import InitSpec, ObjectInit, Range, SimTask, TrainingStart
 from itskill.tasks.predicates import Expression, PredicateError, parse
 
 TASKS_DIR_ENV = "ITSKILL_TASKS_DIR"
 _PART_KINDS = {"nut": NutSpec, "bolt": BoltSpec, "peg": PegSpec, "hole": HoleSpec}
-_INIT_MODES = ("table", "gripper", "bolt", "hole")
+_INIT_MODES = ("table", "gripper", "fingers", "bolt", "hole")
 
 
 class TaskFileError(DataFileError):
@@ -71,6 +71,9 @@ class TaskSpec:
     source: str = ""
     terminate_on_success: bool = False
     tags: tuple[str, ...] = field(default=())
+    training_starts: tuple[TrainingStart, ...] = field(default=())
+    """Starts borrowed from other tasks of the same scene, used only in training (resolved by
+    the registry: a start's ``name`` is the task whose ``init`` it is)."""
 
     def stage_index(self, ctx) -> Any:
         """Current subtask: one past the furthest stage whose ``done`` predicate holds."""
@@ -92,6 +95,7 @@ class TaskSpec:
             success_fn=self.success,
             object_fixture=self.object_fixture,
             terminate_on_success=self.terminate_on_success,
+            training_starts=self.training_starts,
         )
 
 
@@ -178,7 +182,7 @@ def load_parts(path: Path) -> dict[str, Any]:
 _TASK_KEYS = {
     "id", "family", "kind", "command", "description", "skills", "actions", "objects", "fixtures",
     "object_fixture", "init", "stages", "success", "max_steps", "script", "table_i",
-    "terminate_on_success", "tags",
+    "terminate_on_success", "tags", "training_starts",
 }  # fmt: skip
 
 
@@ -261,7 +265,7 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
                 fixture=fixture,
             )
         )
-    if sum(o.mode == "gripper" for o in obj_inits) > 1:
+    if sum(o.mode in ("gripper", "fingers") for o in obj_inits) > 1:
         raise TaskFileError(
             path, ir.where + ".objects", "at most one object can start in the gripper"
         )
@@ -295,6 +299,19 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
     max_steps = r.get("max_steps", int)
     if max_steps < 1:
         raise TaskFileError(path, f"task {task_id!r}.max_steps", "expected a positive integer")
+    starts = []
+    for k, raw_start in enumerate(r.get("training_starts", list, [])):
+        sr = _Reader(path, f"task {task_id!r}.training_starts[{k}]", raw_start)
+        sr.check_keys({"task", "share"})
+        share = sr.get("share", float)
+        if not 0.0 < share < 1.0:
+            raise TaskFileError(path, sr.where + ".share", f"expected 0 < share < 1, got {share}")
+        # The init is the other task's; the registry fills it in once every file is read.
+        starts.append(TrainingStart(init, share, sr.get("task", str)))
+    if sum(s.share for s in starts) >= 1.0:
+        raise TaskFileError(
+            path, f"task {task_id!r}.training_starts", "shares must sum to less than 1"
+        )
     return TaskSpec(
         id=task_id,
         family=r.get("family", str),
@@ -315,6 +332,7 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         terminate_on_success=r.get("terminate_on_success", bool, False),
         tags=r.strings("tags", ()),
         source=str(path),
+        training_starts=tuple(starts),
     )
 
 
@@ -353,7 +371,26 @@ def _registry(dirs: tuple[Path, ...]) -> dict[str, TaskSpec]:
                         path, f"task {spec.id!r}", f"id already defined in {tasks[spec.id].source}"
                     )
                 tasks[spec.id] = spec
-    return tasks
+    return {name: _resolve_starts(spec, tasks) for name, spec in tasks.items()}
+
+
+def _resolve_starts(spec: TaskSpec, tasks: dict[str, TaskSpec]) -> TaskSpec:
+    """``spec`` with each training start's init taken from the task it names, which must have
+    the same parts and fixtures (a start is a state of this task's scene)."""
+    if not spec.training_starts:
+        return spec
+    resolved = []
+    for k, start in enumerate(spec.training_starts):
+        where = f"task {spec.id!r}.training_starts[{k}].task"
+        other = tasks.get(start.name)
+        if other is None:
+            raise TaskFileError(Path(spec.source), where, f"unknown task {start.name!r}")
+        if (other.objects, other.fixtures) != (spec.objects, spec.fixtures):
+            raise TaskFileError(
+                Path(spec.source), where, f"{start.name!r} has other parts or fixtures"
+            )
+        resolved.append(TrainingStart(other.init, start.share, start.name))
+    return replace(spec, training_starts=tuple(resolved))
 
 
 def all_tasks() -> dict[str, TaskSpec]:

@@ -1,0 +1,38 @@
+"""Training metrics: which episodes a row's success rate, return and length count."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from itskill.rl.logger import LoggerConfig, MetricsCallback, read_metrics
+
+
+def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_path: Path) -> None:
+    env = SimpleNamespace(num_envs=3, last_components={"reach": np.ones(3)})
+    callback = MetricsCallback(
+        env, tmp_path, total_steps=10, config=LoggerConfig(progress=False, tensorboard=False)
+    )
+    callback._on_training_start()
+    # Env 0 ends a failed episode from the task's own start; env 1 a successful one; env 2 a
+    # successful episode that began with the part already in the fingers (a training start).
+    callback.locals = {
+        "rewards": np.array([1.0, 3.0, 9.0]),
+        "dones": np.array([True, True, True]),
+        "infos": [
+            {"is_success": False},
+            {"is_success": True},
+            {"is_success": True, "training_start": True},
+        ],
+    }
+    callback._on_step()
+    callback.num_timesteps = 3
+    row = callback.flush()
+    callback.close()
+    assert row["episodes"] == 2
+    assert row["success_rate"] == 0.5
+    assert row["ep_return"] == 2.0
+    assert row["reach"] == 1.0  # reward components still average over every step
+    assert read_metrics(tmp_path)[-1]["success_rate"] == 0.5
