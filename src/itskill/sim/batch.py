@@ -409,9 +409,12 @@ class BatchSim:
 
         closed = self.grip_closed[:, None]
         lateral = np.linalg.norm(to_ee[..., :2], axis=-1)
+        # The fingers may hold a part across its width or, tipped over in the grip, across its
+        # height (a nut on edge): either way it is held and comes along when the hand moves.
+        narrowest = np.minimum(self.obj_width, self.obj_height)
         grasped = (
             closed
-            & (width[:, None] >= self.obj_width - 0.004)
+            & (width[:, None] >= narrowest - 0.004)
             & (width[:, None] <= self.obj_width * 1.2 + 0.002)
             & (lateral <= 0.012)
             & (np.abs(to_ee[..., 2]) <= self.obj_height / 2 + 0.006)

@@ -35,7 +35,8 @@ Objects (movable parts: hex nuts, pegs)
   obj_width       (N, 2)  width the fingers close on (a nut's across-flats, a peg's thickness)
   obj_bottom_z    (N, 2)  height of the part's bottom face above the table
   obj_to_ee       (N, 2, 3) ee_pos - obj_pos
-  grasped         (N, 2)  1.0 if the closed fingers hold the part
+  grasped         (N, 2)  1.0 if the closed fingers hold the part (across its width, or
+                          across its height when it has tipped over in the grip)
 Fixtures (fixed to the table: bolts, holes)
   fix_mask        (N, 2)  1.0 for a real fixture
   fix_pos         (N, 2, 3) target point: a bolt's tip centre or a hole's entrance centre

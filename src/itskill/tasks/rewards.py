@@ -118,7 +118,8 @@ def grasped_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str,
     off = ctx["obj_to_ee"][:, i]
     vertical = np.maximum(np.abs(off[:, 2]) - 0.5 * ctx["obj_height"][:, i], 0.0)
     align = _closeness(np.hypot(np.linalg.norm(off[:, :2], axis=-1), vertical), t["grasp_align"])
-    empty = ctx["grip_closed"] * (ctx["gripper_width"] < ctx["obj_width"][:, i] - 0.004)
+    narrowest = np.minimum(ctx["obj_width"][:, i], ctx["obj_height"][:, i])
+    empty = ctx["grip_closed"] * (ctx["gripper_width"] < narrowest - 0.004)
     attempt = 0.7 * align * (1.0 - 0.5 * empty)
     return {"grasp": np.maximum(held, attempt)}
 
