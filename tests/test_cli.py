@@ -51,6 +51,7 @@ def test_tasks_show_table():
     assert result.exit_code == 0
     text = flat(result.stdout)
     assert "Pick up the M12 nut" in text and "lifted(0, 3)" in text
+    assert "15% from lift_nut_m12's start" in text
 
 
 @pytest.mark.parametrize(

@@ -64,6 +64,7 @@ def task_dict(spec: TaskSpec) -> dict[str, Any]:
         "max_steps": spec.max_steps,
         "terminate_on_success": spec.terminate_on_success,
         "script": list(spec.script),
+        "training_starts": [{"task": t.name, "share": t.share} for t in spec.training_starts],
         "tags": list(spec.tags),
         "source": spec.source,
     }
@@ -138,6 +139,9 @@ def tasks_show(task: TaskArg, as_json: JsonOpt = False) -> None:
     kv.add_row("success", data["success"])
     kv.add_row("episode length", f"{data['max_steps']} steps")
     kv.add_row("script", "; ".join(data["script"]) or "(none)")
+    if data["training_starts"]:
+        starts = [f"{t['share']:.0%} from {t['task']}'s start" for t in data["training_starts"]]
+        kv.add_row("training starts", "; ".join(starts))
     kv.add_row("file", data["source"])
     console.print(kv)
 
