@@ -83,6 +83,9 @@ def test_planner_maps_every_catalogue_command_to_its_own_task() -> None:
         ("Loosen the M16 nut", "unscrew_nut_m16"),
         ("please pick up both nuts and place them on the bolts", "pickplace2_nuts"),
         ("screw the nut to the bottom", "screw_nut_m12"),
+        ("Close the fingers on the rectangular peg", "grasp_peg_rect"),
+        ("grasp the nut", "grasp_nut_m12"),
+        ("Move the gripper to the M16 nut", "reach_nut_m16"),
     ],
 )
 def test_planner_understands_paraphrases(command: str, task: str) -> None:
