@@ -30,6 +30,14 @@ def test_home_defaults(monkeypatch, tmp_path):
     assert itskill_home() == tmp_path / "h"
 
 
+def test_a_relative_home_is_made_absolute(monkeypatch, tmp_path):
+    # A relative checkpoint path in the database is read as inside the library directory, so
+    # paths under a relative home were joined twice (`itskill learn` failed to add its skill).
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("ITSKILL_HOME", "runs/home")
+    assert itskill_home() == tmp_path.resolve() / "runs" / "home"
+
+
 def test_add_get_list_update_remove(home, checkpoint):
     with SkillSpace() as space:
         assert space.path == home / "skills.sqlite"

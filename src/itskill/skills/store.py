@@ -57,10 +57,12 @@ def itskill_home() -> Path:
     """
     env = os.environ.get(HOME_ENV)
     if env:
-        return Path(env).expanduser()
+        # Absolute, because a relative checkpoint path in the database means "inside the
+        # library directory": a relative home would make every path under it relative too.
+        return Path(env).expanduser().resolve()
     xdg = os.environ.get("XDG_DATA_HOME")
     base = Path(xdg).expanduser() if xdg else Path.home() / ".local" / "share"
-    return base / "itskill"
+    return base.resolve() / "itskill"
 
 
 # ---------------------------------------------------------------------------- errors
