@@ -16,7 +16,13 @@ from concurrent.futures import ThreadPoolExecutor
 import mujoco
 import numpy as np
 
-from itskill.sim.context import MAX_FIXTURES, MAX_OBJECTS, quat_to_mat, wrap_angle
+from itskill.sim.context import (
+    MAX_FIXTURES,
+    MAX_OBJECTS,
+    min_grasp_width,
+    quat_to_mat,
+    wrap_angle,
+)
 from itskill.sim.controller import (
     ControllerConfig,
     dls_step,
@@ -27,7 +33,7 @@ from itskill.sim.controller import (
 from itskill.sim.panda import HOME_QPOS
 from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec
 from itskill.sim.scene import build_scene, fixture_anchor
-from itskill.sim.task import InitSpec, ObjectInit, SimTask
+from itskill.sim.task import HAND_MODES, InitSpec, ObjectInit, SimTask
 from itskill.sim.thread import ThreadConfig, ThreadCoupling
 
 GRIPPER_OPEN_WIDTH = 0.08
@@ -186,7 +192,7 @@ class BatchSim:
         ee_yaw = init.ee_yaw.sample(rng)
         finger = GRIPPER_OPEN_WIDTH / 2
         closed = False
-        in_hand = [o for o in init.objects if o.mode in ("gripper", "fingers")]
+        in_hand = [o for o in init.objects if o.mode in HAND_MODES]
         if in_hand:
             obj_init = in_hand[0]
             ee = np.array([obj_init.x.sample(rng), obj_init.y.sample(rng), obj_init.z.sample(rng)])
@@ -257,12 +263,13 @@ class BatchSim:
 
     def _place_object(self, d, i, part, init: ObjectInit, rng, ee, ee_yaw) -> None:
         adr = self.scene.obj_qpos[i]
-        if init.mode in ("gripper", "fingers"):
+        on_table_z = part.height / 2 + 0.0002
+        if init.mode in HAND_MODES:
             # Turned so that a nut's flats face the pads.
             yaw = ee_yaw + (NUT_GRIP_YAW if isinstance(part, NutSpec) else 0.0)
-            pos = ee if init.mode == "gripper" else np.array([ee[0], ee[1], part.height / 2 + 2e-4])
+            pos = ee if init.mode == "gripper" else np.array([ee[0], ee[1], on_table_z])
         elif init.mode == "table":
-            pos = np.array([init.x.sample(rng), init.y.sample(rng), part.height / 2 + 0.0002])
+            pos = np.array([init.x.sample(rng), init.y.sample(rng), on_table_z])
             yaw = init.yaw.sample(rng)
         elif init.mode == "bolt":
             bolt: BoltSpec = self._fixtures[init.fixture].part
@@ -409,12 +416,9 @@ class BatchSim:
 
         closed = self.grip_closed[:, None]
         lateral = np.linalg.norm(to_ee[..., :2], axis=-1)
-        # The fingers may hold a part across its width or, tipped over in the grip, across its
-        # height (a nut on edge): either way it is held and comes along when the hand moves.
-        narrowest = np.minimum(self.obj_width, self.obj_height)
         grasped = (
             closed
-            & (width[:, None] >= narrowest - 0.004)
+            & (width[:, None] >= min_grasp_width(self.obj_width, self.obj_height))
             & (width[:, None] <= self.obj_width * 1.2 + 0.002)
             & (lateral <= 0.012)
             & (np.abs(to_ee[..., 2]) <= self.obj_height / 2 + 0.006)

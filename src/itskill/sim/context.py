@@ -61,6 +61,16 @@ def wrap_angle(angle: np.ndarray, period: float = 2 * np.pi) -> np.ndarray:
     return (angle + period / 2) % period - period / 2
 
 
+def min_grasp_width(obj_width: np.ndarray, obj_height: np.ndarray) -> np.ndarray:
+    """The smallest finger width at which the closed fingers still hold a part.
+
+    The fingers may hold a part across its width or, tipped over in the grip, across its height
+    (a nut on edge): either way it is held and comes along when the hand moves. Below this width
+    the fingers have closed on nothing.
+    """
+    return np.minimum(obj_width, obj_height) - 0.004
+
+
 def quat_to_mat(quat: np.ndarray) -> np.ndarray:
     """Unit quaternions (..., 4) in MuJoCo's (w, x, y, z) order -> rotation matrices (..., 3, 3)."""
     w, x, y, z = np.moveaxis(quat, -1, 0)

@@ -56,6 +56,10 @@ class ObjectInit:
     fixture: int = 0
 
 
+HAND_MODES = ("gripper", "fingers")
+"""Start modes that put the grip point at the part (at most one object per start)."""
+
+
 @dataclass(frozen=True)
 class InitSpec:
     """Initial-state distribution: the grip point's start and each part's start."""
@@ -82,7 +86,14 @@ class TrainingStart:
 
     def __post_init__(self) -> None:
         if not 0.0 < self.share < 1.0:
-            raise ValueError(f"training start share must be in (0, 1), got {self.share}")
+            raise ValueError(f"expected 0 < share < 1, got {self.share}")
+
+
+def check_start_shares(starts: tuple[TrainingStart, ...]) -> None:
+    """Training starts must leave some episodes to the task's own start."""
+    total = sum(s.share for s in starts)
+    if total >= 1.0:
+        raise ValueError(f"training start shares must sum to less than 1, got {total:g}")
 
 
 @dataclass(frozen=True)
@@ -109,5 +120,7 @@ class SimTask:
     training_starts: tuple[TrainingStart, ...] = ()
 
     def __post_init__(self) -> None:
-        if sum(s.share for s in self.training_starts) >= 1.0:
-            raise ValueError(f"{self.name}: training start shares must sum to less than 1")
+        try:
+            check_start_shares(self.training_starts)
+        except ValueError as err:
+            raise ValueError(f"{self.name}: {err}") from None

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from itskill.sim.context import min_grasp_width
 from itskill.sim.task import Context, RewardFn
 from itskill.tasks.predicates import fixture_offset
 from itskill.tasks.spec import TaskSpec
@@ -118,8 +119,8 @@ def grasped_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str,
     off = ctx["obj_to_ee"][:, i]
     vertical = np.maximum(np.abs(off[:, 2]) - 0.5 * ctx["obj_height"][:, i], 0.0)
     align = _closeness(np.hypot(np.linalg.norm(off[:, :2], axis=-1), vertical), t["grasp_align"])
-    narrowest = np.minimum(ctx["obj_width"][:, i], ctx["obj_height"][:, i])
-    empty = ctx["grip_closed"] * (ctx["gripper_width"] < narrowest - 0.004)
+    narrowest = min_grasp_width(ctx["obj_width"][:, i], ctx["obj_height"][:, i])
+    empty = ctx["grip_closed"] * (ctx["gripper_width"] < narrowest)
     attempt = 0.7 * align * (1.0 - 0.5 * empty)
     return {"grasp": np.maximum(held, attempt)}
 

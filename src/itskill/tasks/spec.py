@@ -17,7 +17,15 @@ from typing import Any
 from itskill.datafile import DataFileError, read_toml
 from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec, PlacedFixture
 from itskill.sim.scene import SceneSpec
-from itskill.sim.task import InitSpec, ObjectInit, Range, SimTask, TrainingStart
+from itskill.sim.task import (
+    HAND_MODES,
+    InitSpec,
+    ObjectInit,
+    Range,
+    SimTask,
+    TrainingStart,
+    check_start_shares,
+)
 from itskill.tasks.predicates import Expression, PredicateError, parse
 
 TASKS_DIR_ENV = "ITSKILL_TASKS_DIR"
@@ -265,7 +273,7 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
                 fixture=fixture,
             )
         )
-    if sum(o.mode in ("gripper", "fingers") for o in obj_inits) > 1:
+    if sum(o.mode in HAND_MODES for o in obj_inits) > 1:
         raise TaskFileError(
             path, ir.where + ".objects", "at most one object can start in the gripper"
         )
@@ -303,15 +311,16 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
     for k, raw_start in enumerate(r.get("training_starts", list, [])):
         sr = _Reader(path, f"task {task_id!r}.training_starts[{k}]", raw_start)
         sr.check_keys({"task", "share"})
-        share = sr.get("share", float)
-        if not 0.0 < share < 1.0:
-            raise TaskFileError(path, sr.where + ".share", f"expected 0 < share < 1, got {share}")
-        # The init is the other task's; the registry fills it in once every file is read.
-        starts.append(TrainingStart(init, share, sr.get("task", str)))
-    if sum(s.share for s in starts) >= 1.0:
-        raise TaskFileError(
-            path, f"task {task_id!r}.training_starts", "shares must sum to less than 1"
-        )
+        share, name = sr.get("share", float), sr.get("task", str)
+        try:
+            # The init is the other task's; the registry fills it in once every file is read.
+            starts.append(TrainingStart(init, share, name))
+        except ValueError as err:
+            raise TaskFileError(path, sr.where + ".share", str(err)) from err
+    try:
+        check_start_shares(tuple(starts))
+    except ValueError as err:
+        raise TaskFileError(path, f"task {task_id!r}.training_starts", str(err)) from err
     return TaskSpec(
         id=task_id,
         family=r.get("family", str),
