@@ -37,6 +37,7 @@ eval_every = 128
 eval_episodes = 2
 [test.evaluation]
 episodes = 4
+min_success = 0.0
 """
 
 
@@ -100,6 +101,23 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(tmp_path, budg
         assert [s.name for s in space.list(task_id="pickplace_nut_m12")] == [skill.name]
 
 
+def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budgets, home):
+    from itskill.skills import open_skill_space
+
+    out = tmp_path / "run"
+    result = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out),
+                   "--no-video", "--min-success", "1.0")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["evaluation"]["success_rate"] < 1.0  # 256 env-steps learn nothing
+    assert summary["skill"]["added"] is False
+    assert "not added to the skill space" in flat(result.output)
+    with open_skill_space() as space:
+        assert space.list(task_id="pickplace_nut_m12") == []
+    assert (Path(summary["skill"]["policy"]) / "model.zip").is_file()  # the policy is kept
+    assert "## Not added to the skill space" in (out / "report.md").read_text()
+
+
 def test_ungroundable_command_is_one_clear_line(tmp_path, budgets):
     result = learn("make me a sandwich", "--budgets", str(budgets), "--budget", "test",
                    "--out", str(tmp_path / "run"))  # fmt: skip
@@ -136,6 +154,14 @@ def test_packaged_budgets_load_and_tiny_is_smallest():
     assert budgets["default"].transfer.steps < budgets["full"].transfer.steps
     assert budgets["full"].search_config().iterations == 5  # the paper's 5 x 10 samples
     assert budgets["full"].search_config().samples == 10
+    assert budgets["default"].min_success == 0.5 and budgets["tiny"].min_success == 0.0
+
+
+def test_budget_threshold_outside_zero_to_one_is_rejected(tmp_path):
+    path = tmp_path / "b.toml"
+    path.write_text(TEST_BUDGETS.replace("min_success = 0.0", "min_success = 50"))
+    with pytest.raises(BudgetError, match=r"test\.evaluation\.min_success.*between 0 and 1"):
+        load_budgets(path)
 
 
 @pytest.mark.parametrize(

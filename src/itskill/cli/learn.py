@@ -45,12 +45,20 @@ def learn_cmd(
     video: Annotated[
         bool, typer.Option("--video/--no-video", help="Film the final policy in the report.")
     ] = True,
+    min_success: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0,
+            max=1.0,
+            help="Success the new skill needs to join the skill space (overrides the budget's).",
+        ),
+    ] = None,
 ) -> None:
     """Learn a new task from a command, end to end, and add it to the skill space."""  # fmt: skip
     from itskill.experiments.learn import learn, user_errors
 
     try:
-        learn(command, budget, steps, llm, out, seed, resume, budgets, video, console)
+        learn(command, budget, steps, llm, out, seed, resume, budgets, video, console, min_success)
     except user_errors() as err:
         err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
         raise typer.Exit(USAGE_ERROR) from None

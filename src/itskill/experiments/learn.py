@@ -15,7 +15,7 @@ Everything lands in one run directory (``runs/learn/<slug>/`` by default)::
     analysis.json     the analyzer's contribution matrix
     transfer/         the transfer training run (checkpoints, metrics.csv, eval.csv, transfer.json)
     evaluation.json   the final held-out evaluation
-    skill.json        the skill added to the skill space
+    skill.json        the skill added to the skill space, or the threshold it fell below
     summary.json      all of the above in one file; report.md, report.html, figures/, videos/
 
 A step whose file exists is not redone on ``--resume``; the reward search and the training
@@ -77,6 +77,9 @@ class LearnBudget:
     reward: dict[str, Any]
     """Overrides of :class:`itskill.reward.RewardSearchConfig`'s packaged defaults."""
     eval_episodes: int = 100
+    min_success: float = 0.5
+    """Final success the new skill needs to join the skill space (as for pretrained skills); a
+    policy below it stays in the run directory, so later runs do not retrieve it as a source."""
     compare_expert: bool = True
     description: str = ""
 
@@ -144,13 +147,21 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
     if not isinstance(reward, dict):
         raise BudgetError(path, f"{name}.reward", "expected a table")
     ev = raw.get("evaluation", {})
-    if not isinstance(ev, dict) or set(ev) - {"episodes"}:
-        raise BudgetError(path, f"{name}.evaluation", "expected a table with only 'episodes'")
+    if not isinstance(ev, dict) or set(ev) - {"episodes", "min_success"}:
+        raise BudgetError(
+            path, f"{name}.evaluation", "expected a table with only 'episodes' and 'min_success'"
+        )
+    min_success = ev.get("min_success", LearnBudget.min_success)
+    if isinstance(min_success, bool) or not isinstance(min_success, int | float):
+        raise BudgetError(path, f"{name}.evaluation.min_success", "expected a number")
+    if not 0.0 <= min_success <= 1.0:
+        raise BudgetError(path, f"{name}.evaluation.min_success", "must be between 0 and 1")
     budget = LearnBudget(
         name=name,
         transfer=transfer,
         reward=dict(reward),
         eval_episodes=_field(path, f"{name}.evaluation", ev, "episodes", int, 100),
+        min_success=float(min_success),
         compare_expert=_field(path, name, raw, "compare_expert", bool, True),
         description=_field(path, name, raw, "description", str, ""),
     )
@@ -237,11 +248,12 @@ def learn(
     budgets_file: str | Path | None = None,
     video: bool = True,
     console: Console | None = None,
+    min_success: float | None = None,
 ) -> LearnResult:
     """Learn ``command`` end to end (see the module docstring); returns the run and its report.
 
-    ``steps`` overrides the budget's transfer env-steps; ``llm`` is ``"offline"`` (the default,
-    no network) or ``"openai:MODEL"``.
+    ``steps`` overrides the budget's transfer env-steps and ``min_success`` its threshold for
+    adding the skill; ``llm`` is ``"offline"`` (the default, no network) or ``"openai:MODEL"``.
     """
     from itskill.llm import make_client
 
@@ -254,6 +266,10 @@ def learn(
         if steps < 1:
             raise LearnError(f"--steps must be positive, got {steps}")
         b = replace(b, transfer=replace(b.transfer, steps=steps))
+    if min_success is not None:
+        if not 0.0 <= min_success <= 1.0:
+            raise LearnError(f"--min-success must be between 0 and 1, got {min_success}")
+        b = replace(b, min_success=min_success)
     command = command.strip()
     run_dir = Path(out) if out else Path("runs/learn") / slugify(command)
     created = not run_dir.exists()
@@ -275,10 +291,15 @@ def learn(
         raise
     sessions.finish(status="complete")
     report = learn_report(run_dir, summary)
+    skill = summary["skill"]
+    outcome = (
+        f"skill {skill['name']!r} added"
+        if skill["added"]
+        else f"below {skill['min_success']:.0%}, not added to the skill space"
+    )
     console.print(
         f"[bold green]learned[/bold green] {escape(command)!r}: success "
-        f"{summary['evaluation']['success_rate']:.0%}; skill "
-        f"{summary['skill']['name']!r} added; report {report.markdown}"
+        f"{summary['evaluation']['success_rate']:.0%}; {outcome}; report {report.markdown}"
     )
     return LearnResult(run_dir, summary, report)
 
@@ -538,7 +559,14 @@ def _add_skill(
 
     cached = steps.cached("skill.json")
     was_cached = cached is not None
-    if cached is None:
+    if cached is None and evaluation["success_rate"] < b.min_success:
+        cached = {
+            "added": False,
+            "min_success": b.min_success,
+            "policy": transfer["run_dir"],
+        }
+        write_json(steps.run_dir / "skill.json", cached)
+    elif cached is None:
         with open_skill_space() as space:
             taken = {s.name for s in space.list()}
             base = f"learned-{slugify(command)}"
@@ -569,6 +597,7 @@ def _add_skill(
                 )
             )
             cached = {
+                "added": True,
                 "id": skill.id,
                 "name": skill.name,
                 "task": skill.task_id,
@@ -577,7 +606,14 @@ def _add_skill(
                 "success_rate": skill.success_rate,
             }
         write_json(steps.run_dir / "skill.json", cached)
-    steps.done(f"skill {cached['id']} {cached['name']!r} in {cached['skill_space']}", was_cached)
+    if cached["added"]:
+        done = f"skill {cached['id']} {cached['name']!r} in {cached['skill_space']}"
+    else:
+        done = (
+            f"not added: success {evaluation['success_rate']:.0%} is below "
+            f"{cached['min_success']:.0%}; the policy stays in {cached['policy']}"
+        )
+    steps.done(done, was_cached)
     return cached
 
 

@@ -453,9 +453,19 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
     if summary.get("video", True):
         video_section(doc, plan["task"], run_dir, "final", videos, notes)
     skill = summary.get("skill")
-    if skill:
+    if skill and skill.get("added", True):
         doc.add(Heading("Skill added to the skill space"))
-        doc.add(Bullets(tuple(f"{k}: {v}" for k, v in skill.items())))
+        doc.add(Bullets(tuple(f"{k}: {v}" for k, v in skill.items() if k != "added")))
+    elif skill:
+        doc.add(Heading("Not added to the skill space"))
+        doc.add(
+            Paragraph(
+                f"The success is below the budget's min_success ({skill['min_success']:.0%}), so "
+                f"later runs will not retrieve this policy as a source. It stays in "
+                f"{skill['policy']}; a larger budget (--steps) may get it there, and "
+                f"--min-success sets the threshold."
+            )
+        )
     if notes:
         doc.add(Heading("Notes"), Bullets(tuple(notes)))
     md, html_path = learn_dir / REPORT_MD, learn_dir / REPORT_HTML
