@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+from itskill.sim.controller import ControllerConfig
 from itskill.sim.layout import OBSERVATION_LAYOUT as L
 from itskill.sim.task import TrainingStart
 from itskill.sim.vec_env import BatchEnv
@@ -233,6 +234,66 @@ def test_a_part_started_between_the_open_fingers_is_grasped_by_closing(name):
     held = env.context()["grasped"][:, 0]
     env.close()
     assert (held > 0.5).all()
+
+
+@pytest.mark.parametrize("name", ["grasp_peg_round_hole", "grasp_peg_rect_hole"])
+def test_a_peg_in_its_hole_is_held_by_closing_the_hand_around_it_and_comes_out_when_raised(name):
+    env = make_batch_env(name, num_envs=4, seed=5, n_threads=1)
+    env.reset()
+    ctx = env.context()
+    assert (ctx["gripper_width"] > 0.075).all() and not ctx["grasped"].any()
+    assert (np.abs(ctx["obj_bottom_z"][:, 0]) < 0.002).all()  # resting on the hole's floor
+    for _ in range(6):
+        env.step(np.tile([0.0, 0.0, 0.0, 0.0, 1.0], (4, 1)))
+    assert (env.context()["grasped"][:, 0] > 0.5).all()
+    for _ in range(12):
+        env.step(np.tile([0.0, 0.0, 1.0, 0.0, 1.0], (4, 1)))
+    ctx = env.context()
+    env.close()
+    # Out of the 20 mm deep hole and still in the fingers.
+    assert (ctx["obj_bottom_z"][:, 0] > 0.025).all() and (ctx["grasped"][:, 0] > 0.5).all()
+
+
+@pytest.mark.parametrize("name", ["extract_peg_round", "extract_peg_rect"])
+def test_a_peg_started_held_in_its_hole_sits_inside_it_upright_and_comes_out_when_raised(name):
+    env = make_batch_env(name, num_envs=4, seed=5, n_threads=1)
+    env.reset()
+    ctx = env.context()
+    assert (ctx["grasped"][:, 0] > 0.5).all()
+    assert (ctx["insertion_depth"][:, 0] > 0.006).all() and (ctx["obj_tilt"][:, 0] < 0.02).all()
+    for _ in range(12):
+        env.step(np.tile([0.0, 0.0, 1.0, 0.0, 1.0], (4, 1)))
+    ctx = env.context()
+    env.close()
+    assert (ctx["insertion_depth"][:, 0] <= 0.0).all() and (ctx["grasped"][:, 0] > 0.5).all()
+
+
+def test_turning_the_wrist_against_the_yaw_error_lines_a_held_peg_up_with_its_hole():
+    env = make_batch_env("align_peg_rect", num_envs=4, seed=5, n_threads=1)
+    env.reset()
+    assert (np.abs(env.context()["yaw_error"][:, 0]) > 0.05).any()
+    for _ in range(15):
+        ctx = env.context()
+        turn = np.clip(-ctx["yaw_error"][:, 0] / ControllerConfig().yaw_step, -1.0, 1.0)
+        actions = np.zeros((4, 5))
+        actions[:, 3], actions[:, 4] = turn, 1.0
+        env.step(actions)
+    ctx = env.context()
+    env.close()
+    assert (np.abs(ctx["yaw_error"][:, 0]) < 0.05).all() and (ctx["grasped"][:, 0] > 0.5).all()
+
+
+@pytest.mark.parametrize("name", ["grasp_nut_m12_bolt", "grasp_nut_m16_bolt"])
+def test_a_nut_on_the_bolt_is_held_by_closing_the_hand_around_it_and_stays_on_the_thread(name):
+    env = make_batch_env(name, num_envs=4, seed=5, n_threads=1)
+    env.reset()
+    ctx = env.context()
+    assert (ctx["engaged"][:, 0] > 0.5).all() and not ctx["grasped"].any()
+    for _ in range(6):
+        env.step(np.tile([0.0, 0.0, 0.0, 0.0, 1.0], (4, 1)))
+    ctx = env.context()
+    env.close()
+    assert (ctx["grasped"][:, 0] > 0.5).all() and (ctx["engaged"][:, 0] > 0.5).all()
 
 
 def _starts(env, episodes: int) -> tuple[int, list[bool]]:
