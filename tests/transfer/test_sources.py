@@ -31,6 +31,13 @@ def test_auto_sources_for_pick_and_place_are_the_pick_and_place_skills(home: Pat
     assert plain == ["pick_nut_m12", "pick_nut_m16"]
 
 
+def test_auto_sources_come_from_the_targets_own_family_first(home: Path) -> None:
+    # A nut's place skill performs two of the peg task's steps, but the peg skills come first.
+    sources = resolve_sources("pickplaceinsert_peg_round", "auto", k=3)
+    assert {s.task_id.split("_")[1] for s in sources} == {"peg"}, [s.name for s in sources]
+    assert "insert_peg_round" in [s.name for s in sources]
+
+
 def test_named_sources_by_name_and_id(home: Path) -> None:
     with open_skill_space() as space:
         pick_id = space.get("pick_nut_m12").id

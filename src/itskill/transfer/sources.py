@@ -26,7 +26,7 @@ from itskill.rl.checkpoint import POLICY_FILE, STAGED_POLICY_CLASS, load_policy,
 from itskill.sim.vec_env import action_space
 from itskill.skills import SkillSpace, SkillSpaceError, open_skill_space, search
 from itskill.skills.store import Skill
-from itskill.tasks import get_task
+from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import CheckpointError
 
 AUTO = "auto"
@@ -131,6 +131,15 @@ def _covered(actions: tuple[str, ...] | list[str], target: tuple[str, ...] | lis
     return n if n and tuple(actions) in runs else 0
 
 
+def _family(skill: Skill) -> str | None:
+    """The task family a skill was learned in; None for a task this installation does not know
+    (a skill added from a user's own task files that are not loaded now)."""
+    try:
+        return get_task(skill.task_id).family
+    except UnknownTaskError:
+        return None
+
+
 def resolve_sources(
     target: str,
     sources: str | Sequence[int | str] = AUTO,
@@ -141,10 +150,11 @@ def resolve_sources(
 ) -> list[SourceSkill]:
     """The source skills for ``target``: retrieved (``"auto"``) or named (ids or names).
 
-    ``"auto"`` takes ``k`` skills: first those whose action sequence is a contiguous run of the
-    target's (longest first), then the rest, each group by similarity to the target's command;
-    skipping the target's own task when ``exclude_target`` and repeated action sequences when
-    ``distinct_actions``.
+    ``"auto"`` takes ``k`` skills: first those learned in the target's task family (the same
+    parts and fixtures), then the rest; within each, those whose action sequence is a contiguous
+    run of the target's (longest first), then the others, each group by similarity to the
+    target's command; skipping the target's own task when ``exclude_target`` and repeated action
+    sequences when ``distinct_actions``.
     Named skills (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in
     that order. ``space`` defaults to the user's skill space (:func:`open_skill_space`).
     """
@@ -157,10 +167,17 @@ def resolve_sources(
         if isinstance(sources, str) and sources.strip() == AUTO:
             exclude = {spec.id} if exclude_target else set()
             ranked = search(space, spec.command, k=len(space), exclude_tasks=exclude)
-            # Skills that perform a run of the target's own steps come first, the longest run
-            # first (a pick covers approach, grasp and lift of a pick-and-place, a lift only one
-            # of them); the sort is stable, so similarity orders the rest.
-            ranked.sort(key=lambda hit: -_covered(hit[0].actions, spec.actions))
+            # Skills of the target's own family come first: a nut's "approach, place" fits the
+            # steps of a peg task but was learned on another part. Within a family, skills that
+            # perform a run of the target's own steps come first, the longest run first (a pick
+            # covers approach, grasp and lift of a pick-and-place, a lift only one of them); the
+            # sort is stable, so similarity orders the rest.
+            ranked.sort(
+                key=lambda hit: (
+                    _family(hit[0]) != spec.family,
+                    -_covered(hit[0].actions, spec.actions),
+                )
+            )
             chosen: list[tuple[Skill, float | None]] = []
             seen: set[tuple[str, ...]] = set()
             for skill, score in ranked:
