@@ -10,6 +10,7 @@ from itskill.rl import load_policy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.skills import ManifestEntry, open_skill_space, read_manifest, write_manifest
 from itskill.skills.library import SHIPPED_LIBRARY as SHIPPED
+from itskill.tasks import all_tasks
 
 
 def _ship(shipped: Path, tasks: tuple[str, ...]) -> None:
@@ -69,7 +70,12 @@ def test_every_shipped_skill_loads_and_acts() -> None:
     # A checkpoint whose saved policy description the current code cannot build (a field that
     # was since removed) would only fail when transfer picks it as a source.
     entries = read_manifest(SHIPPED)
-    assert entries, "the package ships no skill library"
+    assert len(entries) >= 30, "the package ships fewer than 30 skills"
+    tasks = all_tasks()
+    for entry in entries:
+        # Retrieval embeds the description and actions: they must be the task's own.
+        assert entry.description == tasks[entry.task].command, entry.name
+        assert tuple(entry.actions) == tasks[entry.task].actions, entry.name
     obs = np.zeros((1, OBSERVATION_LAYOUT.size), dtype=np.float32)
     for entry in entries:
         policy = load_policy((SHIPPED / entry.checkpoint).parent)
