@@ -37,6 +37,8 @@ def test_shipped_experiment_files_load():
     assert validation.report.paper_gain["pickplace_nut_m12"] == pytest.approx(0.7222)
     smoke = load_experiment(REPO / "experiments" / "smoke.toml")
     assert smoke.steps <= 10_000
+    reduced = load_experiment(REPO / "experiments" / "validation_2core.toml")
+    assert reduced.tasks == validation.tasks and reduced.methods == ("itn", "no_transfer")
 
 
 def test_defaults_and_round_trip(tmp_path):

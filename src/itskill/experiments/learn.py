@@ -559,6 +559,8 @@ def _add_skill(
 
     cached = steps.cached("skill.json")
     was_cached = cached is not None
+    if cached is not None:
+        cached.setdefault("added", True)  # written before the threshold existed: always added
     if cached is None and evaluation["success_rate"] < b.min_success:
         cached = {
             "added": False,
