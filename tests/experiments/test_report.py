@@ -27,9 +27,14 @@ SCRATCH = {
 def write_cell(run: Path, cell: Cell, success: list[float]) -> None:
     out = cell.dir(run)
     out.mkdir(parents=True, exist_ok=True)
-    rows = [f"{200 * (i + 1)},{20.0 * (i + 1)},{s},0,1,100" for i, s in enumerate(success)]
+    # Subtasks finished: ITN gets 2 of pick-and-place's 5 stages at 200 env-steps, No_Transfer 1.
+    stages = [min(1.0, s + 0.2 if cell.method == "itn" else s + 0.1) for s in success]
+    rows = [
+        f"{200 * (i + 1)},{20.0 * (i + 1)},{s},0,1,100,{st:.2f}"
+        for i, (s, st) in enumerate(zip(success, stages, strict=True))
+    ]
     (out / "eval.csv").write_text(
-        "env_steps,wall_s,success,ci_low,ci_high,mean_length\n" + "\n".join(rows) + "\n"
+        "env_steps,wall_s,success,ci_low,ci_high,mean_length,stages_done\n" + "\n".join(rows) + "\n"
     )
     write_json(out / "result.json", {"task": cell.task, "method": cell.method, "seed": cell.seed})
 
@@ -83,12 +88,16 @@ def test_report_has_every_section_with_the_known_numbers(run, tmp_path):
         "Success at fractions of the budget (Table II)",
         "Time to 80% success and time efficiency",
         "Attention over one episode (Fig. 8)",
+        "### Subtasks finished",
         "## Runs not finished",
     ):
         assert section in md, section
     assert "Source skills: place_nut_m12, reach_nut_m12, pick_nut_m12" in md
     # Table II at 20% of the budget (200 env-steps): ITN 50% in every seed.
     assert "| ITN | 3 | 50.0% ± 0.0 |" in md
+    # Subtasks finished at 200 env-steps: 0.7 for ITN in every seed.
+    assert "| ITN | 3 | 70.0% ± 0.0 |" in md
+    assert (tmp_path / "report" / "figures" / f"stages_{TASK}.png").is_file()
     # ITN: 400 env-steps in every seed; No_Transfer: 800, 800 and censored at 1000.
     assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | ≥ 53.8% [" in md
     assert "≥ 867 [" in md and "(1/3 never reached)" in md
@@ -97,7 +106,7 @@ def test_report_has_every_section_with_the_known_numbers(run, tmp_path):
     assert (tmp_path / "report" / "figures" / f"curves_{TASK}.png").stat().st_size > 10_000
     assert (tmp_path / "report" / "figures" / f"attention_{TASK}.png").is_file()
     html = files.html.read_text()
-    assert html.count("data:image/png;base64,") == 2
+    assert html.count("data:image/png;base64,") == 3
     assert "<table>" in html and "Fig. 8" in html
     assert not files.notes
 
@@ -112,6 +121,21 @@ def test_report_films_the_best_methods_final_policy(run, tmp_path):
     else:
         video = tmp_path / "report" / "videos" / f"{TASK}_itn_seed0.mp4"
         assert video.stat().st_size > 0 and "<video controls" in html
+
+
+def test_runs_recorded_without_subtask_progress_still_get_a_report(run, tmp_path):
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(run, old)
+    eval_csv = Cell(TASK, "no_transfer", 1).dir(old) / "eval.csv"
+    lines = eval_csv.read_text().splitlines()
+    eval_csv.write_text("\n".join(line.rsplit(",", 1)[0] for line in lines) + "\n")
+    files = experiment_report(old, tmp_path / "report", video=False)
+    md = files.markdown.read_text()
+    assert "Success at fractions of the budget (Table II)" in md
+    assert "### Subtasks finished" not in md
+    assert any("no subtask progress" in n and "stages_done" in n for n in files.notes)
 
 
 def test_report_refuses_a_directory_that_is_not_a_run(tmp_path):

@@ -56,6 +56,22 @@ def test_resume_continues_step_count(tmp_path: Path, reach_reward: Path) -> None
     assert _train(out, reach_reward, 256).num_timesteps == 256
 
 
+def test_a_run_resumed_from_an_older_evaluation_file_keeps_its_columns(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    out = tmp_path / "run"
+    _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
+    path = out / "eval.csv"
+    lines = path.read_text().splitlines()
+    assert lines[0].endswith(",mean_length,stages_done") and len(lines) == 3
+    # Written before subtask progress was recorded: one column fewer.
+    path.write_text("".join(line.rsplit(",", 1)[0] + "\n" for line in lines))
+    _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    rows = [line.split(",") for line in path.read_text().splitlines()]
+    assert rows[0][-1] == "mean_length" and len(rows) == 5
+    assert {len(r) for r in rows} == {6}
+
+
 def test_resume_refuses_other_settings(tmp_path: Path, reach_reward: Path) -> None:
     out = tmp_path / "run"
     _train(out, reach_reward, 64, algo="a2c")

@@ -32,6 +32,7 @@ def _print_eval(result: EvalResult, as_json: bool) -> None:
         f"[bold]{result.task}[/bold] with {result.policy}: "
         f"success {result.successes}/{result.episodes} = [bold]{result.success_rate:.1%}[/bold] "
         f"(95% CI {result.ci_low:.1%}–{result.ci_high:.1%}), "
+        f"subtasks done {result.mean_stages_done:.2f}/{result.n_stages}, "
         f"mean length {result.mean_length:.1f} steps, {result.wall_s:.1f} s"
     )
 

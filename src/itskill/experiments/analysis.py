@@ -48,8 +48,11 @@ class Curve:
             raise ValueError("steps must be strictly increasing")
 
 
-def read_curve(run_dir: str | Path, budget: float) -> Curve:
+def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> Curve:
     """The learning curve in ``run_dir/eval.csv`` (written by the trainer's evaluation callback).
+
+    ``column`` picks what the curve's ``success`` values hold: the success rate, or
+    ``stages_done`` (the fraction of the task's subtasks finished at the end of an episode).
 
     A run resumed after a crash appends a new session to the file: its wall time restarts from
     zero and its first rows may repeat env-steps the crashed session had evaluated after its last
@@ -62,11 +65,11 @@ def read_curve(run_dir: str | Path, budget: float) -> Curve:
         raise CurveError(path, "missing: the run was not trained with evaluations (eval_every)")
     with open(path, newline="") as fh:
         reader = csv.DictReader(fh)
-        missing = {"env_steps", "wall_s", "success"} - set(reader.fieldnames or ())
+        missing = {"env_steps", "wall_s", column} - set(reader.fieldnames or ())
         if missing:
             raise CurveError(path, f"missing column(s) {', '.join(sorted(missing))}")
         try:
-            raw = [(float(r["env_steps"]), float(r["wall_s"]), float(r["success"])) for r in reader]
+            raw = [(float(r["env_steps"]), float(r["wall_s"]), float(r[column])) for r in reader]
         except (TypeError, ValueError) as err:
             raise CurveError(path, f"not a number: {err}") from err
     kept: list[list[float]] = []  # [step, session-relative wall, success, wall offset]

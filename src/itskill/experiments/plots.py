@@ -38,9 +38,14 @@ def method_label(method: str) -> str:
 
 
 def plot_learning_curves(
-    bands: Mapping[str, Band], title: str, out: Path, threshold: float | None = None
+    bands: Mapping[str, Band],
+    title: str,
+    out: Path,
+    threshold: float | None = None,
+    ylabel: str = "success (deterministic)",
 ) -> Path:
-    """Mean success against env-steps, one line per method, its 95% interval shaded."""
+    """Mean success (or another fraction, named by ``ylabel``) against env-steps, one line per
+    method, its 95% interval shaded."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
     for i, (method, band) in enumerate(bands.items()):
         colour = METHOD_COLOURS.get(method, f"C{i}")
@@ -50,7 +55,7 @@ def plot_learning_curves(
             ax.fill_between(band.grid, band.low, band.high, color=colour, alpha=0.2, linewidth=0)
     if threshold is not None:
         ax.axhline(threshold, color="grey", linestyle=":", linewidth=1)
-    ax.set(title=title, xlabel="env-steps", ylabel="success (deterministic)", ylim=(-0.02, 1.02))
+    ax.set(title=title, xlabel="env-steps", ylabel=ylabel, ylim=(-0.02, 1.02))
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     return _save(fig, out)

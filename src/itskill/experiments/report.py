@@ -323,6 +323,7 @@ def _task_section(
         ],
         "mean ± half-width of the 95% t-interval over seeds",
     )
+    _progress_section(doc, config, task, curves, run_dir, figures, notes)
     thresholds = {m: time_to_threshold(cs, rep.threshold) for m, cs in by_method.items()}
     base = thresholds.get(rep.baseline)
     paper = rep.paper_gain.get(task)
@@ -350,6 +351,60 @@ def _task_section(
         runs = curves[(task, "itn")]
         seed = max(runs, key=lambda sc: (sc[1].success[-1], -sc[0]))[0]
         attention_section(doc, Cell(task, "itn", seed).dir(run_dir), task, figures, notes)
+
+
+def _progress_section(
+    doc: Document,
+    config: ExperimentConfig,
+    task: str,
+    curves: dict,
+    run_dir: Path,
+    figures: Path,
+    notes: list[str],
+) -> None:
+    """Subtasks finished per evaluation episode: shows which method gets further into the task
+    while success is still 0 for all of them."""
+    from itskill.tasks import get_task
+
+    by_method: dict[str, list] = {}
+    for method in config.methods:
+        for seed, _ in curves.get((task, method), []):
+            cell_dir = Cell(task, method, seed).dir(run_dir)
+            try:
+                curve = read_curve(cell_dir, config.steps, "stages_done")
+            except CurveError as err:  # a run from before subtask progress was recorded
+                notes.append(f"no subtask progress for {task}: {err}")
+                return
+            by_method.setdefault(method, []).append(curve)
+    if not by_method:
+        return
+    grid = common_grid([c for cs in by_method.values() for c in cs], config.report.grid_points)
+    bands = {m: mean_band(cs, grid) for m, cs in by_method.items()}
+    n_stages = len(get_task(task).stages)
+    fig = plot_learning_curves(
+        bands,
+        f"{task}: subtasks finished ({config.algo.upper()})",
+        figures / f"stages_{task}.png",
+        ylabel=f"fraction of the {n_stages} subtasks finished",
+    )
+    doc.add(
+        Heading("Subtasks finished", 3),
+        Figure(
+            fig,
+            "Fraction of the task's subtasks (stages) finished at the end of a deterministic "
+            "evaluation episode (1 on success), mean over seeds with the 95% t-interval.",
+        ),
+    )
+    fractions = config.report.fractions
+    doc.table(
+        ["method", "seeds", *(f"{f:.0%} ({f * config.steps:,.0f})" for f in fractions)],
+        [
+            [method_label(m), str(len(cs))]
+            + [e.format() for e in success_at_fractions(cs, config.steps, fractions)]
+            for m, cs in by_method.items()
+        ],
+        f"fraction of the {n_stages} subtasks finished; mean ± half-width of the 95% t-interval",
+    )
 
 
 def _gain_explanation(

@@ -18,7 +18,10 @@ from itskill.tasks.evaluate import PolicyActor, evaluate
 from itskill.tasks.spec import TaskSpec
 
 EVAL_FILE = "eval.csv"
-EVAL_COLUMNS = ("env_steps", "wall_s", "success", "ci_low", "ci_high", "mean_length")
+EVAL_COLUMNS = (
+    "env_steps", "wall_s", "success", "ci_low", "ci_high", "mean_length", "stages_done"
+)  # fmt: skip
+"""``stages_done``: subtasks finished at the end of an episode, as a fraction of the task's."""
 
 
 class DeterministicEvalCallback(BaseCallback):
@@ -40,6 +43,9 @@ class DeterministicEvalCallback(BaseCallback):
         if not self.path.exists():
             with open(self.path, "w", newline="") as fh:
                 csv.writer(fh).writerow(EVAL_COLUMNS)
+        with open(self.path, newline="") as fh:
+            # A run resumed from an older release keeps its file's columns.
+            self._columns = next(csv.reader(fh))
 
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next:
@@ -62,6 +68,14 @@ class DeterministicEvalCallback(BaseCallback):
         # Wall time counts training only, so steps-to-threshold times are not inflated by
         # the evaluations themselves.
         wall = time.perf_counter() - self._start - self._eval_time
-        row = (self.num_timesteps, round(wall, 2), res.success_rate, res.ci_low, res.ci_high)
+        row = {
+            "env_steps": self.num_timesteps,
+            "wall_s": round(wall, 2),
+            "success": res.success_rate,
+            "ci_low": res.ci_low,
+            "ci_high": res.ci_high,
+            "mean_length": res.mean_length,
+            "stages_done": res.mean_stages_done / res.n_stages,
+        }
         with open(self.path, "a", newline="") as fh:
-            csv.writer(fh).writerow([*row, res.mean_length])
+            csv.writer(fh).writerow([row[c] for c in self._columns])

@@ -134,6 +134,11 @@ class BatchEnv(VecEnv):
                 info["TimeLimit.truncated"] = bool(res.truncated[e] and not res.terminated[e])
                 info["is_success"] = bool(res.success[e])
                 info["episode_success"] = bool(res.success[e])
+                # Subtasks finished when the episode ended: all of them on success, else the
+                # index of the stage it was in (progress where success is still 0).
+                info["stages_done"] = (
+                    self.task.n_stages if res.success[e] else int(res.context["stage"][e])
+                )
                 if self.from_training_start[e]:
                     info["training_start"] = True
                 if self.sim.unstable[e]:

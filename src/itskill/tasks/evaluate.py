@@ -139,6 +139,10 @@ class EvalResult:
     mean_length: float
     wall_s: float
     policy: str
+    mean_stages_done: float
+    """Subtasks (stages) finished at the end of an episode, averaged: progress where success is
+    still 0 (``n_stages`` on success)."""
+    n_stages: int
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -177,7 +181,7 @@ def evaluate(
         done_count = np.zeros(num_envs, dtype=np.int64)
         running_return = np.zeros(num_envs)
         running_length = np.zeros(num_envs, dtype=np.int64)
-        successes, returns, lengths = 0, [], []
+        successes, returns, lengths, stages = 0, [], [], []
         while (done_count < quotas).any():
             _, rewards, dones, infos = env.step(actor(env.context()))
             running_return += rewards
@@ -185,6 +189,7 @@ def evaluate(
             for e in np.flatnonzero(dones):
                 if done_count[e] < quotas[e]:
                     successes += bool(infos[e]["is_success"])
+                    stages.append(infos[e]["stages_done"])
                     returns.append(running_return[e])
                     lengths.append(running_length[e])
                 done_count[e] += 1
@@ -206,4 +211,6 @@ def evaluate(
         mean_length=float(np.mean(lengths)),
         wall_s=time.perf_counter() - start,
         policy=describe_policy(policy),
+        mean_stages_done=float(np.mean(stages)),
+        n_stages=len(spec.stages),
     )
