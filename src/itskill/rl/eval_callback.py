@@ -75,7 +75,7 @@ class DeterministicEvalCallback(BaseCallback):
             "ci_low": res.ci_low,
             "ci_high": res.ci_high,
             "mean_length": res.mean_length,
-            "stages_done": res.mean_stages_done / res.n_stages,
+            "stages_done": round(res.mean_stages_done / res.n_stages, 4),
         }
         with open(self.path, "a", newline="") as fh:
             csv.writer(fh).writerow([row[c] for c in self._columns])
