@@ -146,3 +146,15 @@ def test_report_refuses_a_directory_that_is_not_a_run(tmp_path):
 def test_config_json_round_trips_for_the_report(run):
     data = json.loads((run / "config.json").read_text())
     assert ExperimentConfig.from_dict(data).report.paper_gain == {TASK: 0.7222}
+
+
+def test_a_gain_neither_method_reached_is_explained_not_computed():
+    import numpy as np
+
+    from itskill.experiments.analysis import Curve, time_to_threshold
+    from itskill.experiments.report import _gain_explanation
+
+    never = Curve(np.array([100.0, 200.0]), np.zeros(2), np.array([1.0, 2.0]), 200.0)
+    thresholds = {m: time_to_threshold([never, never], 0.8) for m in ("itn", "no_transfer")}
+    text = _gain_explanation(0.8, thresholds, 0.7222, "no_transfer")
+    assert "72.22%" in text and "neither reached 80% in any seed within the budget" in text

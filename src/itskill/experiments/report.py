@@ -418,15 +418,17 @@ def _gain_explanation(
     )
     if paper is not None and "itn" in thresholds and baseline in thresholds:
         measured = threshold_gain(thresholds["itn"], thresholds[baseline], "steps")
-        verdict = (
-            "not measurable"
-            if math.isnan(measured.value)
-            else ("meets or beats" if measured.value >= paper else "falls short of")
-        )
         text += (
-            f" The paper reports ITN {paper:.2%} more time-efficient than No_Transfer on this "
-            f"task; measured here: {measured.format()}, which {verdict} it."
+            f" The paper reports ITN {paper:.2%} more time-efficient than No_Transfer on this task"
         )
+        if math.isnan(measured.value):
+            text += (
+                f"; here it cannot be measured: neither reached {threshold:.0%} in any seed "
+                "within the budget."
+            )
+        else:
+            verdict = "meets or beats" if measured.value >= paper else "falls short of"
+            text += f"; measured here: {measured.format()}, which {verdict} it."
     return text
 
 
