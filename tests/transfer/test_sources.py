@@ -24,11 +24,15 @@ def test_auto_sources_for_pick_and_place_are_the_pick_and_place_skills(home: Pat
     for s in sources:
         assert (s.run_dir / "checkpoint.json").is_file()
         assert s.to_dict()["weights_sha256"]
-    # Without de-duplication both pick skills come first, the more similar (M12) leading.
+    # The second pick would add no step the first does not perform; the place adds two.
     plain = [
         s.name for s in resolve_sources("pickplace_nut_m12", "auto", 2, distinct_actions=False)
     ]
-    assert plain == ["pick_nut_m12", "pick_nut_m16"]
+    assert plain == ["pick_nut_m12", "place_nut_m12"]
+    # Once every step is covered, the rest follow by similarity; without de-duplication that
+    # may be a second skill of the same steps.
+    more = resolve_sources("pickplace_nut_m12", "auto", 6, distinct_actions=False)
+    assert len({s.actions for s in more}) < 6
 
 
 def test_auto_sources_come_from_the_targets_own_family_first(home: Path) -> None:
@@ -36,6 +40,15 @@ def test_auto_sources_come_from_the_targets_own_family_first(home: Path) -> None
     sources = resolve_sources("pickplaceinsert_peg_round", "auto", k=3)
     assert {s.task_id.split("_")[1] for s in sources} == {"peg"}, [s.name for s in sources]
     assert "insert_peg_round" in [s.name for s in sources]
+
+
+def test_each_auto_source_adds_steps_of_the_target_the_others_do_not_perform(home: Path) -> None:
+    # Pick-place-insert: approach, grasp, lift, approach, place, insert. The rectangular pick
+    # performs the first three, the insert the last; of the rest only an approach adds a step (a
+    # lift, though similar to the command, repeats one the pick performs).
+    sources = resolve_sources("pickplaceinsert_peg_round", "auto", k=3)
+    assert [s.actions for s in sources] == [("approach", "grasp", "lift"), ("insert",),
+                                            ("approach",)]  # fmt: skip
 
 
 def test_named_sources_by_name_and_id(home: Path) -> None:

@@ -124,11 +124,17 @@ def _parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
     return keys
 
 
-def _covered(actions: tuple[str, ...] | list[str], target: tuple[str, ...] | list[str]) -> int:
-    """Length of ``actions`` if it occurs as a contiguous run in ``target``, else 0."""
+def _placement(actions: tuple[str, ...], target: tuple[str, ...], covered: set[int]) -> set[int]:
+    """The positions of ``target`` that ``actions`` would newly cover: of the places where it
+    occurs as a contiguous run, the one covering most positions not yet in ``covered``."""
     n = len(actions)
-    runs = {tuple(target[i : i + n]) for i in range(len(target) - n + 1)}
-    return n if n and tuple(actions) in runs else 0
+    best: set[int] = set()
+    for i in range(len(target) - n + 1 if n else 0):
+        if tuple(target[i : i + n]) == actions:
+            new = set(range(i, i + n)) - covered
+            if len(new) > len(best):
+                best = new
+    return best
 
 
 def _family(skill: Skill) -> str | None:
@@ -150,11 +156,11 @@ def resolve_sources(
 ) -> list[SourceSkill]:
     """The source skills for ``target``: retrieved (``"auto"``) or named (ids or names).
 
-    ``"auto"`` takes ``k`` skills: first those learned in the target's task family (the same
-    parts and fixtures), then the rest; within each, those whose action sequence is a contiguous
-    run of the target's (longest first), then the others, each group by similarity to the
-    target's command; skipping the target's own task when ``exclude_target`` and repeated action
-    sequences when ``distinct_actions``.
+    ``"auto"`` takes ``k`` skills one at a time: the skill whose action sequence, as a contiguous
+    run of the target's, performs the most target steps no skill taken so far performs; skills
+    learned in the target's task family (the same parts and fixtures) before others, and ties by
+    similarity to the target's command. It skips the target's own task when ``exclude_target``
+    and repeated action sequences when ``distinct_actions``.
     Named skills (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in
     that order. ``space`` defaults to the user's skill space (:func:`open_skill_space`).
     """
@@ -167,30 +173,36 @@ def resolve_sources(
         if isinstance(sources, str) and sources.strip() == AUTO:
             exclude = {spec.id} if exclude_target else set()
             ranked = search(space, spec.command, k=len(space), exclude_tasks=exclude)
-            # Skills of the target's own family come first: a nut's "approach, place" fits the
-            # steps of a peg task but was learned on another part. Within a family, skills that
-            # perform a run of the target's own steps come first, the longest run first (a pick
-            # covers approach, grasp and lift of a pick-and-place, a lift only one of them); the
-            # sort is stable, so similarity orders the rest.
-            ranked.sort(
-                key=lambda hit: (
-                    _family(hit[0]) != spec.family,
-                    -_covered(hit[0].actions, spec.actions),
-                )
-            )
+            target_steps = tuple(spec.actions)
             chosen: list[tuple[Skill, float | None]] = []
             seen: set[tuple[str, ...]] = set()
-            for skill, score in ranked:
+            covered: set[int] = set()
+            pool = list(ranked)
+            while pool and len(chosen) < k:
+                # Greedy cover of the target's steps: next, the skill that performs the most
+                # steps no chosen skill performs yet (a pick covers approach, grasp and lift of
+                # a pick-and-place, so a lift adds nothing after it, a place two steps). Skills
+                # of the target's own family first: a nut's "approach, place" fits steps of a
+                # peg task but was learned on another part. Ties keep the similarity order.
+                gains = [
+                    (
+                        _family(sk) != spec.family,
+                        -len(_placement(sk.actions, target_steps, covered)),
+                    )
+                    for sk, _ in pool
+                ]
+                best = min(range(len(pool)), key=lambda j: gains[j])
+                skill, score = pool.pop(best)
                 if distinct_actions and tuple(skill.actions) in seen:
                     continue
                 seen.add(tuple(skill.actions))
+                covered |= _placement(skill.actions, target_steps, covered)
                 chosen.append((skill, score))
             if not chosen:
                 raise SourceError(
                     f"the skill space ({space.path}) has no skill to transfer to {target!r} from; "
                     "train or install some (`itskill skills pretrain`, `itskill skills install`)"
                 )
-            chosen = chosen[:k]
         else:
             keys = _parse_keys(sources)
             if not keys:
