@@ -559,15 +559,8 @@ def _add_skill(
 
     cached = steps.cached("skill.json")
     was_cached = cached is not None
-    if cached is not None:
-        cached.setdefault("added", True)  # written before the threshold existed: always added
     if cached is None and evaluation["success_rate"] < b.min_success:
-        cached = {
-            "added": False,
-            "min_success": b.min_success,
-            "policy": transfer["run_dir"],
-        }
-        write_json(steps.run_dir / "skill.json", cached)
+        cached = {"added": False, "min_success": b.min_success, "policy": transfer["run_dir"]}
     elif cached is None:
         with open_skill_space() as space:
             taken = {s.name for s in space.list()}
@@ -607,7 +600,9 @@ def _add_skill(
                 "skill_space": str(space.path),
                 "success_rate": skill.success_rate,
             }
+    if not was_cached:
         write_json(steps.run_dir / "skill.json", cached)
+    cached.setdefault("added", True)  # a skill.json from before the threshold: it was added
     if cached["added"]:
         done = f"skill {cached['id']} {cached['name']!r} in {cached['skill_space']}"
     else:

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from itskill.experiments.analysis import (
+    Band,
     Curve,
     CurveError,
     Threshold,
@@ -300,10 +301,11 @@ def _task_section(
     if not by_method:
         doc.add(Paragraph("No finished run yet."))
         return
-    grid = common_grid([c for cs in by_method.values() for c in cs], rep.grid_points)
-    bands = {m: mean_band(cs, grid) for m, cs in by_method.items()}
     fig = plot_learning_curves(
-        bands, f"{task} ({config.algo.upper()})", figures / f"curves_{task}.png", rep.threshold
+        _mean_bands(by_method, rep.grid_points),
+        f"{task} ({config.algo.upper()})",
+        figures / f"curves_{task}.png",
+        rep.threshold,
     )
     doc.add(
         Heading("Learning curves (Fig. 7)", 3),
@@ -314,15 +316,7 @@ def _task_section(
         ),
     )
     doc.add(Heading("Success at fractions of the budget (Table II)", 3))
-    doc.table(
-        ["method", "seeds", *(f"{f:.0%} ({f * config.steps:,.0f})" for f in rep.fractions)],
-        [
-            [method_label(m), str(len(cs))]
-            + [e.format() for e in success_at_fractions(cs, config.steps, rep.fractions)]
-            for m, cs in by_method.items()
-        ],
-        "mean ± half-width of the 95% t-interval over seeds",
-    )
+    _fractions_table(doc, config, by_method, "mean ± half-width of the 95% t-interval over seeds")
     _progress_section(doc, config, task, curves, run_dir, figures, notes)
     thresholds = {m: time_to_threshold(cs, rep.threshold) for m, cs in by_method.items()}
     base = thresholds.get(rep.baseline)
@@ -378,11 +372,9 @@ def _progress_section(
             by_method.setdefault(method, []).append(curve)
     if not by_method:
         return
-    grid = common_grid([c for cs in by_method.values() for c in cs], config.report.grid_points)
-    bands = {m: mean_band(cs, grid) for m, cs in by_method.items()}
     n_stages = len(get_task(task).stages)
     fig = plot_learning_curves(
-        bands,
+        _mean_bands(by_method, config.report.grid_points),
         f"{task}: subtasks finished ({config.algo.upper()})",
         figures / f"stages_{task}.png",
         ylabel=f"fraction of the {n_stages} subtasks finished",
@@ -395,6 +387,24 @@ def _progress_section(
             "evaluation episode (1 on success), mean over seeds with the 95% t-interval.",
         ),
     )
+    _fractions_table(
+        doc,
+        config,
+        by_method,
+        f"fraction of the {n_stages} subtasks finished; mean ± half-width of the 95% t-interval",
+    )
+
+
+def _mean_bands(by_method: dict[str, list[Curve]], points: int) -> dict[str, Band]:
+    """Each method's mean curve with its interval, on one grid spanning every run."""
+    grid = common_grid([c for cs in by_method.values() for c in cs], points)
+    return {m: mean_band(cs, grid) for m, cs in by_method.items()}
+
+
+def _fractions_table(
+    doc: Document, config: ExperimentConfig, by_method: dict[str, list[Curve]], caption: str
+) -> None:
+    """Each method's curve value at the report's fractions of the budget (Table II's layout)."""
     fractions = config.report.fractions
     doc.table(
         ["method", "seeds", *(f"{f:.0%} ({f * config.steps:,.0f})" for f in fractions)],
@@ -403,7 +413,7 @@ def _progress_section(
             + [e.format() for e in success_at_fractions(cs, config.steps, fractions)]
             for m, cs in by_method.items()
         ],
-        f"fraction of the {n_stages} subtasks finished; mean ± half-width of the 95% t-interval",
+        caption,
     )
 
 

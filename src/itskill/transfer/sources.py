@@ -177,26 +177,20 @@ def resolve_sources(
             chosen: list[tuple[Skill, float | None]] = []
             seen: set[tuple[str, ...]] = set()
             covered: set[int] = set()
-            pool = list(ranked)
+            pool = [(skill, score, _family(skill) != spec.family) for skill, score in ranked]
             while pool and len(chosen) < k:
                 # Greedy cover of the target's steps: next, the skill that performs the most
                 # steps no chosen skill performs yet (a pick covers approach, grasp and lift of
                 # a pick-and-place, so a lift adds nothing after it, a place two steps). Skills
                 # of the target's own family first: a nut's "approach, place" fits steps of a
                 # peg task but was learned on another part. Ties keep the similarity order.
-                gains = [
-                    (
-                        _family(sk) != spec.family,
-                        -len(_placement(sk.actions, target_steps, covered)),
-                    )
-                    for sk, _ in pool
-                ]
-                best = min(range(len(pool)), key=lambda j: gains[j])
-                skill, score = pool.pop(best)
+                adds = [_placement(sk.actions, target_steps, covered) for sk, _, _ in pool]
+                best = min(range(len(pool)), key=lambda j: (pool[j][2], -len(adds[j])))
+                skill, score, _ = pool.pop(best)
                 if distinct_actions and tuple(skill.actions) in seen:
                     continue
                 seen.add(tuple(skill.actions))
-                covered |= _placement(skill.actions, target_steps, covered)
+                covered |= adds[best]
                 chosen.append((skill, score))
             if not chosen:
                 raise SourceError(
