@@ -2,10 +2,12 @@
 
 Runs N episodes (default 100) per task on a batch of environments and prints the success rate with
 a Wilson 95% interval and the wall time. By default it runs every Table I task; ``--check`` makes
-it exit non-zero if any Table I task it ran is below 90%.
+it exit non-zero if any Table I task it ran is below 90%. ``--random`` adds the success of a
+uniformly random policy over the same number of episodes: what a task gives away by chance.
 
     python benchmarks/scripted_success.py
     python benchmarks/scripted_success.py --tasks pick_nut_m12 screw_nut_m16 --episodes 50
+    python benchmarks/scripted_success.py --tasks grasp_nut_m12_bolt --episodes 50 --random
 """
 
 from __future__ import annotations
@@ -15,11 +17,27 @@ import json
 import sys
 import time
 
+import numpy as np
+
 from itskill.stats import wilson_interval
 from itskill.tasks import all_tasks, get_task
+from itskill.tasks.evaluate import evaluate
 from itskill.tasks.scripted import run_episodes
 
 THRESHOLD = 0.9
+
+
+class RandomPolicy:
+    """Uniformly random actions in [-1, 1]^5, seeded."""
+
+    def __init__(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, env_ids: np.ndarray | None = None) -> None:
+        """Nothing to reset: the actions do not depend on the past."""
+
+    def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
+        return self.rng.uniform(-1.0, 1.0, (len(ctx["ee_pos"]), 5))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -30,12 +48,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--num-envs", type=int, default=25)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON")
+    parser.add_argument("--random", action="store_true", help="also run a random policy")
     below = f"exit 1 if a Table I task is below {THRESHOLD * 100:.0f}%%"
     parser.add_argument("--check", action="store_true", help=below)
     args = parser.parse_args(argv)
 
     results = []
-    print(f"{'task':28s} {'success':>8s} {'95% CI':>15s} {'time':>7s}")
+    print(f"{'task':28s} {'success':>8s} {'95% CI':>15s} {'time':>7s}" + " random" * args.random)
     for name in args.tasks:
         start = time.perf_counter()
         outcomes = run_episodes(name, args.episodes, min(args.num_envs, args.episodes), args.seed)
@@ -43,7 +62,13 @@ def main(argv: list[str] | None = None) -> int:
         wins = sum(outcomes)
         low, high = wilson_interval(wins, len(outcomes))
         rate = wins / len(outcomes)
-        print(f"{name:28s} {rate:8.0%} [{low:5.0%}, {high:5.0%}] {wall:6.1f}s", flush=True)
+        line = f"{name:28s} {rate:8.0%} [{low:5.0%}, {high:5.0%}] {wall:6.1f}s"
+        random = None
+        if args.random:
+            n = min(args.num_envs, args.episodes)
+            random = evaluate(get_task(name), RandomPolicy(args.seed), args.episodes, args.seed, n)
+            line += f" {random.successes:3d}/{random.episodes}"
+        print(line, flush=True)
         results.append(
             {
                 "task": name,
@@ -53,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
                 "success_rate": rate,
                 "wilson_95": [low, high],
                 "wall_s": wall,
+                "random_success_rate": random.success_rate if random else None,
             }
         )
     if args.json:
