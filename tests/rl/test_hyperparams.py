@@ -25,6 +25,7 @@ def test_packaged_file_loads(family: str) -> None:
         ("[nutbolt]\nnum_envs = 0\n", "nutbolt.num_envs", "positive"),
         ("[nutbolt.policy]\nstages = [1, 'x']\n", "nutbolt.policy.stages", "list of integers"),
         ("[peghole]\n", "nutbolt", "no table"),
+        ("[nutbolt.ppo]\nlr_schedule = 'cosine'\n", "nutbolt.ppo", "lr_schedule must be one of"),
         ("[nutbolt\n", "TOML syntax", ""),
     ],
 )
@@ -47,3 +48,16 @@ def test_overrides_checked() -> None:
         load_hyperparams("nutbolt", "ppo", overrides={"n_steps": 2, "num_envs": 2})
     with pytest.raises(HyperparamError, match="unknown field"):
         load_hyperparams("nutbolt", "a2c", overrides={"clip_range": 0.1})
+
+
+@pytest.mark.parametrize("algo", ["a2c", "ppo"])
+def test_linear_schedule_anneals_the_learning_rate_to_zero(algo: str) -> None:
+    hp = load_hyperparams("nutbolt", algo, overrides={"lr_schedule": "linear"})
+    lr = hp.algo_config.sb3_kwargs()["learning_rate"]
+    start = hp.algo_config.learning_rate
+    # SB3 passes the fraction of the env-step budget still to go.
+    assert lr(1.0) == pytest.approx(start)
+    assert lr(0.5) == pytest.approx(start / 2)
+    assert lr(0.0) == pytest.approx(0.0)
+    constant = load_hyperparams("nutbolt", algo, overrides={"lr_schedule": "constant"})
+    assert constant.algo_config.sb3_kwargs()["learning_rate"] == start

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ from itskill.skills.library import SHIPPED_LIBRARY as SHIPPED
 from itskill.tasks import all_tasks
 
 
-def _ship(shipped: Path, tasks: tuple[str, ...]) -> None:
+def _ship(shipped: Path, tasks: tuple[str, ...], success: float = 0.9) -> None:
     """Write a shipped library of ``tasks`` (placeholder weights) with its manifest."""
     entries = []
     for task in tasks:
@@ -26,7 +27,7 @@ def _ship(shipped: Path, tasks: tuple[str, ...]) -> None:
                 description=f"command of {task}",
                 actions=("approach",),
                 checkpoint=f"{task}/policy.safetensors",
-                success=0.9,
+                success=success,
                 steps=1000,
             )
         )
@@ -64,6 +65,27 @@ def test_a_space_marked_by_an_older_release_gets_the_skills_it_lacks(
     _ship(shipped, ("reach_nut_m12", "lift_nut_m12"))
     with open_skill_space() as space:
         assert sorted(s.name for s in space.list()) == ["lift_nut_m12", "reach_nut_m12"]
+
+
+def test_an_upgrade_that_retrained_a_shipped_skill_updates_its_measurements(
+    tmp_path, monkeypatch, home
+) -> None:
+    shipped = tmp_path / "shipped"
+    _ship(shipped, ("reach_nut_m12", "pick_nut_m12"), success=0.5)
+    monkeypatch.setattr("itskill.skills.library.SHIPPED_LIBRARY", shipped)
+    own = tmp_path / "own.safetensors"
+    own.write_bytes(b"weights")
+    with open_skill_space() as space:
+        assert space.get("reach_nut_m12").success_rate == 0.5
+        # The user replaces the shipped pick skill with one of their own.
+        mine = space.get("pick_nut_m12")
+        space.remove("pick_nut_m12")
+        space.add(replace(mine, checkpoint=str(own), success_rate=0.3, id=None))
+    # The next release ships retrained weights for both, measured at 96%.
+    _ship(shipped, ("reach_nut_m12", "pick_nut_m12"), success=0.96)
+    with open_skill_space() as space:
+        assert space.get("reach_nut_m12").success_rate == 0.96
+        assert space.get("pick_nut_m12").success_rate == 0.3
 
 
 def test_every_shipped_skill_loads_and_acts() -> None:

@@ -89,6 +89,19 @@ def test_approach_term_is_higher_at_the_nut() -> None:
     np.testing.assert_allclose(c_far["success"], 0.0)
 
 
+def test_approach_comes_down_over_the_nut_not_beside_it() -> None:
+    # 3 cm to the side of the nut: lowering the open fingers to the table there would push the
+    # nut away, so hovering over the table at that distance pays more than being on it.
+    beside = _ctx(ee_pos=np.tile([0.5, 0.03, 0.012], (N, 1)))
+    above_beside = _ctx(ee_pos=np.tile([0.5, 0.03, 0.035], (N, 1)))
+    centred_low = _ctx(ee_pos=np.tile([0.5, 0.0, 0.012], (N, 1)))
+    _, c_beside = _reward("reach_nut_m12", beside)
+    _, c_above = _reward("reach_nut_m12", above_beside)
+    _, c_centred = _reward("reach_nut_m12", centred_low)
+    reach = "0.approach/reach"
+    assert (c_beside[reach] < c_above[reach]).all() and (c_above[reach] < c_centred[reach]).all()
+
+
 def test_hover_term_and_success_are_at_the_point_over_the_bolt() -> None:
     over_bolt = np.tile([0.55, 0.12, 0.04 + 0.05], (N, 1))
     at_nut = _ctx(ee_pos=np.tile([0.5, 0.0, 0.012], (N, 1)))

@@ -12,6 +12,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
+from stable_baselines3.common.utils import LinearSchedule
+
 from itskill.datafile import DataFileError, check_like, read_toml
 from itskill.rl.policy import PolicyConfig
 
@@ -21,6 +23,24 @@ ALGOS: tuple[str, ...] = ("a2c", "ppo")
 
 class HyperparamError(DataFileError):
     """A hyper-parameter file or override that does not validate."""
+
+
+LR_SCHEDULES: tuple[str, ...] = ("constant", "linear")
+"""``constant``: the same learning rate throughout; ``linear``: from ``learning_rate`` down to 0
+at the end of the run's env-step budget (PPO's usual annealing: late updates stop undoing a
+policy that already succeeds)."""
+
+
+def _sb3_kwargs(config: Any) -> dict[str, Any]:
+    """The algorithm's SB3 keyword arguments, the learning-rate schedule resolved."""
+    kw = asdict(config)
+    schedule = kw.pop("lr_schedule")
+    if schedule not in LR_SCHEDULES:
+        raise ValueError(f"lr_schedule must be one of {list(LR_SCHEDULES)}, got {schedule!r}")
+    if schedule == "linear":
+        # SB3 calls it with the fraction of the budget left: 1 at the start, 0 at the end.
+        kw["learning_rate"] = LinearSchedule(kw["learning_rate"], 0.0, 1.0)
+    return kw
 
 
 @dataclass(frozen=True)
@@ -37,9 +57,14 @@ class A2CConfig:
     use_rms_prop: bool = True
     rms_prop_eps: float = 1e-5
     normalize_advantage: bool = False
+    lr_schedule: str = "constant"
+    """One of :data:`LR_SCHEDULES`."""
+
+    def __post_init__(self) -> None:
+        _sb3_kwargs(self)
 
     def sb3_kwargs(self) -> dict[str, Any]:
-        return asdict(self)
+        return _sb3_kwargs(self)
 
 
 @dataclass(frozen=True)
@@ -58,9 +83,14 @@ class PPOConfig:
     max_grad_norm: float = 0.5
     target_kl: float = 0.0
     """0 disables early stopping on KL."""
+    lr_schedule: str = "constant"
+    """One of :data:`LR_SCHEDULES`."""
+
+    def __post_init__(self) -> None:
+        _sb3_kwargs(self)
 
     def sb3_kwargs(self) -> dict[str, Any]:
-        kw = asdict(self)
+        kw = _sb3_kwargs(self)
         kw["target_kl"] = kw["target_kl"] or None
         return kw
 

@@ -5,7 +5,8 @@ skill's policy weights and normaliser (``policy.safetensors``, no optimiser stat
 ``checkpoint.json``, and a ``manifest.json`` with each skill's measured success and budget.
 :func:`open_skill_space` registers each shipped skill in the skill space once: a fresh install
 has the skills without training, an upgrade that ships new skills adds those, and a user who
-removes a skill does not get it back.
+removes a skill does not get it back. A shipped skill's entry points at the package's own
+checkpoint, so when a release retrains one, its measured success and budget are updated with it.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import json
 from pathlib import Path
 
 from itskill.files import write_json
-from itskill.skills.manifest import MANIFEST_NAME, install_library, read_manifest
+from itskill.skills.manifest import MANIFEST_NAME, ManifestEntry, install_library, read_manifest
 from itskill.skills.store import SkillSpace, SkillSpaceConfig
 
 SHIPPED_LIBRARY = Path(__file__).resolve().parent / "library"
@@ -28,11 +29,38 @@ def open_skill_space(
     if (SHIPPED_LIBRARY / MANIFEST_NAME).is_file():
         marker = space.path.with_name(space.path.name + ".shipped-library-installed")
         offered = _offered(marker, space)
-        shipped = {e.name for e in read_manifest(SHIPPED_LIBRARY)}
+        entries = read_manifest(SHIPPED_LIBRARY)
+        shipped = {e.name for e in entries}
         if shipped - offered:
             install_library(space, SHIPPED_LIBRARY, only=shipped - offered)
             write_json(marker, sorted(offered | shipped))
+        _refresh_shipped_metrics(space, entries)
     return space
+
+
+def _refresh_shipped_metrics(space: SkillSpace, entries: list[ManifestEntry]) -> None:
+    """Give each space entry that uses a shipped checkpoint that checkpoint's measurements."""
+    stored = {s.name: s for s in space.list()}
+    for entry in entries:
+        skill = stored.get(entry.name)
+        if skill is None:
+            continue
+        if space.checkpoint_path(skill).resolve() != (SHIPPED_LIBRARY / entry.checkpoint).resolve():
+            continue  # the user's own skill under a shipped name, or a copy elsewhere
+        measured = (entry.success, entry.success_ci, entry.steps, entry.wall_s)
+        if (
+            skill.success_rate,
+            skill.success_ci,
+            skill.train_steps,
+            skill.train_wall_s,
+        ) != measured:
+            space.update_metrics(
+                skill.name,
+                success_rate=entry.success,
+                success_ci=entry.success_ci,
+                train_steps=entry.steps,
+                train_wall_s=entry.wall_s,
+            )
 
 
 def _offered(marker: Path, space: SkillSpace) -> set[str]:

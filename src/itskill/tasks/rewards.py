@@ -48,6 +48,11 @@ ACTION_PENALTY = 0.01
 """Weight of the mean squared motion action [dx, dy, dz, dyaw]: discourages jitter, small enough
 not to stop exploration."""
 
+APPROACH_SLOPE = 1.0
+"""Height over a part that its approach aims at, per metre of lateral offset (see ``near``)."""
+APPROACH_HOVER = 0.05
+"""The most the approach aims over a part (m): the scripted grasps hover 4 cm above it."""
+
 TEMPERATURES: dict[str, float] = {
     "reach": 0.15,  # grip point to part, coarse: still has a slope 30 cm away (m)
     "reach_fine": 0.015,  # grip point to part, fine: the last centimetres before a grasp (m)
@@ -88,11 +93,17 @@ def _ee_dist(ctx: Context, i: int) -> np.ndarray:
 
 # ------------------------------------------------------------------------------ term functions
 def near_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
-    """Approach a part: the grip point's closeness to its centre, a coarse and a fine scale.
+    """Approach a part from above: the grip point's closeness to a point over the part that
+    sinks onto it as the grip point centres (a cone of :data:`APPROACH_SLOPE`, at most
+    :data:`APPROACH_HOVER` high), on a coarse and a fine scale.
 
-    Two scales because one tanh either has no slope far away or none in the last centimetres.
+    The cone because fingers lowered beside a part push it away along the table; two scales
+    because one tanh either has no slope far away or none in the last centimetres.
     """
-    d = _ee_dist(ctx, i)
+    off = ctx["obj_to_ee"][:, i]
+    lateral = np.linalg.norm(off[:, :2], axis=-1)
+    hover = np.minimum(APPROACH_SLOPE * lateral, APPROACH_HOVER)
+    d = np.hypot(lateral, off[:, 2] - hover)
     return {"reach": _closeness(d, t["reach"]), "reach_fine": _closeness(d, t["reach_fine"])}
 
 
