@@ -44,8 +44,8 @@ def test_invalid_file_names_file_field_expected(
 def test_overrides_checked() -> None:
     hp = load_hyperparams("nutbolt", "ppo", overrides={"n_steps": 8, "batch_size": 32})
     assert hp.algo_config.n_steps == 8
-    with pytest.raises(HyperparamError, match="batch_size"):
-        load_hyperparams("nutbolt", "ppo", overrides={"n_steps": 2, "num_envs": 2})
+    with pytest.raises(HyperparamError, match="positive"):
+        load_hyperparams("nutbolt", "ppo", overrides={"n_steps": 0})
     with pytest.raises(HyperparamError, match="unknown field"):
         load_hyperparams("nutbolt", "a2c", overrides={"clip_range": 0.1})
 
@@ -61,3 +61,10 @@ def test_linear_schedule_anneals_the_learning_rate_to_zero(algo: str) -> None:
     assert lr(0.0) == pytest.approx(0.0)
     constant = load_hyperparams("nutbolt", algo, overrides={"lr_schedule": "constant"})
     assert constant.algo_config.sb3_kwargs()["learning_rate"] == start
+
+
+def test_fewer_environments_shrink_the_minibatch_to_the_rollout() -> None:
+    family = load_hyperparams("nutbolt", "ppo")
+    small = load_hyperparams("nutbolt", "ppo", overrides={"num_envs": 2})
+    assert family.algo_config.batch_size == 256
+    assert small.algo_config.batch_size == 2 * small.algo_config.n_steps

@@ -207,11 +207,8 @@ def load_hyperparams(
                 top[k] = _check_value(where, f"{where}.{k}", overrides.pop(k), _FAMILY_KEYS[k]())
         algo_cfg = _build(where, f"{where}.{algo}", ALGO_CONFIGS[algo], overrides, algo_cfg)
     if isinstance(algo_cfg, PPOConfig):
-        batch = algo_cfg.n_steps * top.get("num_envs", Hyperparams.num_envs)
-        if algo_cfg.batch_size > batch:
-            raise HyperparamError(
-                path,
-                f"{family}.ppo.batch_size",
-                f"expected at most n_steps * num_envs = {batch}, got {algo_cfg.batch_size}",
-            )
+        # Fewer environments than the family's (a small machine, a reward-search candidate)
+        # shrink the rollout below a minibatch: train on the whole rollout at once instead.
+        rollout = algo_cfg.n_steps * top.get("num_envs", Hyperparams.num_envs)
+        algo_cfg = replace(algo_cfg, batch_size=min(algo_cfg.batch_size, rollout))
     return Hyperparams(family=family, algo=algo, policy=policy, algo_config=algo_cfg, **top)  # type: ignore[arg-type]
