@@ -17,27 +17,12 @@ import json
 import sys
 import time
 
-import numpy as np
-
 from itskill.stats import wilson_interval
 from itskill.tasks import all_tasks, get_task
-from itskill.tasks.evaluate import evaluate
+from itskill.tasks.evaluate import RandomPolicy, evaluate
 from itskill.tasks.scripted import run_episodes
 
 THRESHOLD = 0.9
-
-
-class RandomPolicy:
-    """Uniformly random actions in [-1, 1]^5, seeded."""
-
-    def __init__(self, seed: int) -> None:
-        self.rng = np.random.default_rng(seed)
-
-    def reset(self, env_ids: np.ndarray | None = None) -> None:
-        """Nothing to reset: the actions do not depend on the past."""
-
-    def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
-        return self.rng.uniform(-1.0, 1.0, (len(ctx["ee_pos"]), 5))
 
 
 def main(argv: list[str] | None = None) -> int:

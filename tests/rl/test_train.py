@@ -16,7 +16,7 @@ from itskill.rl.checkpoint import as_policy, load_policy
 from itskill.rl.logger import LoggerConfig, read_metrics
 from itskill.rl.train import ResumeMismatchError, RewardLoadError, RewardSource, train
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import CheckpointError, evaluate
+from itskill.tasks.evaluate import CheckpointError, RandomPolicy, evaluate
 
 # The package re-exports the function ``train`` under the module's name.
 train_module = importlib.import_module("itskill.rl.train")
@@ -179,17 +179,6 @@ def test_cli_train_and_eval_run_directory(tmp_path: Path, reach_reward: Path) ->
     assert json.loads(result.output)["episodes"] == 4
     result = runner.invoke(app, ["eval", TASK, "--policy", str(tmp_path), "--episodes", "2"])
     assert result.exit_code == 2 and "checkpoint.json" in result.output
-
-
-class RandomPolicy:
-    def __init__(self, seed: int = 0) -> None:
-        self.rng = np.random.default_rng(seed)
-
-    def reset(self, env_ids=None) -> None:
-        pass
-
-    def __call__(self, ctx):
-        return self.rng.uniform(-1, 1, (ctx["ee_pos"].shape[0], 5))
 
 
 def test_ppo_learns_reach_better_than_random(tmp_path: Path, reach_reward: Path) -> None:

@@ -39,6 +39,19 @@ PolicyFactory = Callable[[TaskSpec, int], Policy]
 """``factory(spec, num_envs) -> Policy``."""
 
 
+class RandomPolicy:
+    """Uniformly random actions in [-1, 1]^5, seeded: the success a task gives away by chance."""
+
+    def __init__(self, seed: int = 0) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, env_ids: np.ndarray | None = None) -> None:
+        """Nothing to reset: the actions do not depend on the past."""
+
+    def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
+        return self.rng.uniform(-1.0, 1.0, (len(ctx["ee_pos"]), 5))
+
+
 class CheckpointError(ValueError):
     """A policy checkpoint that is missing, unreadable or does not fit the observation layout."""
 
