@@ -31,20 +31,28 @@ at the end of the run's env-step budget (PPO's usual annealing: late updates sto
 policy that already succeeds)."""
 
 
-def _sb3_kwargs(config: Any) -> dict[str, Any]:
-    """The algorithm's SB3 keyword arguments, the learning-rate schedule resolved."""
-    kw = asdict(config)
-    schedule = kw.pop("lr_schedule")
-    if schedule not in LR_SCHEDULES:
-        raise ValueError(f"lr_schedule must be one of {list(LR_SCHEDULES)}, got {schedule!r}")
-    if schedule == "linear":
-        # SB3 calls it with the fraction of the budget left: 1 at the start, 0 at the end.
-        kw["learning_rate"] = LinearSchedule(kw["learning_rate"], 0.0, 1.0)
-    return kw
+class _AlgoConfig:
+    """What every algorithm's config shares: the ``lr_schedule`` field's check and SB3 form."""
+
+    lr_schedule: str
+
+    def __post_init__(self) -> None:
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(
+                f"lr_schedule must be one of {list(LR_SCHEDULES)}, got {self.lr_schedule!r}"
+            )
+
+    def sb3_kwargs(self) -> dict[str, Any]:
+        """The algorithm's SB3 keyword arguments, the learning-rate schedule resolved."""
+        kw = asdict(self)  # type: ignore[call-overload]
+        if kw.pop("lr_schedule") == "linear":
+            # SB3 calls it with the fraction of the budget left: 1 at the start, 0 at the end.
+            kw["learning_rate"] = LinearSchedule(kw["learning_rate"], 0.0, 1.0)
+        return kw
 
 
 @dataclass(frozen=True)
-class A2CConfig:
+class A2CConfig(_AlgoConfig):
     """A2C (synchronous advantage actor-critic); defaults follow Mnih et al. (2016) / SB3."""
 
     learning_rate: float = 7e-4
@@ -60,15 +68,9 @@ class A2CConfig:
     lr_schedule: str = "constant"
     """One of :data:`LR_SCHEDULES`."""
 
-    def __post_init__(self) -> None:
-        _sb3_kwargs(self)
-
-    def sb3_kwargs(self) -> dict[str, Any]:
-        return _sb3_kwargs(self)
-
 
 @dataclass(frozen=True)
-class PPOConfig:
+class PPOConfig(_AlgoConfig):
     """PPO with clipped surrogate; defaults are the usual continuous-control values."""
 
     learning_rate: float = 3e-4
@@ -86,11 +88,8 @@ class PPOConfig:
     lr_schedule: str = "constant"
     """One of :data:`LR_SCHEDULES`."""
 
-    def __post_init__(self) -> None:
-        _sb3_kwargs(self)
-
     def sb3_kwargs(self) -> dict[str, Any]:
-        kw = _sb3_kwargs(self)
+        kw = super().sb3_kwargs()
         kw["target_kl"] = kw["target_kl"] or None
         return kw
 
