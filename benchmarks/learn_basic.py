@@ -15,7 +15,6 @@ with PPO; A2C within 2x PPO's steps; every basic skill >= 95% final success.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import platform
@@ -28,7 +27,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from itskill.executors import EXECUTORS, run_jobs
-from itskill.rl.eval_callback import EVAL_FILE
+from itskill.experiments.analysis import read_curve
 from itskill.rl.train import train
 from itskill.stats import mean_interval, steps_to_threshold
 
@@ -48,12 +47,13 @@ def run_one(task: str, algo: str, seed: int, steps: int, every: int, episodes: i
         eval_every=every,
         eval_episodes=episodes,
     )
-    with open(run_dir / EVAL_FILE) as fh:
-        rows = list(csv.DictReader(fh))
+    # read_curve drops rows a crashed session evaluated after its last checkpoint and adds up the
+    # wall time of resumed sessions.
+    curve = read_curve(run_dir, steps)
     return {
-        "steps": [int(r["env_steps"]) for r in rows],
-        "wall_s": [float(r["wall_s"]) for r in rows],
-        "success": [float(r["success"]) for r in rows],
+        "steps": [int(x) for x in curve.steps],
+        "wall_s": [float(x) for x in curve.wall_s],
+        "success": [float(x) for x in curve.success],
     }
 
 

@@ -117,7 +117,7 @@ def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
         "seed": cell.seed,
         "num_timesteps": res.num_timesteps,
         "resumed_from": res.resumed_from,
-        "session_wall_s": round(res.wall_s, 2),
+        "session_wall_s": round(res.session_wall_s, 2),
         "train_wall_s": round(float(curve.wall_s[-1]), 2),
         "final_success": float(curve.success[-1]),
         "threshold": settings.threshold,

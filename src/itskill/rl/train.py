@@ -71,14 +71,42 @@ class RewardSource:
 
 @dataclass(frozen=True)
 class TrainResult:
-    """What :func:`train` did: where, how many env-steps in total, whether it was interrupted."""
+    """What :func:`train` did: where, how many env-steps in total, whether it was interrupted.
+
+    ``wall_s`` is the run's training wall time over every session (a resumed run adds the time
+    recorded in its checkpoint; work after the last checkpoint of a crashed session is not
+    counted, it was thrown away); ``session_wall_s`` is this call's.
+    """
 
     run_dir: Path
     num_timesteps: int
     resumed_from: int
     interrupted: bool
     wall_s: float
+    session_wall_s: float
     last_metrics: dict[str, Any] | None
+
+
+TRAIN_WALL_KEY = "train_wall_s"
+"""Checkpoint metadata field: training wall seconds of the run up to that checkpoint."""
+
+
+class WallClock:
+    """A run's training wall time: what its checkpoint recorded, plus this session's."""
+
+    def __init__(self, prior_s: float = 0.0) -> None:
+        self.prior_s = prior_s
+        self._start = time.perf_counter()
+
+    def session_s(self) -> float:
+        return time.perf_counter() - self._start
+
+    def total_s(self) -> float:
+        return self.prior_s + self.session_s()
+
+
+def _save(model: Any, run_dir: Path, meta: Mapping[str, Any], wall_s: float) -> None:
+    save_checkpoint(model, run_dir, {**meta, TRAIN_WALL_KEY: round(wall_s, 2)})
 
 
 def load_reward(
@@ -119,9 +147,11 @@ def _sha256(data: bytes) -> str:
 class CheckpointCallback(BaseCallback):
     """Saves a checkpoint at the end of the first update after every ``every`` env-steps."""
 
-    def __init__(self, run_dir: Path, every: int, meta: Mapping[str, Any]) -> None:
+    def __init__(
+        self, run_dir: Path, every: int, meta: Mapping[str, Any], clock: WallClock
+    ) -> None:
         super().__init__()
-        self.run_dir, self.every, self.meta = run_dir, every, dict(meta)
+        self.run_dir, self.every, self.meta, self.clock = run_dir, every, dict(meta), clock
         self._last = 0
 
     def _on_training_start(self) -> None:
@@ -134,7 +164,7 @@ class CheckpointCallback(BaseCallback):
         # Runs between collecting a rollout and the update on it: the saved weights have not seen
         # that rollout, so a resumed run simply collects fresh data from the saved step count.
         if self.num_timesteps - self._last >= self.every:
-            save_checkpoint(self.model, self.run_dir, self.meta)
+            _save(self.model, self.run_dir, self.meta, self.clock.total_s())
             self._last = self.num_timesteps
 
 
@@ -218,6 +248,7 @@ def train(
     }
 
     resumed_from = 0
+    prior_wall_s = 0.0
     model_path = run_dir / MODEL_FILE
     resuming = (run_dir / "checkpoint.json").exists()
     if resuming:
@@ -226,6 +257,7 @@ def train(
         if not model_path.is_file():
             raise CheckpointError(model_path, "missing: cannot resume training without it")
         resumed_from = int(old["num_timesteps"])
+        prior_wall_s = float(old.get(TRAIN_WALL_KEY, 0.0))
 
     # A resumed run draws fresh initial states, not a replay of the first ones.
     env_seed = int(np.random.SeedSequence([seed, resumed_from]).generate_state(1)[0])
@@ -267,18 +299,20 @@ def train(
                 **hp.algo_config.sb3_kwargs(),
             )
         if model.num_timesteps >= steps:
-            return TrainResult(run_dir, model.num_timesteps, resumed_from, False, 0.0, None)
+            return TrainResult(
+                run_dir, model.num_timesteps, resumed_from, False, prior_wall_s, 0.0, None
+            )
         run_dir.mkdir(parents=True, exist_ok=True)
         if resuming:
             MetricsWriter(run_dir).truncate_after(resumed_from)
         metrics = MetricsCallback(env, run_dir, steps, logger, console)
+        clock = WallClock(prior_wall_s)
         callbacks: list[BaseCallback] = [
             metrics,
-            CheckpointCallback(run_dir, hp.checkpoint_every, meta),
+            CheckpointCallback(run_dir, hp.checkpoint_every, meta, clock),
         ]
         if eval_every:
             callbacks.append(DeterministicEvalCallback(spec, run_dir, eval_every, eval_episodes))
-        start = time.perf_counter()
         try:
             model.learn(
                 total_timesteps=steps - model.num_timesteps,
@@ -288,18 +322,20 @@ def train(
             )
         except KeyboardInterrupt:
             metrics.close()
-            save_checkpoint(model, run_dir, meta)
+            _save(model, run_dir, meta, clock.total_s())
             (console or Console(stderr=True)).print(
                 f"interrupted: checkpoint saved at {model.num_timesteps} env-steps in {run_dir}"
             )
             raise
-        save_checkpoint(model, run_dir, meta)
+        session_s = clock.session_s()
+        _save(model, run_dir, meta, clock.prior_s + session_s)
         return TrainResult(
             run_dir,
             int(model.num_timesteps),
             resumed_from,
             False,
-            time.perf_counter() - start,
+            clock.prior_s + session_s,
+            session_s,
             metrics.last_row,
         )
     finally:
