@@ -9,7 +9,8 @@ seeds. Runs are resumable: rerunning the same command continues unfinished train
 Targets (the task-suite issue): Pick (nut M12) at 80% within 200k env-steps and 5 wall-minutes
 with PPO; A2C within 2x PPO's steps; every basic skill >= 95% final success.
 
-    python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos ppo a2c --seeds 0 1 2
+    python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos ppo a2c --seeds 0 1 2 \
+        --steps 200000 --a2c-steps 300000
 """
 
 from __future__ import annotations
@@ -123,6 +124,12 @@ def main() -> None:
     parser.add_argument("--algos", nargs="+", default=["ppo", "a2c"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--steps", type=int, default=200_000)
+    parser.add_argument(
+        "--a2c-steps",
+        type=int,
+        default=None,
+        help="A2C's budget (default: --steps); twice PPO's shows whether A2C is within 2x",
+    )
     parser.add_argument("--eval-every", type=int, default=10_000)
     parser.add_argument("--eval-episodes", type=int, default=50)
     parser.add_argument("--executor", choices=EXECUTORS, default="local")
@@ -132,8 +139,9 @@ def main() -> None:
 
     args.out.mkdir(parents=True, exist_ok=True)
     cells = [(t, a, s) for t in args.tasks for a in args.algos for s in args.seeds]
+    budget = {"a2c": args.a2c_steps or args.steps}
     jobs = [
-        (t, a, s, args.steps, args.eval_every, args.eval_episodes, str(args.out))
+        (t, a, s, budget.get(a, args.steps), args.eval_every, args.eval_episodes, str(args.out))
         for t, a, s in cells
     ]
     curves: dict[tuple[str, str], list[dict]] = {}
