@@ -22,8 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from itskill.rl.checkpoint import load_policy
-from itskill.sim.layout import OBSERVATION_LAYOUT
+from itskill.rl.checkpoint import TrainedPolicy
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import evaluate
 from itskill.tasks.spec import TaskSpec
@@ -37,7 +36,7 @@ class StageChain:
         # Resolved as transfer sources are: from the skill space, checkpoints checked.
         skills = resolve_sources(target.id, list(dict.fromkeys(chain)), exclude_target=False)
         self.names = [s.name for s in skills]
-        self.policies = [load_policy(s.run_dir) for s in skills]
+        self.actors = [TrainedPolicy(s.run_dir) for s in skills]
         self.tasks = [get_task(s.task_id) for s in skills]
         self.stage_skill = np.array([self.names.index(name) for name in chain])
         self.own_stage = own_stage
@@ -48,15 +47,14 @@ class StageChain:
     def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
         which = self.stage_skill[ctx["stage"]]
         actions = np.zeros((len(which), 5))
-        for k, (policy, task) in enumerate(zip(self.policies, self.tasks, strict=True)):
+        for k, (actor, task) in enumerate(zip(self.actors, self.tasks, strict=True)):
             rows = which == k
             if not rows.any():
                 continue
             view = dict(ctx)
             if self.own_stage:
                 view["stage"] = task.stage_index(ctx)
-            obs = OBSERVATION_LAYOUT.build(view)[rows]
-            actions[rows] = policy.predict(obs, deterministic=True)[0]
+            actions[rows] = actor(view)[rows]
         return actions
 
 
