@@ -147,6 +147,32 @@ def test_grasping_beats_hovering_and_empty_fingers_are_worse() -> None:
     assert (r_shut < r_open).all() and (r_open < r_held).all()
 
 
+def test_a_nut_held_tipped_on_its_side_neither_finishes_the_grasp_nor_pays_as_much() -> None:
+    # The fingers hold a tipped nut too; it can never go onto the bolt, so a pick must not count.
+    lifted_pos = np.zeros((N, MAX_OBJECTS, 3))
+    lifted_pos[:, 0] = [0.5, 0.0, 0.04 + NUT_HEIGHT / 2]
+    held = dict(
+        ee_pos=np.tile([0.5, 0.0, 0.047], (N, 1)),
+        obj_pos=lifted_pos,
+        grip_closed=np.ones(N),
+        grasped=np.tile([1.0, 0.0], (N, 1)),
+    )
+    tilt = np.zeros((N, MAX_OBJECTS))
+    tilt[:, 0] = [np.radians(90), np.radians(30), np.radians(5)]
+    spec = get_task("pick_nut_m12")
+    tipped = _with_stage(spec, _ctx(obj_tilt=tilt, **held))
+    upright = _with_stage(spec, _ctx(**held))
+    np.testing.assert_array_equal(tipped["stage"], [1, 1, 2])
+    np.testing.assert_array_equal(upright["stage"], [2, 2, 2])
+    r_tipped, c_tipped = expert_reward(spec)(tipped)
+    r_upright, _ = expert_reward(spec)(upright)
+    np.testing.assert_allclose(c_tipped["success"], [0.0, 0.0, SUCCESS_BONUS])
+    assert r_tipped[0] < r_tipped[1] < r_upright[1]
+    # Held but tipped pays the grasp term in full and little of the upright term.
+    assert c_tipped["1.grasp/grasp"][0] == c_tipped["1.grasp/grasp"][1] > 0
+    assert c_tipped["1.grasp/upright"][0] < 0.01 < c_tipped["1.grasp/upright"][1]
+
+
 def test_components_sum_to_total_and_stages_only_pay_their_own_terms() -> None:
     ctx = _ctx(ee_pos=np.array([[0.5, 0.0, 0.2], [0.5, 0.0, 0.02], [0.5, 0.0, 0.012]]))
     total, comps = _reward("pickplace_nut_m12", ctx)

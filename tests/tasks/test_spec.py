@@ -72,6 +72,11 @@ BROKEN = {
         "init.objects",
         "expected 2",
     ),
+    "hold_off_hand": (
+        ('{ mode = "table", x', '{ mode = "table", hold = 0.005, x'),
+        "init.objects[0].hold",
+        "gripper",
+    ),
     "object_slot": (('success = "lifted(0, 3)', 'success = "lifted(1, 3)'), "success", "slot 1"),
     "start_share": (
         (
@@ -158,6 +163,7 @@ def context(n: int = 3, **values) -> dict[str, np.ndarray]:
         "engaged": np.zeros((n, 2)),
         "obj_bottom_z": np.zeros((n, 2)),
         "obj_height": np.full((n, 2), 0.01),
+        "obj_tilt": np.zeros((n, 2)),
         "obj_to_fix": np.full((n, 2, 3), 0.5),
         "grip_closed": np.zeros(n),
     }
@@ -217,6 +223,10 @@ def test_stage_index_is_one_past_the_furthest_done_stage():
     # env 2: grasped and lifted, though no longer "near" -> 3 (approach the bolt);
     # env 3: engaged (the last stage) -> clipped to the last stage, 4.
     np.testing.assert_array_equal(task.stage_index(ctx), [1, 2, 3, 4])
+    # A nut held tipped on its side is not grasped for the task: env 1 falls back to grasp, env 2
+    # (no longer near the nut) to the start.
+    ctx["obj_tilt"][:, 0] = np.radians(80)
+    np.testing.assert_array_equal(task.stage_index(ctx), [1, 1, 0, 4])
     nothing = context(2)
     np.testing.assert_array_equal(task.stage_index(nothing), [0, 0])
 

@@ -267,7 +267,10 @@ class BatchSim:
         if init.mode in HAND_MODES:
             # Turned so that a nut's flats face the pads.
             yaw = ee_yaw + (NUT_GRIP_YAW if isinstance(part, NutSpec) else 0.0)
-            pos = ee if init.mode == "gripper" else np.array([ee[0], ee[1], on_table_z])
+            if init.mode == "gripper":
+                pos = ee + np.array([0.0, 0.0, init.hold.sample(rng)])
+            else:
+                pos = np.array([ee[0], ee[1], on_table_z])
         elif init.mode == "table":
             pos = np.array([init.x.sample(rng), init.y.sample(rng), on_table_z])
             yaw = init.yaw.sample(rng)

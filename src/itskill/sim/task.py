@@ -40,7 +40,8 @@ class ObjectInit:
     """Where a part starts.
 
     - ``table``: lying on the table at (x, y) with yaw.
-    - ``gripper``: held between the fingers, its centre at (x, y, z) (z is the grip point).
+    - ``gripper``: held between the fingers, the grip point at (x, y, z) and the part's centre
+      ``hold`` metres above it (a part picked from the table is rarely held at its middle).
     - ``fingers``: standing on the table between the open fingers, the grip point at (x, y, z).
     - ``bolt``: threaded on fixture ``fixture``, its bottom ``turns`` pitches above the seat.
     - ``hole``: standing in fixture ``fixture``'s hole, inserted ``depth`` metres.
@@ -53,6 +54,7 @@ class ObjectInit:
     yaw: Range = Range(0.0, 0.0)
     turns: Range = Range(0.0, 0.0)
     depth: Range = Range(0.0, 0.0)
+    hold: Range = Range(0.0, 0.0)
     fixture: int = 0
 
 

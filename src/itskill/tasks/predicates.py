@@ -44,6 +44,15 @@ def grasped(ctx: Context, i: int) -> np.ndarray:
     return ctx["grasped"][:, i] > 0.5
 
 
+def upright(ctx: Context, i: int, degrees: float = 20.0) -> np.ndarray:
+    """Object ``i``'s axis is within ``degrees`` of vertical.
+
+    Closed fingers also hold a nut tipped on its side (across its height), and a part held that
+    way can never go onto its bolt or into its hole.
+    """
+    return ctx["obj_tilt"][:, i] < np.radians(degrees)
+
+
 def lifted(ctx: Context, i: int, heights: float = 3.0) -> np.ndarray:
     """Object ``i``'s bottom is at least ``heights`` part heights above the table (Factory)."""
     return ctx["obj_bottom_z"][:, i] >= heights * ctx["obj_height"][:, i]
@@ -103,8 +112,8 @@ def displaced(ctx: Context, i: int, dx: float, dy: float, tolerance: float = 0.0
 PREDICATES: dict[str, Callable[..., np.ndarray]] = {
     f.__name__: f
     for f in (
-        near, over_fixture, grasped, lifted, above_fixture, engaged, seated, inserted, aligned,
-        released, removed, displaced,
+        near, over_fixture, grasped, upright, lifted, above_fixture, engaged, seated, inserted,
+        aligned, released, removed, displaced,
     )
 }  # fmt: skip
 

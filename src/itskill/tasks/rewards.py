@@ -60,6 +60,7 @@ TEMPERATURES: dict[str, float] = {
     "fixture": 0.15,  # part bottom to a point over its fixture, coarse: slope 30 cm away (m)
     "fixture_fine": 0.006,  # part bottom over its fixture, fine (a bolt tip is ~12 mm wide) (m)
     "yaw": 0.15,  # part yaw to fixture yaw (rad)
+    "tilt": 0.5,  # part axis to vertical, beyond a slack (rad)
     "engage": 0.008,  # part bottom to the fixture point while placing (m)
     "screw": 0.004,  # nut seat gap left to travel (m; M12 pitch is 1.75 mm)
     "push": 0.1,  # part centre to the push target: slope from the start 15 cm away (m)
@@ -134,6 +135,15 @@ def grasped_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str,
     empty = ctx["grip_closed"] * (ctx["gripper_width"] < narrowest)
     attempt = 0.7 * align * (1.0 - 0.5 * empty)
     return {"grasp": np.maximum(held, attempt)}
+
+
+def upright_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
+    """Keep a part upright: its tilt beyond half the predicate's allowance, smoothly.
+
+    Slack inside the allowance, so a part hanging slightly askew in the fingers still pays 1."""
+    degrees = args[0] if args else 20.0
+    excess = ctx["obj_tilt"][:, i] - 0.5 * np.radians(degrees)
+    return {"upright": _closeness(excess, t["tilt"])}
 
 
 def lifted_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
@@ -227,6 +237,7 @@ TERMS: dict[str, Term] = {
     "near": near_terms,
     "over_fixture": over_fixture_terms,
     "grasped": grasped_terms,
+    "upright": upright_terms,
     "lifted": lifted_terms,
     "above_fixture": above_fixture_terms,
     "aligned": aligned_terms,

@@ -248,12 +248,14 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         )
     for k, oi in enumerate(raw_inits):
         orr = _Reader(path, f"{ir.where}.objects[{k}]", oi)
-        orr.check_keys({"mode", "x", "y", "z", "yaw", "turns", "depth", "fixture"})
+        orr.check_keys({"mode", "x", "y", "z", "yaw", "turns", "depth", "hold", "fixture"})
         mode = orr.get("mode", str)
         if mode not in _INIT_MODES:
             raise TaskFileError(
                 path, orr.where + ".mode", f"expected one of {_INIT_MODES}, got {mode!r}"
             )
+        if "hold" in oi and mode != "gripper":
+            raise TaskFileError(path, orr.where + ".hold", "only a part in the gripper has a hold")
         fixture = orr.get("fixture", int, object_fixture[k])
         if mode in ("bolt", "hole"):
             want = BoltSpec if mode == "bolt" else HoleSpec
@@ -270,6 +272,7 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
                 yaw=orr.range("yaw", (0.0, 0.0)),
                 turns=orr.range("turns", (0.0, 0.0)),
                 depth=orr.range("depth", (0.0, 0.0)),
+                hold=orr.range("hold", (0.0, 0.0)),
                 fixture=fixture,
             )
         )
