@@ -72,6 +72,14 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(tmp_path, budg
     assert summary["transfer"]["steps"] >= 256 and summary["evaluation"]["episodes"] == 4
     assert summary["transfer"]["sources"] == [s["name"] for s in summary["sources"]["used"]]
     assert summary["transfer"]["contribution"]["sources"] == summary["transfer"]["sources"]
+    pick, place, _ = summary["transfer"]["sources"]
+    assert summary["transfer"]["residual"] == [
+        ["approach", pick],
+        ["grasp", pick],
+        ["lift", pick],
+        ["approach", place],
+        ["place", place],
+    ]
 
     with open_skill_space() as space:
         skill = space.get(summary["skill"]["name"])
@@ -84,7 +92,9 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(tmp_path, budg
 
     md = (out / "report.md").read_text()
     for section in ("## Plan", "## Generated reward", "## Transfer", "## Evaluation",
-                    "Attention over one episode", "## Skill added to the skill space"):  # fmt: skip
+                    "Attention over one episode", "## Skill added to the skill space",
+                    f"Source-action residual: in each stage the action head's output is added to "
+                    f"the action of the source that performs it (approach: {pick};"):  # fmt: skip
         assert section in md, section
     assert (out / "report.html").read_text().count("data:image/png;base64,") == 2
 

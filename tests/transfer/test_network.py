@@ -51,8 +51,45 @@ def test_sources_are_the_saved_policies_with_their_own_normalisers(tiny_sources)
         assert not any(p.requires_grad for p in src.parameters())
 
 
-def test_gradients_reach_target_fusion_attention_but_not_sources(tiny_sources) -> None:
-    policy = build(ITNPolicy, tiny_sources)
+def test_each_source_sees_the_stage_of_its_own_task(tiny_sources) -> None:
+    # Source 0 performs the last two of the target's five stages (a Place in a pick-and-place).
+    mapped = {**tiny_sources[0], "stage_map": [0, 0, 0, 0, 1]}
+    policy = build(ITNPolicy, [mapped, tiny_sources[1]])
+    feats, _ = policy.mlp_extractor.source_outputs(obs_at(4))
+    saved = [load_policy(s["run_dir"]) for s in tiny_sources]
+    for mine, theirs in zip(feats[0], saved[0].stage_outputs(obs_at(1)), strict=True):
+        assert torch.equal(mine, theirs)
+    # A spec without a map sees the target's stage, as before maps existed.
+    for mine, theirs in zip(feats[1], saved[1].stage_outputs(obs_at(4)), strict=True):
+        assert torch.equal(mine, theirs)
+    with pytest.raises(ValueError, match="stage_map must be"):
+        build(ITNPolicy, [{**tiny_sources[0], "stage_map": [0, 9]}, tiny_sources[1]])
+
+
+PERFORMERS = [0, 0, 1, 1, -1]
+
+
+def test_the_residual_adds_the_performing_sources_action(tiny_sources) -> None:
+    policy = build(ITNPolicy, tiny_sources, performers=PERFORMERS)
+    saved = [load_policy(s["run_dir"]) for s in tiny_sources]
+    for stage, who in enumerate(PERFORMERS):
+        obs = obs_at(stage)
+        mean = policy.get_distribution(obs).distribution.mean
+        head = policy.action_net(policy.mlp_extractor.actor_stages(obs)[-1])
+        source = saved[who].action_net(saved[who].stage_outputs(obs)[-1]) if who >= 0 else 0.0
+        torch.testing.assert_close(mean, head + source)
+        # The head starts near zero: the untrained network acts like the source of the stage.
+        assert head.abs().max() < 0.05
+    without = build(ITNPolicy, tiny_sources)
+    assert without.mlp_extractor.latent_dim_pi == TINY[-1]
+    assert policy.mlp_extractor.latent_dim_pi == TINY[-1] + 5
+    with pytest.raises(ValueError, match="performers must be"):
+        build(ITNPolicy, tiny_sources, performers=[0, 2])
+
+
+@pytest.mark.parametrize("performers", [None, PERFORMERS])
+def test_gradients_reach_target_fusion_attention_but_not_sources(tiny_sources, performers) -> None:
+    policy = build(ITNPolicy, tiny_sources, performers=performers)
     policy.set_training_mode(True)
     obs = torch.cat([obs_at(0), obs_at(3, seed=1)])
     values, log_prob, _ = policy.evaluate_actions(obs, torch.zeros(len(obs), 5))
@@ -64,6 +101,7 @@ def test_gradients_reach_target_fusion_attention_but_not_sources(tiny_sources) -
         ("attention encoders", ex.weighting.encoders),
         ("attention mix", ex.weighting.mix),
         ("critic", ex.critic),
+        ("action head", policy.action_net),
     ]:
         grads = [p.grad for p in module.parameters()]
         assert all(g is not None and g.abs().sum() > 0 for g in grads), name
@@ -154,15 +192,19 @@ def test_sources_bit_identical_after_training(tiny_sources, tmp_path: Path, algo
     assert ex_late.obs_norm.count.item() > ex_early.obs_norm.count.item()
 
 
-def test_a_saved_itn_is_self_contained(tiny_sources, tmp_path: Path) -> None:
+@pytest.mark.parametrize("performers", [None, PERFORMERS])
+def test_a_saved_itn_is_self_contained(tiny_sources, tmp_path: Path, performers) -> None:
     out = tmp_path / "run"
+    sources = [{**tiny_sources[0], "stage_map": [0, 1, 2, 2, 2]}, tiny_sources[1]]
+    kwargs = {"sources": sources, "prior": PRIOR, "stages": TINY, "performers": performers}
     train(
         "pickplace_nut_m12", "a2c", 32, 0, "expert", out, num_envs=2,
         logger=LoggerConfig(progress=False, tensorboard=False), policy_class=ITNPolicy,
-        policy_kwargs={"sources": tiny_sources, "prior": PRIOR, "stages": TINY},
+        policy_kwargs=kwargs,
     )  # fmt: skip
     reference = load_policy(out)
-    obs = obs_at(1).numpy()
+    assert reference.config.performers == (None if performers is None else tuple(performers))
+    obs = obs_at(3).numpy()
     expected, _ = reference.predict(obs, deterministic=True)
     for spec in tiny_sources:
         shutil.rmtree(spec["run_dir"])
@@ -187,7 +229,9 @@ def test_a_trained_transfer_policy_can_be_a_source(tiny_sources, tmp_path: Path)
     train(
         "pickplace_nut_m12", "a2c", 16, 0, "expert", out, num_envs=2,
         logger=LoggerConfig(progress=False, tensorboard=False), policy_class=ITNPolicy,
-        policy_kwargs={"sources": tiny_sources, "prior": PRIOR, "stages": TINY},
+        policy_kwargs={
+            "sources": tiny_sources, "prior": PRIOR, "stages": TINY, "performers": PERFORMERS,
+        },
     )  # fmt: skip
     inner = load_policy(out)
     spec = {
@@ -202,4 +246,7 @@ def test_a_trained_transfer_policy_can_be_a_source(tiny_sources, tmp_path: Path)
     nested = outer.mlp_extractor.sources[0]
     for a, b in zip(nested.stage_outputs(obs), inner.stage_outputs(obs), strict=True):
         assert torch.equal(a, b)
+    # Its action, residual included, is what the outer network's attention sees.
+    _, actions = outer.mlp_extractor.source_outputs(obs)
+    torch.testing.assert_close(actions[0], inner.get_distribution(obs).distribution.mean)
     assert isinstance(outer.mlp_extractor.sources[0].mlp_extractor.merge, nn.Module)

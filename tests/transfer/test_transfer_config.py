@@ -21,6 +21,7 @@ def test_packaged_defaults_are_the_dataclass_defaults() -> None:
         ("[fusion]\nhidden = [64, 'x']\n", "fusion.hidden", "list of integers"),
         ("[sources]\ntop = 3\n", "sources.top", "unknown field; expected one of"),
         ("[pst]\nkeep = 0\n", "values", "pst_keep must be at least 1"),
+        ("[head]\nresidual = 'yes'\n", "head.residual", "expected"),
         ("[attn]\nhidden = 3\n", "attn", "unknown table"),
         ("[sources\n", "TOML syntax", "line 1"),
     ],

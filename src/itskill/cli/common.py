@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -39,6 +40,11 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a t
 
 
 CameraOpt = Annotated[str, typer.Option(help="Camera: front or closeup.")]
+
+
+HyperparamsOpt = Annotated[
+    Path | None, typer.Option(help="A hyper-parameter TOML file instead of the packaged one.")
+]
 
 
 @contextmanager

@@ -9,6 +9,7 @@ import typer
 
 from itskill.cli.common import (
     USAGE_ERROR,
+    HyperparamsOpt,
     TaskArg,
     console,
     err_console,
@@ -30,9 +31,7 @@ def train_cmd(
     num_envs: Annotated[
         int | None, typer.Option(min=1, help="Environments stepped together.")
     ] = None,
-    hyperparams: Annotated[
-        Path | None, typer.Option(help="A hyper-parameter TOML file instead of the packaged one.")
-    ] = None,
+    hyperparams: HyperparamsOpt = None,
 ) -> None:
     """Train a policy with A2C or PPO; rerun the same command to resume from the last checkpoint."""
     from itskill.rl.config import HyperparamError

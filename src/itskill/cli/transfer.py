@@ -16,6 +16,7 @@ from rich.table import Table
 
 from itskill.cli.common import (
     USAGE_ERROR,
+    HyperparamsOpt,
     JsonOpt,
     TaskArg,
     console,
@@ -108,6 +109,7 @@ def transfer_train(
     eval_episodes: Annotated[int, typer.Option(min=1, help="Episodes per evaluation.")] = 50,
     llm: LLMOpt = None,
     config: ConfigOpt = None,
+    hyperparams: HyperparamsOpt = None,
 ) -> None:
     """Train TARGET with a transfer method; rerun the same command to resume."""
     from itskill.transfer import METHODS, train_transfer
@@ -135,6 +137,7 @@ def transfer_train(
                 client=make_client(llm),
                 config=_config(config, k),
                 console=console,
+                hyperparams=hyperparams,
             )
     except KeyboardInterrupt:
         raise typer.Exit(130) from None

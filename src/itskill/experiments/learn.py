@@ -477,6 +477,7 @@ def _train(
 ) -> dict[str, Any]:
     from itskill.reward.sandbox import compile_reward
     from itskill.rl.train import RewardSource
+    from itskill.tasks import get_task
     from itskill.transfer import read_transfer, train_transfer
 
     out = run_dir / "transfer"
@@ -507,14 +508,23 @@ def _train(
     curve = read_curve(out, t.steps)
     wall = float(curve.wall_s[-1])
     record = read_transfer(out)  # what was trained: PST keeps only some of the sources
+    names = [s["name"] for s in record["sources"]]
+    performers = record.get("performers")
     summary = {
         "run_dir": str(out),
         "method": t.method,
         "algo": t.algo,
         "steps": int(res.num_timesteps),
         "wall_s": wall,
-        "sources": [s["name"] for s in record["sources"]],
+        "sources": names,
         "contribution": record.get("contribution"),
+        # Each stage and the source whose action the head adds to (None: the head alone).
+        "residual": None
+        if performers is None
+        else [
+            [st.name, names[k] if k >= 0 else None]
+            for st, k in zip(get_task(task).stages, performers, strict=True)
+        ],
         "final_success": float(curve.success[-1]),
     }
     resumed = f" (resumed from {res.resumed_from:,})" if res.resumed_from else ""

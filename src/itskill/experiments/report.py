@@ -493,6 +493,18 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
             f"Analyzer contribution matrix ({contribution.get('client', '')}): the prior of the "
             "attention for each stage",
         )
+    if transfer.get("residual"):
+        doc.add(
+            Paragraph(
+                "Source-action residual: in each stage the action head's output is added to the "
+                "action of the source that performs it ("
+                + "; ".join(
+                    f"{stage}: {src or 'none, the head alone'}"
+                    for stage, src in transfer["residual"]
+                )
+                + ")."
+            )
+        )
     run_dir = Path(transfer["run_dir"])
     try:
         curve = read_curve(run_dir, transfer["steps"])

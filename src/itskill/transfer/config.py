@@ -30,6 +30,7 @@ class TransferConfig:
     fusion_hidden: tuple[int, ...] = ()
     pst_keep: int = 1
     analyzer_retries: int = 2
+    residual: bool = True
 
     def __post_init__(self) -> None:
         for name in ("k", "attention_hidden", "pst_keep"):
@@ -62,6 +63,7 @@ _LAYOUT: dict[str, dict[str, str]] = {
     "fusion": {"hidden": "fusion_hidden"},
     "pst": {"keep": "pst_keep"},
     "analyzer": {"retries": "analyzer_retries"},
+    "head": {"residual": "residual"},
 }
 
 

@@ -15,7 +15,10 @@ A method is a choice of ``weighting`` (intelligent attention, fixed analyzer val
 ``_build_parts``. Design choices:
 
 - **Sources see what they were trained on**: each is a whole frozen policy (its normaliser, actor
-  trunk and action head), fed the raw observation. Its parameters have ``requires_grad = False``
+  trunk and action head), fed the raw observation with one change: the stage one-hot says the
+  stage the source's own task would be in (``stage_map`` of its spec, from
+  :mod:`itskill.transfer.stages`; a spec without one sees the target's stage, as checkpoints
+  written before the map existed did). Its parameters have ``requires_grad = False``
   and are not given to the optimiser, its normaliser statistics never update, and it stays in
   eval mode through SB3's train/eval switches. Source outputs are computed without gradients:
   they are inputs to the target network, nothing upstream of them trains.
@@ -24,6 +27,11 @@ A method is a choice of ``weighting`` (intelligent attention, fixed analyzer val
   value is no estimate of this task's, and value-regression gradients stay out of the fused
   features the action is made from (the staged policy's reasoning). ``shared_trunk = True`` puts
   the value head on the fused actor features instead.
+- **Source-action residual** (``performers``, optional): the action mean is the head's output
+  plus the action of the source that performs the current stage (:func:`stage_performers`), so
+  the untrained network acts like the sources run one after another and training learns a
+  correction. The head starts near zero (gain 0.01). Without ``performers`` the action comes from
+  the fused features alone, as in the paper.
 - **Self-contained checkpoints**: source weights are part of the state dict, so ``model.zip`` and
   ``policy.safetensors`` of a transfer run need no source directory once written. A new policy
   reads its sources from their run directories (``sources[i]["run_dir"]``); one rebuilt for a
@@ -46,14 +54,17 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 import torch
+from stable_baselines3.common.distributions import DiagGaussianDistribution
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import PyTorchObs
 from torch import nn
 
 from itskill.rl.checkpoint import META_FILE, policy_from_meta
 from itskill.rl.policy import ACTIVATIONS, PolicyConfig, RunningNormalizer, StagedTrunk
+from itskill.sim.layout import MAX_STAGES
 from itskill.sim.vec_env import action_space, observation_space
 from itskill.transfer.analyzer import validate_matrix
+from itskill.transfer.attention import STAGE_SLICE
 from itskill.transfer.sources import freeze, load_source
 
 NOT_READY = (
@@ -67,8 +78,10 @@ class TransferPolicyConfig:
     """Shape of a transfer policy: the target network, its sources and the method's settings.
 
     ``sources`` are :meth:`itskill.transfer.sources.SourceSkill.spec` entries (name, task,
-    run_dir, the source's policy class and shape); ``prior`` is the analyzer's contribution
-    matrix (target stages x sources), None for methods that do not use it.
+    run_dir, the source's policy class and shape, and optionally ``stage_map``); ``prior`` is the
+    analyzer's contribution matrix (target stages x sources), None for methods that do not use
+    it; ``performers`` is the source whose action the head adds to in each target stage (-1:
+    none), None for no residual.
     """
 
     target: PolicyConfig
@@ -77,6 +90,7 @@ class TransferPolicyConfig:
     attention_hidden: int = 32
     prior_weight: float = 0.5
     fusion_hidden: tuple[int, ...] = field(default=())
+    performers: tuple[int, ...] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The constructor keyword arguments, JSON-ready (``checkpoint.json``'s ``policy``)."""
@@ -87,6 +101,7 @@ class TransferPolicyConfig:
             "attention_hidden": self.attention_hidden,
             "prior_weight": self.prior_weight,
             "fusion_hidden": list(self.fusion_hidden),
+            "performers": None if self.performers is None else list(self.performers),
         }
 
 
@@ -108,11 +123,46 @@ def _build_source(spec: Mapping[str, Any]) -> tuple[ActorCriticPolicy, bool]:
     return freeze(policy_from_meta(spec["policy_class"], spec["policy"], where)), False
 
 
+def _stage_table(rows: Sequence[int], width: int) -> torch.Tensor:
+    """``(MAX_STAGES, width)`` 0/1 table whose row ``j`` selects column ``rows[j]`` (none for -1);
+    rows past the target's last stage repeat it (unreachable: the stage index stops there)."""
+    full = [*rows, *[rows[-1]] * (MAX_STAGES - len(rows))]
+    table = torch.zeros(MAX_STAGES, width)
+    for j, col in enumerate(full):
+        if col >= 0:
+            table[j, col] = 1.0
+    return table
+
+
+def _stage_remap(stage_map: Sequence[int] | None, name: str) -> torch.Tensor:
+    """One source's target-stage -> own-stage one-hot map (identity without a ``stage_map``)."""
+    if stage_map is None:
+        return torch.eye(MAX_STAGES)
+    stage_map = [int(s) for s in stage_map]
+    if not 1 <= len(stage_map) <= MAX_STAGES or not all(0 <= s < MAX_STAGES for s in stage_map):
+        raise ValueError(
+            f"source {name!r}: stage_map must be 1 to {MAX_STAGES} stage indices in "
+            f"[0, {MAX_STAGES}), got {stage_map}"
+        )
+    return _stage_table(stage_map, MAX_STAGES)
+
+
+def action_mean(policy: ActorCriticPolicy, obs: torch.Tensor, last: torch.Tensor) -> torch.Tensor:
+    """The action mean of a staged or transfer policy, given its last actor stage output."""
+    mean = policy.action_net(last)
+    if isinstance(policy, TransferPolicy) and policy.mlp_extractor.residual_pick is not None:
+        _, actions = policy.mlp_extractor.source_outputs(obs)
+        mean = mean + policy.mlp_extractor.residual(obs, actions)
+    return mean
+
+
 class LateralExtractor(nn.Module):
     """SB3's ``mlp_extractor``: target trunk with sources, weighting and merge; critic trunk.
 
     Its input is the raw observation (the policy does no normalisation of its own): the sources
-    normalise it their way, the target with ``obs_norm``.
+    normalise it their way, the target with ``obs_norm``. With ``performers`` the actor's latent
+    carries the residual action after the features (``latent_dim_pi`` is wider by the action
+    size); :class:`TransferPolicy` splits it again.
     """
 
     def __init__(
@@ -123,6 +173,10 @@ class LateralExtractor(nn.Module):
         weighting: nn.Module | None,
         merge: nn.Module,
         ready: bool,
+        stage_maps: Sequence[Sequence[int] | None],
+        source_names: Sequence[str],
+        performers: Sequence[int] | None,
+        action_dim: int,
     ) -> None:
         super().__init__()
         activation = ACTIVATIONS[target.activation]
@@ -137,7 +191,21 @@ class LateralExtractor(nn.Module):
         self.weighting = weighting
         self.merge = merge
         self.register_buffer("sources_ready", torch.tensor(ready))
-        self.latent_dim_pi = self.latent_dim_vf = target.stages[-1]
+        # Not persistent: rebuilt from the config, so checkpoints from before these existed load.
+        remaps = [_stage_remap(m, n) for m, n in zip(stage_maps, source_names, strict=True)]
+        self.register_buffer("stage_remap", torch.stack(remaps), persistent=False)
+        pick = None
+        if performers is not None:
+            if len(performers) > MAX_STAGES or not all(-1 <= k < len(sources) for k in performers):
+                raise ValueError(
+                    f"performers must be at most {MAX_STAGES} source indices in "
+                    f"[-1, {len(sources)}), got {list(performers)}"
+                )
+            pick = _stage_table([int(k) for k in performers], len(sources))
+        self.register_buffer("residual_pick", pick, persistent=False)
+        self.latent_width = target.stages[-1]
+        self.latent_dim_vf = self.latent_width
+        self.latent_dim_pi = self.latent_width + (0 if performers is None else action_dim)
 
     def normalize(self, obs: torch.Tensor) -> torch.Tensor:
         return obs if self.obs_norm is None else self.obs_norm(obs.float())
@@ -149,9 +217,20 @@ class LateralExtractor(nn.Module):
         """Each source's stage outputs and action mean for raw observations ``obs``."""
         if not bool(self.sources_ready):
             raise RuntimeError(NOT_READY)
-        feats = [src.stage_outputs(obs) for src in self.sources]
-        actions = [src.action_net(f[-1]) for src, f in zip(self.sources, feats, strict=True)]
+        stage = obs[..., STAGE_SLICE]
+        feats, actions = [], []
+        for src, remap in zip(self.sources, self.stage_remap, strict=True):
+            view = torch.cat(
+                [obs[..., : STAGE_SLICE.start], stage @ remap, obs[..., STAGE_SLICE.stop :]], -1
+            )
+            feats.append(src.stage_outputs(view))
+            actions.append(action_mean(src, view, feats[-1][-1]))
         return feats, actions
+
+    def residual(self, obs: torch.Tensor, actions: list[torch.Tensor]) -> torch.Tensor:
+        """The action of the source performing each observation's stage (zero where none)."""
+        pick = obs[..., STAGE_SLICE] @ self.residual_pick
+        return torch.einsum("bn,nba->ba", pick, torch.stack(actions))
 
     def contribution(
         self, obs: torch.Tensor, actions: list[torch.Tensor]
@@ -159,27 +238,36 @@ class LateralExtractor(nn.Module):
         """``(raw, W)`` of the weighting (``(None, None)`` without one)."""
         return (None, None) if self.weighting is None else self.weighting(obs, actions)
 
-    def actor_stages(self, obs: torch.Tensor) -> list[torch.Tensor]:
-        """The merged output after each target stage; the last one is the actor's latent."""
+    def _actor_pass(self, obs: torch.Tensor) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+        """The merged output after each target stage, and the sources' actions."""
         feats, actions = self.source_outputs(obs)
         _, weights = self.contribution(obs, actions)
         x, outs = self.normalize(obs), []
         for j, stage in enumerate(self.actor.stages):
             x = self.merge(j, stage(x), [f[j] for f in feats], weights)
             outs.append(x)
-        return outs
+        return outs, actions
+
+    def actor_stages(self, obs: torch.Tensor) -> list[torch.Tensor]:
+        """The merged output after each target stage; the last one is the actor's features."""
+        return self._actor_pass(obs)[0]
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
-        return self.actor_stages(features)[-1]
+        outs, actions = self._actor_pass(features)
+        if self.residual_pick is None:
+            return outs[-1]
+        return torch.cat([outs[-1], self.residual(features, actions)], -1)
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
         if self.critic is None:
-            return self.forward_actor(features)
+            return self.actor_stages(features)[-1]
         return self.critic(self.normalize(features))
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         pi = self.forward_actor(features)
-        return pi, (pi if self.critic is None else self.critic(self.normalize(features)))
+        if self.critic is None:
+            return pi, pi[..., : self.latent_width]
+        return pi, self.critic(self.normalize(features))
 
 
 class TransferPolicy(ActorCriticPolicy):
@@ -188,8 +276,8 @@ class TransferPolicy(ActorCriticPolicy):
     Keyword arguments: ``sources`` (source specs), ``prior`` (the contribution matrix, for
     methods with ``uses_prior``), the target's :class:`PolicyConfig` fields (``stages``,
     ``activation``, ``shared_trunk``, ``normalize_obs``, ``obs_clip``,
-    ``log_std_init``, ``ortho_init``), ``attention_hidden``, ``prior_weight`` and
-    ``fusion_hidden``; everything else is :class:`ActorCriticPolicy`'s.
+    ``log_std_init``, ``ortho_init``), ``attention_hidden``, ``prior_weight``,
+    ``fusion_hidden`` and ``performers``; everything else is :class:`ActorCriticPolicy`'s.
     """
 
     uses_prior: ClassVar[bool] = True
@@ -209,6 +297,7 @@ class TransferPolicy(ActorCriticPolicy):
         attention_hidden: int = 32,
         prior_weight: float = 0.5,
         fusion_hidden: Sequence[int] = (),
+        performers: Sequence[int] | None = None,
         **kwargs: Any,
     ) -> None:
         if not sources:
@@ -234,6 +323,7 @@ class TransferPolicy(ActorCriticPolicy):
             attention_hidden=int(attention_hidden),
             prior_weight=float(prior_weight),
             fusion_hidden=tuple(int(w) for w in fusion_hidden),
+            performers=None if performers is None else tuple(int(k) for k in performers),
         )
         # Read by _build_mlp_extractor, which the base constructor calls; a plain list so the
         # modules are registered once, inside the extractor.
@@ -264,12 +354,26 @@ class TransferPolicy(ActorCriticPolicy):
             [stage_widths(s) for s in sources], int(np.prod(self.action_space.shape))
         )
         self.mlp_extractor = LateralExtractor(
-            self.features_dim, self.config.target, sources, weighting, merge, ready
+            self.features_dim,
+            self.config.target,
+            sources,
+            weighting,
+            merge,
+            ready,
+            [s.get("stage_map") for s in self.config.sources],
+            self.source_names,
+            self.config.performers,
+            int(np.prod(self.action_space.shape)),
         )
 
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)
         ex = self.mlp_extractor
+        if ex.residual_pick is not None:
+            if not isinstance(self.action_dist, DiagGaussianDistribution):
+                raise ValueError("the source-action residual needs a Gaussian action distribution")
+            # The head maps the features alone; the residual part of the latent is added to it.
+            self.action_net = nn.Linear(ex.latent_width, self.action_space.shape[0])
         if self.config.target.ortho_init:
             gains: list[tuple[nn.Module | None, float]] = [
                 (ex.actor, math.sqrt(2)),
@@ -305,6 +409,14 @@ class TransferPolicy(ActorCriticPolicy):
         return data
 
     # ------------------------------------------------------------------ SB3 hooks
+    def _get_action_dist_from_latent(self, latent_pi: torch.Tensor):
+        ex = self.mlp_extractor
+        if ex.residual_pick is None:
+            return super()._get_action_dist_from_latent(latent_pi)
+        features, residual = latent_pi[..., : ex.latent_width], latent_pi[..., ex.latent_width :]
+        mean = self.action_net(features) + residual
+        return self.action_dist.proba_distribution(mean, self.log_std)
+
     def forward(self, obs: torch.Tensor, deterministic: bool = False):
         """SB3's rollout step; the only place the target normaliser's statistics are updated."""
         norm = self.mlp_extractor.obs_norm

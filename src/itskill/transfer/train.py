@@ -22,12 +22,13 @@ from itskill.llm.client import LLMClient
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import EXPERT, ResumeMismatchError, RewardSource, TrainResult, train
 from itskill.skills import SkillSpace
-from itskill.tasks import get_task
+from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer.analyzer import ContributionMatrix, analyze
 from itskill.transfer.config import TransferConfig, load_transfer_config
 from itskill.transfer.methods import get_method
 from itskill.transfer.sources import AUTO, SourceSkill, resolve_sources
+from itskill.transfer.stages import stage_map, stage_performers
 
 TRANSFER_FILE = "transfer.json"
 FORMAT_VERSION = 1
@@ -45,6 +46,15 @@ def target_entry(spec: TaskSpec) -> dict[str, Any]:
         "description": spec.command,
         "actions": [st.name for st in spec.stages],
     }
+
+
+def _stage_names(task_id: str) -> list[str] | None:
+    """A source task's stage names; None for a task this installation does not know (a skill
+    from a user's task files that are not loaded now), whose source then sees the target's stage."""
+    try:
+        return [st.name for st in get_task(task_id).stages]
+    except UnknownTaskError:
+        return None
 
 
 def _request(sources: str | Sequence[int | str]) -> str | list[int | str]:
@@ -141,9 +151,21 @@ def train_transfer(
                 retries=config.analyzer_retries,
             )
         policy_class = meth.policy_class
+        target_stages = [st.name for st in spec.stages]
+        source_stages = [_stage_names(s.task_id) for s in chosen]
         record.update(
             sources=[s.to_dict() for s in chosen],
-            source_specs=[s.spec() for s in chosen],
+            source_specs=[
+                s.spec()
+                if names is None
+                else {**s.spec(), "stage_map": list(stage_map(target_stages, names))}
+                for s, names in zip(chosen, source_stages, strict=True)
+            ],
+            performers=(
+                list(stage_performers(target_stages, source_stages))
+                if chosen and config.residual
+                else None
+            ),
             contribution=None if matrix is None else matrix.to_dict(),
             policy_class=f"{policy_class.__module__}.{policy_class.__qualname__}",
             created=time.time(),
@@ -157,6 +179,7 @@ def train_transfer(
         policy_kwargs = {
             "sources": record["source_specs"],
             "prior": None if contribution is None else contribution["matrix"],
+            "performers": record.get("performers"),
             **config.policy_kwargs(),
         }
     if console is not None and record["sources"]:
