@@ -33,7 +33,7 @@ def test_shipped_experiment_files_load():
     validation = load_experiment(REPO / "experiments" / "validation.toml")
     assert validation.tasks == ("pickplace_nut_m12", "pickplaceinsert_peg_round")
     assert validation.methods == ("itn", "nia", "dfs", "pst", "no_transfer")
-    assert validation.seeds == (0, 1, 2, 3, 4) and validation.algo == "a2c"
+    assert validation.seeds == (0, 1, 2, 3, 4) and validation.algo == "ppo"
     assert validation.report.paper_gain["pickplace_nut_m12"] == pytest.approx(0.7222)
     smoke = load_experiment(REPO / "experiments" / "smoke.toml")
     assert smoke.steps <= 10_000

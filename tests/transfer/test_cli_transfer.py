@@ -34,7 +34,7 @@ def test_analyze_json_and_table(home: Path) -> None:
 def test_train_then_trace(home: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     args = ["transfer", "train", "pickplace_nut_m12", "--method", "pst",
-            "--sources", "place_nut_m12,pick_nut_m12",
+            "--sources", "place_nut_m12,pick_nut_m12", "--algo", "a2c",
             "--steps", "16", "--num-envs", "2", "--out", str(out)]  # fmt: skip
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output

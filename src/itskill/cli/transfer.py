@@ -95,7 +95,9 @@ def transfer_train(
     k: KOpt = None,
     seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
     steps: Annotated[int, typer.Option(min=1, help="Total env-steps (a rerun resumes).")] = 200_000,
-    algo: Annotated[str, typer.Option(help="a2c (the paper's algorithm) or ppo.")] = "a2c",
+    algo: Annotated[
+        str, typer.Option(help="ppo, or a2c (the paper's algorithm; it learns less from sources).")
+    ] = "ppo",
     reward: Annotated[
         str, typer.Option(help="'expert' or a .py file defining compute_reward(ctx).")
     ] = "expert",

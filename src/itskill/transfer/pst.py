@@ -1,8 +1,9 @@
 """PST (Partial Skills Transfer): the ITN network over only part of the retrieved sources.
 
-Which part is data: ``[pst] keep`` in ``transfer.toml`` keeps the first ``keep`` sources in
-retrieval order (default 1, the skill most similar to the target's command); sources named
-explicitly keep the order given. The analyzer is then asked about those sources only.
+Which part is data: ``[pst] keep`` in ``transfer.toml`` keeps the first ``keep`` sources in the
+order ``auto`` chose them (default 1: the skill that performs most of the target's steps, for
+the nut pick-and-place the pick); sources named explicitly keep the order given. The analyzer
+is then asked about those sources only.
 """
 
 from __future__ import annotations
