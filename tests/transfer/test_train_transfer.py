@@ -131,6 +131,21 @@ def test_resume_continues_without_asking_the_analyzer_again(home: Path, tmp_path
                        logger=QUIET)  # fmt: skip
 
 
+def test_a_run_from_before_the_residual_resumes_without_it(home: Path, tmp_path: Path) -> None:
+    out = tmp_path / "itn"
+    run(out, "itn", config=TransferConfig(residual=False), steps=16)
+    record = read_transfer(out)
+    del record["config"]["residual"], record["performers"]  # as written by older releases
+    for spec in record["source_specs"]:
+        del spec["stage_map"]
+    (out / "transfer.json").write_text(json.dumps(record))
+    with pytest.raises(ResumeMismatchError, match="'residual': False"):
+        run(out, "itn", steps=32)
+    resumed = run(out, "itn", config=TransferConfig(residual=False), steps=32)
+    assert resumed.resumed_from == 16 and resumed.num_timesteps == 32
+    assert load_policy(out).config.performers is None
+
+
 def test_run_dir_evaluates_and_traces_attention(home: Path, tmp_path: Path) -> None:
     out = tmp_path / "itn"
     run(out, "itn")

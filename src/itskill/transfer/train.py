@@ -72,7 +72,13 @@ def read_transfer(run_dir: str | Path) -> dict[str, Any]:
         raise ValueError(f"{path}: not valid JSON: {err}") from err
 
 
+# Settings a run directory written before they existed was trained with: its network had no
+# source-action residual.
+_LEGACY_CONFIG = {"residual": False}
+
+
 def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
+    old = {**old, "config": {**_LEGACY_CONFIG, **old.get("config", {})}}
     for key in ("target", "method", "algo", "seed", "sources_request", "k", "config"):
         if old.get(key) != new[key]:
             raise ResumeMismatchError(
