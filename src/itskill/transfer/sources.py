@@ -28,6 +28,7 @@ from itskill.skills import SkillSpace, SkillSpaceError, open_skill_space, search
 from itskill.skills.store import Skill
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import CheckpointError
+from itskill.transfer.stages import runs
 
 AUTO = "auto"
 
@@ -127,13 +128,11 @@ def _parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
 def _placement(actions: tuple[str, ...], target: tuple[str, ...], covered: set[int]) -> set[int]:
     """The positions of ``target`` that ``actions`` would newly cover: of the places where it
     occurs as a contiguous run, the one covering most positions not yet in ``covered``."""
-    n = len(actions)
     best: set[int] = set()
-    for i in range(len(target) - n + 1 if n else 0):
-        if tuple(target[i : i + n]) == actions:
-            new = set(range(i, i + n)) - covered
-            if len(new) > len(best):
-                best = new
+    for i in runs(target, actions):
+        new = set(range(i, i + len(actions))) - covered
+        if len(new) > len(best):
+            best = new
     return best
 
 

@@ -21,9 +21,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 
-def _runs(target: Sequence[str], source: Sequence[str]) -> list[int]:
-    """Start indices of the contiguous occurrences of ``source`` in ``target``."""
+def runs(target: Sequence[str], source: Sequence[str]) -> list[int]:
+    """Start indices of the contiguous occurrences of ``source`` in ``target`` (none for an empty
+    ``source``)."""
     n = len(source)
+    if n == 0:
+        return []
     return [i for i in range(len(target) - n + 1) if tuple(target[i : i + n]) == tuple(source)]
 
 
@@ -35,7 +38,7 @@ def stage_map(target: Sequence[str], source: Sequence[str]) -> tuple[int, ...]:
     if not target or not source:
         raise ValueError("stage_map needs the stage names of both tasks")
     n = len(source)
-    starts = _runs(target, source)
+    starts = runs(target, source)
     if starts:
         out = []
         for j in range(len(target)):
@@ -57,7 +60,7 @@ def stage_performers(
     contiguous run, or -1 where none does (a source given as None, stages unknown, covers none)."""
     out = [-1] * len(target)
     for k, source in enumerate(sources):
-        for i in _runs(target, source) if source else ():
+        for i in runs(target, source or ()):
             for j in range(i, i + len(source)):
                 if out[j] < 0:
                     out[j] = k
