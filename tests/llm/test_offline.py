@@ -126,8 +126,33 @@ def test_synthesiser_is_deterministic_and_samples_differ() -> None:
     assert len(set(codes)) == 4
     assert "not a language model" in first[0]
     temps = [dict(re.findall(r"(temp_\w+) = ([0-9.e-]+)", c)) for c in codes]
-    assert set(temps[0]) == {"temp_reach_0", "temp_centre_1", "temp_lift_2"}
+    # Pick's grasp and lift stages must leave the nut upright: they also pay for keeping it so.
+    assert set(temps[0]) == {
+        "temp_reach_0",
+        "temp_centre_1",
+        "temp_upright_1",
+        "temp_lift_2",
+        "temp_upright_2",
+    }
     assert all(t.keys() == temps[0].keys() for t in temps)
+
+
+def test_a_stage_that_must_keep_the_part_upright_pays_less_for_a_tipped_one() -> None:
+    reply = OfflineClient().complete(reward_messages(describe("pick_nut_m12")), purpose="reward")
+    reward = compile_reward(code_of(reply[0]))
+    env = make_batch_env("pick_nut_m12", 2, seed=0, n_threads=1)
+    try:
+        env.reset()
+        ctx = dict(env.context())
+    finally:
+        env.close()
+    ctx["stage"] = np.array([1, 1])
+    ctx["obj_tilt"] = np.array([[0.0, 0.0], [np.radians(90.0), 0.0]])  # upright, on its side
+    _, comps = reward(ctx)
+    upright = comps["1.grasp/upright"]
+    assert upright[0] == pytest.approx(0.5) and upright[1] < 0.05
+    # A stage whose condition says nothing of uprightness gets no such term.
+    assert not [k for k in comps if k.startswith("0.") and k.endswith("/upright")]
 
 
 @pytest.mark.parametrize("task", list(all_tasks()))

@@ -81,13 +81,25 @@ def vocabulary(path: Path | None = None) -> dict[str, Any]:
     source = path or Path(str(resources.files("itskill.llm.offline") / "terms.toml"))
     with open(source, "rb") as fh:
         data = tomllib.load(fh)
-    for section in ("recipes", "terms", "predicates", "defaults", "variation", "retune"):
+    for section in (
+        "recipes",
+        "conditions",
+        "terms",
+        "predicates",
+        "defaults",
+        "variation",
+        "retune",
+    ):
         if section not in data:
             raise ValueError(f"{source}: missing [{section}] table")
-    for recipe, names in data["recipes"].items():
-        for name in names:
-            if name not in data["terms"]:
-                raise ValueError(f"{source}: recipes.{recipe}: unknown term {name!r}")
+    for table in ("recipes", "conditions"):
+        for key, names in data[table].items():
+            for name in names:
+                if name not in data["terms"]:
+                    raise ValueError(f"{source}: {table}.{key}: unknown term {name!r}")
+    stray = set(data["conditions"]) - set(PREDICATES)
+    if stray:
+        raise ValueError(f"{source}: [conditions] names unknown predicates {sorted(stray)}")
     for name, term in data["terms"].items():
         needed = ["doc", "kind", "weight"] + (
             ["distance", "temperature"] if term.get("kind") == "distance" else ["value"]
@@ -106,13 +118,15 @@ def vocabulary(path: Path | None = None) -> dict[str, Any]:
 # ------------------------------------------------------------------------------ task structure
 @dataclass(frozen=True)
 class StageSpec:
-    """One stage as read from the description, with the recipe and fields its terms need."""
+    """One stage as read from the description: its recipe, its shaping terms (the recipe's and
+    those its done condition calls for) and the fields the terms need."""
 
     index: int
     action: str
     recipe: str
     slot: int
     fields: dict[str, Any]
+    terms: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -165,7 +179,11 @@ def parse_description(text: str) -> TaskStructure:
             terms = ()
         names = [name for neg, name, _ in terms if not neg]
         recipe = _recipe(action.lower(), names, slot in held)
-        stages.append(StageSpec(k, action, recipe, slot, _fields(slot, fixture_of, terms)))
+        stages.append(
+            StageSpec(
+                k, action, recipe, slot, _fields(slot, fixture_of, terms), _terms(recipe, names)
+            )
+        )
         if recipe in ("grasp", "lift", "unscrew", "remove"):
             held.add(slot)
         elif recipe in ("place", "insert", "release", "push"):
@@ -198,6 +216,15 @@ def _recipe(action: str, predicates: list[str], holding: bool) -> str:
     return "approach"
 
 
+def _terms(recipe: str, predicates: list[str]) -> tuple[str, ...]:
+    """The recipe's terms, then those the done condition's predicates add (once each)."""
+    vocab = vocabulary()
+    names = list(vocab["recipes"][recipe])
+    for predicate in predicates:
+        names += [t for t in vocab["conditions"].get(predicate, ()) if t not in names]
+    return tuple(names)
+
+
 def _fields(slot: int, fixture_of: dict[int, int], terms) -> dict[str, Any]:
     j = fixture_of.get(slot, slot)
     fields: dict[str, Any] = {
@@ -211,6 +238,7 @@ def _fields(slot: int, fixture_of: dict[int, int], terms) -> dict[str, Any]:
         "height": 0.02,
         "dx": 0.0,
         "dy": 0.0,
+        "degrees": 20.0,
     }
     for negate, name, args in terms:
         if negate or int(args[0]) != slot:
@@ -228,6 +256,8 @@ def _fields(slot: int, fixture_of: dict[int, int], terms) -> dict[str, Any]:
             fields["fraction"] = float(p["fraction"])
         elif name == "removed":
             fields["height"] = float(p["height"])
+        elif name == "upright":
+            fields["degrees"] = float(p["degrees"])
         elif name == "displaced":
             fields["dx"], fields["dy"] = float(p["dx"]), float(p["dy"])
     return fields
@@ -258,7 +288,7 @@ def default_params(task: TaskStructure) -> RewardParams:
         action_penalty=float(vocab["defaults"]["action_penalty"]),
     )
     for stage in task.stages:
-        for name in vocab["recipes"][stage.recipe]:
+        for name in stage.terms:
             term = vocab["terms"][name]
             params.weights[f"w_{name}_{stage.index}"] = float(term["weight"])
             if term["kind"] == "distance":
@@ -381,7 +411,7 @@ def render_code(task: TaskStructure, params: RewardParams, label: str) -> str:
         "    # Temperatures (metres or radians): one per transformed term.",
     ]
     for stage in task.stages:
-        for name in vocab["recipes"][stage.recipe]:
+        for name in stage.terms:
             term = vocab["terms"][name]
             if term["kind"] == "distance":
                 var = f"temp_{name}_{stage.index}"
@@ -389,7 +419,7 @@ def render_code(task: TaskStructure, params: RewardParams, label: str) -> str:
                 out.append(f"    {var} = {params.temperatures[var]:.5g}  # {doc}")
     out.append("    # Term weights: a completed stage keeps paying its terms' full weight.")
     for stage in task.stages:
-        for name in vocab["recipes"][stage.recipe]:
+        for name in stage.terms:
             var = f"w_{name}_{stage.index}"
             out.append(f"    {var} = {params.weights[var]:.4g}")
     out += [
@@ -402,7 +432,7 @@ def render_code(task: TaskStructure, params: RewardParams, label: str) -> str:
     for stage in task.stages:
         k, f = stage.index, stage.fields
         out.append(f"    # stage {k}: {stage.action} (object {f['i']}, recipe {stage.recipe})")
-        for name in vocab["recipes"][stage.recipe]:
+        for name in stage.terms:
             term = vocab["terms"][name]
             if term["kind"] == "distance":
                 out.append(f"    d = {term['distance'].format(**f)}")
