@@ -11,6 +11,9 @@ applied to the state), so it meets observations like those it was trained on; wi
 
     python benchmarks/source_chaining.py pickplace_nut_m12 \\
         --chain pick_nut_m12 pick_nut_m12 pick_nut_m12 place_nut_m12 place_nut_m12
+
+``--handovers N`` also says where a chain breaks: per stage, how many of N episodes got there and
+the part's offsets from the grip point and from its fixture when the stage began.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from itskill.rl.checkpoint import TrainedPolicy
-from itskill.tasks import get_task
+from itskill.tasks import get_task, make_batch_env
 from itskill.tasks.evaluate import evaluate
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer import resolve_sources
@@ -58,6 +61,47 @@ class StageChain:
         return actions
 
 
+def trace_handovers(spec: TaskSpec, policy: StageChain, episodes: int, seed: int) -> list[dict]:
+    """Per stage: how many of ``episodes`` got that far, and what that stage's skill was handed.
+
+    One batch of ``episodes`` environments runs one episode each. When an environment first
+    enters stage ``k``, the grip point's offset from the part (``obj_to_ee``, m) and the part
+    bottom's offset from its fixture point (``obj_to_fix``, m) are recorded: the state the skill
+    of stage ``k`` starts from, to compare with the starts it was trained on.
+    """
+    env = make_batch_env(spec.id, num_envs=episodes, seed=seed)
+    n = len(spec.stages)
+    handed: list[dict[int, np.ndarray]] = [{} for _ in range(n)]
+    furthest = np.zeros(episodes, dtype=np.int64)
+    running = np.ones(episodes, dtype=bool)
+    try:
+        env.reset()
+        policy.reset()
+        while running.any():
+            ctx = env.context()
+            for e in np.flatnonzero(running):
+                k = int(ctx["stage"][e])
+                furthest[e] = max(furthest[e], k)
+                # One part per chained task: slot 0.
+                handed[k].setdefault(
+                    e, np.concatenate([ctx["obj_to_ee"][e, 0], ctx["obj_to_fix"][e, 0]])
+                )
+            _, _, dones, _ = env.step(policy(ctx))
+            running &= ~dones
+    finally:
+        env.close()
+    rows = []
+    for k, stage in enumerate(spec.stages):
+        row: dict = {"stage": k, "name": stage.name, "reached": int((furthest >= k).sum())}
+        if k and handed[k]:
+            states = np.array(list(handed[k].values()))
+            for name, cols in (("obj_to_ee", slice(0, 3)), ("obj_to_fix", slice(3, 6))):
+                row[f"{name}_mean"] = states[:, cols].mean(axis=0).round(4).tolist()
+                row[f"{name}_std"] = states[:, cols].std(axis=0).round(4).tolist()
+        rows.append(row)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("task", help="the complex target task")
@@ -66,6 +110,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=10_000, help="held-out episodes by default")
     parser.add_argument("--target-stage", action="store_true", help="skills see the target's stage")
     parser.add_argument("--json", type=Path, help="also write the result as JSON")
+    parser.add_argument(
+        "--handovers",
+        type=int,
+        metavar="N",
+        help="also run N episodes in one batch and report, per stage, how many got there and "
+        "the part's offsets (mean, std) when it began",
+    )
     args = parser.parse_args(argv)
 
     spec = get_task(args.task)
@@ -82,10 +133,29 @@ def main(argv: list[str] | None = None) -> int:
         f"success {res.success_rate:.0%} [{res.ci_low:.0%}, {res.ci_high:.0%}] over "
         f"{res.episodes} episodes; subtasks finished {res.mean_stages_done / res.n_stages:.0%}"
     )
+    handovers = None
+    if args.handovers:
+        handovers = trace_handovers(spec, policy, args.handovers, args.seed)
+        print(f"hand-overs over {args.handovers} episodes (obj_to_ee = grip point - part centre, "
+              "obj_to_fix = fixture point - part bottom; mean ± std):")  # fmt: skip
+        for row in handovers:
+            line = f"  stage {row['stage']} {row['name']}: reached by {row['reached']}"
+            if "obj_to_ee_mean" in row:
+                line += "".join(
+                    f"; {name} {_vec(row[name + '_mean'])} ± {_vec(row[name + '_std'], '')}"
+                    for name in ("obj_to_ee", "obj_to_fix")
+                )
+            print(line)
     if args.json:
         record = {"chain": args.chain, "own_stage": not args.target_stage, **res.to_dict()}
+        if handovers is not None:
+            record["handovers"] = handovers
         args.json.write_text(json.dumps(record, indent=2) + "\n")
     return 0
+
+
+def _vec(values: list[float], sign: str = "+") -> str:
+    return "(" + ", ".join(f"{1000 * v:{sign}.1f}" for v in values) + ") mm"
 
 
 if __name__ == "__main__":
