@@ -128,3 +128,27 @@ def test_unknown_task_and_ungroundable_command(tmp_path: Path, quiet) -> None:
     assert not (tmp_path / "a" / "config.json").exists()  # nothing to resume: nothing written
     with pytest.raises(PlanError, match=r"Known objects: .*nut_m12"):
         generate_reward("make me a sandwich", client, tmp_path / "b", tiny_config(), console=quiet)
+
+
+def test_a_reward_repeated_in_a_later_iteration_is_not_trained_again(tmp_path: Path, quiet) -> None:
+    # The model answers iteration 2 with the two rewards of iteration 1 (as a seeded or cached
+    # model does when the best reward has not changed): nothing new to train.
+    run = tmp_path / "run"
+    with FakeOpenAIServer([GOOD, CONSTANT, GOOD, CONSTANT]) as server:
+        client = search_client(run, "openai:fake-model", server.base_url)
+        result = generate_reward(
+            "pick_nut_m12",
+            client,
+            run,
+            tiny_config(iterations=2),
+            compare_expert=False,
+            console=quiet,
+        )
+        requests = server.requests
+    assert "This is iteration 2 of the search" in requests[1]["messages"][-1]["content"]
+    for k in (0, 1):
+        first = json.loads((run / "iter_0" / f"sample_{k}" / "result.json").read_text())
+        again = json.loads((run / "iter_1" / f"sample_{k}" / "result.json").read_text())
+        assert again.pop("reused_from") == f"iter_0/sample_{k}"
+        assert again == first
+    assert [e["status"] for e in result.history[1]["samples"]] == ["ok", "ok"]

@@ -39,7 +39,7 @@ TEMPLATE_FIELDS: dict[str, frozenset[str]] = {
     "reward_environment": frozenset({"context_doc", "observation_layout"}),
     "reward_task": frozenset({"task_description"}),
     "reward_constraints": frozenset(),
-    "policy_feedback": frozenset({"success_rate", "stats_table", "code"}),
+    "policy_feedback": frozenset({"success_rate", "stats_table", "code", "iteration"}),
     "execution_error": frozenset({"code", "error"}),
     "analyzer_system": frozenset(),
     "analyzer_user": frozenset({"target", "sources"}),
@@ -150,9 +150,17 @@ def reward_messages(task_description: str) -> list[Message]:
 
 
 def policy_feedback(
-    code: str, success_rate: float, stats: Mapping[str, Mapping[str, float]]
+    code: str,
+    success_rate: float,
+    stats: Mapping[str, Mapping[str, float]],
+    iteration: int = 1,
 ) -> str:
-    """The Eureka reflection: how the policy trained with ``code`` did, component by component."""
+    """The Eureka reflection: how the policy trained with ``code`` did, component by component.
+
+    ``iteration`` (1-based) is the iteration the reply is for. The best reward often stays the
+    same from one iteration to the next; without the number the request would be the same too,
+    and a seeded or cached model would answer with the rewards it has already written.
+    """
     if not 0.0 <= float(success_rate) <= 1.0:
         raise PromptError(f"success_rate must be in [0, 1], got {success_rate!r}")
     rows = ["component | max | mean | min"]
@@ -169,6 +177,7 @@ def policy_feedback(
         success_rate=f"{float(success_rate):.3f}",
         stats_table="\n".join(rows),
         code=code.strip(),
+        iteration=str(int(iteration)),
     )
 
 

@@ -266,11 +266,15 @@ def _write_sample(sample_dir: Path, sample: Sample) -> None:
     write_json(path, status)
 
 
-def _feedback(best: dict[str, Any] | None, failure: tuple[str, str] | None) -> list[Message]:
-    """What follows the base prompt in the next iteration: the best reward so far and how its
-    policy trained (the Eureka reflection), or, while nothing has trained, the last failure."""
+def _feedback(
+    best: dict[str, Any] | None, failure: tuple[str, str] | None, iteration: int = 1
+) -> list[Message]:
+    """What follows the base prompt in iteration ``iteration`` (1-based): the best reward so far
+    and how its policy trained (the Eureka reflection), or, while nothing has trained, the last
+    failure."""
     if best is not None:
-        text = policy_feedback(best["code"], min(max(best["success"], 0.0), 1.0), best["stats"])
+        success = min(max(best["success"], 0.0), 1.0)
+        text = policy_feedback(best["code"], success, best["stats"], iteration)
         code = best["code"]
     elif failure is not None:
         code, error = failure
@@ -278,6 +282,23 @@ def _feedback(best: dict[str, Any] | None, failure: tuple[str, str] | None) -> l
     else:
         return []
     return [{"role": "assistant", "content": fenced(code)}, {"role": "user", "content": text}]
+
+
+def _reuse_results(
+    jobs: list[CandidateJob], codes: list[str], results_of: dict[str, Path], out: Path
+) -> int:
+    """Give each job whose reward code this search has already trained a copy of that result
+    (naming where it came from) instead of training it again: the same code, seeds and budget
+    train the same policy. Returns how many jobs were served so."""
+    reused = 0
+    for job, code in zip(jobs, codes, strict=True):
+        path, source = Path(job.out) / RESULT_FILE, results_of.get(code)
+        if source is None or path.is_file():
+            continue
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_json(path, {**read_json(source), "reused_from": str(source.parent.relative_to(out))})
+        reused += 1
+    return reused
 
 
 def _job(config: RewardSearchConfig, task: str, out: Path, code: str | None, seeds) -> CandidateJob:
@@ -385,12 +406,13 @@ def generate_reward(
     contexts = probe_contexts(plan.task, config.probe_envs, config.probe_steps)
     base = reward_messages(plan.describe())
     history: list[dict[str, Any]] = []
+    results_of: dict[str, Path] = {}  # reward code -> the result of its training in this search
     best: dict[str, Any] | None = None
     failure: tuple[str, str] | None = None
     for i in range(config.iterations):
         label = f"iteration {i + 1}/{config.iterations}"
         samples = generate_samples(
-            base + _feedback(best, failure),
+            base + _feedback(best, failure, i + 1),
             client,
             config.samples,
             contexts,
@@ -411,7 +433,16 @@ def generate_reward(
             _job(config, plan.task, it_dir / f"sample_{s.index}", s.code, config.seeds)
             for s in accepted
         ]
+        reused = _reuse_results(jobs, [s.code for s in accepted], results_of, out)
+        if reused:
+            console.print(
+                f"{label}: {reused} sample(s) repeat a reward already trained: result reused",
+                highlight=False,
+            )
         results = run.run_jobs(jobs, config, f"{label}: training")
+        for job, sample in zip(jobs, accepted, strict=True):
+            if (Path(job.out) / RESULT_FILE).is_file():
+                results_of.setdefault(sample.code, Path(job.out) / RESULT_FILE)
         by_sample = {s.index: results[j] for j, s in enumerate(accepted)}
         entries = [_entry(s, by_sample.get(s.index)) for s in samples]
         trained = [e for e in entries if e["status"] == "ok"]
