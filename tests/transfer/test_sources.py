@@ -43,12 +43,24 @@ def test_auto_sources_come_from_the_targets_own_family_first(home: Path) -> None
 
 
 def test_each_auto_source_adds_steps_of_the_target_the_others_do_not_perform(home: Path) -> None:
-    # Pick-place-insert: approach, grasp, lift, approach, place, insert. The rectangular pick
-    # performs the first three, the insert the last; of the rest only an approach adds a step (a
-    # lift, though similar to the command, repeats one the pick performs).
+    # Pick-place-insert: approach, grasp, lift, approach, place, insert. The pick performs the
+    # first three, the insert the last; of the rest only an approach adds a step (a lift, though
+    # similar to the command, repeats one the pick performs).
     sources = resolve_sources("pickplaceinsert_peg_round", "auto", k=3)
     assert [s.actions for s in sources] == [("approach", "grasp", "lift"), ("insert",),
                                             ("approach",)]  # fmt: skip
+
+
+def test_the_first_steps_go_to_a_skill_of_the_same_part_and_start(home: Path) -> None:
+    # Three library skills approach, grasp and lift: removing the round peg from its hole (the
+    # most similar to the command), picking the rectangular peg and picking the round one. Only
+    # the last starts as the target does, with the round peg standing on the table.
+    with open_skill_space() as space:
+        same = {s.name for s in space.list() if s.actions == ("approach", "grasp", "lift")}
+    assert {"remove_peg_round", "pick_peg_rect", "pick_peg_round"} <= same
+    sources = resolve_sources("pickplaceinsert_peg_round", "auto", k=3)
+    assert sources[0].name == "pick_peg_round"
+    assert [s.name for s in sources[1:]] == ["insert_peg_round", "carry_peg_round"]
 
 
 def test_named_sources_by_name_and_id(home: Path) -> None:

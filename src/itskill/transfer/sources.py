@@ -28,6 +28,7 @@ from itskill.skills import SkillSpace, SkillSpaceError, open_skill_space, search
 from itskill.skills.store import Skill
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import CheckpointError
+from itskill.tasks.spec import TaskSpec
 from itskill.transfer.stages import runs
 
 AUTO = "auto"
@@ -136,6 +137,20 @@ def _placement(actions: tuple[str, ...], target: tuple[str, ...], covered: set[i
     return best
 
 
+def _unlike_target(skill: Skill, target: TaskSpec, placement: set[int]) -> tuple[bool, bool]:
+    """(learned on other parts than the target's, would take the target's first step although
+    its task starts the parts elsewhere). A remove starts with the peg in its hole, the target's
+    pick on the table; a rectangular peg's pick is not the round peg's. (False, False) for a
+    skill whose task this installation does not know."""
+    try:
+        own = get_task(skill.task_id)
+    except UnknownTaskError:
+        return False, False
+    other_parts = [p.name for p in own.objects] != [p.name for p in target.objects]
+    modes = [o.mode for o in own.init.objects] != [o.mode for o in target.init.objects]
+    return other_parts, 0 in placement and modes
+
+
 def _family(skill: Skill) -> str | None:
     """The task family a skill was learned in; None for a task this installation does not know
     (a skill added from a user's own task files that are not loaded now)."""
@@ -157,9 +172,10 @@ def resolve_sources(
 
     ``"auto"`` takes ``k`` skills one at a time: the skill whose action sequence, as a contiguous
     run of the target's, performs the most target steps no skill taken so far performs; skills
-    learned in the target's task family (the same parts and fixtures) before others, and ties by
-    similarity to the target's command. It skips the target's own task when ``exclude_target``
-    and repeated action sequences when ``distinct_actions``.
+    learned in the target's task family before others, then those learned on the target's own
+    parts, and for the target's first steps those whose task starts the parts as the target's
+    does; ties by similarity to the target's command. It skips the target's own task when
+    ``exclude_target`` and repeated action sequences when ``distinct_actions``.
     Named skills (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in
     that order. ``space`` defaults to the user's skill space (:func:`open_skill_space`).
     """
@@ -182,9 +198,18 @@ def resolve_sources(
                 # steps no chosen skill performs yet (a pick covers approach, grasp and lift of
                 # a pick-and-place, so a lift adds nothing after it, a place two steps). Skills
                 # of the target's own family first: a nut's "approach, place" fits steps of a
-                # peg task but was learned on another part. Ties keep the similarity order.
+                # peg task but was learned on another part. Then skills of the target's own
+                # parts, and for the first steps those that start where the target starts.
+                # Ties keep the similarity order.
                 adds = [_placement(sk.actions, target_steps, covered) for sk, _, _ in pool]
-                best = min(range(len(pool)), key=lambda j: (pool[j][2], -len(adds[j])))
+                best = min(
+                    range(len(pool)),
+                    key=lambda j: (
+                        pool[j][2],
+                        -len(adds[j]),
+                        _unlike_target(pool[j][0], spec, adds[j]),
+                    ),
+                )
                 skill, score, _ = pool.pop(best)
                 if distinct_actions and tuple(skill.actions) in seen:
                     continue
