@@ -137,27 +137,21 @@ def _placement(actions: tuple[str, ...], target: tuple[str, ...], covered: set[i
     return best
 
 
-def _unlike_target(skill: Skill, target: TaskSpec, placement: set[int]) -> tuple[bool, bool]:
-    """(learned on other parts than the target's, would take the target's first step although
-    its task starts the parts elsewhere). A remove starts with the peg in its hole, the target's
-    pick on the table; a rectangular peg's pick is not the round peg's. (False, False) for a
-    skill whose task this installation does not know."""
+def _differences(skill: Skill, target: TaskSpec) -> tuple[bool, bool, bool]:
+    """Where ``skill``'s own task differs from ``target``: (another task family, other parts,
+    the parts started otherwise). A nut's place was learned on another part than a peg task's;
+    a rectangular peg's pick is not the round peg's; a remove starts with the peg in its hole,
+    a pick on the table. A skill whose task this installation does not know (added from a
+    user's task files that are not loaded now) counts as another family, nothing more."""
     try:
         own = get_task(skill.task_id)
     except UnknownTaskError:
-        return False, False
-    other_parts = [p.name for p in own.objects] != [p.name for p in target.objects]
-    modes = [o.mode for o in own.init.objects] != [o.mode for o in target.init.objects]
-    return other_parts, 0 in placement and modes
-
-
-def _family(skill: Skill) -> str | None:
-    """The task family a skill was learned in; None for a task this installation does not know
-    (a skill added from a user's own task files that are not loaded now)."""
-    try:
-        return get_task(skill.task_id).family
-    except UnknownTaskError:
-        return None
+        return True, False, False
+    return (
+        own.family != target.family,
+        [p.name for p in own.objects] != [p.name for p in target.objects],
+        [o.mode for o in own.init.objects] != [o.mode for o in target.init.objects],
+    )
 
 
 def resolve_sources(
@@ -192,7 +186,7 @@ def resolve_sources(
             chosen: list[tuple[Skill, float | None]] = []
             seen: set[tuple[str, ...]] = set()
             covered: set[int] = set()
-            pool = [(skill, score, _family(skill) != spec.family) for skill, score in ranked]
+            pool = [(skill, score, _differences(skill, spec)) for skill, score in ranked]
             while pool and len(chosen) < k:
                 # Greedy cover of the target's steps: next, the skill that performs the most
                 # steps no chosen skill performs yet (a pick covers approach, grasp and lift of
@@ -205,9 +199,10 @@ def resolve_sources(
                 best = min(
                     range(len(pool)),
                     key=lambda j: (
-                        pool[j][2],
+                        pool[j][2][0],
                         -len(adds[j]),
-                        _unlike_target(pool[j][0], spec, adds[j]),
+                        pool[j][2][1],
+                        0 in adds[j] and pool[j][2][2],
                     ),
                 )
                 skill, score, _ = pool.pop(best)
