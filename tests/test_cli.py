@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -114,3 +115,21 @@ def test_render_writes_a_video(tmp_path):
     result = runner.invoke(app, ["render", "reach_nut_m12", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert out.stat().st_size > 1000
+
+
+def test_eval_from_other_starts_finds_where_a_skill_stops_working(tmp_path):
+    # The shipped insert skill was trained with the peg within 1 mm of the hole's axis.
+    import itskill.skills
+
+    skill = Path(itskill.skills.__file__).parent / "library" / "insert_peg_round"
+    starts = tmp_path / "starts.toml"
+    starts.write_text('[[start]]\nname = "3.5 mm off"\nobjects = [{ x = 0.5535, y = 0.12 }]\n')
+    args = ["eval", "insert_peg_round", "--policy", str(skill), "--episodes", "8",
+            "--num-envs", "8", "--starts", str(starts)]  # fmt: skip
+    result = runner.invoke(app, [*args, "--json"])
+    assert result.exit_code == 0, result.output
+    own, off = json.loads(result.stdout)
+    assert (own["start"], off["start"]) == ("the task's own start", "3.5 mm off")
+    assert own["successes"] >= 5 and off["successes"] == 0
+    table = runner.invoke(app, args)
+    assert "3.5 mm off" in table.stdout and "0/8 = 0%" in table.stdout

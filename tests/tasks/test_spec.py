@@ -250,3 +250,58 @@ def test_all_packaged_tasks_load(monkeypatch):
         assert f"pickplaceinsert_{peg}" in table_i
     assert "pickplace2_nuts" in table_i
     assert "reach_nut_m12" not in table_i
+
+
+INSERT_STARTS = """\
+task = "insert_peg_round"
+[[start]]
+name = "2.6 mm off the axis"
+objects = [{ x = 0.5526 }]
+[[start]]
+name = "higher, hand turned"
+ee = { yaw = 0.3 }
+objects = [{ z = [0.065, 0.07] }]
+"""
+
+
+def test_a_starts_file_changes_only_what_it_names(tmp_path):
+    insert = get_task("insert_peg_round")
+    path = tmp_path / "starts.toml"
+    path.write_text(INSERT_STARTS)
+    (off_name, off), (high_name, high) = spec_module.load_starts(path, insert)
+    assert (off_name, high_name) == ("2.6 mm off the axis", "higher, hand turned")
+    peg, own = off.init.objects[0], insert.init.objects[0]
+    assert (peg.x.low, peg.x.high) == (0.5526, 0.5526)
+    assert (peg.mode, peg.y, peg.z, peg.hold) == (own.mode, own.y, own.z, own.hold)
+    assert off.init.ee_yaw == insert.init.ee_yaw
+    assert (high.init.ee_yaw.low, high.init.objects[0].z.low) == (0.3, 0.065)
+    assert (off.id, off.stages, off.success) == (insert.id, insert.stages, insert.success)
+
+    from itskill.tasks import make_batch_env
+
+    env = make_batch_env(off, num_envs=4, seed=0)
+    try:
+        env.reset()
+        grip = env.context()["ee_pos"]  # the peg starts in the fingers, 2.6 mm off the hole
+    finally:
+        env.close()
+    np.testing.assert_allclose(grip[:, 0], 0.5526, atol=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "problem"),
+    [
+        ('task = "pick_nut_m12"\n[[start]]\nname = "a"\n', "task", "not 'insert_peg_round'"),
+        ('[[start]]\nname = "a"\nobjects = [{ x = "far" }]\n', "objects[0].x", "expected"),
+        ('[[start]]\nname = "a"\nobjects = [{}, {}]\n', "objects", r"has 1 object\(s\)"),
+        ('[[start]]\nname = "a"\nspeed = 2\n', "speed", "unknown field"),
+        ("[[start]]\nobjects = []\n", "name", "missing"),
+        ('task = "insert_peg_round"\n', "start", "one or more"),
+    ],
+)
+def test_a_malformed_starts_file_names_the_field(tmp_path, text, field, problem):
+    path = tmp_path / "starts.toml"
+    path.write_text(text)
+    with pytest.raises(TaskFileError, match=problem) as err:
+        spec_module.load_starts(path, get_task("insert_peg_round"))
+    assert field in str(err.value) and "starts.toml" in str(err.value)

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.table import Table
 
 from itskill.cli.common import (
     CameraOpt,
@@ -22,6 +23,7 @@ from itskill.cli.common import (
 )
 from itskill.tasks import get_task, render
 from itskill.tasks.evaluate import SCRIPTED, EvalResult, evaluate
+from itskill.tasks.spec import load_starts
 
 
 def _print_eval(result: EvalResult, as_json: bool) -> None:
@@ -43,13 +45,44 @@ def eval_cmd(
     episodes: Annotated[int, typer.Option(min=1, help="Episodes to count.")] = 100,
     seed: SeedOpt = 0,
     num_envs: Annotated[int, typer.Option(min=1, help="Environments stepped together.")] = 16,
+    starts: Annotated[
+        Path | None,
+        typer.Option(
+            help="A starts file (TOML, [[start]] tables; docs/tasks.md): evaluate from the "
+            "task's own start and from each of these.",
+        ),
+    ] = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Evaluate a policy: success rate over N episodes with its 95% interval."""
     with user_errors():
         ref = policy_ref(policy)
-        result = evaluate(get_task(task), ref, episodes=episodes, seed=seed, num_envs=num_envs)
-    _print_eval(result, as_json)
+        spec = get_task(task)
+        if starts is None:
+            result = evaluate(spec, ref, episodes=episodes, seed=seed, num_envs=num_envs)
+            _print_eval(result, as_json)
+            return
+        variants = [("the task's own start", spec), *load_starts(starts, spec)]
+        rows = []
+        for name, variant in variants:
+            result = evaluate(variant, ref, episodes=episodes, seed=seed, num_envs=num_envs)
+            rows.append({"start": name, **result.to_dict()})
+            err_console.print(f"{name}: {result.success_rate:.0%}", highlight=False)
+    if as_json:
+        print_json(rows)
+        return
+    table = Table(title=f"{task} with {policy}, {episodes} episodes per start (seed {seed})")
+    for column in ("start", "success", "95% CI", "subtasks done", "mean length"):
+        table.add_column(column)
+    for row in rows:
+        table.add_row(
+            row["start"],
+            f"{row['successes']}/{row['episodes']} = {row['success_rate']:.0%}",
+            f"{row['ci_low']:.0%}–{row['ci_high']:.0%}",
+            f"{row['mean_stages_done']:.2f}/{row['n_stages']}",
+            f"{row['mean_length']:.1f}",
+        )
+    console.print(table)
 
 
 def render_cmd(

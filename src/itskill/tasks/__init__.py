@@ -20,17 +20,18 @@ def make_env(name: str, reward_fn: RewardFn | None = None, **kwargs) -> TaskEnv:
 
 
 def make_batch_env(
-    name: str,
+    task: str | TaskSpec,
     num_envs: int = 8,
     seed: int | None = None,
     reward_fn: RewardFn | None = None,
     n_threads: int | None = None,
     training: bool = False,
 ) -> BatchEnv:
-    """``num_envs`` copies of task ``name`` stepped together (an SB3 ``VecEnv``); ``training``
-    turns on the task's training starts."""
+    """``num_envs`` copies of ``task`` (a task id or a spec) stepped together (an SB3
+    ``VecEnv``); ``training`` turns on the task's training starts."""
+    spec = get_task(task) if isinstance(task, str) else task
     return BatchEnv(
-        get_task(name).to_sim_task(),
+        spec.to_sim_task(),
         num_envs=num_envs,
         seed=seed,
         reward_fn=reward_fn,

@@ -186,7 +186,7 @@ def evaluate(
     num_envs = max(1, min(num_envs, episodes))
     quotas = episode_quotas(episodes, num_envs)
     start = time.perf_counter()
-    env = make_batch_env(spec.id, num_envs=num_envs, seed=seed)
+    env = make_batch_env(spec, num_envs=num_envs, seed=seed)
     try:
         actor = make_policy(policy, spec, num_envs)
         env.reset()

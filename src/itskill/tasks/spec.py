@@ -236,56 +236,11 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
             path, f"task {task_id!r}.object_fixture", "one fixture index per object"
         )
 
-    ir = _Reader(path, f"task {task_id!r}.init", r.get("init", dict))
-    ir.check_keys({"ee", "objects"})
-    er = _Reader(path, ir.where + ".ee", ir.get("ee", dict, {}))
-    er.check_keys({"x", "y", "z", "yaw"})
-    obj_inits = []
-    raw_inits = ir.get("objects", list)
-    if len(raw_inits) != len(objects):
-        raise TaskFileError(
-            path, ir.where + ".objects", f"expected {len(objects)} entries, one per object"
-        )
-    for k, oi in enumerate(raw_inits):
-        orr = _Reader(path, f"{ir.where}.objects[{k}]", oi)
-        orr.check_keys({"mode", "x", "y", "z", "yaw", "turns", "depth", "hold", "fixture"})
-        mode = orr.get("mode", str)
-        if mode not in _INIT_MODES:
-            raise TaskFileError(
-                path, orr.where + ".mode", f"expected one of {_INIT_MODES}, got {mode!r}"
-            )
-        if "hold" in oi and mode != "gripper":
-            raise TaskFileError(path, orr.where + ".hold", "only a part in the gripper has a hold")
-        fixture = orr.get("fixture", int, object_fixture[k])
-        if mode in ("bolt", "hole"):
-            want = BoltSpec if mode == "bolt" else HoleSpec
-            if not (0 <= fixture < len(fixtures)) or not isinstance(fixtures[fixture].part, want):
-                raise TaskFileError(
-                    path, orr.where + ".fixture", f"mode {mode!r} needs a {want.__name__} fixture"
-                )
-        obj_inits.append(
-            ObjectInit(
-                mode=mode,
-                x=orr.range("x", (0.0, 0.0)),
-                y=orr.range("y", (0.0, 0.0)),
-                z=orr.range("z", (0.0, 0.0)),
-                yaw=orr.range("yaw", (0.0, 0.0)),
-                turns=orr.range("turns", (0.0, 0.0)),
-                depth=orr.range("depth", (0.0, 0.0)),
-                hold=orr.range("hold", (0.0, 0.0)),
-                fixture=fixture,
-            )
-        )
-    if sum(o.mode in HAND_MODES for o in obj_inits) > 1:
-        raise TaskFileError(
-            path, ir.where + ".objects", "at most one object can start in the gripper"
-        )
-    init = InitSpec(
-        ee_x=er.range("x", (0.45, 0.45)),
-        ee_y=er.range("y", (0.0, 0.0)),
-        ee_z=er.range("z", (0.2, 0.2)),
-        ee_yaw=er.range("yaw", (0.0, 0.0)),
-        objects=tuple(obj_inits),
+    init = _parse_init(
+        _Reader(path, f"task {task_id!r}.init", r.get("init", dict)),
+        objects,
+        tuple(fixtures),
+        object_fixture,
     )
 
     def expression(text: str, where: str) -> Expression:
@@ -346,6 +301,132 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         source=str(path),
         training_starts=tuple(starts),
     )
+
+
+def _parse_init(
+    ir: _Reader,
+    objects: tuple[NutSpec | PegSpec, ...],
+    fixtures: tuple[PlacedFixture, ...],
+    object_fixture: tuple[int, ...],
+) -> InitSpec:
+    """A task's start (an ``[task.init]`` table, or a start of a starts file) for its parts."""
+    path = ir.path
+    ir.check_keys({"ee", "objects"})
+    er = _Reader(path, ir.where + ".ee", ir.get("ee", dict, {}))
+    er.check_keys({"x", "y", "z", "yaw"})
+    obj_inits = []
+    raw_inits = ir.get("objects", list)
+    if len(raw_inits) != len(objects):
+        raise TaskFileError(
+            path, ir.where + ".objects", f"expected {len(objects)} entries, one per object"
+        )
+    for k, oi in enumerate(raw_inits):
+        orr = _Reader(path, f"{ir.where}.objects[{k}]", oi)
+        orr.check_keys({"mode", "x", "y", "z", "yaw", "turns", "depth", "hold", "fixture"})
+        mode = orr.get("mode", str)
+        if mode not in _INIT_MODES:
+            raise TaskFileError(
+                path, orr.where + ".mode", f"expected one of {_INIT_MODES}, got {mode!r}"
+            )
+        if "hold" in oi and mode != "gripper":
+            raise TaskFileError(path, orr.where + ".hold", "only a part in the gripper has a hold")
+        fixture = orr.get("fixture", int, object_fixture[k])
+        if mode in ("bolt", "hole"):
+            want = BoltSpec if mode == "bolt" else HoleSpec
+            if not (0 <= fixture < len(fixtures)) or not isinstance(fixtures[fixture].part, want):
+                raise TaskFileError(
+                    path, orr.where + ".fixture", f"mode {mode!r} needs a {want.__name__} fixture"
+                )
+        obj_inits.append(
+            ObjectInit(
+                mode=mode,
+                x=orr.range("x", (0.0, 0.0)),
+                y=orr.range("y", (0.0, 0.0)),
+                z=orr.range("z", (0.0, 0.0)),
+                yaw=orr.range("yaw", (0.0, 0.0)),
+                turns=orr.range("turns", (0.0, 0.0)),
+                depth=orr.range("depth", (0.0, 0.0)),
+                hold=orr.range("hold", (0.0, 0.0)),
+                fixture=fixture,
+            )
+        )
+    if sum(o.mode in HAND_MODES for o in obj_inits) > 1:
+        raise TaskFileError(
+            path, ir.where + ".objects", "at most one object can start in the gripper"
+        )
+    return InitSpec(
+        ee_x=er.range("x", (0.45, 0.45)),
+        ee_y=er.range("y", (0.0, 0.0)),
+        ee_z=er.range("z", (0.2, 0.2)),
+        ee_yaw=er.range("yaw", (0.0, 0.0)),
+        objects=tuple(obj_inits),
+    )
+
+
+def _init_table(init: InitSpec) -> dict[str, Any]:
+    """``init`` as the table a task file writes for it (the inverse of :func:`_parse_init`)."""
+
+    def span(r: Range) -> list[float]:
+        return [r.low, r.high]
+
+    objects = [
+        {"mode": o.mode, "fixture": o.fixture}
+        | {k: span(getattr(o, k)) for k in ("x", "y", "z", "yaw", "turns", "depth")}
+        | ({"hold": span(o.hold)} if o.mode == "gripper" else {})
+        for o in init.objects
+    ]
+    ee = {k: span(getattr(init, f"ee_{k}")) for k in ("x", "y", "z", "yaw")}
+    return {"ee": ee, "objects": objects}
+
+
+def load_starts(path: str | Path, spec: TaskSpec) -> list[tuple[str, TaskSpec]]:
+    """The named starts of a starts file, each as ``spec`` beginning there.
+
+    The file holds ``[[start]]`` tables, each a ``name`` and the fields of ``[task.init]`` that
+    change: ``ee`` (a table) and ``objects`` (a list with one table per object); a field left
+    out keeps the task's own value, so ``objects = [{ x = [0.552, 0.553] }]`` moves only the
+    first part's x. An optional top-level ``task`` names the task the starts were written for.
+    """
+    path = Path(path)
+    data = _load_toml(path)
+    unknown = sorted(set(data) - {"task", "start"})
+    if unknown:
+        raise TaskFileError(path, unknown[0], "unknown top-level key; expected task and [[start]]")
+    if data.get("task", spec.id) != spec.id:
+        raise TaskFileError(path, "task", f"written for {data['task']!r}, not {spec.id!r}")
+    raw_starts = data.get("start", [])
+    if not isinstance(raw_starts, list) or not raw_starts:
+        raise TaskFileError(path, "start", "expected one or more [[start]] tables")
+    own = _init_table(spec.init)
+    starts = []
+    for k, raw in enumerate(raw_starts):
+        r = _Reader(path, f"start[{k}]", raw)
+        r.check_keys({"name", "ee", "objects"})
+        name = r.get("name", str)
+        ee = own["ee"] | _Reader(path, f"start {name!r}.ee", r.get("ee", dict, {})).table
+        changes = r.get("objects", list, [])
+        if len(changes) > len(own["objects"]):
+            raise TaskFileError(
+                path, f"start {name!r}.objects", f"the task has {len(own['objects'])} object(s)"
+            )
+        objects = []
+        for i, base in enumerate(own["objects"]):
+            change = (
+                _Reader(path, f"start {name!r}.objects[{i}]", changes[i]).table
+                if i < len(changes)
+                else {}
+            )
+            if "mode" in change and change["mode"] != base["mode"]:
+                base = {"mode": change["mode"]}  # another mode: nothing of the old start applies
+            objects.append(base | change)
+        init = _parse_init(
+            _Reader(path, f"start {name!r}", {"ee": ee, "objects": objects}),
+            spec.objects,
+            spec.fixtures,
+            spec.object_fixture,
+        )
+        starts.append((name, replace(spec, init=init)))
+    return starts
 
 
 def load_task_file(path: Path, parts: dict[str, Any]) -> list[TaskSpec]:
