@@ -46,6 +46,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int)
     parser.add_argument("--samples", type=int)
     parser.add_argument("--steps", type=int, help="env-steps per candidate and final run")
+    parser.add_argument("--select-top", type=int, help="best rewards retrained on more seeds")
     parser.add_argument("--final-seeds", type=int)
     parser.add_argument("--workers", type=int, help="parallel candidates (default one per core)")
     parser.add_argument("--executor", choices=EXECUTORS)
@@ -57,6 +58,7 @@ def main() -> None:
             "iterations": args.iterations,
             "samples": args.samples,
             "steps": args.steps,
+            "select_top": args.select_top,
             "final_seeds": args.final_seeds,
             "workers": args.workers,
             "executor": args.executor,
@@ -90,7 +92,8 @@ def main() -> None:
         rows.append((task, summary, result))
     print(
         f"\n{config.iterations} iterations x {config.samples} samples, {config.steps} env-steps "
-        f"per candidate, {config.final_seeds} final seeds, {os.cpu_count()} cores"
+        f"per candidate, best {config.select_top} retrained on {config.select_seeds} more seeds, "
+        f"{config.final_seeds} final seeds, {os.cpu_count()} cores"
     )
     print(f"{'task':<22} {'wall min':>9}  {'generated':<20} {'expert':<20}")
     for task, summary, _ in rows:

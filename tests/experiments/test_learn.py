@@ -24,6 +24,7 @@ iterations = 1
 samples = 1
 steps = 256
 num_envs = 2
+select_top = 0
 final_seeds = 1
 evaluations = 1
 eval_episodes = 2

@@ -21,6 +21,7 @@ TINY: dict[str, Any] = {
     "evaluations": 1,
     "eval_episodes": 2,
     "correlation_envs": 2,
+    "select_top": 0,
     "final_seeds": 1,
     "workers": 2,
     "max_regenerations": 1,
@@ -40,6 +41,7 @@ num_envs = 2
 evaluations = 1
 eval_episodes = 2
 correlation_envs = 2
+select_top = 0
 final_seeds = 1
 max_regenerations = 1
 probe_envs = 2

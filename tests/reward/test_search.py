@@ -24,6 +24,7 @@ from itskill.llm.openai_client import RetryConfig
 from itskill.reward import RewardSearchError, generate_reward, load_search, search_client
 from itskill.reward.generator import extract_code
 from itskill.reward.plan import PlanError
+from itskill.reward.sandbox import compile_reward
 from itskill.reward.search import _feedback, _rank
 from itskill.tasks import UnknownTaskError
 
@@ -132,9 +133,12 @@ def test_unknown_task_and_ungroundable_command(tmp_path: Path, quiet) -> None:
 
 def test_a_reward_repeated_in_a_later_iteration_is_not_trained_again(tmp_path: Path, quiet) -> None:
     # The model answers iteration 2 with the two rewards of iteration 1 (as a seeded or cached
-    # model does when the best reward has not changed): nothing new to train.
+    # model does when the best reward has not changed), one with a new comment: nothing new to
+    # train.
     run = tmp_path / "run"
-    with FakeOpenAIServer([GOOD, CONSTANT, GOOD, CONSTANT]) as server:
+    again = GOOD.replace("def compute_reward", "# The same reward, said again.\ndef compute_reward")
+    assert again != GOOD
+    with FakeOpenAIServer([GOOD, CONSTANT, again, CONSTANT]) as server:
         client = search_client(run, "openai:fake-model", server.base_url)
         result = generate_reward(
             "pick_nut_m12",
@@ -152,3 +156,47 @@ def test_a_reward_repeated_in_a_later_iteration_is_not_trained_again(tmp_path: P
         assert again.pop("reused_from") == f"iter_0/sample_{k}"
         assert again == first
     assert [e["status"] for e in result.history[1]["samples"]] == ["ok", "ok"]
+
+
+def _fake_result(success: float, correlation: float) -> dict:
+    return {
+        "status": "ok",
+        "success": success,
+        "final_success": success,
+        "correlation": correlation,
+        "env_steps": 128,
+        "wall_s": 1.0,
+        "sha256": "-",
+        "stats": {},
+    }
+
+
+def test_the_choice_is_made_on_more_seeds_than_the_search_saw(tmp_path: Path, quiet) -> None:
+    # Sample 0 wins the search on its one seed but fails on the selection seed; sample 1 holds
+    # its success there. Finished results written beforehand are used as a resumed run uses
+    # them, which fixes the successes without training to them.
+    run = tmp_path / "run"
+    planted = {
+        "iter_0/sample_0": _fake_result(0.6, 0.9),
+        "iter_0/sample_1": _fake_result(0.5, 0.9),
+        "select/iter_0_sample_0_seed2": _fake_result(0.1, 0.9),
+        "select/iter_0_sample_1_seed2": _fake_result(0.5, 0.9),
+    }
+    for where, result in planted.items():
+        (run / where).mkdir(parents=True)
+        (run / where / "result.json").write_text(json.dumps(result))
+    config = tiny_config(select_top=2, select_seeds=1)
+    assert (config.final_seed_list, config.select_seed_list) == ([1], [2])
+    with FakeOpenAIServer([GOOD, CONSTANT]) as server:
+        client = search_client(run, "openai:fake-model", server.base_url)
+        result = generate_reward(
+            "pick_nut_m12", client, run, config, compare_expert=False, console=quiet
+        )
+    assert result.history[0]["best_sample"] == 0
+    selection = json.loads((run / "summary.json").read_text())["selection"]
+    assert [(c["sample"], c["mean"]) for c in selection["candidates"]] == [(0, 0.35), (1, 0.5)]
+    assert (result.best["sample"], result.best["selected_success"]) == (1, 0.5)
+    assert result.best_code.strip() == extract_code(CONSTANT).strip()
+    final = json.loads((run / "final" / "generated_seed1" / "result.json").read_text())
+    assert final["status"] == "ok"  # the chosen reward, trained for real on the final seed
+    assert final["sha256"] == compile_reward(result.best_code.strip(), config.sandbox).sha256

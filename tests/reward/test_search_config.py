@@ -59,6 +59,8 @@ def test_user_file(tmp_path: Path) -> None:
         ("[search]\nsamples = 0\n", "samples: expected a positive number"),
         ("[search]\nalgo = 'sac'\n", "algo: expected one of"),
         ("[search]\nseeds = [1, 1]\n", "seeds: expected distinct seeds"),
+        ("[search]\nselect_top = -1\n", "select_top: expected 0 or more"),
+        ("[search]\nselect_seeds = 0\n", "select_seeds: expected a positive number"),
         ("[sandbox]\ntimeout = 1\n", "sandbox.timeout: unknown field"),
         ("[serach]\n", "serach: unknown table"),
         ("[search\n", "TOML syntax"),

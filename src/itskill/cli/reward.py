@@ -131,6 +131,13 @@ def generate_cmd(
     ray_address: Annotated[
         str | None, typer.Option(help="Ray cluster address (default: a local Ray instance).")
     ] = None,
+    select_top: Annotated[
+        int | None,
+        typer.Option(
+            min=0,
+            help="Best rewards retrained on more seeds before the choice (default 3; 0: none).",
+        ),
+    ] = None,
     final_seeds: Annotated[
         int | None, typer.Option(min=1, help="Seeds of the final retraining (default 3).")
     ] = None,
@@ -172,6 +179,7 @@ def generate_cmd(
         "executor": executor,
         "workers": workers,
         "ray_address": ray_address,
+        "select_top": select_top,
         "final_seeds": final_seeds,
     }
     with _errors():
@@ -280,10 +288,27 @@ def show_cmd(
                     f"{final['steps']} env-steps each",
                     highlight=False,
                 )
+        selection = summary.get("selection")
+        if selection:
+            console.print(
+                f"selection: the {len(selection['candidates'])} best rewards retrained on seeds "
+                f"{selection['seeds']}",
+                highlight=False,
+            )
+            for row in selection["candidates"]:
+                per_seed = ", ".join(_pct(v) for v in row["select_success"])
+                console.print(
+                    f"  iteration {row['iteration'] + 1}, sample {row['sample']}: search "
+                    f"{_pct(row['search_success'])}, more seeds {per_seed}, "
+                    f"mean {_pct(row['mean'])}",
+                    highlight=False,
+                )
         best = summary["best"]
         console.print(
             f"chosen: iteration {best['iteration'] + 1}, sample {best['sample']} "
-            f"(search success {_pct(best['success'])}); figure: {Path(run) / 'fig6.png'}",
+            f"(search success {_pct(best['success'])}"
+            + (f", over every seed {_pct(best['selected_success'])}" if selection else "")
+            + f"); figure: {Path(run) / 'fig6.png'}",
             highlight=False,
         )
     if usage:

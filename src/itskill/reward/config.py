@@ -25,7 +25,8 @@ class SearchConfigError(DataFileError):
 
 _KINDS: dict[str, type] = {
     "iterations": int, "samples": int, "steps": int, "num_envs": int, "algo": str,
-    "seeds": tuple, "final_seeds": int, "evaluations": int, "eval_episodes": int,
+    "seeds": tuple, "select_top": int, "select_seeds": int, "final_seeds": int,
+    "evaluations": int, "eval_episodes": int,
     "correlation_envs": int, "executor": str, "workers": int, "ray_address": str,
     "max_regenerations": int, "probe_envs": int, "probe_steps": int,
     "candidate_timeout_s": float, "temperature": float,
@@ -33,7 +34,8 @@ _KINDS: dict[str, type] = {
 """Type of every ``[search]`` field."""
 _OPTIONAL = {"workers", "ray_address"}
 _POSITIVE = {
-    "iterations", "samples", "steps", "num_envs", "final_seeds", "evaluations", "eval_episodes",
+    "iterations", "samples", "steps", "num_envs", "select_seeds", "final_seeds", "evaluations",
+    "eval_episodes",
     "correlation_envs", "probe_envs", "probe_steps", "candidate_timeout_s",
 }  # fmt: skip
 
@@ -116,6 +118,10 @@ class RewardSearchConfig:
     algo: str = _defaults()["algo"]
     seeds: tuple[int, ...] = _defaults()["seeds"]
     """Training seeds of every candidate; its success is the mean over them."""
+    select_top: int = _defaults()["select_top"]
+    """How many of the best distinct rewards are retrained on ``select_seeds`` more seeds before
+    the choice (0: choose on ``seeds`` alone)."""
+    select_seeds: int = _defaults()["select_seeds"]
     final_seeds: int = _defaults()["final_seeds"]
     evaluations: int = _defaults()["evaluations"]
     """Deterministic evaluations spread evenly through each training run."""
@@ -147,10 +153,24 @@ class RewardSearchConfig:
             raise SearchConfigError(where, "seeds", f"expected distinct seeds, got {self.seeds!r}")
         if self.workers is not None and self.workers < 1:
             raise SearchConfigError(where, "workers", f"expected at least 1, got {self.workers}")
+        if self.select_top < 0:
+            raise SearchConfigError(where, "select_top", "expected 0 or more")
         if self.max_regenerations < 0:
             raise SearchConfigError(where, "max_regenerations", "expected 0 or more")
         if not 0.0 <= self.temperature <= 2.0:
             raise SearchConfigError(where, "temperature", "expected a value in [0, 2]")
+
+    @property
+    def select_seed_list(self) -> list[int]:
+        """Seeds of the selection retraining: after the search's and the final retraining's,
+        so neither the choice nor the final comparison reuses a seed the other saw."""
+        first = max(self.seeds) + 1 + self.final_seeds
+        return [first + s for s in range(self.select_seeds)]
+
+    @property
+    def final_seed_list(self) -> list[int]:
+        """Seeds of the final retraining of the chosen and the expert reward."""
+        return [max(self.seeds) + 1 + s for s in range(self.final_seeds)]
 
     @property
     def eval_every(self) -> int:

@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 _BANDS = (
-    ("generated", "tab:blue", "best generated reward"),
+    ("generated", "tab:blue", "chosen generated reward"),
     ("expert", "tab:red", "expert reward"),
 )
 
@@ -23,7 +23,8 @@ _BANDS = (
 def plot_fig6(summary: dict[str, Any], out: Path) -> Path:
     """Draw ``summary`` (a search's ``summary.json``) into ``out`` (PNG, written atomically).
 
-    Every trained candidate is a grey dot at its iteration; the line joins each iteration's best.
+    Every trained candidate is a grey dot at its iteration; the line joins each iteration's best;
+    a star marks the chosen reward's mean over the search's and the selection's seeds.
     The horizontal bands are the final retraining over fresh seeds (mean and 95% interval) of the
     best generated reward and of the expert reward.
     """
@@ -38,6 +39,12 @@ def plot_fig6(summary: dict[str, Any], out: Path) -> Path:
         [np.nan if it["best_success"] is None else it["best_success"] for it in iterations]
     )
     ax.plot(x, best, "o-", color="tab:blue", label="generated: best of the iteration", zorder=3)
+    chosen = (summary.get("best") or {}).get("selected_success")
+    if chosen is not None:
+        selection = summary.get("selection") or {}
+        seeds = len(selection.get("search_seeds", [])) + len(selection.get("seeds", []))
+        ax.scatter(summary["best"]["iteration"] + 1, chosen, marker="*", s=120, color="tab:green",
+                   zorder=4, label=f"chosen reward, mean of {seeds} seeds")  # fmt: skip
     final = summary.get("final") or {}
     for key, colour, label in _BANDS:
         band = final.get(key)

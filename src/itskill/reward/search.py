@@ -3,15 +3,19 @@
 For each of ``iterations`` iterations: ask the model for ``samples`` rewards (with, after the
 first, the best reward so far and how its policy trained), check each in the sandbox and on a probe
 batch (regenerating broken ones with the error), train every accepted one as a job on the executor,
-and keep the best: highest success, ties broken by correlation with the expert reward. Then retrain
-the best reward with ``final_seeds`` fresh seeds, and the expert reward with the same budget and
-seeds, and plot success per iteration against the expert (Fig. 6).
+and keep the best: highest success, ties broken by correlation with the expert reward. A
+candidate's success on the search's seed is partly luck at a short budget, so before the choice
+the ``select_top`` best distinct rewards are retrained on ``select_seeds`` more seeds, and the one
+with the highest mean over all its seeds is chosen. Then retrain the chosen reward with
+``final_seeds`` fresh seeds, and the expert reward with the same budget and seeds, and plot
+success per iteration against the expert (Fig. 6).
 
 Run directory (every file written atomically; see ``docs/reward.md``)::
 
     config.json  plan.json  usage.json  llm_cache/
     iter_<i>/sample_<k>/{reply.txt, reward.py, status.json, result.json, train/seed_<s>/}
     iter_<i>/summary.json
+    select/iter_<i>_sample_<k>_seed<s>/{result.json, train/}
     best_reward.py  final/{generated,expert}_seed<s>/  summary.json  fig6.png
 
 Resuming (``resume=True``) replays the model's replies from ``llm_cache/`` in the original order,
@@ -21,6 +25,7 @@ continues from its last checkpoint).
 
 from __future__ import annotations
 
+import ast
 import json
 import math
 import time
@@ -284,6 +289,15 @@ def _feedback(
     return [{"role": "assistant", "content": fenced(code)}, {"role": "user", "content": text}]
 
 
+def _code_key(code: str) -> str:
+    """What makes two rewards the same: their syntax tree, so that code differing only in
+    comments or layout (the offline backend's header names the sample) counts once."""
+    try:
+        return ast.dump(ast.parse(code))
+    except SyntaxError:
+        return code
+
+
 def _reuse_results(
     jobs: list[CandidateJob], codes: list[str], results_of: dict[str, Path], out: Path
 ) -> int:
@@ -292,7 +306,7 @@ def _reuse_results(
     train the same policy. Returns how many jobs were served so."""
     reused = 0
     for job, code in zip(jobs, codes, strict=True):
-        path, source = Path(job.out) / RESULT_FILE, results_of.get(code)
+        path, source = Path(job.out) / RESULT_FILE, results_of.get(_code_key(code))
         if source is None or path.is_file():
             continue
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -406,7 +420,8 @@ def generate_reward(
     contexts = probe_contexts(plan.task, config.probe_envs, config.probe_steps)
     base = reward_messages(plan.describe())
     history: list[dict[str, Any]] = []
-    results_of: dict[str, Path] = {}  # reward code -> the result of its training in this search
+    candidates: list[dict[str, Any]] = []  # every trained sample, with its code
+    results_of: dict[str, Path] = {}  # _code_key -> the result of its training in this search
     best: dict[str, Any] | None = None
     failure: tuple[str, str] | None = None
     for i in range(config.iterations):
@@ -442,10 +457,11 @@ def generate_reward(
         results = run.run_jobs(jobs, config, f"{label}: training")
         for job, sample in zip(jobs, accepted, strict=True):
             if (Path(job.out) / RESULT_FILE).is_file():
-                results_of.setdefault(sample.code, Path(job.out) / RESULT_FILE)
+                results_of.setdefault(_code_key(sample.code), Path(job.out) / RESULT_FILE)
         by_sample = {s.index: results[j] for j, s in enumerate(accepted)}
         entries = [_entry(s, by_sample.get(s.index)) for s in samples]
         trained = [e for e in entries if e["status"] == "ok"]
+        candidates += [{**e, "iteration": i, "code": samples[e["sample"]].code} for e in trained]
         it_best = max(trained, key=_rank) if trained else None
         if it_best is not None and (best is None or _rank(it_best) > _rank(best)):
             code = samples[it_best["sample"]].code
@@ -480,7 +496,18 @@ def generate_reward(
             f"no candidate reward trained in {config.iterations} iteration(s): every sample was "
             f"rejected or failed; see {out}/iter_*/sample_*/status.json and result.json"
         )
-    final_seeds = [max(config.seeds) + 1 + s for s in range(config.final_seeds)]
+    selection = None
+    if config.select_top:
+        selection = _select(run, config, plan.task, out, candidates)
+        chosen = selection["candidates"][selection["chosen"]]
+        if (chosen["iteration"], chosen["sample"]) != (best["iteration"], best["sample"]):
+            best = next(
+                c for c in candidates
+                if (c["iteration"], c["sample"]) == (chosen["iteration"], chosen["sample"])
+            )  # fmt: skip
+            write_text(out / BEST_FILE, best["code"] + "\n")
+        best = {**best, "selected_success": chosen["mean"]}
+    final_seeds = config.final_seed_list
     kinds = [("generated", best["code"])] + ([("expert", None)] if compare_expert else [])
     jobs = [
         _job(config, plan.task, out / "final" / f"{kind}_seed{s}", code, (s,))
@@ -509,6 +536,7 @@ def generate_reward(
         "plan": plan.to_dict(),
         "iterations": history,
         "best": best_info,
+        "selection": selection,
         "final": final,
         "best_success": final["generated"]["mean"],
         "expert_success": final["expert"]["mean"] if final["expert"] else None,
@@ -525,6 +553,61 @@ def generate_reward(
         highlight=False,
     )
     return load_search(out)
+
+
+def _select(
+    run: _Run,
+    config: RewardSearchConfig,
+    task: str,
+    out: Path,
+    candidates: list[dict[str, Any]],
+) -> dict[str, Any]:
+    """Retrain the ``select_top`` best distinct rewards on ``select_seeds`` more seeds (one job
+    per reward and seed, so the jobs spread evenly over the workers) and choose the one with the
+    highest mean success over the search's seeds and these; ties go to the search's ranking."""
+    distinct: dict[str, dict[str, Any]] = {}
+    for c in sorted(candidates, key=_rank, reverse=True):
+        distinct.setdefault(_code_key(c["code"]), c)
+    top = list(distinct.values())[: config.select_top]
+    seeds = config.select_seed_list
+    jobs = [
+        _job(config, task, out / "select" / f"iter_{c['iteration']}_sample_{c['sample']}_seed{s}",
+             c["code"], (s,))
+        for c in top
+        for s in seeds
+    ]  # fmt: skip
+    results = run.run_jobs(jobs, config, "selection: the best rewards on more seeds")
+    rows = []
+    for n, c in enumerate(top):
+        mine = [results[n * len(seeds) + j] for j in range(len(seeds))]
+        ok = [r["success"] for r in mine if r.get("status") == "ok"]
+        every = [c["success"]] * len(config.seeds) + ok
+        rows.append(
+            {
+                "iteration": c["iteration"],
+                "sample": c["sample"],
+                "search_success": c["success"],
+                "select_success": [r.get("success") for r in mine],
+                "failed": len(mine) - len(ok),
+                "mean": sum(every) / len(every),
+            }
+        )
+    # A reward that failed on a selection seed is not chosen over one that trained on all.
+    chosen = max(range(len(rows)), key=lambda k: (rows[k]["failed"] == 0, rows[k]["mean"], -k))
+    run.console.print(
+        f"selection over seeds {list(config.seeds) + seeds}: "
+        + ", ".join(
+            f"iteration {r['iteration'] + 1} sample {r['sample']} {_pct(r['mean'])}" for r in rows
+        )
+        + f"; chosen: iteration {rows[chosen]['iteration'] + 1} sample {rows[chosen]['sample']}",
+        highlight=False,
+    )
+    return {
+        "search_seeds": list(config.seeds),
+        "seeds": seeds,
+        "candidates": rows,
+        "chosen": chosen,
+    }
 
 
 def _pct(value: float | None) -> str:
