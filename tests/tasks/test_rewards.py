@@ -131,6 +131,29 @@ def test_lifted_beats_grasped_on_table_and_success_pays_bonus() -> None:
     assert (c_half["2.lift/lift"] > 0).all()
 
 
+def test_a_peg_let_go_into_its_hole_earns_neither_depth_nor_success() -> None:
+    # Three pegs 2 cm into the hole (past half its 3.5 cm depth), the first and last still held.
+    inside = np.zeros((N, MAX_OBJECTS, 3))
+    inside[:, 0] = [0.55, 0.12, 0.04 - 0.02 + NUT_HEIGHT / 2]
+    held = np.tile([1.0, 0.0], (N, 1))
+    held[1] = 0.0
+    depth = np.zeros((N, MAX_OBJECTS))
+    depth[:, 0] = 0.02
+    ctx = _ctx(
+        ee_pos=inside[:, 0] + np.array([0.0, 0.0, 0.01]),
+        obj_pos=inside,
+        grasped=held,
+        grip_closed=held[:, 0],
+        engaged=np.tile([1.0, 0.0], (N, 1)),
+        insertion_depth=depth,
+    )
+    total, comps = _reward("insert_peg_round", ctx)
+    np.testing.assert_allclose(comps["0.insert/depth"][[0, 2]], comps["0.insert/depth"][0])
+    assert comps["0.insert/depth"][0] > 0.0 and comps["0.insert/depth"][1] == 0.0
+    np.testing.assert_allclose(comps["success"], [SUCCESS_BONUS, 0.0, SUCCESS_BONUS])
+    assert total[1] < total[0]
+
+
 def test_grasping_beats_hovering_and_empty_fingers_are_worse() -> None:
     centred = np.tile([0.5, 0.0, 0.012], (N, 1))
     open_ = _ctx(ee_pos=centred)

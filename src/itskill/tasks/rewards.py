@@ -59,6 +59,7 @@ TEMPERATURES: dict[str, float] = {
     "grasp_align": 0.01,  # grip point to the part's grip zone while closing (m)
     "fixture": 0.15,  # part bottom to a point over its fixture, coarse: slope 30 cm away (m)
     "fixture_fine": 0.006,  # part bottom over its fixture, fine (a bolt tip is ~12 mm wide) (m)
+    "insert_fine": 0.001,  # peg bottom to its hole's axis: a held peg enters within ~0.5 mm (m)
     "yaw": 0.15,  # part yaw to fixture yaw (rad)
     "tilt": 0.5,  # part axis to vertical, beyond a slack (rad)
     "engage": 0.008,  # part bottom to the fixture point while placing (m)
@@ -192,15 +193,21 @@ def seated_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, 
 
 
 def inserted_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
-    """Insert a peg: centred over the hole, yaw aligned, and depth as a fraction of the target."""
+    """Insert a peg: centred over the hole (coarse, and fine: a held peg that meets the hole
+    half a millimetre off tilts and jams), yaw aligned, and depth as a fraction of the target,
+    counted only while the peg is held. A peg let go over the hole falls in only if it is
+    already centred and still, so paying for its depth taught an insert skill to drop the peg:
+    it worked from its own start and from none that a moving hand-over gives."""
     fraction = args[0] if args else 0.5
     rows, fix = _fixture_of(ctx, i)
     hole_depth = ctx["fix_pos"][rows, fix, 2] - ctx["seat_z"][rows, fix]
     lateral = np.linalg.norm(ctx["obj_to_fix"][:, i, :2], axis=-1)
+    depth = _fraction(ctx["insertion_depth"][:, i], fraction * hole_depth)
     return {
         "centre": _closeness(lateral, t["fixture_fine"]),
+        "centre_fine": _closeness(lateral, t["insert_fine"]),
         "yaw": _closeness(np.abs(ctx["yaw_error"][:, i]), t["yaw"]),
-        "depth": _fraction(ctx["insertion_depth"][:, i], fraction * hole_depth),
+        "depth": ctx["grasped"][:, i] * depth,
     }
 
 
