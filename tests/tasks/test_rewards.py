@@ -154,6 +154,19 @@ def test_a_peg_let_go_into_its_hole_earns_neither_depth_nor_success() -> None:
     assert total[1] < total[0]
 
 
+def test_a_millimetre_tolerance_is_shaped_at_the_millimetre_scale() -> None:
+    # The held part's bottom 5 mm over the fixture point (mid-window), 0.5, 1 and 3 mm off axis.
+    over = np.zeros((N, MAX_OBJECTS, 3))
+    over[:, 0] = [[0.55 + dx, 0.12, 0.04 + 0.005 + NUT_HEIGHT / 2] for dx in (0.0005, 0.001, 0.003)]
+    held = dict(grasped=np.tile([1.0, 0.0], (N, 1)), grip_closed=np.ones(N))
+    ctx = _ctx(ee_pos=over[:, 0], obj_pos=over, **held)
+    _, place = _reward("place_peg_round", ctx)  # within 1.5 mm of the axis
+    axis = place["1.place/over_axis"]
+    assert axis[0] > axis[1] > axis[2] and axis[1] - axis[2] > 0.5 * axis[1]
+    _, carry = _reward("carry_nut_m12", ctx)  # within 4 mm: the fine term is enough
+    assert not any(name.endswith("over_axis") for name in carry)
+
+
 def test_grasping_beats_hovering_and_empty_fingers_are_worse() -> None:
     centred = np.tile([0.5, 0.0, 0.012], (N, 1))
     open_ = _ctx(ee_pos=centred)

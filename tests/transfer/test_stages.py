@@ -44,6 +44,9 @@ def test_performers_are_the_first_source_covering_each_stage() -> None:
     assert stage_performers(target, sources) == (0, 0, 0, 1, 1)
     # Carry listed first takes both approaches; a source of unknown stages covers nothing.
     assert stage_performers(target, [names("carry_nut_m12"), None]) == (0, -1, -1, 0, -1)
-    peg = names("pickplaceinsert_peg_round")  # approach, grasp, lift, approach, insert
+    peg = names("pickplaceinsert_peg_round")  # approach, grasp, lift, approach, place, insert
     peg_sources = [names("pick_peg_rect"), names("insert_peg_round"), names("carry_peg_round")]
-    assert stage_performers(peg, peg_sources) == (0, 0, 0, 2, 1)
+    assert stage_performers(peg, peg_sources) == (0, 0, 0, 2, -1, 1)
+    # The sources `auto` takes for it perform every stage: the place skill both of its own.
+    peg_sources = [names("pick_peg_round"), names("place_peg_round"), names("insert_peg_round")]
+    assert stage_performers(peg, peg_sources) == (0, 0, 0, 1, 1, 2)
