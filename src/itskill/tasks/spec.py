@@ -409,13 +409,10 @@ def load_starts(path: str | Path, spec: TaskSpec) -> list[tuple[str, TaskSpec]]:
             raise TaskFileError(
                 path, f"start {name!r}.objects", f"the task has {len(own['objects'])} object(s)"
             )
+        padded = [*changes, *[{}] * (len(own["objects"]) - len(changes))]
         objects = []
-        for i, base in enumerate(own["objects"]):
-            change = (
-                _Reader(path, f"start {name!r}.objects[{i}]", changes[i]).table
-                if i < len(changes)
-                else {}
-            )
+        for i, (base, raw_change) in enumerate(zip(own["objects"], padded, strict=True)):
+            change = _Reader(path, f"start {name!r}.objects[{i}]", raw_change).table
             if "mode" in change and change["mode"] != base["mode"]:
                 base = {"mode": change["mode"]}  # another mode: nothing of the old start applies
             objects.append(base | change)
