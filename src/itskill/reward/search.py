@@ -299,14 +299,14 @@ def _code_key(code: str) -> str:
 
 
 def _reuse_results(
-    jobs: list[CandidateJob], codes: list[str], results_of: dict[str, Path], out: Path
+    jobs: list[CandidateJob], keys: list[str], results_of: dict[str, Path], out: Path
 ) -> int:
-    """Give each job whose reward code this search has already trained a copy of that result
-    (naming where it came from) instead of training it again: the same code, seeds and budget
-    train the same policy. Returns how many jobs were served so."""
+    """Give each job whose reward (by :func:`_code_key`) this search has already trained a copy
+    of that result (naming where it came from) instead of training it again: the same code,
+    seeds and budget train the same policy. Returns how many jobs were served so."""
     reused = 0
-    for job, code in zip(jobs, codes, strict=True):
-        path, source = Path(job.out) / RESULT_FILE, results_of.get(_code_key(code))
+    for job, key in zip(jobs, keys, strict=True):
+        path, source = Path(job.out) / RESULT_FILE, results_of.get(key)
         if source is None or path.is_file():
             continue
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -448,16 +448,17 @@ def generate_reward(
             _job(config, plan.task, it_dir / f"sample_{s.index}", s.code, config.seeds)
             for s in accepted
         ]
-        reused = _reuse_results(jobs, [s.code for s in accepted], results_of, out)
+        keys = [_code_key(s.code) for s in accepted]
+        reused = _reuse_results(jobs, keys, results_of, out)
         if reused:
             console.print(
                 f"{label}: {reused} sample(s) repeat a reward already trained: result reused",
                 highlight=False,
             )
         results = run.run_jobs(jobs, config, f"{label}: training")
-        for job, sample in zip(jobs, accepted, strict=True):
+        for job, key in zip(jobs, keys, strict=True):
             if (Path(job.out) / RESULT_FILE).is_file():
-                results_of.setdefault(_code_key(sample.code), Path(job.out) / RESULT_FILE)
+                results_of.setdefault(key, Path(job.out) / RESULT_FILE)
         by_sample = {s.index: results[j] for j, s in enumerate(accepted)}
         entries = [_entry(s, by_sample.get(s.index)) for s in samples]
         trained = [e for e in entries if e["status"] == "ok"]
@@ -498,15 +499,9 @@ def generate_reward(
         )
     selection = None
     if config.select_top:
-        selection = _select(run, config, plan.task, out, candidates)
-        chosen = selection["candidates"][selection["chosen"]]
-        if (chosen["iteration"], chosen["sample"]) != (best["iteration"], best["sample"]):
-            best = next(
-                c for c in candidates
-                if (c["iteration"], c["sample"]) == (chosen["iteration"], chosen["sample"])
-            )  # fmt: skip
-            write_text(out / BEST_FILE, best["code"] + "\n")
-        best = {**best, "selected_success": chosen["mean"]}
+        selection, chosen = _select(run, config, plan.task, out, candidates)
+        best = {**chosen, "selected_success": selection["candidates"][selection["chosen"]]["mean"]}
+        write_text(out / BEST_FILE, best["code"] + "\n")
     final_seeds = config.final_seed_list
     kinds = [("generated", best["code"])] + ([("expert", None)] if compare_expert else [])
     jobs = [
@@ -561,10 +556,11 @@ def _select(
     task: str,
     out: Path,
     candidates: list[dict[str, Any]],
-) -> dict[str, Any]:
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """Retrain the ``select_top`` best distinct rewards on ``select_seeds`` more seeds (one job
     per reward and seed, so the jobs spread evenly over the workers) and choose the one with the
-    highest mean success over the search's seeds and these; ties go to the search's ranking."""
+    highest mean success over the search's seeds and these; ties go to the search's ranking.
+    Returns the selection's summary and the chosen candidate."""
     distinct: dict[str, dict[str, Any]] = {}
     for c in sorted(candidates, key=_rank, reverse=True):
         distinct.setdefault(_code_key(c["code"]), c)
@@ -602,12 +598,13 @@ def _select(
         + f"; chosen: iteration {rows[chosen]['iteration'] + 1} sample {rows[chosen]['sample']}",
         highlight=False,
     )
-    return {
+    summary = {
         "search_seeds": list(config.seeds),
         "seeds": seeds,
         "candidates": rows,
         "chosen": chosen,
     }
+    return summary, top[chosen]
 
 
 def _pct(value: float | None) -> str:
