@@ -6,7 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from itskill.rl.config import A2CConfig, HyperparamError, PPOConfig, load_hyperparams
+from itskill.datafile import read_toml
+from itskill.rl.config import A2CConfig, HyperparamError, PPOConfig, default_path, load_hyperparams
+from itskill.tasks import get_task
 
 
 @pytest.mark.parametrize("family", ["nutbolt", "peghole"])
@@ -68,3 +70,35 @@ def test_fewer_environments_shrink_the_minibatch_to_the_rollout() -> None:
     small = load_hyperparams("nutbolt", "ppo", overrides={"num_envs": 2})
     assert family.algo_config.batch_size == 256
     assert small.algo_config.batch_size == 2 * small.algo_config.n_steps
+
+
+def test_a_task_table_changes_its_task_only(tmp_path: Path) -> None:
+    path = tmp_path / "hp.toml"
+    path.write_text(
+        "[peghole.policy]\nlog_std_init = -0.5\n[peghole.ppo]\nn_steps = 64\n"
+        "[peghole.tasks.place_peg_rect.policy]\nlog_std_init = -1.5\n"
+    )
+    own = load_hyperparams("peghole", "ppo", path, task="place_peg_rect")
+    other = load_hyperparams("peghole", "ppo", path, task="insert_peg_rect")
+    assert own.policy.log_std_init == -1.5 and other.policy.log_std_init == -0.5
+    # The rest of the family's values still apply to the task.
+    assert own.algo_config.n_steps == other.algo_config.n_steps == 64
+    overridden = load_hyperparams(
+        "peghole", "ppo", path, {"policy": {"log_std_init": 0.0}}, task="place_peg_rect"
+    )
+    assert overridden.policy.log_std_init == 0.0
+
+
+def test_a_bad_task_table_is_named_even_when_another_task_loads(tmp_path: Path) -> None:
+    path = tmp_path / "hp.toml"
+    path.write_text("[peghole.tasks.place_peg_rect.policy]\nlog_std = -1.5\n")
+    with pytest.raises(HyperparamError) as info:
+        load_hyperparams("peghole", "ppo", path, task="insert_peg_rect")
+    assert info.value.where == "peghole.tasks.place_peg_rect.policy.log_std"
+
+
+@pytest.mark.parametrize("family", ["nutbolt", "peghole"])
+def test_packaged_task_tables_name_tasks_of_their_family(family: str) -> None:
+    tables = read_toml(default_path(), HyperparamError)[family].get("tasks", {})
+    for name in tables:
+        assert get_task(name).family == family

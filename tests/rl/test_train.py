@@ -216,3 +216,15 @@ def test_resume_restores_reward_scale(tmp_path: Path, reach_reward: Path, monkey
     monkeypatch.setattr(train_module, "restore_reward_norm", spy)
     _train(out, reach_reward, 128)
     assert seen == {"mean": saved["mean"], "count": saved["count"]}
+
+
+def test_a_task_table_of_the_hyperparameter_file_reaches_its_training(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    hp = tmp_path / "hp.toml"
+    hp.write_text(f"[nutbolt.tasks.{TASK}.policy]\nlog_std_init = -1.5\n")
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64, hyperparams=hp)
+    meta = json.loads((out / "checkpoint.json").read_text())
+    assert meta["hyperparams"]["policy"]["log_std_init"] == -1.5
+    np.testing.assert_allclose(load_policy(out).log_std.detach().numpy(), -1.5, atol=0.05)

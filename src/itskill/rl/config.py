@@ -158,16 +158,46 @@ def _build(path: Path, where: str, cls: type, table: Any, base: Any = None) -> A
         raise HyperparamError(path, where, str(err)) from err
 
 
+def _layer(
+    path: Path, where: str, table: Any, algo: str, allowed: set[str], base: Hyperparams
+) -> Hyperparams:
+    """``base`` with the fields of one family or task table applied, every one checked."""
+    if not isinstance(table, dict):
+        raise HyperparamError(path, where, f"expected a table, got {type(table).__name__}")
+    for key in table:
+        if key not in allowed:
+            raise HyperparamError(
+                path,
+                f"{where}.{key}",
+                f"unknown field; expected one of {', '.join(sorted(allowed))}",
+            )
+    top = {
+        k: _check_value(path, f"{where}.{k}", table[k], getattr(base, k))
+        for k in _FAMILY_KEYS
+        if k in table
+    }
+    return replace(
+        base,
+        policy=_build(path, f"{where}.policy", PolicyConfig, table.get("policy", {}), base.policy),
+        algo_config=_build(
+            path, f"{where}.{algo}", ALGO_CONFIGS[algo], table.get(algo, {}), base.algo_config
+        ),
+        **top,
+    )
+
+
 def load_hyperparams(
     family: str,
     algo: str,
     path: str | Path | None = None,
     overrides: dict[str, Any] | None = None,
+    task: str | None = None,
 ) -> Hyperparams:
     """Hyper-parameters for ``family`` and ``algo`` from ``path`` (default: the packaged file).
 
-    ``overrides`` are applied on top, with the same checks: algorithm fields by name, plus
-    ``num_envs``, ``checkpoint_every``, ``normalize_reward`` and ``policy`` (a dict of
+    A ``[<family>.tasks.<task>]`` table, with the fields of the family's table, changes them for
+    one task. ``overrides`` are applied on top, with the same checks: algorithm fields by name,
+    plus ``num_envs``, ``checkpoint_every``, ``normalize_reward`` and ``policy`` (a dict of
     :class:`PolicyConfig` fields).
     """
     path = Path(path) if path is not None else default_path()
@@ -178,24 +208,20 @@ def load_hyperparams(
         raise HyperparamError(
             path, family, f"no table for this task family; the file has {sorted(data)}"
         )
-    table = data[family]
-    if not isinstance(table, dict):
-        raise HyperparamError(path, family, f"expected a table, got {type(table).__name__}")
-    allowed = set(_FAMILY_KEYS) | {"policy", *ALGOS}
-    for key in table:
-        if key not in allowed:
-            raise HyperparamError(
-                path,
-                f"{family}.{key}",
-                f"unknown field; expected one of {', '.join(sorted(allowed))}",
-            )
-    top = {
-        k: _check_value(path, f"{family}.{k}", table[k], getattr(Hyperparams, k))
-        for k in _FAMILY_KEYS
-        if k in table
+    fields_ = set(_FAMILY_KEYS) | {"policy", *ALGOS}
+    base = Hyperparams(family=family, algo=algo, algo_config=ALGO_CONFIGS[algo]())  # type: ignore[arg-type]
+    hp = _layer(path, family, data[family], algo, fields_ | {"tasks"}, base)
+    tasks = data[family].get("tasks", {})
+    if not isinstance(tasks, dict):
+        raise HyperparamError(path, f"{family}.tasks", "expected a table of task tables")
+    # Every task table is checked, not only the one asked for: a typo fails on first use.
+    per_task = {
+        name: _layer(path, f"{family}.tasks.{name}", table, algo, fields_, hp)
+        for name, table in tasks.items()
     }
-    policy = _build(path, f"{family}.policy", PolicyConfig, table.get("policy", {}))
-    algo_cfg = _build(path, f"{family}.{algo}", ALGO_CONFIGS[algo], table.get(algo, {}))
+    hp = per_task.get(task, hp) if task is not None else hp
+    top = {k: getattr(hp, k) for k in _FAMILY_KEYS}
+    policy, algo_cfg = hp.policy, hp.algo_config
     if overrides:
         where = "overrides"
         overrides = dict(overrides)

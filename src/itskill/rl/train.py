@@ -234,7 +234,7 @@ def train(
     ov = dict(overrides or {})
     if num_envs is not None:
         ov["num_envs"] = num_envs
-    hp: Hyperparams = load_hyperparams(spec.family, algo, hyperparams, ov)
+    hp: Hyperparams = load_hyperparams(spec.family, algo, hyperparams, ov, task=spec.id)
     reward_fn, reward_meta = load_reward(reward, spec)
     meta: dict[str, Any] = {
         "task": spec.id,
