@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from itskill.tasks import get_task
-from itskill.transfer.stages import stage_map, stage_performers
+from itskill.transfer.stages import fill_performers, stage_map, stage_performers
 
 
 def names(task: str) -> list[str]:
@@ -50,3 +50,18 @@ def test_performers_are_the_first_source_covering_each_stage() -> None:
     # The sources `auto` takes for it perform every stage: the place skill both of its own.
     peg_sources = [names("pick_peg_round"), names("place_peg_round"), names("insert_peg_round")]
     assert stage_performers(peg, peg_sources) == (0, 0, 0, 1, 1, 2)
+
+
+def test_a_stage_no_stage_name_covers_goes_to_the_source_whose_actions_do() -> None:
+    target = get_task("pickplaceinsert_peg_rect")
+    sources = [get_task(n) for n in ("pick_peg_rect", "place_peg_rect", "insert_peg_rect")]
+    by_name = stage_performers(names(target.id), [names(s.id) for s in sources])
+    # place_peg_rect has one stage, named place: no stage name covers the approach to the hole.
+    assert by_name == (0, 0, 0, -1, 1, 2)
+    # Its actions are approach, place: it performs the approach too.
+    filled = fill_performers(by_name, target.actions, [s.actions for s in sources])
+    assert filled == (0, 0, 0, 1, 1, 2)
+    # Stages covered by name keep their performer, and without one action per stage nothing
+    # is filled.
+    assert fill_performers((0, -1), ("approach", "grasp"), [("grasp",), ("approach",)]) == (0, 0)
+    assert fill_performers((0, -1), ("approach",), [("approach",)]) == (0, -1)

@@ -13,7 +13,10 @@ source's stage names up with the target's:
   not have keeps the source where it was).
 
 The same runs say which source *performs* a target stage (:func:`stage_performers`): the first
-source, in the order given, with a run covering it.
+source, in the order given, with a run covering it. A stage no source's stage names cover is
+given to the first source whose *action sequence* covers it, where the target has one action per
+stage: a one-stage Place skill (actions approach, place) also performs the approach to the
+fixture that precedes the target's place stage.
 """
 
 from __future__ import annotations
@@ -65,3 +68,17 @@ def stage_performers(
                 if out[j] < 0:
                     out[j] = k
     return tuple(out)
+
+
+def fill_performers(
+    performers: Sequence[int],
+    target_actions: Sequence[str],
+    source_actions: Sequence[Sequence[str]],
+) -> tuple[int, ...]:
+    """``performers`` with each uncovered stage (-1) given to the first source whose action
+    sequence covers it (:func:`stage_performers` on actions); unchanged unless the target has
+    exactly one action per stage."""
+    if len(target_actions) != len(performers):
+        return tuple(performers)
+    by_action = stage_performers(target_actions, source_actions)
+    return tuple(p if p >= 0 else a for p, a in zip(performers, by_action, strict=True))

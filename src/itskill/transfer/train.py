@@ -28,7 +28,7 @@ from itskill.transfer.analyzer import ContributionMatrix, analyze
 from itskill.transfer.config import TransferConfig, load_transfer_config
 from itskill.transfer.methods import get_method
 from itskill.transfer.sources import AUTO, SourceSkill, resolve_sources
-from itskill.transfer.stages import stage_map, stage_performers
+from itskill.transfer.stages import fill_performers, stage_map, stage_performers
 
 TRANSFER_FILE = "transfer.json"
 FORMAT_VERSION = 1
@@ -168,7 +168,13 @@ def train_transfer(
                 for s, names in zip(chosen, source_stages, strict=True)
             ],
             performers=(
-                list(stage_performers(target_stages, source_stages))
+                list(
+                    fill_performers(
+                        stage_performers(target_stages, source_stages),
+                        spec.actions,
+                        [s.actions for s in chosen],
+                    )
+                )
                 if chosen and config.residual
                 else None
             ),
