@@ -420,7 +420,7 @@ def generate_reward(
     contexts = probe_contexts(plan.task, config.probe_envs, config.probe_steps)
     base = reward_messages(plan.describe())
     history: list[dict[str, Any]] = []
-    candidates: list[dict[str, Any]] = []  # every trained sample, with its code
+    candidates: list[dict[str, Any]] = []  # every trained sample, with its code and _code_key
     results_of: dict[str, Path] = {}  # _code_key -> the result of its training in this search
     best: dict[str, Any] | None = None
     failure: tuple[str, str] | None = None
@@ -462,7 +462,11 @@ def generate_reward(
         by_sample = {s.index: results[j] for j, s in enumerate(accepted)}
         entries = [_entry(s, by_sample.get(s.index)) for s in samples]
         trained = [e for e in entries if e["status"] == "ok"]
-        candidates += [{**e, "iteration": i, "code": samples[e["sample"]].code} for e in trained]
+        key_of = {s.index: key for s, key in zip(accepted, keys, strict=True)}
+        candidates += [
+            {**e, "iteration": i, "code": samples[e["sample"]].code, "key": key_of[e["sample"]]}
+            for e in trained
+        ]
         it_best = max(trained, key=_rank) if trained else None
         if it_best is not None and (best is None or _rank(it_best) > _rank(best)):
             code = samples[it_best["sample"]].code
@@ -520,7 +524,7 @@ def generate_reward(
         else None,
     }
     usage = run.save_usage()
-    best_info = {k: v for k, v in best.items() if k not in ("code", "stats")}
+    best_info = {k: v for k, v in best.items() if k not in ("code", "key", "stats")}
     best_info["path"] = BEST_FILE
     summary = {
         "status": "complete",
@@ -563,7 +567,7 @@ def _select(
     Returns the selection's summary and the chosen candidate."""
     distinct: dict[str, dict[str, Any]] = {}
     for c in sorted(candidates, key=_rank, reverse=True):
-        distinct.setdefault(_code_key(c["code"]), c)
+        distinct.setdefault(c["key"], c)
     top = list(distinct.values())[: config.select_top]
     seeds = config.select_seed_list
     jobs = [

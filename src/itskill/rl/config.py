@@ -159,7 +159,7 @@ def _build(path: Path, where: str, cls: type, table: Any, base: Any = None) -> A
 
 
 def _layer(
-    path: Path, where: str, table: Any, algo: str, allowed: set[str], base: Hyperparams
+    path: Path | str, where: str, table: Any, algo: str, allowed: set[str], base: Hyperparams
 ) -> Hyperparams:
     """``base`` with the fields of one family or task table applied, every one checked."""
     if not isinstance(table, dict):
@@ -219,21 +219,16 @@ def load_hyperparams(
         name: _layer(path, f"{family}.tasks.{name}", table, algo, fields_, hp)
         for name, table in tasks.items()
     }
-    hp = per_task.get(task, hp) if task is not None else hp
-    top = {k: getattr(hp, k) for k in _FAMILY_KEYS}
-    policy, algo_cfg = hp.policy, hp.algo_config
+    hp = per_task.get(task, hp)
     if overrides:
-        where = "overrides"
-        overrides = dict(overrides)
-        if "policy" in overrides:
-            policy = _build(where, f"{where}.policy", PolicyConfig, overrides.pop("policy"), policy)
-        for k in list(overrides):
-            if k in _FAMILY_KEYS:
-                top[k] = _check_value(where, f"{where}.{k}", overrides.pop(k), _FAMILY_KEYS[k]())
-        algo_cfg = _build(where, f"{where}.{algo}", ALGO_CONFIGS[algo], overrides, algo_cfg)
-    if isinstance(algo_cfg, PPOConfig):
+        # The same layer as a file's table, with the algorithm's fields given by name.
+        table = {k: v for k, v in overrides.items() if k in _FAMILY_KEYS or k == "policy"}
+        table[algo] = {k: v for k, v in overrides.items() if k not in table}
+        hp = _layer("overrides", "overrides", table, algo, fields_, hp)
+    if isinstance(hp.algo_config, PPOConfig):
         # Fewer environments than the family's (a small machine, a reward-search candidate)
         # shrink the rollout below a minibatch: train on the whole rollout at once instead.
-        rollout = algo_cfg.n_steps * top.get("num_envs", Hyperparams.num_envs)
-        algo_cfg = replace(algo_cfg, batch_size=min(algo_cfg.batch_size, rollout))
-    return Hyperparams(family=family, algo=algo, policy=policy, algo_config=algo_cfg, **top)  # type: ignore[arg-type]
+        rollout = hp.algo_config.n_steps * hp.num_envs
+        batch = min(hp.algo_config.batch_size, rollout)
+        hp = replace(hp, algo_config=replace(hp.algo_config, batch_size=batch))
+    return hp
