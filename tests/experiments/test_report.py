@@ -70,9 +70,12 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
         )  # fmt: skip
     finally:
         mp.undo()
+    meta = (Cell(TASK, "itn", 0).dir(run) / "checkpoint.json").read_text()
     for seed in range(3):
         write_cell(run, Cell(TASK, "itn", seed), ITN)
         write_cell(run, Cell(TASK, "no_transfer", seed), SCRATCH[seed])
+        for method in ("itn", "no_transfer"):
+            (Cell(TASK, method, seed).dir(run) / "checkpoint.json").write_text(meta)
     return run
 
 
@@ -109,6 +112,26 @@ def test_report_has_every_section_with_the_known_numbers(run, tmp_path):
     assert html.count("data:image/png;base64,") == 3
     assert "<table>" in html and "Fig. 8" in html
     assert not files.notes
+
+
+def test_report_shows_the_settings_runs_trained_with_and_where_they_differ(run, tmp_path):
+    import shutil
+
+    mixed = tmp_path / "mixed"
+    shutil.copytree(run, mixed)
+    meta_path = Cell(TASK, "no_transfer", 1).dir(mixed) / "checkpoint.json"
+    meta = json.loads(meta_path.read_text())
+    meta["hyperparams"]["a2c"]["learning_rate"] = 3e-5
+    meta_path.write_text(json.dumps(meta))
+    same = experiment_report(run, tmp_path / "same", video=False).markdown.read_text()
+    assert "### Training settings" in same
+    assert "| algorithm | a2c |" in same and "| n_steps | 8 |" in same
+    assert "| learning_rate | 0.0007 |" in same
+    md = experiment_report(mixed, tmp_path / "report", video=False).markdown.read_text()
+    assert (
+        "| learning_rate | 0.0007 (ITN seed 0, ITN seed 1, ITN seed 2, No_Transfer seed 0, "
+        "No_Transfer seed 2); 3e-05 (No_Transfer seed 1) |" in md
+    )
 
 
 @pytest.mark.slow  # software rendering: about 0.1-0.4 s per frame

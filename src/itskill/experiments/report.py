@@ -3,9 +3,10 @@
 An experiment report has, per task: learning curves with 95% bands (the paper's Fig. 7), success
 at fixed fractions of the budget (Table II), env-steps and wall time to the success threshold with
 the time-efficiency gain over the baseline (next to the paper's figures), the ITN's attention
-weights over one episode (Fig. 8) and a rollout video of the best method's final policy. Its
-header records the configuration, the commands that produced the run, the machine and the time.
-Only finished cells (with ``result.json``) enter the statistics; cells still running are listed.
+weights over one episode (Fig. 8), a rollout video of the best method's final policy and the
+training settings the runs recorded in their checkpoints. Its header records the configuration,
+the commands that produced the run, the machine and the time. Only finished cells (with
+``result.json``) enter the statistics; cells still running are listed.
 """
 
 from __future__ import annotations
@@ -301,6 +302,7 @@ def _task_section(
     if not by_method:
         doc.add(Paragraph("No finished run yet."))
         return
+    _settings_section(doc, task, curves, run_dir, notes)
     fig = plot_learning_curves(
         _mean_bands(by_method, rep.grid_points),
         f"{task} ({config.algo.upper()})",
@@ -345,6 +347,56 @@ def _task_section(
         runs = curves[(task, "itn")]
         seed = max(runs, key=lambda sc: (sc[1].success[-1], -sc[0]))[0]
         attention_section(doc, Cell(task, "itn", seed).dir(run_dir), task, figures, notes)
+
+
+def _settings_section(
+    doc: Document, task: str, curves: dict, run_dir: Path, notes: list[str]
+) -> None:
+    """The training settings the task's finished runs recorded in their checkpoints.
+
+    They come from the packaged hyper-parameters (with the task's own table) and are not part of
+    the experiment file, so the report shows what each run trained with; a setting that differs
+    between runs lists its values with the runs that had them.
+    """
+    from itskill.rl.checkpoint import CheckpointError, read_meta
+
+    values: dict[str, dict[str, list[str]]] = {}
+    for (cell_task, method), runs in curves.items():
+        if cell_task != task:
+            continue
+        for seed, _ in runs:
+            try:
+                saved = read_meta(Cell(task, method, seed).dir(run_dir))
+            except CheckpointError as err:
+                notes.append(f"training settings of {method_label(method)} seed {seed}: {err}")
+                continue
+            hp = saved["hyperparams"]
+            settings = {
+                "algorithm": saved["algo"],
+                "environments": hp["num_envs"],
+                "initial action log-std": hp["policy"]["log_std_init"],
+                **hp[saved["algo"]],
+            }
+            for key, value in settings.items():
+                shown = f"{value:g}" if isinstance(value, float) else str(value)
+                values.setdefault(key, {}).setdefault(shown, []).append(
+                    f"{method_label(method)} seed {seed}"
+                )
+    if not values:
+        return
+    rows = []
+    for key, by_value in values.items():
+        if len(by_value) == 1:
+            rows.append([key, next(iter(by_value))])
+        else:
+            rows.append([key, "; ".join(f"{v} ({', '.join(r)})" for v, r in by_value.items())])
+    doc.add(Heading("Training settings", 3))
+    doc.table(
+        ["setting", "value"],
+        rows,
+        "as recorded in each finished run's checkpoint.json (the packaged hyper-parameters with "
+        "the task's own table; itskill/rl/data/hyperparams.toml)",
+    )
 
 
 def _progress_section(
