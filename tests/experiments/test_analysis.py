@@ -82,6 +82,15 @@ def test_threshold_steps_and_wall_time_with_censoring():
     assert exact.format_steps() == "300 [300, 300]" and exact.format_minutes() == "0.5 [0.5, 0.5]"
 
 
+def test_threshold_interval_is_cut_to_zero_and_the_budget():
+    early = curve([100, 200, 1000], [0.9, 0.9, 0.9])
+    late = curve([100, 900, 1000], [0.1, 0.85, 0.9])
+    th = time_to_threshold([early, late], 0.8)
+    # Two seeds at 100 and 900: the t-interval 500 ± 5082 would say -4,582 to 5,582 env-steps.
+    assert th.format_steps() == "500 [0, 1,000]"
+    assert th.format_minutes().startswith("0.8 [0.0, ")
+
+
 def test_threshold_is_reached_at_equality():
     th = time_to_threshold([curve([100, 200], [0.8, 0.9])], 0.8)
     assert th.steps[0] == 100 and th.reached[0]

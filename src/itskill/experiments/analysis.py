@@ -188,6 +188,8 @@ class Threshold:
     steps: np.ndarray
     wall_s: np.ndarray
     reached: np.ndarray
+    budget: float = math.inf
+    """The largest budget of the seeds: no mean of ``steps`` can lie above it."""
 
     @property
     def censored(self) -> int:
@@ -204,19 +206,21 @@ class Threshold:
         return estimate(self.wall_s)
 
     def format_steps(self) -> str:
-        return self._format(self.steps_estimate(), lambda v: f"{v:,.0f}")
+        return self._format(self.steps_estimate(), lambda v: f"{v:,.0f}", self.budget)
 
     def format_minutes(self) -> str:
-        return self._format(self.wall_estimate(), lambda v: f"{v / 60:.1f}")
+        return self._format(self.wall_estimate(), lambda v: f"{v / 60:.1f}", math.inf)
 
-    def _format(self, est: Estimate, fmt) -> str:
+    def _format(self, est: Estimate, fmt, upper: float) -> str:
         if self.n == 0:
             return "n/a"
         if self.censored == self.n:
             return f"≥ budget ({self.n}/{self.n} never reached)"
         text = fmt(est.mean)
         if est.n > 1:
-            text += f" [{fmt(est.low)}, {fmt(est.high)}]"
+            # With few seeds a t-interval can reach below zero or past the budget, where no
+            # mean of these values can lie: it is cut to the possible range.
+            text += f" [{fmt(max(est.low, 0.0))}, {fmt(min(est.high, upper))}]"
         if self.censored:
             return f"≥ {text} ({self.censored}/{self.n} never reached)"
         return text
@@ -239,7 +243,12 @@ def time_to_threshold(curves: Sequence[Curve], threshold: float) -> Threshold:
             steps.append(hit)
             walls.append(float(c.wall_s[np.searchsorted(c.steps, hit)]))
             reached.append(True)
-    return Threshold(np.array(steps, float), np.array(walls, float), np.array(reached, bool))
+    return Threshold(
+        np.array(steps, float),
+        np.array(walls, float),
+        np.array(reached, bool),
+        max((c.budget for c in curves), default=math.inf),
+    )
 
 
 @dataclass(frozen=True)

@@ -340,7 +340,12 @@ def _task_section(
             [method_label(m), th.format_steps(), th.format_minutes(), gain_steps, gain_wall]
         )
     doc.add(Heading(f"Time to {rep.threshold:.0%} success and time efficiency", 3))
-    doc.table(header, rows, "mean [95% t-interval]; gain: 1 − method/baseline, bootstrap interval")
+    doc.table(
+        header,
+        rows,
+        "mean [95% t-interval, cut to zero and the budget]; gain: 1 − method/baseline, "
+        "bootstrap interval",
+    )
     doc.add(Paragraph(_gain_explanation(rep.threshold, thresholds, paper, rep.baseline)))
     if "itn" in by_method:
         doc.add(Heading("Attention over one episode (Fig. 8)", 3))
