@@ -104,7 +104,8 @@ def test_report_has_every_section_with_the_known_numbers(run, tmp_path):
     # ITN: 400 env-steps in every seed; No_Transfer: 800, 800 and censored at 1000.
     assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | ≥ 53.8% [" in md
     assert "≥ 867 [" in md and "(1/3 never reached)" in md
-    assert "72.22%" in md and "falls short of" in md
+    # No_Transfer has a censored seed, so 53.8% is a lower bound: not a shortfall.
+    assert "72.22%" in md and "only as a lower bound: the true gain may reach it" in md
     assert "pickplace_nut_m12/itn/seed_3: not started" in md
     assert (tmp_path / "report" / "figures" / f"curves_{TASK}.png").stat().st_size > 10_000
     assert (tmp_path / "report" / "figures" / f"attention_{TASK}.png").is_file()

@@ -23,6 +23,7 @@ from itskill.experiments.analysis import (
     Band,
     Curve,
     CurveError,
+    Gain,
     Threshold,
     common_grid,
     mean_band,
@@ -494,9 +495,21 @@ def _gain_explanation(
                 "within the budget."
             )
         else:
-            verdict = "meets or beats" if measured.value >= paper else "falls short of"
-            text += f"; measured here: {measured.format()}, which {verdict} it."
+            text += f"; measured here: {measured.format()}, which {_verdict(measured, paper)}."
     return text
+
+
+def _verdict(measured: Gain, paper: float) -> str:
+    """How a measured gain compares with the paper's, given which way censoring biases it."""
+    if measured.value >= paper:
+        if measured.bound in ("exact", "lower"):
+            return "meets or beats it"
+        return "is at or above it as a point estimate, but censoring may put it below"
+    if measured.bound in ("exact", "upper"):
+        return "falls short of it"
+    if measured.bound == "lower":
+        return "is below it, but only as a lower bound: the true gain may reach it"
+    return "is below it as a point estimate; censoring on both sides leaves it open"
 
 
 def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
