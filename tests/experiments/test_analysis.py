@@ -11,6 +11,7 @@ from scipy.stats import t as t_dist
 from itskill.experiments.analysis import (
     Curve,
     CurveError,
+    best_evaluation,
     common_grid,
     efficiency_gain,
     interpolate,
@@ -65,6 +66,12 @@ def test_success_at_budget_fractions_interpolates_each_seed():
     assert got[0].n == 0 and got[0].format() == "n/a"  # before the first evaluation
     assert [g.mean for g in got[1:]] == pytest.approx([0.2, 0.5, 1.0])
     assert got[2].format() == "50.0% ± 0.0"
+
+
+def test_best_evaluation_is_each_seeds_peak_averaged_over_seeds():
+    # A run that reached 90% and fell back to 10% still counts its peak.
+    got = best_evaluation([curve([100, 200, 300], [0.5, 0.9, 0.1]), curve([100, 200], [0.3, 0.7])])
+    assert got.mean == pytest.approx(0.8) and got.n == 2
 
 
 def test_threshold_steps_and_wall_time_with_censoring():

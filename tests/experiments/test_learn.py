@@ -7,6 +7,7 @@ import socket
 from pathlib import Path
 
 import pytest
+import torch
 from typer.testing import CliRunner
 
 from itskill.cli import app
@@ -89,10 +90,17 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(tmp_path, budg
     assert skill.actions == ("approach", "grasp", "lift", "approach", "place")
     assert skill.success_rate == summary["evaluation"]["success_rate"]
     assert checkpoint.is_file() and str(home) in str(checkpoint)
-    assert load_policy(checkpoint.parent) is not None  # the stored skill is a loadable policy
+    # The skill is the run's best evaluated policy, and the held-out evaluation measured it.
+    chosen = summary["transfer"]["selection"]
+    assert summary["transfer"]["policy_dir"] == str(out / "transfer" / "best")
+    assert chosen["env_steps"] in (128, 256) and skill.train_steps == chosen["env_steps"]
+    stored, best = load_policy(checkpoint.parent), load_policy(out / "transfer" / "best")
+    assert stored.state_dict().keys() == best.state_dict().keys()
+    assert all(torch.equal(v, best.state_dict()[k]) for k, v in stored.state_dict().items())
 
     md = (out / "report.md").read_text()
     for section in ("## Plan", "## Generated reward", "## Transfer", "## Evaluation",
+                    "Policy evaluated: the policy that scored best in the evaluations",
                     "Attention over one episode", "## Skill added to the skill space",
                     f"Source-action residual: in each stage the action head's output is added to "
                     f"the action of the source that performs it (approach: {pick};"):  # fmt: skip
@@ -125,7 +133,7 @@ def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budg
     assert "not added to the skill space" in flat(result.output)
     with open_skill_space() as space:
         assert space.list(task_id="pickplace_nut_m12") == []
-    assert (Path(summary["skill"]["policy"]) / "model.zip").is_file()  # the policy is kept
+    assert (Path(summary["skill"]["policy"]) / "checkpoint.json").is_file()  # the policy is kept
     assert "## Not added to the skill space" in (out / "report.md").read_text()
 
 

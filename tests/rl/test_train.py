@@ -12,11 +12,12 @@ import torch
 from typer.testing import CliRunner
 
 from itskill.cli import app
-from itskill.rl.checkpoint import as_policy, load_policy
+from itskill.rl import eval_callback
+from itskill.rl.checkpoint import as_policy, best_policy_dir, load_policy
 from itskill.rl.logger import LoggerConfig, read_metrics
 from itskill.rl.train import ResumeMismatchError, RewardLoadError, RewardSource, train
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import CheckpointError, RandomPolicy, evaluate
+from itskill.tasks.evaluate import CheckpointError, EvalResult, RandomPolicy, evaluate
 
 # The package re-exports the function ``train`` under the module's name.
 train_module = importlib.import_module("itskill.rl.train")
@@ -76,6 +77,42 @@ def test_a_run_resumed_from_an_older_evaluation_file_keeps_its_columns(
     rows = [line.split(",") for line in path.read_text().splitlines()]
     assert rows[0][-1] == "mean_length" and len(rows) == 5
     assert {len(r) for r in rows} == {6}
+
+
+def test_the_best_evaluated_policy_is_kept_across_a_resume(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    """best/ holds the weights of the highest evaluation (then most subtasks, later on a tie),
+    and a resumed run only replaces it with one that matches or beats it."""
+    scores = iter([(0.25, 0.5), (0.75, 0.8), (0.75, 0.8), (0.5, 0.9), (0.5, 1.0), (0.75, 0.9)])
+    evaluated: list[torch.Tensor] = []  # the weights each evaluation saw, every 64 env-steps
+
+    def fake_evaluate(spec, actor, episodes, seed, num_envs):
+        success, stages = next(scores)
+        evaluated.append(actor.policy.action_net.weight.detach().clone())
+        return EvalResult(
+            spec.id, episodes, 0, success, 0.0, 1.0, 0.0, 10.0, 0.0, "live",
+            stages * len(spec.stages), len(spec.stages),
+        )  # fmt: skip
+
+    monkeypatch.setattr(eval_callback, "evaluate", fake_evaluate)
+    out = tmp_path / "run"
+    first = _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    assert best_policy_dir(out) == out / "best" and not (out / "best" / "model.zip").exists()
+    assert first.best is not None and first.best["env_steps"] == 192
+    assert first.best["success"] == 0.75 and first.best["episodes"] == 2
+    assert torch.equal(load_policy(out / "best").action_net.weight, evaluated[2])
+    assert not torch.equal(load_policy(out).action_net.weight, evaluated[2])
+
+    second = _train(out, reach_reward, 384, eval_every=64, eval_episodes=2)
+    assert second.best is not None and second.best["env_steps"] == 384
+    assert torch.equal(load_policy(out / "best").action_net.weight, evaluated[5])
+
+
+def test_a_run_without_evaluations_keeps_no_best_policy(tmp_path: Path, reach_reward: Path) -> None:
+    out = tmp_path / "run"
+    result = _train(out, reach_reward, 64)
+    assert result.best is None and best_policy_dir(out) == out
 
 
 def test_resume_refuses_other_settings(tmp_path: Path, reach_reward: Path) -> None:
@@ -177,9 +214,10 @@ def test_cli_train_and_eval_run_directory(tmp_path: Path, reach_reward: Path) ->
     runner = CliRunner()
     args = ["train", TASK, "--algo", "a2c", "--steps", "64", "--seed", "2"]
     args += ["--reward", str(reach_reward), "--out", str(out), "--num-envs", "4"]
-    result = runner.invoke(app, args)
+    result = runner.invoke(app, [*args, "--eval-every", "32", "--eval-episodes", "2"])
     assert result.exit_code == 0, result.output
-    assert "64 env-steps" in result.output
+    assert "64 env-steps" in result.output and f"{out}/best" in result.output.replace("\n", "")
+    assert len((out / "eval.csv").read_text().splitlines()) == 3
     result = runner.invoke(app, ["eval", TASK, "--policy", str(out), "--episodes", "4", "--json"])
     assert result.exit_code == 0, result.output
     assert json.loads(result.output)["episodes"] == 4

@@ -29,7 +29,10 @@ TaskArg = Annotated[str, typer.Argument(help="Task id (see `itskill tasks list`)
 
 PolicyOpt = Annotated[
     str,
-    typer.Option(help="'scripted', a training run directory (itskill train --out) or an SB3 .zip."),
+    typer.Option(
+        help="'scripted', a training run directory (itskill train --out; its last checkpoint, "
+        "RUN/best for its best evaluated policy) or an SB3 .zip."
+    ),
 ]
 
 
@@ -45,6 +48,32 @@ CameraOpt = Annotated[str, typer.Option(help="Camera: front or closeup.")]
 HyperparamsOpt = Annotated[
     Path | None, typer.Option(help="A hyper-parameter TOML file instead of the packaged one.")
 ]
+
+
+EvalEveryOpt = Annotated[
+    int | None,
+    typer.Option(
+        min=1,
+        help="Evaluate the deterministic policy every N env-steps (eval.csv); the best one is "
+        "kept in OUT/best.",
+    ),
+]
+
+
+EvalEpisodesOpt = Annotated[int, typer.Option(min=1, help="Episodes per evaluation.")]
+
+
+def print_trained(what: str, result: Any) -> None:
+    """One line on a finished training run (a ``TrainResult``): steps, where, its best policy."""
+    resumed = f" (resumed from {result.resumed_from:,})" if result.resumed_from else ""
+    line = f"trained {what}: {result.num_timesteps:,} env-steps in total{resumed}; "
+    line += f"checkpoint in {result.run_dir}"
+    if result.best is not None:
+        line += (
+            f"; best evaluation {result.best['success']:.0%} at "
+            f"{int(result.best['env_steps']):,} env-steps, policy in {result.run_dir}/best"
+        )
+    console.print(line, highlight=False)
 
 
 @contextmanager

@@ -9,10 +9,13 @@ import typer
 
 from itskill.cli.common import (
     USAGE_ERROR,
+    EvalEpisodesOpt,
+    EvalEveryOpt,
     HyperparamsOpt,
     TaskArg,
     console,
     err_console,
+    print_trained,
     user_errors,
 )
 
@@ -32,6 +35,8 @@ def train_cmd(
         int | None, typer.Option(min=1, help="Environments stepped together.")
     ] = None,
     hyperparams: HyperparamsOpt = None,
+    eval_every: EvalEveryOpt = None,
+    eval_episodes: EvalEpisodesOpt = 50,
 ) -> None:
     """Train a policy with A2C or PPO; rerun the same command to resume from the last checkpoint."""
     from itskill.rl.config import HyperparamError
@@ -42,15 +47,21 @@ def train_cmd(
     try:
         with user_errors():
             result = train(
-                task, algo, steps, seed, reward, out, num_envs, hyperparams, console=console
+                task,
+                algo,
+                steps,
+                seed,
+                reward,
+                out,
+                num_envs,
+                hyperparams,
+                console=console,
+                eval_every=eval_every,
+                eval_episodes=eval_episodes,
             )
     except (HyperparamError, RewardLoadError, ResumeMismatchError) as err:
         err_console.print(f"[red]error:[/red] {err}", highlight=False, markup=True)
         raise typer.Exit(USAGE_ERROR) from err
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
-    console.print(
-        f"trained {task} with {algo}: {result.num_timesteps} env-steps in total"
-        + (f" (resumed from {result.resumed_from})" if result.resumed_from else "")
-        + f"; checkpoint in {result.run_dir}"
-    )
+    print_trained(f"{task} with {algo}", result)

@@ -16,12 +16,15 @@ from rich.table import Table
 
 from itskill.cli.common import (
     USAGE_ERROR,
+    EvalEpisodesOpt,
+    EvalEveryOpt,
     HyperparamsOpt,
     JsonOpt,
     TaskArg,
     console,
     err_console,
     print_json,
+    print_trained,
     user_errors,
 )
 
@@ -105,10 +108,8 @@ def transfer_train(
     num_envs: Annotated[
         int | None, typer.Option(min=1, help="Environments stepped together.")
     ] = None,
-    eval_every: Annotated[
-        int | None, typer.Option(min=1, help="Evaluate the deterministic policy every N env-steps.")
-    ] = None,
-    eval_episodes: Annotated[int, typer.Option(min=1, help="Episodes per evaluation.")] = 50,
+    eval_every: EvalEveryOpt = None,
+    eval_episodes: EvalEpisodesOpt = 50,
     llm: LLMOpt = None,
     config: ConfigOpt = None,
     hyperparams: HyperparamsOpt = None,
@@ -143,11 +144,7 @@ def transfer_train(
             )
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
-    console.print(
-        f"trained {target} with {method} ({algo}): {result.num_timesteps} env-steps in total"
-        + (f" (resumed from {result.resumed_from})" if result.resumed_from else "")
-        + f"; checkpoint in {result.run_dir}"
-    )
+    print_trained(f"{target} with {method} ({algo})", result)
 
 
 @transfer_app.command("analyze")

@@ -177,6 +177,15 @@ def success_at_fractions(
     return [success_at(curves, f * budget) for f in fractions]
 
 
+def best_evaluation(curves: Sequence[Curve], confidence: float = 0.95) -> Estimate:
+    """Each seed's highest evaluation, mean over seeds: what a run keeping its best policy holds.
+
+    Optimistic by construction (the maximum of noisy evaluations); set beside the curve's value at
+    the budget, it shows how much of a level reached was later lost.
+    """
+    return estimate([float(np.max(c.success)) for c in curves], confidence)
+
+
 @dataclass(frozen=True)
 class Threshold:
     """Env-steps and wall time to reach a success threshold, one value per seed.

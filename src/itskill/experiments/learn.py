@@ -329,7 +329,7 @@ def _pipeline(
     transfer = _train(plan["task"], b, seed, sources, reward, client, run_dir, steps, console)
 
     steps.begin("evaluate", f"{b.eval_episodes} held-out episodes, deterministic policy")
-    evaluation = _evaluate(plan["task"], run_dir / "transfer", b.eval_episodes, steps)
+    evaluation = _evaluate(plan["task"], Path(transfer["policy_dir"]), b.eval_episodes, steps)
 
     steps.begin("skill", "adding the new skill to the skill space")
     skill = _add_skill(command, plan, b, seed, transfer, evaluation, run_dir, steps)
@@ -476,6 +476,7 @@ def _train(
     console,
 ) -> dict[str, Any]:
     from itskill.reward.sandbox import compile_reward
+    from itskill.rl.checkpoint import best_policy_dir
     from itskill.rl.train import RewardSource
     from itskill.tasks import get_task
     from itskill.transfer import read_transfer, train_transfer
@@ -526,16 +527,22 @@ def _train(
             for st, k in zip(get_task(task).stages, performers, strict=True)
         ],
         "final_success": float(curve.success[-1]),
+        # The policy evaluated and kept: the best of the evaluations during training.
+        "policy_dir": str(best_policy_dir(out)),
+        "selection": res.best,
     }
     resumed = f" (resumed from {res.resumed_from:,})" if res.resumed_from else ""
+    kept = ""
+    if res.best is not None:
+        kept = f"; best {res.best['success']:.0%} at {int(res.best['env_steps']):,}, kept"
     steps.done(
         f"{res.num_timesteps:,} env-steps{resumed}, {wall / 60:.1f} min of training; last "
-        f"evaluation {curve.success[-1]:.0%} → {out}"
+        f"evaluation {curve.success[-1]:.0%}{kept} → {summary['policy_dir']}"
     )
     return summary
 
 
-def _evaluate(task: str, run_dir: Path, episodes: int, steps: _Steps) -> dict[str, Any]:
+def _evaluate(task: str, policy_dir: Path, episodes: int, steps: _Steps) -> dict[str, Any]:
     from itskill.rl.checkpoint import as_policy
     from itskill.tasks import get_task
     from itskill.tasks.evaluate import evaluate
@@ -543,7 +550,7 @@ def _evaluate(task: str, run_dir: Path, episodes: int, steps: _Steps) -> dict[st
     cached = steps.cached("evaluation.json")
     was_cached = cached is not None
     if cached is None:
-        res = evaluate(get_task(task), as_policy(run_dir), episodes, seed=EVAL_SEED, num_envs=25)
+        res = evaluate(get_task(task), as_policy(policy_dir), episodes, seed=EVAL_SEED, num_envs=25)
         cached = res.to_dict()
         write_json(steps.run_dir / "evaluation.json", cached)
     steps.done(
@@ -570,7 +577,7 @@ def _add_skill(
     cached = steps.cached("skill.json")
     was_cached = cached is not None
     if cached is None and evaluation["success_rate"] < b.min_success:
-        cached = {"added": False, "min_success": b.min_success, "policy": transfer["run_dir"]}
+        cached = {"added": False, "min_success": b.min_success, "policy": transfer["policy_dir"]}
     elif cached is None:
         with open_skill_space() as space:
             taken = {s.name for s in space.list()}
@@ -582,10 +589,10 @@ def _add_skill(
                 name = f"{base}-{i}"
             store = itskill_home() / "learned" / name
             store.mkdir(parents=True, exist_ok=True)
-            src = Path(transfer["run_dir"])
-            for file in (POLICY_FILE, META_FILE, "transfer.json"):
-                if (src / file).is_file():
-                    shutil.copyfile(src / file, store / file)
+            src, run = Path(transfer["policy_dir"]), Path(transfer["run_dir"])
+            for file in (src / POLICY_FILE, src / META_FILE, run / "transfer.json"):
+                if file.is_file():
+                    shutil.copyfile(file, store / file.name)
             skill = space.add(
                 Skill(
                     name=name,
@@ -595,7 +602,9 @@ def _add_skill(
                     checkpoint=str(store / POLICY_FILE),
                     success_rate=evaluation["success_rate"],
                     success_ci=(evaluation["ci_low"], evaluation["ci_high"]),
-                    train_steps=transfer["steps"],
+                    train_steps=int(
+                        (transfer["selection"] or {}).get("env_steps", transfer["steps"])
+                    ),
                     train_wall_s=round(transfer["wall_s"], 1),
                     algo=b.transfer.algo,
                     seed=seed,

@@ -25,6 +25,7 @@ from itskill.experiments.analysis import (
     CurveError,
     Gain,
     Threshold,
+    best_evaluation,
     common_grid,
     mean_band,
     read_curve,
@@ -152,7 +153,7 @@ def attention_section(
 def video_section(
     doc: Document, task: str, run_dir: Path, label: str, videos: Path, notes: list[str]
 ) -> None:
-    """A rollout video of ``run_dir``'s final policy; says why when it cannot render."""
+    """A rollout video of the policy in ``run_dir``; says why when it cannot render."""
     from itskill.rl.checkpoint import as_policy
     from itskill.tasks import get_task
     from itskill.tasks.render import RenderError, record
@@ -319,7 +320,13 @@ def _task_section(
         ),
     )
     doc.add(Heading("Success at fractions of the budget (Table II)", 3))
-    _fractions_table(doc, config, by_method, "mean ± half-width of the 95% t-interval over seeds")
+    _fractions_table(
+        doc,
+        config,
+        by_method,
+        "mean ± half-width of the 95% t-interval over seeds; a run's best/ policy is the one "
+        "of its highest point",
+    )
     _progress_section(doc, config, task, curves, run_dir, figures, notes)
     thresholds = {m: time_to_threshold(cs, rep.threshold) for m, cs in by_method.items()}
     base = thresholds.get(rep.baseline)
@@ -465,13 +472,19 @@ def _fractions_table(
     """Each method's curve value at the report's fractions of the budget (Table II's layout)."""
     fractions = config.report.fractions
     doc.table(
-        ["method", "seeds", *(f"{f:.0%} ({f * config.steps:,.0f})" for f in fractions)],
+        [
+            "method",
+            "seeds",
+            *(f"{f:.0%} ({f * config.steps:,.0f})" for f in fractions),
+            "best evaluation",
+        ],
         [
             [method_label(m), str(len(cs))]
             + [e.format() for e in success_at_fractions(cs, config.steps, fractions)]
+            + [best_evaluation(cs).format()]
             for m, cs in by_method.items()
         ],
-        caption,
+        caption + "; best evaluation: each seed's highest point, mean over seeds",
     )
 
 
@@ -576,6 +589,8 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
             )
         )
     run_dir = Path(transfer["run_dir"])
+    # Runs from before the best policy was kept evaluated their last checkpoint.
+    policy_dir = Path(transfer.get("policy_dir", run_dir))
     try:
         curve = read_curve(run_dir, transfer["steps"])
         grid = common_grid([curve], 101)
@@ -590,17 +605,26 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
         notes.append(str(err))
     if transfer["method"] != "no_transfer":
         doc.add(Heading("Attention over one episode", 3))
-        attention_section(doc, run_dir, plan["task"], figures, notes)
+        attention_section(doc, policy_dir, plan["task"], figures, notes)
     ev = summary["evaluation"]
     doc.add(Heading("Evaluation"))
+    chosen = transfer.get("selection")
+    which = "the last checkpoint"
+    if chosen is not None:
+        which = (
+            f"the policy that scored best in the evaluations during training "
+            f"({chosen['success']:.0%} at {int(chosen['env_steps']):,} env-steps; last "
+            f"evaluation {transfer['final_success']:.0%})"
+        )
     doc.add(
         Paragraph(
-            f"Deterministic success {ev['success_rate']:.1%} over {ev['episodes']} held-out "
-            f"episodes (95% Wilson interval {ev['ci_low']:.1%}–{ev['ci_high']:.1%})."
+            f"Policy evaluated: {which}, {policy_dir}. Deterministic success "
+            f"{ev['success_rate']:.1%} over {ev['episodes']} held-out episodes (95% Wilson "
+            f"interval {ev['ci_low']:.1%}–{ev['ci_high']:.1%})."
         )
     )
     if summary.get("video", True):
-        video_section(doc, plan["task"], run_dir, "final", videos, notes)
+        video_section(doc, plan["task"], policy_dir, "final", videos, notes)
     skill = summary.get("skill")
     if skill and skill.get("added", True):
         doc.add(Heading("Skill added to the skill space"))

@@ -123,6 +123,8 @@ def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
         "threshold": settings.threshold,
         "steps_to_threshold": float(hit.steps[0]) if hit.reached[0] else None,
         "wall_s_to_threshold": float(hit.wall_s[0]) if hit.reached[0] else None,
+        # The evaluation that chose the cell's best/ policy.
+        "best": res.best,
     }
     write_json(out / RESULT_FILE, result)
     (out / ERROR_FILE).unlink(missing_ok=True)  # a failure of an earlier session is fixed

@@ -9,6 +9,10 @@ A run directory holds, after every checkpoint:
   shape, hyper-parameters, reward, versions). It is written last, so its presence means the two
   files beside it are complete.
 
+A run evaluated while it trained also holds ``best/``: ``policy.safetensors`` and
+``checkpoint.json`` of the policy that scored best in those evaluations, the latter with a
+``selection`` record (env-steps, success, episodes). :func:`best_policy_dir` picks it.
+
 ``as_policy`` turns a run directory into the evaluation ``Policy`` interface of
 :mod:`itskill.tasks.evaluate`. That module sits below ``rl`` and does not import it; the CLI (above
 both) calls ``as_policy`` before handing a policy reference down.
@@ -44,6 +48,9 @@ META_FILE = "checkpoint.json"
 REWARD_NORM_FILE = "reward_norm.json"
 FORMAT_VERSION = 1
 REQUIRED_META = ("format", "task", "algo", "seed", "num_timesteps", "obs_size", "policy")
+BEST_DIR = "best"
+"""Subdirectory of a run holding the policy that scored best in the evaluations during training
+(:class:`itskill.rl.eval_callback.DeterministicEvalCallback`)."""
 
 
 def versions() -> dict[str, str]:
@@ -63,16 +70,21 @@ def versions() -> dict[str, str]:
     }
 
 
-def save_checkpoint(model: Any, run_dir: Path, meta: Mapping[str, Any]) -> dict[str, Any]:
+def save_checkpoint(
+    model: Any, run_dir: Path, meta: Mapping[str, Any], resumable: bool = True
+) -> dict[str, Any]:
     """Write ``model.zip``, ``policy.safetensors`` and ``checkpoint.json`` into ``run_dir``.
 
     ``meta`` carries the run's description; the step count, layout size and versions are added.
-    Returns the metadata written.
+    With ``resumable`` False only the policy and its metadata are written (no optimiser state):
+    enough to evaluate it or use it as a skill, not to continue its training. Returns the metadata
+    written.
     """
     run_dir.mkdir(parents=True, exist_ok=True)
-    tmp_zip = run_dir / "model.tmp.zip"
-    model.save(tmp_zip)
-    os.replace(tmp_zip, run_dir / MODEL_FILE)
+    if resumable:
+        tmp_zip = run_dir / "model.tmp.zip"
+        model.save(tmp_zip)
+        os.replace(tmp_zip, run_dir / MODEL_FILE)
     state = {k: v.detach().cpu().contiguous() for k, v in model.policy.state_dict().items()}
     tmp_st = run_dir / (POLICY_FILE + ".tmp")
     save_file(state, str(tmp_st), metadata={"format": str(FORMAT_VERSION)})
@@ -87,7 +99,7 @@ def save_checkpoint(model: Any, run_dir: Path, meta: Mapping[str, Any]) -> dict[
         "versions": versions(),
     }
     env = model.get_env()
-    if isinstance(env, VecNormalize):
+    if resumable and isinstance(env, VecNormalize):
         rms = env.ret_rms
         stats = {"mean": float(rms.mean), "var": float(rms.var), "count": float(rms.count)}
         write_text(run_dir / REWARD_NORM_FILE, json.dumps(stats) + "\n")
@@ -141,6 +153,17 @@ def read_meta(run_dir: str | Path) -> dict[str, Any]:
             f"the current layout has {OBSERVATION_LAYOUT.size}",
         )
     return meta
+
+
+def best_policy_dir(run_dir: str | Path) -> Path:
+    """The directory of the policy to use from a training run: its best evaluated policy
+    (``run_dir/best``) if the run was evaluated while it trained, else its last checkpoint.
+
+    PPO can lose a level it reached (the deterministic policy drifts while the exploring one
+    barely succeeds), so the last checkpoint is not always the best one the run produced.
+    """
+    best = Path(run_dir) / BEST_DIR
+    return best if (best / META_FILE).is_file() else Path(run_dir)
 
 
 def build_policy(config: PolicyConfig) -> StagedActorCriticPolicy:

@@ -4,16 +4,27 @@ Training success (from the exploring policy) understates what the policy can do;
 compare (env-steps to 80% success, Table II-style success at budget fractions) come from the
 deterministic policy on episodes it did not train on. Every ``every`` env-steps this callback runs
 :func:`itskill.tasks.evaluate.evaluate` on the live policy and appends a row to ``eval.csv``.
+
+Given the run's metadata, it also keeps the best policy so far in ``best/``: PPO can lose a level
+it reached (docs/experiments.md), and a user wants the policy the run was best at, not only its
+last one. "Best" is the highest success, then the most subtasks done, the later evaluation winning
+a tie (it has trained longer at the same level). The choice is made on these evaluation episodes,
+so its score is optimistic; a figure to report comes from other episodes (``itskill learn``
+evaluates the chosen policy on a held-out seed).
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import time
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from itskill.rl.checkpoint import BEST_DIR, META_FILE, save_checkpoint
 from itskill.tasks.evaluate import PolicyActor, evaluate
 from itskill.tasks.spec import TaskSpec
 
@@ -24,22 +35,53 @@ EVAL_COLUMNS = (
 """``stages_done``: subtasks finished at the end of an episode, as a fraction of the task's."""
 
 
+SELECTION_KEY = "selection"
+"""``best/checkpoint.json`` field: the evaluation row that chose the policy, with its episodes."""
+
+
+def read_selection(run_dir: str | Path) -> dict[str, Any] | None:
+    """The ``selection`` record of ``run_dir/best``, or None if the run kept no best policy."""
+    path = Path(run_dir) / BEST_DIR / META_FILE
+    if not path.is_file():
+        return None
+    try:
+        return dict(json.loads(path.read_text())[SELECTION_KEY])
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+        # A damaged record must not stop training: the next evaluation writes a new one.
+        return None
+
+
 class DeterministicEvalCallback(BaseCallback):
-    """Evaluate the deterministic policy every ``every`` env-steps over ``episodes`` episodes."""
+    """Evaluate the deterministic policy every ``every`` env-steps over ``episodes`` episodes.
+
+    With ``meta`` (the run's checkpoint metadata), the best policy so far is written to
+    ``run_dir/best`` after each evaluation that matches or beats it.
+    """
 
     def __init__(
-        self, spec: TaskSpec, run_dir: Path, every: int, episodes: int = 50, seed: int = 20_000
+        self,
+        spec: TaskSpec,
+        run_dir: Path,
+        every: int,
+        episodes: int = 50,
+        seed: int = 20_000,
+        meta: Mapping[str, Any] | None = None,
     ) -> None:
         super().__init__()
-        self.spec, self.path = spec, Path(run_dir) / EVAL_FILE
+        self.spec, self.run_dir, self.path = spec, Path(run_dir), Path(run_dir) / EVAL_FILE
         self.every, self.episodes, self.seed = every, episodes, seed
+        self.meta = None if meta is None else dict(meta)
         self._next = every
         self._start = time.perf_counter()
         self._eval_time = 0.0
         self._last_evaluated = -1
+        self._best: tuple[float, float] | None = None
 
     def _on_training_start(self) -> None:
         self._next = (self.num_timesteps // self.every + 1) * self.every
+        kept = read_selection(self.run_dir)
+        if kept is not None:
+            self._best = (float(kept["success"]), float(kept.get("stages_done", 0.0)))
         if not self.path.exists():
             with open(self.path, "w", newline="") as fh:
                 csv.writer(fh).writerow(EVAL_COLUMNS)
@@ -79,3 +121,13 @@ class DeterministicEvalCallback(BaseCallback):
         }
         with open(self.path, "a", newline="") as fh:
             csv.writer(fh).writerow([row[c] for c in self._columns])
+        score = (row["success"], row["stages_done"])
+        if self.meta is not None and (self._best is None or score >= self._best):
+            self._best = score
+            selection = {**row, "episodes": self.episodes, "seed": self.seed}
+            save_checkpoint(
+                self.model,
+                self.run_dir / BEST_DIR,
+                {**self.meta, SELECTION_KEY: selection},
+                resumable=False,
+            )

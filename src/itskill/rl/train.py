@@ -28,7 +28,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from itskill.rl.checkpoint import MODEL_FILE, read_meta, restore_reward_norm, save_checkpoint
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
-from itskill.rl.eval_callback import DeterministicEvalCallback
+from itskill.rl.eval_callback import DeterministicEvalCallback, read_selection
 from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.sim.task import RewardFn
@@ -85,6 +85,9 @@ class TrainResult:
     wall_s: float
     session_wall_s: float
     last_metrics: dict[str, Any] | None
+    best: dict[str, Any] | None = None
+    """The evaluation that chose the policy in ``run_dir/best`` (env-steps, success, ...), if the
+    run was evaluated while it trained."""
 
 
 TRAIN_WALL_KEY = "train_wall_s"
@@ -221,8 +224,9 @@ def train(
     end, and on Ctrl-C (after which ``KeyboardInterrupt`` propagates).
 
     With ``eval_every``, the deterministic policy is evaluated over ``eval_episodes`` episodes
-    every ``eval_every`` env-steps and at the end, into ``eval.csv``
-    (:class:`itskill.rl.eval_callback.DeterministicEvalCallback`).
+    every ``eval_every`` env-steps and at the end, into ``eval.csv``, and the best of them is kept
+    in ``out/best`` (:class:`itskill.rl.eval_callback.DeterministicEvalCallback`;
+    :func:`itskill.rl.checkpoint.best_policy_dir` picks it).
     """
     torch.set_num_threads(1)
     if algo not in ALGO_CLASSES:
@@ -300,7 +304,14 @@ def train(
             )
         if model.num_timesteps >= steps:
             return TrainResult(
-                run_dir, model.num_timesteps, resumed_from, False, prior_wall_s, 0.0, None
+                run_dir,
+                model.num_timesteps,
+                resumed_from,
+                False,
+                prior_wall_s,
+                0.0,
+                None,
+                read_selection(run_dir),
             )
         run_dir.mkdir(parents=True, exist_ok=True)
         if resuming:
@@ -312,7 +323,9 @@ def train(
             CheckpointCallback(run_dir, hp.checkpoint_every, meta, clock),
         ]
         if eval_every:
-            callbacks.append(DeterministicEvalCallback(spec, run_dir, eval_every, eval_episodes))
+            callbacks.append(
+                DeterministicEvalCallback(spec, run_dir, eval_every, eval_episodes, meta=meta)
+            )
         try:
             model.learn(
                 total_timesteps=steps - model.num_timesteps,
@@ -337,6 +350,7 @@ def train(
             clock.prior_s + session_s,
             session_s,
             metrics.last_row,
+            read_selection(run_dir),
         )
     finally:
         env.close()

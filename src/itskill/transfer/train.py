@@ -4,12 +4,14 @@
 methods that use it), writes ``transfer.json`` and hands the method's policy class to
 :func:`itskill.rl.train.train`, which checkpoints and resumes as usual. ``transfer.json`` is written
 before training starts and read back by a rerun on the same directory, which then resumes with the
-same sources and matrix without asking the analyzer again.
+same sources and matrix without asking the analyzer again. A run evaluated while it trained gets
+a copy in its ``best/`` policy too, so that directory describes itself.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -19,6 +21,7 @@ from rich.console import Console
 
 from itskill.files import write_json
 from itskill.llm.client import LLMClient
+from itskill.rl.checkpoint import BEST_DIR
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import EXPERT, ResumeMismatchError, RewardSource, TrainResult, train
 from itskill.skills import SkillSpace
@@ -197,7 +200,7 @@ def train_transfer(
     if console is not None and record["sources"]:
         names = ", ".join(s["name"] for s in record["sources"])
         console.print(f"{meth.name} on {spec.id}: sources {names}")
-    return train(
+    result = train(
         spec.id,
         algo,
         steps,
@@ -215,3 +218,7 @@ def train_transfer(
         policy_class=meth.policy_class,
         policy_kwargs=policy_kwargs,
     )
+    if result.best is not None:
+        # The kept best policy describes itself like the run does (method, sources, prior).
+        shutil.copyfile(out / TRANSFER_FILE, out / BEST_DIR / TRANSFER_FILE)
+    return result
