@@ -1,4 +1,5 @@
-"""Pretraining: a skill is trained, measured, exported without optimiser state and registered."""
+"""Pretraining: a skill is trained, its best policy measured, exported without optimiser state and
+registered."""
 
 from __future__ import annotations
 
@@ -12,7 +13,9 @@ from itskill.skills.pretrain import PretrainConfig, pretrain
 
 def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
-    config = PretrainConfig(steps=1024, num_envs=8, eval_episodes=6, min_success=0.0)
+    config = PretrainConfig(
+        steps=1024, num_envs=8, eval_episodes=6, min_success=0.0, eval_every=512
+    )
     runs, library = tmp_path / "runs", tmp_path / "library"
     seen = []
     with SkillSpace() as space:
@@ -32,6 +35,10 @@ def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) 
     assert files == ["checkpoint.json", "policy.safetensors"]
     assert MODEL_FILE not in files
     load_policy(library / "reach_nut_m12")
+    # What was exported is the policy the run kept as its best evaluated one.
+    exported = (library / "reach_nut_m12" / "checkpoint.json").read_text()
+    assert exported == (runs / "reach_nut_m12" / "best" / "checkpoint.json").read_text()
+    assert json.loads(exported)["selection"]["env_steps"] in (512, 1024)
     assert [e.name for e in read_manifest(library)] == ["reach_nut_m12"]
 
     # A rerun with the same budget finds the finished checkpoint and trains no further.

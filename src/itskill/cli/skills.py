@@ -203,6 +203,14 @@ def skills_pretrain(
     algo: Annotated[str, typer.Option(help="a2c or ppo.")] = "ppo",
     seed: Annotated[int, typer.Option()] = 0,
     episodes: Annotated[int, typer.Option(help="Evaluation episodes per skill.")] = 100,
+    eval_every: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            help="Evaluate every N env-steps while training and export the best policy "
+            "(0: the last one).",
+        ),
+    ] = 50_000,
     min_success: Annotated[
         float, typer.Option(help="Success a skill needs to be added to the library.")
     ] = 0.5,
@@ -225,7 +233,12 @@ def skills_pretrain(
     from itskill.skills.pretrain import PretrainConfig, basic_tasks, pretrain
 
     config = PretrainConfig(
-        algo=algo, steps=steps, seed=seed, eval_episodes=episodes, min_success=min_success
+        algo=algo,
+        steps=steps,
+        seed=seed,
+        eval_episodes=episodes,
+        min_success=min_success,
+        eval_every=eval_every,
     )
 
     def report(task: str, entry, error) -> None:

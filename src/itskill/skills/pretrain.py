@@ -1,9 +1,10 @@
 """Pretrain skills from scratch with the expert reward, measure them, and add them to a library.
 
 Each task is one job (:func:`pretrain_task`): train with :func:`itskill.rl.train.train` into
-``runs_dir/<task>`` (resumable: a rerun continues from the last checkpoint), evaluate the final
-policy deterministically over ``eval_episodes`` episodes, and copy its weights and metadata (no
-optimiser state) into ``library_dir/<task>/``. :func:`pretrain` runs the jobs through an executor
+``runs_dir/<task>`` (resumable: a rerun continues from the last checkpoint), evaluate the policy
+it kept (the best of its evaluations during training, ``best/``) deterministically over
+``eval_episodes`` held-out episodes, and copy its weights and metadata (no optimiser state) into
+``library_dir/<task>/``. :func:`pretrain` runs the jobs through an executor
 and, as each one finishes, rewrites the library's manifest and registers the skill in a skill
 space, so an interrupted pretraining keeps every skill already finished.
 """
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from itskill.executors import Executor, run_jobs
-from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy
+from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy, best_policy_dir
 from itskill.rl.train import train
 from itskill.skills.manifest import MANIFEST_NAME, ManifestEntry, read_manifest, write_manifest
 from itskill.skills.store import SkillSpace, UnknownSkillError
@@ -38,6 +39,9 @@ class PretrainConfig:
     eval_episodes: int = 100
     eval_seed: int = 10_000
     """Evaluation episodes are drawn from other seeds than training's."""
+    eval_every: int = 50_000
+    """Evaluate during training every so many env-steps (over the trainer's own episodes, not the
+    held-out ones) and export the best of those policies; 0 exports the last checkpoint."""
     min_success: float = 0.5
     """A policy below this deterministic success is reported but not exported or registered:
     it has not learned the skill, and would only mislead retrieval and transfer."""
@@ -68,8 +72,11 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
         out=run_dir,
         num_envs=config.num_envs,
         n_threads=1,
+        eval_every=config.eval_every or None,
     )
-    ev = measure_skill(spec, run_dir, config)
+    # A run can lose a level it reached; the figure recorded is still the held-out one.
+    policy_dir = best_policy_dir(run_dir)
+    ev = measure_skill(spec, policy_dir, config)
     entry = ManifestEntry(
         name=task,
         task=task,
@@ -88,7 +95,7 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
         target = Path(library_dir) / task
         target.mkdir(parents=True, exist_ok=True)
         for name in (POLICY_FILE, META_FILE):
-            shutil.copyfile(run_dir / name, target / name)
+            shutil.copyfile(policy_dir / name, target / name)
     return {**entry.to_json(), "exported": exported}
 
 
