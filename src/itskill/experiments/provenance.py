@@ -1,4 +1,5 @@
-"""Where a result came from: the command line, the machine, the library versions, the date.
+"""Where a result came from: the command line, the machine, the library versions, the code's
+commit, the date.
 
 Every experiment and ``itskill learn`` run records these next to its results, and the report
 prints them in its header, so a figure can be traced to what produced it.
@@ -10,6 +11,7 @@ import datetime as dt
 import os
 import platform
 import shlex
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -35,6 +37,27 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def code_commit(where: Path | None = None) -> str | None:
+    """The git commit of the itskill checkout that is running (or of ``where``), ``+dirty`` if
+    tracked files were modified; None for an installed package or where git is missing. The
+    shipped skills are part of the checkout, so the commit also names the source checkpoints an
+    experiment used."""
+    package = where or Path(__file__).resolve().parent
+
+    def git(*args: str) -> str:
+        return subprocess.run(
+            ["git", "-C", str(package), *args], capture_output=True, text=True, timeout=10,
+            check=True,
+        ).stdout.strip()  # fmt: skip
+
+    try:
+        commit = git("rev-parse", "HEAD")
+        dirty = git("status", "--porcelain", "--untracked-files=no")
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return commit + ("+dirty" if dirty else "")
+
+
 def machine_facts() -> dict[str, Any]:
     """CPU count and model, OS, Python and the versions of the libraries results depend on."""
     import mujoco
@@ -55,6 +78,7 @@ def machine_facts() -> dict[str, Any]:
         "stable_baselines3": stable_baselines3.__version__,
         "numpy": numpy.__version__,
         "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+        "commit": code_commit(),
     }
 
 

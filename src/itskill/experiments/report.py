@@ -102,6 +102,11 @@ def header_section(doc: Document, sessions: Sessions, extra: dict[str, str]) -> 
             if k in machine
         )
     )
+    commits = list(dict.fromkeys(s["machine"].get("commit") for s in runs))
+    if any(commits):
+        items.append(
+            "code: " + ", ".join(f"commit {c}" if c else "no commit recorded" for c in commits)
+        )
     doc.add(Heading("Provenance"), Bullets(tuple(items)))
 
 
