@@ -17,6 +17,8 @@ from itskill.skills import (
     UnknownSkillError,
     itskill_home,
 )
+from itskill.skills.library import SHIPPED_LIBRARY
+from itskill.skills.manifest import read_manifest
 from itskill.skills.store import MIGRATIONS, SCHEMA_VERSION, MigrationError
 
 
@@ -98,6 +100,34 @@ def test_concurrent_adds_lose_nothing(home, checkpoint):
         ids = [s.id for s in space.list()]
     assert names == {f"w{w}_{i}" for w in range(4) for i in range(25)}
     assert sorted(ids) == list(range(1, 101))
+
+
+def test_skip_existing_leaves_out_names_taken_meanwhile(home, checkpoint):
+    with SkillSpace() as space:
+        space.add(make_skill("taken", Path(checkpoint)))
+        both = [make_skill("taken", Path(checkpoint), seed=9), make_skill("new", Path(checkpoint))]
+        with pytest.raises(DuplicateSkillError, match="'taken' already exists"):
+            space.add_many(both)
+        assert [s.name for s in space.add_many(both, skip_existing=True)] == ["new"]
+        assert space.get("taken").seed != 9  # the first one stays
+
+
+def _open_fresh_space(home: str) -> int:
+    import os
+
+    os.environ["ITSKILL_HOME"] = home
+    from itskill.skills import open_skill_space
+
+    with open_skill_space() as space:
+        return len(space.list())
+
+
+def test_two_processes_opening_a_new_skill_space_both_get_the_shipped_library(tmp_path):
+    home = str(tmp_path / "fresh")
+    with mp.get_context("spawn").Pool(2) as pool:
+        counts = pool.map(_open_fresh_space, [home, home])
+    shipped = len(read_manifest(SHIPPED_LIBRARY))
+    assert counts == [shipped, shipped]
 
 
 def _version_1_database(home):

@@ -149,8 +149,9 @@ def install_library(
 
     Every checkpoint must exist, or nothing is installed and the error names each missing file.
     Entries whose name is already in the space are skipped when ``skip_existing`` (so installing
-    twice is harmless). Checkpoints are stored relative when ``library_dir`` is the space's own
-    library directory (relocatable with it) and absolute otherwise.
+    twice, or from two processes opening a new space at once, is harmless). Checkpoints are
+    stored relative when ``library_dir`` is the space's own library directory (relocatable with
+    it) and absolute otherwise.
     """
     library_dir = Path(library_dir).expanduser().resolve()
     entries = [e for e in read_manifest(library_dir) if only is None or e.name in only]
@@ -168,4 +169,4 @@ def install_library(
         for e in entries
         if e.name not in existing
     ]
-    return space.add_many(todo)
+    return space.add_many(todo, skip_existing=skip_existing)

@@ -331,11 +331,13 @@ class SkillSpace:
         """Add one skill (embedding it first if it has no embedding); returns it with its id."""
         return self.add_many([skill])[0]
 
-    def add_many(self, skills: Iterable[Skill]) -> list[Skill]:
-        """Add several skills in one transaction (all or none).
+    def add_many(self, skills: Iterable[Skill], skip_existing: bool = False) -> list[Skill]:
+        """Add several skills in one transaction (all or none); returns those added.
 
         Raises :class:`MissingCheckpointError` if a checkpoint file does not exist and
-        :class:`DuplicateSkillError` if a name is taken.
+        :class:`DuplicateSkillError` if a name is taken, unless ``skip_existing``: then a skill
+        whose name is taken by the time the transaction runs is left out (another process may
+        have added it while this one was embedding).
         """
         skills = list(skills)
         for s in skills:
@@ -349,6 +351,11 @@ class SkillSpace:
         added: list[Skill] = []
         with self._write() as conn:
             for s in skills:
+                if (
+                    skip_existing
+                    and conn.execute("SELECT 1 FROM skills WHERE name = ?", (s.name,)).fetchone()
+                ):
+                    continue
                 ci_low, ci_high = s.success_ci if s.success_ci else (None, None)
                 created = s.created if s.created is not None else now
                 try:
