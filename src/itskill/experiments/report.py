@@ -325,13 +325,7 @@ def _task_section(
         ),
     )
     doc.add(Heading("Success at fractions of the budget (Table II)", 3))
-    _fractions_table(
-        doc,
-        config,
-        by_method,
-        "mean ± half-width of the 95% t-interval over seeds; a run's best/ policy is the one "
-        "of its highest point",
-    )
+    _fractions_table(doc, config, by_method, "mean ± half-width of the 95% t-interval over seeds")
     _progress_section(doc, config, task, curves, run_dir, figures, notes)
     thresholds = {m: time_to_threshold(cs, rep.threshold) for m, cs in by_method.items()}
     base = thresholds.get(rep.baseline)
