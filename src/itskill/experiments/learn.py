@@ -589,10 +589,11 @@ def _add_skill(
                 name = f"{base}-{i}"
             store = itskill_home() / "learned" / name
             store.mkdir(parents=True, exist_ok=True)
-            src, run = Path(transfer["policy_dir"]), Path(transfer["run_dir"])
-            for file in (src / POLICY_FILE, src / META_FILE, run / "transfer.json"):
-                if file.is_file():
-                    shutil.copyfile(file, store / file.name)
+            # The kept policy's directory describes itself (transfer.json included).
+            src = Path(transfer["policy_dir"])
+            for file in (POLICY_FILE, META_FILE, "transfer.json"):
+                if (src / file).is_file():
+                    shutil.copyfile(src / file, store / file)
             skill = space.add(
                 Skill(
                     name=name,
