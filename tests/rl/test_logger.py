@@ -10,29 +10,25 @@ import numpy as np
 from itskill.rl.logger import LoggerConfig, MetricsCallback, read_metrics
 
 
-def test_episodes_from_a_training_start_or_cut_short_are_left_out_of_the_success_rate(
-    tmp_path: Path,
-) -> None:
-    env = SimpleNamespace(num_envs=4, last_components={"reach": np.ones(4)})
+def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_path: Path) -> None:
+    env = SimpleNamespace(num_envs=3, last_components={"reach": np.ones(3)})
     callback = MetricsCallback(
         env, tmp_path, total_steps=10, config=LoggerConfig(progress=False, tensorboard=False)
     )
     callback._on_training_start()
     # Env 0 ends a failed episode from the task's own start; env 1 a successful one; env 2 a
-    # successful episode that began with the part already in the fingers (a training start);
-    # env 3 a failed first episode cut short to stagger the environments.
+    # successful episode that began with the part already in the fingers (a training start).
     callback.locals = {
-        "rewards": np.array([1.0, 3.0, 9.0, 0.0]),
-        "dones": np.array([True, True, True, True]),
+        "rewards": np.array([1.0, 3.0, 9.0]),
+        "dones": np.array([True, True, True]),
         "infos": [
             {"is_success": False},
             {"is_success": True},
             {"is_success": True, "training_start": True},
-            {"is_success": False, "shortened": True},
         ],
     }
     callback._on_step()
-    callback.num_timesteps = 4
+    callback.num_timesteps = 3
     row = callback.flush()
     callback.close()
     assert row["episodes"] == 2

@@ -237,8 +237,7 @@ def test_ppo_learns_reach_better_than_random(tmp_path: Path, reach_reward: Path)
     spec = get_task(TASK)
     trained = evaluate(spec, as_policy(out), episodes=64, seed=123)
     random = evaluate(spec, RandomPolicy(), episodes=64, seed=123)
-    # Measured over seeds 0-9: 8% to 97% (mean 49%) of the 64 episodes, the random policy 0%.
-    assert trained.success_rate >= random.success_rate + 0.05
+    assert trained.success_rate >= random.success_rate + 0.1  # measured: 0.22 vs 0.0
 
 
 def test_resume_restores_reward_scale(tmp_path: Path, reach_reward: Path, monkeypatch) -> None:

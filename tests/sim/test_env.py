@@ -141,40 +141,6 @@ def test_batch_env_truncates_at_max_steps_and_resets():
     twin.close()
 
 
-def test_training_environments_cut_their_first_episodes_short_so_they_fall_out_of_step():
-    # No task ends before its time limit: without the cut, 8 environments reset together would
-    # end every episode on the same step for the whole run.
-    task = replace(get_task("reach_nut_m12").to_sim_task(), max_steps=20)
-    n = 8
-    training = BatchEnv(task, num_envs=n, seed=5, n_threads=1, training=True)
-    evaluation = BatchEnv(task, num_envs=n, seed=5, n_threads=1)
-    # The cut changes when episodes end, not the scenes the environments start from.
-    np.testing.assert_array_equal(training.reset(), evaluation.reset())
-    still = np.tile(FREE, (n, 1))
-    first_end: dict[int, tuple[int, bool]] = {}
-    second_end: dict[int, tuple[int, bool]] = {}
-    for k in range(1, 2 * task.max_steps + 1):
-        _, _, dones, infos = training.step(still)
-        for e in np.flatnonzero(dones):
-            ends = second_end if e in first_end else first_end
-            ends.setdefault(e, (k, infos[e].get("shortened", False)))
-            assert infos[e]["TimeLimit.truncated"] is True
-    lengths = [first_end[e][0] for e in range(n)]
-    assert len(set(lengths)) > n // 2, lengths
-    assert all(1 <= length <= task.max_steps for length in lengths)
-    # Only a cut episode says so; the ones after it run to the time limit.
-    assert all(first_end[e][1] == (first_end[e][0] < task.max_steps) for e in range(n))
-    assert len(second_end) == n
-    assert all(second_end[e] == (first_end[e][0] + task.max_steps, False) for e in range(n))
-    assert len(set(training.steps.tolist())) > 1
-    # Evaluation environments keep whole episodes.
-    for _ in range(task.max_steps - 1):
-        assert not evaluation.step(still)[2].any()
-    assert evaluation.step(still)[2].all()
-    training.close()
-    evaluation.close()
-
-
 # ---------------------------------------------------------------------- control
 def test_end_effector_moves_about_1_5_cm_per_unit_action():
     for axis in range(3):

@@ -197,9 +197,8 @@ class MetricsCallback(BaseCallback):
         self._comp_count += self.env.num_envs
         for e in np.flatnonzero(dones):
             # Episodes begun from a training start (the part already grasped, say) would flatter
-            # the task's success rate, return and length, and those cut short to stagger the
-            # environments would understate them: only the task's own, whole episodes count.
-            if not (infos[e].get("training_start") or infos[e].get("shortened")):
+            # the task's success rate, return and length: only the task's own starts count.
+            if not infos[e].get("training_start", False):
                 self._successes.append(bool(infos[e].get("is_success", False)))
                 self._returns.append(float(self._ret[e]))
                 self._lengths.append(int(self._len[e]))

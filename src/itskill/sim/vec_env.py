@@ -50,9 +50,7 @@ class BatchEnv(VecEnv):
     with neither, the reward is zero and only success is reported. With ``training=True`` each
     episode starts from one of the task's ``training_starts`` with its share of probability, and
     such an episode's final ``info`` says so (``"training_start"``) so that logs can leave it out
-    of the task's success rate. A training environment also cuts each environment's first episode
-    after ``reset()`` at a random length (see :meth:`_stagger`), and that episode's final ``info``
-    says ``"shortened"``. Evaluation environments leave ``training`` off.
+    of the task's success rate; evaluation environments leave ``training`` off.
     """
 
     def __init__(
@@ -73,8 +71,6 @@ class BatchEnv(VecEnv):
         self.training = training
         self.from_training_start = np.zeros(num_envs, dtype=bool)
         self.steps = np.zeros(num_envs, dtype=np.int64)
-        self.limits = np.full(num_envs, task.max_steps, dtype=np.int64)
-        """Each environment's time limit for its current episode (``max_steps`` but when staggered)."""
         self.episode_return = np.zeros(num_envs)
         self._actions = np.zeros((num_envs, 5))
         self.last_components: dict[str, np.ndarray] = {}
@@ -85,12 +81,7 @@ class BatchEnv(VecEnv):
 
     # -------------------------------------------------------------- VecEnv API
     def _make_rngs(self, seed: int | None) -> list[np.random.Generator]:
-        """One generator per environment, then one for the staggered first episodes.
-
-        ``spawn`` numbers its children, so each environment's generator is the same whatever
-        follows it: staggering does not change the scenes an environment draws.
-        """
-        children = np.random.SeedSequence(seed).spawn(self.sim.num_envs + 1)
+        children = np.random.SeedSequence(seed).spawn(self.sim.num_envs)
         return [np.random.default_rng(c) for c in children]
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
@@ -104,29 +95,13 @@ class BatchEnv(VecEnv):
         self._reset_options()
         for e in range(self.num_envs):
             self._reset_env(e)
-        if self.training:
-            self._stagger()
         return self.observe()
-
-    def _stagger(self) -> None:
-        """Cut each environment's first episode at a random length between 1 and ``max_steps``.
-
-        No task ends an episode before its time limit, so environments reset together would stay
-        in step for the whole run: a rollout shorter than an episode would then hold one phase of
-        it for every environment (the grasp in one update, the insertion in the next), and each
-        update would fit the policy to that phase alone at the expense of the others. Once the
-        first episodes end at different times, every rollout holds every phase. The cut episode
-        is truncated like a timed-out one (its value is bootstrapped), and logs leave it out.
-        """
-        rng = self._rngs[self.num_envs]
-        self.limits[:] = rng.integers(1, self.task.max_steps + 1, size=self.num_envs)
 
     def _reset_env(self, e: int) -> None:
         start = self._draw_start(self._rngs[e])
         self.from_training_start[e] = start is not None
         self.sim.reset_env(e, self._rngs[e], start.init if start else None)
         self.steps[e] = 0
-        self.limits[e] = self.task.max_steps
         self.episode_return[e] = 0.0
 
     def _draw_start(self, rng: np.random.Generator) -> TrainingStart | None:
@@ -166,8 +141,6 @@ class BatchEnv(VecEnv):
                 )
                 if self.from_training_start[e]:
                     info["training_start"] = True
-                if self.limits[e] < self.task.max_steps:
-                    info["shortened"] = True
                 if self.sim.unstable[e]:
                     info["unstable"] = True
                 self._reset_env(e)
@@ -191,7 +164,7 @@ class BatchEnv(VecEnv):
         self.last_components = components
         terminated = success if self.task.terminate_on_success else np.zeros_like(success)
         # A diverged environment (see BatchSim.unstable) ends its episode as if timed out.
-        truncated = (self.steps >= self.limits) | self.sim.unstable
+        truncated = (self.steps >= self.task.max_steps) | self.sim.unstable
         obs = OBSERVATION_LAYOUT.build(ctx)
         return StepResult(obs, reward, success, terminated, truncated, components, ctx)
 
