@@ -9,6 +9,11 @@ seeds. Runs are resumable: rerunning the same command continues unfinished train
 Targets (the task-suite issue): Pick (nut M12) at 80% within 200k env-steps and 5 wall-minutes
 with PPO; A2C within 2x PPO's steps; every basic skill >= 95% final success.
 
+``--reward FILE.py`` trains with another reward than the expert's (a generated one, say, to set
+it against the expert's at a budget that learns the task: the reward search's own budget is too
+short to tell the two apart, docs/reward.md). The file is run as trusted Python, as by
+``itskill train --reward``.
+
     python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos ppo a2c --seeds 0 1 2 \
         --steps 200000 --a2c-steps 300000
 """
@@ -35,7 +40,9 @@ from itskill.stats import mean_interval, steps_to_threshold
 THRESHOLDS = (0.8, 0.9)
 
 
-def run_one(task: str, algo: str, seed: int, steps: int, every: int, episodes: int, out: str):
+def run_one(
+    task: str, algo: str, seed: int, steps: int, every: int, episodes: int, out: str, reward: str
+):
     """One training run with evaluations; returns its eval curve (picklable)."""
     run_dir = Path(out) / "runs" / task / algo / f"seed{seed}"
     train(
@@ -43,6 +50,7 @@ def run_one(task: str, algo: str, seed: int, steps: int, every: int, episodes: i
         algo=algo,
         steps=steps,
         seed=seed,
+        reward=reward,
         out=run_dir,
         n_threads=1,
         eval_every=every,
@@ -132,6 +140,7 @@ def main() -> None:
     )
     parser.add_argument("--eval-every", type=int, default=10_000)
     parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--reward", default="expert", help="expert, or a reward file (.py)")
     parser.add_argument("--executor", choices=EXECUTORS, default="local")
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--out", type=Path, default=Path("results/learn_basic"))
@@ -140,10 +149,8 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     cells = [(t, a, s) for t in args.tasks for a in args.algos for s in args.seeds]
     budget = {"a2c": args.a2c_steps or args.steps}
-    jobs = [
-        (t, a, s, budget.get(a, args.steps), args.eval_every, args.eval_episodes, str(args.out))
-        for t, a, s in cells
-    ]
+    common = (args.eval_every, args.eval_episodes, str(args.out), args.reward)
+    jobs = [(t, a, s, budget.get(a, args.steps), *common) for t, a, s in cells]
     curves: dict[tuple[str, str], list[dict]] = {}
     for res in run_jobs(run_one, jobs, args.executor, args.workers):
         task, algo, seed = cells[res.index]
