@@ -6,7 +6,7 @@ from typer.testing import CliRunner
 
 from itskill.cli import app
 from itskill.sim import GL_BACKEND
-from itskill.tasks import all_tasks
+from itskill.tasks import all_tasks, get_task
 from itskill.tasks.spec import TASKS_DIR_ENV
 
 runner = CliRunner()
@@ -107,6 +107,10 @@ def test_eval_scripted_json():
     data = json.loads(result.stdout)
     assert data["episodes"] == 3 and data["policy"] == "scripted"
     assert 0.0 <= data["ci_low"] <= data["success_rate"] <= data["ci_high"] <= 1.0
+    assert sum(data["stage_steps"]) == pytest.approx(data["mean_length"])
+    text = runner.invoke(app, args[:-1])
+    stage = get_task("reach_nut_m12").stages[0].name
+    assert f"steps per episode in each subtask: 0.{stage} " in text.stdout
 
 
 @pytest.mark.skipif(GL_BACKEND is None, reason="no EGL or OSMesa library installed")

@@ -92,7 +92,7 @@ def test_the_best_evaluated_policy_is_kept_across_a_resume(
         evaluated.append(actor.policy.action_net.weight.detach().clone())
         return EvalResult(
             spec.id, episodes, 0, success, 0.0, 1.0, 0.0, 10.0, 0.0, "live",
-            stages * len(spec.stages), len(spec.stages),
+            stages * len(spec.stages), len(spec.stages), [10.0] + [0.0] * (len(spec.stages) - 1),
         )  # fmt: skip
 
     monkeypatch.setattr(eval_callback, "evaluate", fake_evaluate)

@@ -26,6 +26,7 @@ def test_subtasks_finished_count_every_stage_on_success_and_none_for_a_still_han
     assert scripted.n_stages == 3 and scripted.mean_stages_done == 3.0
     still = evaluate(spec, HoldStill(), episodes=4, num_envs=4)
     assert still.success_rate == 0.0 and still.mean_stages_done == 0.0
+    assert still.stage_steps == [spec.max_steps, 0.0, 0.0]  # the whole episode in the approach
 
 
 class GraspThenHold:
@@ -49,3 +50,7 @@ def test_an_episode_that_stops_half_way_counts_the_stages_it_finished():
     spec = get_task("pick_nut_m12")
     half = evaluate(spec, GraspThenHold, episodes=4, num_envs=4)
     assert half.success_rate == 0.0 and half.mean_stages_done == 2.0
+    # It approaches and grasps, then holds still in the lift for the rest of the episode.
+    approach, grasp, lift = half.stage_steps
+    assert approach > 0 and grasp > 0 and lift > approach + grasp
+    assert sum(half.stage_steps) == spec.max_steps == half.mean_length

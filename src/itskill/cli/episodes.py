@@ -23,10 +23,10 @@ from itskill.cli.common import (
 )
 from itskill.tasks import get_task, render
 from itskill.tasks.evaluate import SCRIPTED, EvalResult, evaluate
-from itskill.tasks.spec import load_starts
+from itskill.tasks.spec import TaskSpec, load_starts
 
 
-def _print_eval(result: EvalResult, as_json: bool) -> None:
+def _print_eval(result: EvalResult, spec: TaskSpec, as_json: bool) -> None:
     if as_json:
         print_json(result.to_dict())
         return
@@ -37,6 +37,11 @@ def _print_eval(result: EvalResult, as_json: bool) -> None:
         f"subtasks done {result.mean_stages_done:.2f}/{result.n_stages}, "
         f"mean length {result.mean_length:.1f} steps, {result.wall_s:.1f} s"
     )
+    spent = ", ".join(
+        f"{k}.{stage.name} {steps:.1f}"
+        for k, (stage, steps) in enumerate(zip(spec.stages, result.stage_steps, strict=True))
+    )
+    console.print(f"steps per episode in each subtask: {spent}", highlight=False)
 
 
 def eval_cmd(
@@ -60,7 +65,7 @@ def eval_cmd(
         spec = get_task(task)
         if starts is None:
             result = evaluate(spec, ref, episodes=episodes, seed=seed, num_envs=num_envs)
-            _print_eval(result, as_json)
+            _print_eval(result, spec, as_json)
             return
         variants = [("the task's own start", spec), *load_starts(starts, spec)]
         rows = []
@@ -129,7 +134,7 @@ def demo(
         except render.RenderError as err:
             err_console.print(f"[yellow]no video:[/yellow] {err}", highlight=False)
         result = evaluate(spec, SCRIPTED, episodes=episodes, seed=seed)
-    _print_eval(result, as_json=False)
+    _print_eval(result, spec, as_json=False)
     out.mkdir(parents=True, exist_ok=True)
     summary = out / f"{task}_eval.json"
     summary.write_text(json.dumps(result.to_dict(), indent=2) + "\n")

@@ -156,6 +156,9 @@ class EvalResult:
     """Subtasks (stages) finished at the end of an episode, averaged: progress where success is
     still 0 (``n_stages`` on success)."""
     n_stages: int
+    stage_steps: list[float]
+    """Steps an episode spent in each stage, averaged: where a policy loses its time. The last
+    stage also counts the steps after it is done (a task's stage index stops at its last)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -194,9 +197,12 @@ def evaluate(
         done_count = np.zeros(num_envs, dtype=np.int64)
         running_return = np.zeros(num_envs)
         running_length = np.zeros(num_envs, dtype=np.int64)
-        successes, returns, lengths, stages = 0, [], [], []
+        running_stage_steps = np.zeros((num_envs, len(spec.stages)))
+        successes, returns, lengths, stages, stage_steps = 0, [], [], [], []
         while (done_count < quotas).any():
-            _, rewards, dones, infos = env.step(actor(env.context()))
+            ctx = env.context()
+            running_stage_steps[np.arange(num_envs), ctx["stage"]] += 1
+            _, rewards, dones, infos = env.step(actor(ctx))
             running_return += rewards
             running_length += 1
             for e in np.flatnonzero(dones):
@@ -205,10 +211,12 @@ def evaluate(
                     stages.append(infos[e]["stages_done"])
                     returns.append(running_return[e])
                     lengths.append(running_length[e])
+                    stage_steps.append(running_stage_steps[e].copy())
                 done_count[e] += 1
             if dones.any():
                 running_return[dones] = 0.0
                 running_length[dones] = 0
+                running_stage_steps[dones] = 0.0
                 actor.reset(np.flatnonzero(dones))
     finally:
         env.close()
@@ -226,4 +234,5 @@ def evaluate(
         policy=describe_policy(policy),
         mean_stages_done=float(np.mean(stages)),
         n_stages=len(spec.stages),
+        stage_steps=[float(x) for x in np.mean(stage_steps, axis=0)],
     )
