@@ -221,16 +221,20 @@ def test_a_held_part_stays_in_the_grip_at_full_speed(name):
     free.close()
 
 
-@pytest.mark.parametrize("hold", [-0.01, 0.0, 0.003])
-def test_a_part_started_in_the_gripper_sits_its_hold_above_the_grip_point_and_stays(hold):
+@pytest.mark.parametrize("end", ["low", "middle", "high"])
+def test_a_part_started_in_the_gripper_sits_its_hold_above_the_grip_point_and_stays(end):
     # Place and Carry start from the holds a table pick leaves: the nut often hangs below the
-    # grip point, held by its upper edge.
+    # grip point, held by its upper edge. From every hold in the task's range it is grasped
+    # from the first step: a learner that reads `grasped` false opens its hand.
     spec = get_task("place_nut_m12")
+    span = spec.init.objects[0].hold
+    hold = {"low": span.low, "middle": 0.0, "high": span.high}[end]
     nut = replace(spec.init.objects[0], hold=Range(hold, hold))
     init = replace(spec.init, objects=(nut,))
     env = make_batch_env("place_nut_m12", num_envs=4, seed=2, n_threads=1)
     for i in range(4):
         env.sim.reset_env(i, np.random.default_rng(i), init)
+    assert (env.context()["grasped"][:, 0] > 0.5).all()
     grip = np.tile([0.0, 0.0, 0.0, 0.0, 1.0], (4, 1))
     offsets = []
     for step in range(16):

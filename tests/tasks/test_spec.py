@@ -77,6 +77,14 @@ BROKEN = {
         "init.objects[0].hold",
         "gripper",
     ),
+    "hold_beyond_grasped": (
+        (
+            '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }',
+            '{ mode = "gripper", x = 0.5, z = 0.05, hold = [-0.012, 0.003] }',
+        ),
+        "init.objects[0].hold",
+        "11.4 mm",
+    ),
     "object_slot": (('success = "lifted(0, 3)', 'success = "lifted(1, 3)'), "success", "slot 1"),
     "start_share": (
         (

@@ -19,6 +19,7 @@ import numpy as np
 from itskill.sim.context import (
     MAX_FIXTURES,
     MAX_OBJECTS,
+    max_grip_offset,
     min_grasp_width,
     quat_to_mat,
     wrap_angle,
@@ -424,7 +425,7 @@ class BatchSim:
             & (width[:, None] >= min_grasp_width(self.obj_width, self.obj_height))
             & (width[:, None] <= self.obj_width * 1.2 + 0.002)
             & (lateral <= 0.012)
-            & (np.abs(to_ee[..., 2]) <= self.obj_height / 2 + 0.006)
+            & (np.abs(to_ee[..., 2]) <= max_grip_offset(self.obj_height))
             & (om > 0)
         )
 

@@ -71,6 +71,12 @@ def min_grasp_width(obj_width: np.ndarray, obj_height: np.ndarray) -> np.ndarray
     return np.minimum(obj_width, obj_height) - 0.004
 
 
+def max_grip_offset(obj_height):
+    """How far a part's centre may sit above or below the grip point and still count as held:
+    half its height plus 6 mm, the fingers closed on its upper or lower edge."""
+    return obj_height / 2 + 0.006
+
+
 def quat_to_mat(quat: np.ndarray) -> np.ndarray:
     """Unit quaternions (..., 4) in MuJoCo's (w, x, y, z) order -> rotation matrices (..., 3, 3)."""
     w, x, y, z = np.moveaxis(quat, -1, 0)

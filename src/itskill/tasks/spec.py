@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from itskill.datafile import DataFileError, read_toml
+from itskill.sim.context import max_grip_offset
 from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec, PlacedFixture
 from itskill.sim.scene import SceneSpec
 from itskill.sim.task import (
@@ -330,6 +331,17 @@ def _parse_init(
             )
         if "hold" in oi and mode != "gripper":
             raise TaskFileError(path, orr.where + ".hold", "only a part in the gripper has a hold")
+        hold = orr.range("hold", (0.0, 0.0))
+        bound = max_grip_offset(objects[k].height)
+        if max(-hold.low, hold.high) > bound:
+            # The start would put the part in the fingers where `grasped` says it is not held,
+            # and a learner that trusts `grasped` opens its hand.
+            raise TaskFileError(
+                path,
+                orr.where + ".hold",
+                f"{objects[k].name} counts as grasped with its centre at most "
+                f"{bound * 1000:.1f} mm from the grip point; got [{hold.low}, {hold.high}] m",
+            )
         fixture = orr.get("fixture", int, object_fixture[k])
         if mode in ("bolt", "hole"):
             want = BoltSpec if mode == "bolt" else HoleSpec
@@ -346,7 +358,7 @@ def _parse_init(
                 yaw=orr.range("yaw", (0.0, 0.0)),
                 turns=orr.range("turns", (0.0, 0.0)),
                 depth=orr.range("depth", (0.0, 0.0)),
-                hold=orr.range("hold", (0.0, 0.0)),
+                hold=hold,
                 fixture=fixture,
             )
         )
