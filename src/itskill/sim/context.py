@@ -71,7 +71,7 @@ def min_grasp_width(obj_width: np.ndarray, obj_height: np.ndarray) -> np.ndarray
     return np.minimum(obj_width, obj_height) - 0.004
 
 
-def max_grip_offset(obj_height):
+def max_grip_offset(obj_height: np.ndarray | float) -> np.ndarray | float:
     """How far a part's centre may sit above or below the grip point and still count as held:
     half its height plus 6 mm, the fingers closed on its upper or lower edge."""
     return obj_height / 2 + 0.006
