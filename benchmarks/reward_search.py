@@ -12,6 +12,11 @@ the expert's.
 
     python benchmarks/reward_search.py                       # pick_nut_m12 and pickplace_nut_m12
     python benchmarks/reward_search.py --tasks pick_nut_m12 --iterations 1 --samples 2 --steps 2048
+    python benchmarks/reward_search.py --tasks pickplace_nut_m12 --transfer itn
+
+``--transfer METHOD`` trains every candidate (and the final runs of both rewards) with that
+transfer network over the skills retrieved for the task, as ``itskill learn`` does; its results go
+to ``results/reward_search/<task>_<method>/``.
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ from rich.console import Console
 
 from itskill.executors import EXECUTORS
 from itskill.reward import generate_reward, load_search_config, search_client
-from itskill.reward.search import CONFIG_FILE, FIGURE_FILE, SUMMARY_FILE
+from itskill.reward.search import CONFIG_FILE, FIGURE_FILE, NETWORK_DIR, SUMMARY_FILE
+from itskill.transfer import search_network
 
 DEFAULT_TASKS = ("pick_nut_m12", "pickplace_nut_m12")
 
@@ -50,6 +56,9 @@ def main() -> None:
     parser.add_argument("--final-seeds", type=int)
     parser.add_argument("--workers", type=int, help="parallel candidates (default one per core)")
     parser.add_argument("--executor", choices=EXECUTORS)
+    parser.add_argument(
+        "--transfer", metavar="METHOD", help="train candidates with this transfer method (itn, ...)"
+    )
     parser.add_argument("--runs", type=Path, default=Path("runs/reward_search"))
     parser.add_argument("--results", type=Path, default=Path("results/reward_search"))
     args = parser.parse_args()
@@ -67,18 +76,26 @@ def main() -> None:
     console = Console(stderr=True)
     rows = []
     for task in args.tasks:
-        run_dir = args.runs / task
+        name = f"{task}_{args.transfer}" if args.transfer else task
+        run_dir = args.runs / name
+        client = search_client(run_dir, "offline")
+        network = None
+        if args.transfer:
+            network = search_network(
+                task, args.transfer, run_dir / NETWORK_DIR, algo=config.algo, client=client
+            )
         start = time.perf_counter()
         result = generate_reward(
             task,
-            search_client(run_dir, "offline"),
+            client,
             run_dir,
             config,
             resume=(run_dir / CONFIG_FILE).is_file(),
             console=console,
+            network=network,
         )
         wall = time.perf_counter() - start
-        target = args.results / task
+        target = args.results / name
         target.mkdir(parents=True, exist_ok=True)
         summary = json.loads((run_dir / SUMMARY_FILE).read_text())
         summary["benchmark"] = {
@@ -89,18 +106,18 @@ def main() -> None:
         }
         (target / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
         shutil.copyfile(run_dir / FIGURE_FILE, target / FIGURE_FILE)
-        rows.append((task, summary, result))
+        rows.append((name, summary, result))
     print(
         f"\n{config.iterations} iterations x {config.samples} samples, {config.steps} env-steps "
         f"per candidate, best {config.select_top} retrained on {config.select_seeds} more seeds, "
         f"{config.final_seeds} final seeds, {os.cpu_count()} cores"
     )
-    print(f"{'task':<22} {'wall min':>9}  {'generated':<20} {'expert':<20}")
-    for task, summary, _ in rows:
+    print(f"{'task':<26} {'wall min':>9}  {'generated':<20} {'expert':<20}")
+    for name, summary, _ in rows:
         final = summary["final"]
         minutes = summary["usage"]["wall_s"] / 60
         print(
-            f"{task:<22} {minutes:>9.1f}  {_interval(final['generated']):<20} "
+            f"{name:<26} {minutes:>9.1f}  {_interval(final['generated']):<20} "
             f"{_interval(final['expert']):<20}"
         )
 

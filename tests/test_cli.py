@@ -137,3 +137,15 @@ def test_eval_from_other_starts_finds_where_a_skill_stops_working(tmp_path):
     assert own["successes"] >= 5 and off["successes"] == 0
     table = runner.invoke(app, args)
     assert "3.5 mm off" in table.stdout and "0/8 = 0%" in table.stdout
+
+
+@pytest.mark.parametrize(
+    ("method", "message"),
+    [("foo", "unknown transfer method 'foo'"), ("no_transfer", "no_transfer trains no source")],
+)
+def test_reward_search_on_a_network_without_sources_is_refused(tmp_path, method, message):
+    out = tmp_path / "run"
+    args = ["reward", "generate", "pickplace_nut_m12", "--transfer", method, "--out", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and message in " ".join(result.output.split())
+    assert not (out / "config.json").exists()

@@ -67,9 +67,17 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(tmp_path, budg
     result = learn(*args, "--no-video")
     assert result.exit_code == 0, result.output
     text = flat(result.output)
-    for i, step in enumerate(("plan", "reward", "sources", "analyze", "train", "evaluate"), 1):
+    for i, step in enumerate(("plan", "sources", "analyze", "reward", "train", "evaluate"), 1):
         assert f"[{i}/8] {step}" in text
     summary = json.loads((out / "summary.json").read_text())
+    # The reward's candidates trained the network the task is then trained with: the ITN over
+    # the same sources (the record the transfer run resumed from).
+    candidate = out / "reward" / "iter_0" / "sample_0" / "train" / "seed_0"
+    meta = json.loads((candidate / "checkpoint.json").read_text())
+    assert meta["policy_class"] == "itskill.transfer.itn.ITNPolicy"
+    names = ", ".join(s["name"] for s in summary["sources"]["used"])
+    assert summary["reward"]["network"] == f"itn over {names}"
+    assert f"candidates trained itn over {names}" in text
     assert summary["plan"]["task"] == "pickplace_nut_m12"
     assert summary["transfer"]["steps"] >= 256 and summary["evaluation"]["episodes"] == 4
     assert summary["transfer"]["sources"] == [s["name"] for s in summary["sources"]["used"]]

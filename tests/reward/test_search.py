@@ -21,11 +21,18 @@ from replies import (
 
 from itskill.llm import LLMUnavailableError
 from itskill.llm.openai_client import RetryConfig
-from itskill.reward import RewardSearchError, generate_reward, load_search, search_client
+from itskill.reward import (
+    CandidateNetwork,
+    RewardSearchError,
+    generate_reward,
+    load_search,
+    search_client,
+)
 from itskill.reward.generator import extract_code
 from itskill.reward.plan import PlanError
 from itskill.reward.sandbox import compile_reward
 from itskill.reward.search import _feedback, _rank
+from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.tasks import UnknownTaskError
 
 
@@ -116,6 +123,10 @@ def test_unreachable_model_and_unusable_run_dirs(tmp_path: Path, quiet) -> None:
         )
     with pytest.raises(RewardSearchError, match="made with target="):
         generate_reward("pick_nut_m12", client, run, tiny_config(), resume=True, console=quiet)
+    other = CandidateNetwork(StagedActorCriticPolicy, None, "another network")
+    with pytest.raises(RewardSearchError, match="made with network=None"):
+        generate_reward("Pick up the M12 nut", client, run, tiny_config(), resume=True,
+                        console=quiet, network=other)  # fmt: skip
     with pytest.raises(RewardSearchError, match="not a reward search run"):
         generate_reward("pick_nut_m12", client, tmp_path, tiny_config(), resume=True)
     with pytest.raises(RewardSearchError, match="has not finished"):

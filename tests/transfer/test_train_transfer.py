@@ -178,3 +178,23 @@ def test_run_dir_evaluates_and_traces_attention(home: Path, tmp_path: Path) -> N
     run(tmp_path / "dfs", "dfs")
     with pytest.raises(ValueError, match="no contribution weights"):
         attention_trace(tmp_path / "dfs")
+
+
+def test_the_reward_search_network_is_the_one_the_run_then_trains(home: Path, tmp_path: Path):
+    from itskill.transfer import search_network
+
+    client = CountingClient()
+    out = tmp_path / "transfer"
+    network = search_network(TARGET, "itn", out, SOURCES, algo="a2c", client=client)
+    assert network is not None and network.policy_class is ITNPolicy
+    assert network.label == "itn over pick_nut_m12, place_nut_m12"
+    assert [s["name"] for s in network.policy_kwargs["sources"]] == [
+        "pick_nut_m12",
+        "place_nut_m12",
+    ]
+    assert network.policy_kwargs["prior"] == read_transfer(out)["contribution"]["matrix"]
+    run(out, "itn", client=client)  # the run finds the record: the analyzer is not asked again
+    assert client.calls == 1 and type(load_policy(out)) is ITNPolicy
+    assert search_network(TARGET, "no_transfer", tmp_path / "scratch", client=client) is None
+    with pytest.raises(ResumeMismatchError, match="method="):
+        search_network(TARGET, "dfs", out, SOURCES, algo="a2c", client=client)

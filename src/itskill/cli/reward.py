@@ -155,6 +155,15 @@ def generate_cmd(
             "what the resumed run did).",
         ),
     ] = None,
+    transfer: Annotated[
+        str | None,
+        typer.Option(
+            metavar="METHOD",
+            help="Train the candidates with this transfer method (itn, nia, dfs, pst) over the "
+            "skills retrieved for the task, as `itskill learn` does (default: the task family's "
+            "network from scratch; a resumed run keeps its own).",
+        ),
+    ] = None,
     out: Annotated[
         Path | None, typer.Option(help="Run directory (default runs/reward/<target>).")
     ] = None,
@@ -165,6 +174,7 @@ def generate_cmd(
     """Search a reward for a task or command: plan, generate, train candidates, keep the best,
     compare it with the expert reward (Fig. 6). Rerun with --resume RUN after an interruption."""
     from itskill.reward.search import (
+        NETWORK_DIR,
         config_from_run,
         generate_reward,
         load_search_config,
@@ -192,6 +202,10 @@ def generate_cmd(
             expert = stored["compare_expert"] if expert is None else expert
             if config_file is not None:
                 raise typer.BadParameter("a resumed run keeps its settings", param_hint="--config")
+            if transfer is not None:
+                raise typer.BadParameter("a resumed run keeps its network", param_hint="--transfer")
+            if stored.get("network") is not None:
+                transfer = _network_method(resume / NETWORK_DIR)
             config = config_from_run(resume, overrides)
             run_dir = resume
         else:
@@ -202,6 +216,9 @@ def generate_cmd(
             config = load_search_config(config_file, overrides)
             run_dir = out or Path("runs/reward") / _slug(target)
         client = search_client(run_dir, llm, base_url)
+        network = None
+        if transfer is not None:
+            network = _network(target, transfer, run_dir / NETWORK_DIR, client, config.algo)
         try:
             result = generate_reward(
                 target,
@@ -211,6 +228,7 @@ def generate_cmd(
                 resume=resume is not None,
                 compare_expert=expert is not False,
                 console=console,
+                network=network,
             )
         except KeyboardInterrupt:
             err_console.print(
@@ -219,6 +237,32 @@ def generate_cmd(
             )
             raise typer.Exit(130) from None
     console.print(f"best reward: {result.best_path}; details: itskill reward show {run_dir}")
+
+
+def _network_method(record_dir: Path) -> str:
+    from itskill.transfer import read_transfer
+
+    return read_transfer(record_dir)["method"]
+
+
+def _network(target: str, method: str, out: Path, client: Any, algo: str) -> Any:
+    """The transfer network the candidates train, over the skills retrieved for the target's
+    task (a command is planned first, through the search's cached client)."""
+    from itskill.cli.transfer import transfer_errors
+    from itskill.reward.plan import plan_command
+    from itskill.reward.search import resolve_target
+    from itskill.transfer import get_method, search_network
+
+    try:
+        get_method(method)
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--transfer") from err
+    task = resolve_target(target) or plan_command(target, client).task
+    with transfer_errors():
+        network = search_network(task, method, out, algo=algo, client=client)
+    if network is None:
+        raise typer.BadParameter(f"{method} trains no source skills", param_hint="--transfer")
+    return network
 
 
 def _pct(value: float | None) -> str:

@@ -55,7 +55,7 @@ ConfigOpt = Annotated[
 
 
 @contextmanager
-def _transfer_errors() -> Iterator[None]:
+def transfer_errors() -> Iterator[None]:
     """Errors in the user's input or environment: a red one-line message and exit code 2."""
     from itskill.llm.client import LLMError
     from itskill.rl.config import HyperparamError
@@ -122,7 +122,7 @@ def transfer_train(
     if algo not in ("a2c", "ppo"):
         raise typer.BadParameter("expected a2c or ppo", param_hint="--algo")
     try:
-        with _transfer_errors():
+        with transfer_errors():
             from itskill.llm.client import make_client
 
             result = train_transfer(
@@ -161,7 +161,7 @@ def transfer_analyze(
     from itskill.tasks import get_task
     from itskill.transfer import analyze, resolve_sources, target_entry
 
-    with _transfer_errors():
+    with transfer_errors():
         cfg = _config(config, k)
         spec = get_task(target)
         chosen = resolve_sources(spec.id, sources, cfg.k, distinct_actions=cfg.distinct_actions)

@@ -1,8 +1,9 @@
 """``itskill learn "COMMAND"``: the whole method on a new command, end to end.
 
-plan the command → generate its reward (the Eureka-style search) → retrieve source skills →
-analyze their contributions → train the transfer network with the generated reward → evaluate it
-→ add it to the skill space as a new skill → write the report.
+plan the command → retrieve source skills → analyze their contributions → generate its reward
+(the Eureka-style search, whose candidates train the transfer network over those sources) →
+train the transfer network with the generated reward → evaluate it → add it to the skill space
+as a new skill → write the report.
 
 Everything lands in one run directory (``runs/learn/<slug>/`` by default)::
 
@@ -10,9 +11,9 @@ Everything lands in one run directory (``runs/learn/<slug>/`` by default)::
     provenance.json   sessions: command line, machine, start, end
     llm_cache/        every LLM reply (a resumed or repeated step asks nothing twice)
     plan.json         the validated plan
-    reward/           the reward search's run directory (best_reward.py, summary.json, fig6.png)
     sources.json      the retrieved source skills
     analysis.json     the analyzer's contribution matrix
+    reward/           the reward search's run directory (best_reward.py, summary.json, fig6.png)
     transfer/         the transfer training run (checkpoints, metrics.csv, eval.csv, transfer.json)
     evaluation.json   the final held-out evaluation
     skill.json        the skill added to the skill space, or the threshold it fell below
@@ -44,7 +45,7 @@ from itskill.files import read_json, write_json
 LEARN_FILE = "learn.json"
 EVAL_SEED = 10_000
 """Seed of the final evaluation's episodes: other initial states than training's."""
-STEPS = ("plan", "reward", "sources", "analyze", "train", "evaluate", "skill", "report")
+STEPS = ("plan", "sources", "analyze", "reward", "train", "evaluate", "skill", "report")
 
 
 class LearnError(ValueError):
@@ -312,14 +313,14 @@ def _pipeline(
     steps.begin("plan", f"grounding {command!r} in the task catalogue ({client.name})")
     plan = _plan(command, client, steps)
 
-    steps.begin("reward", "generating the reward (generate, train candidates, reflect)")
-    reward = _reward(command, b, client, run_dir, steps, console)
-
     steps.begin("sources", f"retrieving up to {b.transfer.k} source skills for {plan['task']}")
     sources = _sources(plan["task"], b, steps)
 
     steps.begin("analyze", "contribution of each source to each stage of the task")
     _analyze(plan["task"], b, sources["used"], client, steps)
+
+    steps.begin("reward", "generating the reward (generate, train candidates, reflect)")
+    reward = _reward(command, plan["task"], b, seed, sources, client, run_dir, steps, console)
 
     steps.begin(
         "train",
@@ -372,14 +373,34 @@ def _plan(command: str, client: Any, steps: _Steps) -> dict[str, Any]:
 
 
 def _reward(
-    command: str, b: LearnBudget, client: Any, run_dir: Path, steps: _Steps, console
+    command: str,
+    task: str,
+    b: LearnBudget,
+    seed: int,
+    sources: dict[str, list[dict[str, Any]]],
+    client: Any,
+    run_dir: Path,
+    steps: _Steps,
+    console,
 ) -> dict[str, Any]:
+    """The reward search; its candidates train the network the transfer step will train (its
+    record written to ``transfer/`` now, so both see the same sources and prior)."""
     from itskill.reward import generate_reward
+    from itskill.transfer import search_network
 
     cached = steps.cached("reward.json")
     was_cached = cached is not None
     if cached is None:
         config = b.search_config()
+        network = search_network(
+            task,
+            b.transfer.method,
+            run_dir / "transfer",
+            sources=_source_request(sources),
+            seed=seed,
+            algo=b.transfer.algo,
+            client=client,
+        )
         out = run_dir / "reward"
         res = generate_reward(
             command,
@@ -389,6 +410,7 @@ def _reward(
             resume=out.is_dir() and any(out.iterdir()),
             compare_expert=b.compare_expert,
             console=console,
+            network=network,
         )
         cached = {
             "run_dir": str(res.run_dir),
@@ -398,13 +420,15 @@ def _reward(
             "iterations": config.iterations,
             "samples": config.samples,
             "llm": client.name,
+            "network": None if network is None else network.label,
         }
         write_json(run_dir / "reward.json", cached)
     expert = cached["expert_success"]
     steps.done(
         f"best reward {cached['best_success']:.0%} success"
         + (f" (expert {expert:.0%})" if expert is not None else "")
-        + f" → {cached['best_path']}",
+        + f" → {cached['best_path']}"
+        + (f"; candidates trained {cached['network']}" if cached.get("network") else ""),
         was_cached,
     )
     return cached
@@ -430,6 +454,12 @@ def _sources(task: str, b: LearnBudget, steps: _Steps) -> dict[str, list[dict[st
     names = ", ".join(s["name"] for s in cached["used"])
     steps.done(names or f"none ({b.transfer.method} uses no source)", was_cached)
     return cached
+
+
+def _source_request(sources: dict[str, list[dict[str, Any]]]) -> list[str] | str:
+    """The sources the transfer network is asked for: the skills retrieved in the sources step
+    (by name, so a skill added since does not change them)."""
+    return [s["name"] for s in sources["retrieved"]] or "auto"
 
 
 def _analyze(
@@ -494,7 +524,7 @@ def _train(
     res = train_transfer(
         task,
         t.method,
-        sources=[s["name"] for s in sources["retrieved"]] or "auto",
+        sources=_source_request(sources),
         seed=seed,
         steps=t.steps,
         algo=t.algo,

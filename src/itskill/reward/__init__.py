@@ -19,6 +19,7 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
+    "CandidateNetwork": "candidate",
     "PlanError": "plan",
     "TaskPlan": "plan",
     "plan_command": "plan",

@@ -4,7 +4,8 @@
 starts a fresh child process for the candidate, so the sandbox's CPU and memory limits
 (:func:`itskill.reward.sandbox.apply_process_limits`) bound exactly one candidate, a candidate that
 kills its process takes down nothing else, and a wall-clock limit can stop it. The child compiles
-the code in the sandbox, trains it for every seed (:func:`itskill.rl.train.train`, resumable),
+the code in the sandbox, trains it for every seed (:func:`itskill.rl.train.train`, resumable;
+the job's :class:`CandidateNetwork` where it has one, a transfer network for a complex task),
 and writes ``result.json`` atomically:
 
 - ``success``: the mean over seeds of the best deterministic success through training (the
@@ -27,6 +28,7 @@ import signal
 import threading
 import time
 import traceback
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -49,6 +51,26 @@ _interrupted = False
 
 
 @dataclass(frozen=True)
+class CandidateNetwork:
+    """The network every candidate of a search trains, where it is not the trainer's own.
+
+    A complex task's search passes the transfer network its final training will use (frozen
+    source skills, analyzer prior): trained from scratch at a candidate's budget, every reward
+    for such a task scores 0% and the search cannot tell them apart. ``policy_class`` must be
+    importable in a worker process (it travels by name); ``label`` names the network in logs and
+    in the run's ``config.json``.
+    """
+
+    policy_class: type
+    policy_kwargs: Mapping[str, Any] | None
+    label: str
+
+    def describe(self) -> dict[str, str]:
+        cls = self.policy_class
+        return {"policy_class": f"{cls.__module__}.{cls.__qualname__}", "label": self.label}
+
+
+@dataclass(frozen=True)
 class CandidateJob:
     """Everything a worker needs to train one candidate (picklable, for any executor).
 
@@ -68,6 +90,7 @@ class CandidateJob:
     correlation_envs: int
     sandbox: SandboxConfig
     timeout_s: float
+    network: CandidateNetwork | None = None
 
     def train_dir(self, seed: int) -> Path:
         return Path(self.out) / TRAIN_DIR / f"seed_{seed}"
@@ -179,6 +202,12 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
         reward_fn = compile_reward(job.code, job.sandbox)
         sha = reward_fn.sha256
         reward = RewardSource(reward_fn, {"kind": "generated", "sha256": sha})
+    network = {}
+    if job.network is not None:
+        network = {
+            "policy_class": job.network.policy_class,
+            "policy_kwargs": job.network.policy_kwargs,
+        }
     runs = []
     for seed in job.seeds:
         result = train(
@@ -193,6 +222,7 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
             n_threads=1,
             eval_every=job.eval_every,
             eval_episodes=job.eval_episodes,
+            **network,
         )
         curve = eval_curve(job.train_dir(seed))
         if not curve or curve[-1][0] < result.num_timesteps:

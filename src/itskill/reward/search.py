@@ -12,7 +12,7 @@ success per iteration against the expert (Fig. 6).
 
 Run directory (every file written atomically; see ``docs/reward.md``)::
 
-    config.json  plan.json  usage.json  llm_cache/
+    config.json  plan.json  usage.json  llm_cache/  network/ (a transfer network's record, if any)
     iter_<i>/sample_<k>/{reply.txt, reward.py, status.json, result.json, train/seed_<s>/}
     iter_<i>/summary.json
     select/iter_<i>_sample_<k>_seed<s>/{result.json, train/}
@@ -42,7 +42,7 @@ from itskill.executors import JobResult, default_workers, run_jobs
 from itskill.files import read_json, write_json, write_text
 from itskill.llm.client import LLMClient, Message, make_client
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
-from itskill.reward.candidate import RESULT_FILE, CandidateJob, run_candidate
+from itskill.reward.candidate import RESULT_FILE, CandidateJob, CandidateNetwork, run_candidate
 from itskill.reward.config import RewardSearchConfig, load_search_config
 from itskill.reward.generator import Sample, fenced, generate_samples, probe_contexts
 from itskill.reward.plan import TaskPlan, plan_command, plan_for_task
@@ -58,6 +58,8 @@ SUMMARY_FILE = "summary.json"
 BEST_FILE = "best_reward.py"
 FIGURE_FILE = "fig6.png"
 CACHE_DIR = "llm_cache"
+NETWORK_DIR = "network"
+"""Where a search whose candidates train a transfer network keeps that network's record."""
 OFFLINE_NOTE = "offline rule-based backend (not a language model)"
 
 __all__ = [
@@ -234,7 +236,7 @@ def _check_resume(out: Path, header: dict[str, Any]) -> dict[str, Any]:
         raise RewardSearchError(
             f"{path}: run format {stored.get('format')!r}, this version reads {RUN_FORMAT}"
         )
-    for key in ("target", "llm", "compare_expert"):
+    for key in ("target", "llm", "compare_expert", "network"):
         if stored.get(key) != header[key]:
             raise RewardSearchError(
                 f"{out}: made with {key}={stored.get(key)!r}, this call has {header[key]!r}; "
@@ -315,7 +317,14 @@ def _reuse_results(
     return reused
 
 
-def _job(config: RewardSearchConfig, task: str, out: Path, code: str | None, seeds) -> CandidateJob:
+def _job(
+    config: RewardSearchConfig,
+    task: str,
+    out: Path,
+    code: str | None,
+    seeds,
+    network: CandidateNetwork | None,
+) -> CandidateJob:
     return CandidateJob(
         task=task,
         out=out,
@@ -329,6 +338,7 @@ def _job(config: RewardSearchConfig, task: str, out: Path, code: str | None, see
         correlation_envs=config.correlation_envs,
         sandbox=config.sandbox,
         timeout_s=config.candidate_timeout_s,
+        network=network,
     )
 
 
@@ -370,6 +380,7 @@ def generate_reward(
     resume: bool = False,
     compare_expert: bool = True,
     console: Console | None = None,
+    network: CandidateNetwork | None = None,
 ) -> RewardSearchResult:
     """Search a reward for ``target`` (a task id or a command) with ``client``, in run dir ``out``.
 
@@ -379,6 +390,9 @@ def generate_reward(
     :class:`RewardSearchError` for an unusable run directory or when no candidate trained,
     :class:`~itskill.reward.plan.PlanError` for a command that cannot be grounded, and the
     client's :class:`~itskill.llm.client.LLMError` when the model cannot be reached.
+
+    ``network`` is what every candidate, the selection and the final retraining (the expert
+    reward's too) train; None trains the family's own network from scratch.
     """
     config = config or RewardSearchConfig()
     console = console or Console(stderr=True)
@@ -390,6 +404,7 @@ def generate_reward(
         "target": target,
         "llm": client.name,
         "compare_expert": compare_expert,
+        "network": None if network is None else network.describe(),
         "settings": config.result_settings(),
     }
     if resume:
@@ -413,6 +428,8 @@ def generate_reward(
     run = _Run(out, client, console)
     backend = f"{client.name}: {OFFLINE_NOTE}" if client.offline else client.name
     console.print(f"reward search in {out} with {backend}", highlight=False)
+    if network is not None:
+        console.print(f"candidates train {network.label}", highlight=False)
     plan = _plan(target, client, out)
     run.save_usage()
     console.print(f"plan: task {plan.task}; " + " ".join(plan.subtasks), highlight=False)
@@ -445,7 +462,7 @@ def generate_reward(
             highlight=False,
         )
         jobs = [
-            _job(config, plan.task, it_dir / f"sample_{s.index}", s.code, config.seeds)
+            _job(config, plan.task, it_dir / f"sample_{s.index}", s.code, config.seeds, network)
             for s in accepted
         ]
         keys = [_code_key(s.code) for s in accepted]
@@ -503,13 +520,13 @@ def generate_reward(
         )
     selection = None
     if config.select_top:
-        selection, chosen = _select(run, config, plan.task, out, candidates)
+        selection, chosen = _select(run, config, plan.task, out, candidates, network)
         best = {**chosen, "selected_success": selection["candidates"][selection["chosen"]]["mean"]}
         write_text(out / BEST_FILE, best["code"] + "\n")
     final_seeds = config.final_seed_list
     kinds = [("generated", best["code"])] + ([("expert", None)] if compare_expert else [])
     jobs = [
-        _job(config, plan.task, out / "final" / f"{kind}_seed{s}", code, (s,))
+        _job(config, plan.task, out / "final" / f"{kind}_seed{s}", code, (s,), network)
         for kind, code in kinds
         for s in final_seeds
     ]
@@ -533,6 +550,7 @@ def generate_reward(
         "llm": client.name,
         "offline": client.offline,
         "plan": plan.to_dict(),
+        "network": header["network"],
         "iterations": history,
         "best": best_info,
         "selection": selection,
@@ -560,6 +578,7 @@ def _select(
     task: str,
     out: Path,
     candidates: list[dict[str, Any]],
+    network: CandidateNetwork | None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Retrain the ``select_top`` best distinct rewards on ``select_seeds`` more seeds (one job
     per reward and seed, so the jobs spread evenly over the workers) and choose the one with the
@@ -572,7 +591,7 @@ def _select(
     seeds = config.select_seed_list
     jobs = [
         _job(config, task, out / "select" / f"iter_{c['iteration']}_sample_{c['sample']}_seed{s}",
-             c["code"], (s,))
+             c["code"], (s,), network)
         for c in top
         for s in seeds
     ]  # fmt: skip

@@ -17,7 +17,15 @@ from itskill.transfer.methods import METHODS, Method, get_method
 from itskill.transfer.nia import NIAPolicy
 from itskill.transfer.sources import SourceError, SourceSkill, resolve_sources
 from itskill.transfer.trace import attention_trace
-from itskill.transfer.train import TRANSFER_FILE, read_transfer, target_entry, train_transfer
+from itskill.transfer.train import (
+    TRANSFER_FILE,
+    prepare_transfer,
+    read_transfer,
+    search_network,
+    target_entry,
+    train_transfer,
+    transfer_network,
+)
 
 __all__ = [
     "METHODS",
@@ -38,8 +46,11 @@ __all__ = [
     "attention_trace",
     "get_method",
     "load_transfer_config",
+    "prepare_transfer",
     "read_transfer",
     "resolve_sources",
+    "search_network",
     "target_entry",
     "train_transfer",
+    "transfer_network",
 ]

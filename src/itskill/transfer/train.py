@@ -18,9 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from rich.console import Console
+from stable_baselines3.common.policies import ActorCriticPolicy
 
 from itskill.files import write_json
 from itskill.llm.client import LLMClient
+from itskill.reward.candidate import CandidateNetwork
 from itskill.rl.checkpoint import BEST_DIR
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import EXPERT, ResumeMismatchError, RewardSource, TrainResult, train
@@ -90,6 +92,137 @@ def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
             )
 
 
+def prepare_transfer(
+    target: str,
+    method: str,
+    sources: str | Sequence[int | str] = AUTO,
+    seed: int = 0,
+    algo: str = "a2c",
+    out: str | Path = Path("runs/transfer"),
+    client: LLMClient | None = None,
+    config: TransferConfig | None = None,
+    space: SkillSpace | None = None,
+) -> dict[str, Any]:
+    """The record of a transfer run in ``out`` (``transfer.json``): its sources, the analyzer's
+    contribution matrix and the stages each source performs, resolved and written once.
+
+    A record already in ``out`` is checked against these settings
+    (:class:`~itskill.rl.train.ResumeMismatchError` if they differ) and returned without asking
+    the analyzer again, so that whatever trains with this network (the run itself, or the reward
+    search's candidates before it) sees the same sources and matrix.
+    """
+    spec = get_task(target)
+    meth = get_method(method)
+    config = config or load_transfer_config()
+    out = Path(out)
+    record: dict[str, Any] = {
+        "format": FORMAT_VERSION,
+        "target": spec.id,
+        "command": spec.command,
+        "method": meth.name,
+        "algo": algo,
+        "seed": seed,
+        "sources_request": _request(sources) if meth.uses_sources else None,
+        "k": config.k if meth.uses_sources else None,
+        "config": config.to_dict(),
+    }
+    if (out / TRANSFER_FILE).is_file():
+        old = read_transfer(out)
+        _check_resume(old, record, out)
+        return old
+    chosen: list[SourceSkill] = []
+    matrix: ContributionMatrix | None = None
+    if meth.uses_sources:
+        chosen = resolve_sources(
+            spec.id, sources, config.k, space, distinct_actions=config.distinct_actions
+        )
+        chosen = meth.select(chosen, config)
+    if meth.uses_prior:
+        if client is None:
+            from itskill.llm.client import make_client
+
+            client = make_client()
+        matrix = analyze(
+            target_entry(spec),
+            [s.analyzer_entry() for s in chosen],
+            client,
+            retries=config.analyzer_retries,
+        )
+    policy_class = meth.policy_class
+    target_stages = [st.name for st in spec.stages]
+    source_stages = [_stage_names(s.task_id) for s in chosen]
+    record.update(
+        sources=[s.to_dict() for s in chosen],
+        source_specs=[
+            s.spec()
+            if names is None
+            else {**s.spec(), "stage_map": list(stage_map(target_stages, names))}
+            for s, names in zip(chosen, source_stages, strict=True)
+        ],
+        performers=(
+            list(
+                fill_performers(
+                    stage_performers(target_stages, source_stages),
+                    spec.actions,
+                    [s.actions for s in chosen],
+                )
+            )
+            if chosen and config.residual
+            else None
+        ),
+        contribution=None if matrix is None else matrix.to_dict(),
+        policy_class=f"{policy_class.__module__}.{policy_class.__qualname__}",
+        created=time.time(),
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / TRANSFER_FILE, record)
+    return record
+
+
+def transfer_network(
+    record: dict[str, Any], config: TransferConfig | None = None
+) -> tuple[type[ActorCriticPolicy], dict[str, Any] | None]:
+    """The policy class a transfer run's ``record`` trains and its keyword arguments (frozen
+    sources, prior, source-action residual; None for a method without sources)."""
+    meth = get_method(record["method"])
+    if not meth.uses_sources:
+        return meth.policy_class, None
+    config = config or load_transfer_config()
+    contribution = record["contribution"]
+    return meth.policy_class, {
+        "sources": record["source_specs"],
+        "prior": None if contribution is None else contribution["matrix"],
+        "performers": record.get("performers"),
+        **config.policy_kwargs(),
+    }
+
+
+def search_network(
+    target: str,
+    method: str,
+    out: str | Path,
+    sources: str | Sequence[int | str] = AUTO,
+    seed: int = 0,
+    algo: str = "ppo",
+    client: LLMClient | None = None,
+    config: TransferConfig | None = None,
+    space: SkillSpace | None = None,
+) -> CandidateNetwork | None:
+    """The network a reward search for ``target`` trains its candidates with: ``method``'s
+    transfer network over its sources, so that a reward is judged by what it teaches the network
+    that will learn the task. The run's record is written to ``out`` (see
+    :func:`prepare_transfer`): a transfer run there later trains the same network. None for a
+    method without sources (candidates then train the family's network from scratch).
+    """
+    if not get_method(method).uses_sources:
+        return None
+    config = config or load_transfer_config()
+    record = prepare_transfer(target, method, sources, seed, algo, out, client, config, space)
+    policy_class, policy_kwargs = transfer_network(record, config)
+    names = ", ".join(s["name"] for s in record["sources"])
+    return CandidateNetwork(policy_class, policy_kwargs, f"{record['method']} over {names}")
+
+
 def train_transfer(
     target: str,
     method: str,
@@ -121,87 +254,15 @@ def train_transfer(
     ``eval_every``, ``eval_episodes``, ``n_threads``, ``hyperparams`` and ``overrides`` are
     :func:`itskill.rl.train.train`'s. Rerunning on the same ``out`` resumes.
     """
-    spec = get_task(target)
-    meth = get_method(method)
     config = config or load_transfer_config()
     out = Path(out)
-    record: dict[str, Any] = {
-        "format": FORMAT_VERSION,
-        "target": spec.id,
-        "command": spec.command,
-        "method": meth.name,
-        "algo": algo,
-        "seed": seed,
-        "sources_request": _request(sources) if meth.uses_sources else None,
-        "k": config.k if meth.uses_sources else None,
-        "config": config.to_dict(),
-    }
-    if (out / TRANSFER_FILE).is_file():
-        old = read_transfer(out)
-        _check_resume(old, record, out)
-        record = old
-    else:
-        chosen: list[SourceSkill] = []
-        matrix: ContributionMatrix | None = None
-        if meth.uses_sources:
-            chosen = resolve_sources(
-                spec.id, sources, config.k, space, distinct_actions=config.distinct_actions
-            )
-            chosen = meth.select(chosen, config)
-        if meth.uses_prior:
-            if client is None:
-                from itskill.llm.client import make_client
-
-                client = make_client()
-            matrix = analyze(
-                target_entry(spec),
-                [s.analyzer_entry() for s in chosen],
-                client,
-                retries=config.analyzer_retries,
-            )
-        policy_class = meth.policy_class
-        target_stages = [st.name for st in spec.stages]
-        source_stages = [_stage_names(s.task_id) for s in chosen]
-        record.update(
-            sources=[s.to_dict() for s in chosen],
-            source_specs=[
-                s.spec()
-                if names is None
-                else {**s.spec(), "stage_map": list(stage_map(target_stages, names))}
-                for s, names in zip(chosen, source_stages, strict=True)
-            ],
-            performers=(
-                list(
-                    fill_performers(
-                        stage_performers(target_stages, source_stages),
-                        spec.actions,
-                        [s.actions for s in chosen],
-                    )
-                )
-                if chosen and config.residual
-                else None
-            ),
-            contribution=None if matrix is None else matrix.to_dict(),
-            policy_class=f"{policy_class.__module__}.{policy_class.__qualname__}",
-            created=time.time(),
-        )
-        out.mkdir(parents=True, exist_ok=True)
-        write_json(out / TRANSFER_FILE, record)
-
-    policy_kwargs: dict[str, Any] | None = None
-    if meth.uses_sources:
-        contribution = record["contribution"]
-        policy_kwargs = {
-            "sources": record["source_specs"],
-            "prior": None if contribution is None else contribution["matrix"],
-            "performers": record.get("performers"),
-            **config.policy_kwargs(),
-        }
+    record = prepare_transfer(target, method, sources, seed, algo, out, client, config, space)
+    policy_class, policy_kwargs = transfer_network(record, config)
     if console is not None and record["sources"]:
         names = ", ".join(s["name"] for s in record["sources"])
-        console.print(f"{meth.name} on {spec.id}: sources {names}")
+        console.print(f"{record['method']} on {record['target']}: sources {names}")
     result = train(
-        spec.id,
+        record["target"],
         algo,
         steps,
         seed,
@@ -215,7 +276,7 @@ def train_transfer(
         console=console,
         eval_every=eval_every,
         eval_episodes=eval_episodes,
-        policy_class=meth.policy_class,
+        policy_class=policy_class,
         policy_kwargs=policy_kwargs,
     )
     if result.best is not None:
