@@ -289,6 +289,8 @@ def show_cmd(
         console.print(f"replies by {llm}: {OFFLINE_NOTE}", style="yellow")
     else:
         console.print(f"replies by {llm}")
+    if config.get("network"):
+        console.print(f"candidates trained {config['network']['label']}", highlight=False)
     plan = data["plan"]
     if plan:
         console.print(f"plan: task {plan['task']}", highlight=False)

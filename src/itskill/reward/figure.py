@@ -58,9 +58,13 @@ def plot_fig6(summary: dict[str, Any], out: Path) -> Path:
     llm = summary.get("llm", "")
     source = "offline rule-based backend" if summary.get("offline") else llm
     steps = final.get("steps")
+    network = summary.get("network")
+    runs = f"every run: {steps:,} env-steps" if steps else ""
+    if network:
+        runs = ", ".join(filter(None, [runs, network["label"]]))
     ax.set(
         title=f"{summary['task']}: generated ({source}) vs expert reward",
-        xlabel="iteration" + (f" (every run: {steps:,} env-steps)" if steps else ""),
+        xlabel="iteration" + (f" ({runs})" if runs else ""),
         ylabel="success (deterministic, best through training)",
         ylim=(-0.02, 1.02),
         xlim=(0.5, len(iterations) + 0.5),

@@ -6,7 +6,9 @@ batch (regenerating broken ones with the error), train every accepted one as a j
 and keep the best: highest success, ties broken by correlation with the expert reward. A
 candidate's success on the search's seed is partly luck at a short budget, so before the choice
 the ``select_top`` best distinct rewards are retrained on ``select_seeds`` more seeds, and the one
-with the highest mean over all its seeds is chosen. Then retrain the chosen reward with
+with the highest mean over all its seeds is chosen. Candidates train the trainer's network from
+scratch, or the :class:`~itskill.reward.candidate.CandidateNetwork` given (a transfer network
+for a complex task: :func:`itskill.transfer.search_network`). Then retrain the chosen reward with
 ``final_seeds`` fresh seeds, and the expert reward with the same budget and seeds, and plot
 success per iteration against the expert (Fig. 6).
 
