@@ -317,7 +317,7 @@ def _pipeline(
     sources = _sources(plan["task"], b, steps)
 
     steps.begin("analyze", "contribution of each source to each stage of the task")
-    _analyze(plan["task"], b, sources["used"], client, steps)
+    _analyze(plan["task"], b, seed, sources, client, steps)
 
     steps.begin("reward", "generating the reward (generate, train candidates, reflect)")
     reward = _reward(command, plan["task"], b, seed, sources, client, run_dir, steps, console)
@@ -463,25 +463,32 @@ def _source_request(sources: dict[str, list[dict[str, Any]]]) -> list[str] | str
 
 
 def _analyze(
-    task: str, b: LearnBudget, sources: list[dict[str, Any]], client: Any, steps: _Steps
+    task: str,
+    b: LearnBudget,
+    seed: int,
+    sources: dict[str, list[dict[str, Any]]],
+    client: Any,
+    steps: _Steps,
 ) -> dict[str, Any] | None:
-    """The analyzer's contribution matrix, asked exactly as the transfer training asks it (with
-    the same cached client, so it is answered once)."""
-    from itskill.tasks import get_task
-    from itskill.transfer import analyze, get_method, load_transfer_config, target_entry
+    """The analyzer's contribution matrix: the one in the transfer run's record, written here
+    (``transfer/transfer.json``), which the reward search's network and the training then read."""
+    from itskill.transfer import get_method, prepare_transfer
 
     cached = steps.cached("analysis.json")
     was_cached = cached is not None
     if cached is None:
-        if get_method(b.transfer.method).uses_prior and sources:
-            entries = [
-                {"id": s["name"], "description": s["description"], "actions": s["actions"]}
-                for s in sources
-            ]
-            retries = load_transfer_config().analyzer_retries
-            cached = analyze(target_entry(get_task(task)), entries, client, retries).to_dict()
-        else:
-            cached = {}
+        cached = {}
+        if get_method(b.transfer.method).uses_prior and sources["used"]:
+            record = prepare_transfer(
+                task,
+                b.transfer.method,
+                _source_request(sources),
+                seed,
+                b.transfer.algo,
+                steps.run_dir / "transfer",
+                client,
+            )
+            cached = record["contribution"]
         write_json(steps.run_dir / "analysis.json", cached)
     if not cached:
         steps.done(f"not used by {b.transfer.method}", was_cached)

@@ -66,8 +66,9 @@ class CandidateNetwork:
     label: str
 
     def describe(self) -> dict[str, str]:
-        cls = self.policy_class
-        return {"policy_class": f"{cls.__module__}.{cls.__qualname__}", "label": self.label}
+        from itskill.rl.checkpoint import class_path
+
+        return {"policy_class": class_path(self.policy_class), "label": self.label}
 
 
 @dataclass(frozen=True)

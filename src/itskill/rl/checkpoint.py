@@ -176,7 +176,13 @@ def build_policy(config: PolicyConfig) -> StagedActorCriticPolicy:
     return StagedActorCriticPolicy(observation_space(), action_space(), lambda _: 0.0, **kwargs)
 
 
-STAGED_POLICY_CLASS = f"{StagedActorCriticPolicy.__module__}.{StagedActorCriticPolicy.__qualname__}"
+def class_path(cls: type) -> str:
+    """The import path a checkpoint records for a policy class (``module.Class``), the one
+    :func:`policy_from_meta` imports it back from."""
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+STAGED_POLICY_CLASS = class_path(StagedActorCriticPolicy)
 
 
 def policy_from_meta(

@@ -26,7 +26,14 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from itskill.rl.checkpoint import MODEL_FILE, read_meta, restore_reward_norm, save_checkpoint
+from itskill.rl.checkpoint import (
+    MODEL_FILE,
+    STAGED_POLICY_CLASS,
+    class_path,
+    read_meta,
+    restore_reward_norm,
+    save_checkpoint,
+)
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
 from itskill.rl.eval_callback import DeterministicEvalCallback, read_selection
 from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
@@ -171,13 +178,9 @@ class CheckpointCallback(BaseCallback):
             self._last = self.num_timesteps
 
 
-def _class_path(cls: type) -> str:
-    return f"{cls.__module__}.{cls.__qualname__}"
-
-
 def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> None:
     # Checkpoints written before the policy class was recorded all hold the staged policy.
-    meta = {"policy_class": _class_path(StagedActorCriticPolicy), **meta}
+    meta = {"policy_class": STAGED_POLICY_CLASS, **meta}
     for key in ("task", "algo", "seed", "policy_class"):
         if meta.get(key) != want[key]:
             raise ResumeMismatchError(
@@ -248,7 +251,7 @@ def train(
         "reward": reward_meta,
         "num_envs": hp.num_envs,
         "hyperparams": hp.to_dict(),
-        "policy_class": _class_path(policy_class),
+        "policy_class": class_path(policy_class),
     }
 
     resumed_from = 0

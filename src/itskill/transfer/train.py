@@ -23,7 +23,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from itskill.files import write_json
 from itskill.llm.client import LLMClient
 from itskill.reward.candidate import CandidateNetwork
-from itskill.rl.checkpoint import BEST_DIR
+from itskill.rl.checkpoint import BEST_DIR, class_path
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import EXPERT, ResumeMismatchError, RewardSource, TrainResult, train
 from itskill.skills import SkillSpace
@@ -171,7 +171,7 @@ def prepare_transfer(
             else None
         ),
         contribution=None if matrix is None else matrix.to_dict(),
-        policy_class=f"{policy_class.__module__}.{policy_class.__qualname__}",
+        policy_class=class_path(policy_class),
         created=time.time(),
     )
     out.mkdir(parents=True, exist_ok=True)
