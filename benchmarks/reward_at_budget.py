@@ -1,0 +1,161 @@
+"""A generated reward against the expert's, both trained where the network learns the task.
+
+The reward search judges its candidates at a short budget; on a complex task the transfer network
+has barely left its sources' level there, so the search's own final comparison says little. This
+benchmark trains the chosen reward and the expert reward on the same transfer network for the
+same budget and seeds (PPO, the ``itskill learn`` default training: 300,000 env-steps), keeps each
+run's best evaluated policy (``best/``) and evaluates it on 100 held-out episodes. It prints, per
+reward, the final training evaluation and the held-out success per seed, their means with 95%
+intervals and the env-steps to 80%; it writes ``summary.json``, ``curves.png`` and each run's
+``eval.csv`` and held-out result to ``--results``. Runs go to ``--out`` (rerunning resumes them).
+
+Target (issue 4): generated reward success >= the expert's.
+
+    python benchmarks/reward_at_budget.py \\
+        --reward results/reward_search/pickplace_nut_m12_itn/best_reward.py \\
+        --results results/reward_search/pickplace_nut_m12_itn/at_300k
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from itskill.executors import run_jobs
+from itskill.experiments.analysis import (
+    common_grid,
+    estimate,
+    mean_band,
+    read_curve,
+    time_to_threshold,
+)
+from itskill.experiments.plots import plot_learning_curves
+from itskill.files import write_json
+from itskill.rl.checkpoint import BEST_DIR, as_policy
+from itskill.rl.eval_callback import EVAL_FILE
+from itskill.tasks import get_task
+from itskill.tasks.evaluate import evaluate
+from itskill.transfer import train_transfer
+
+HELD_OUT_SEED = 10_000
+"""The seed of ``itskill learn``'s final evaluation: other episodes than the training-time ones."""
+THRESHOLD = 0.8
+
+
+def train_one(task: str, method: str, reward: str, seed: int, steps: int, every: int,
+              episodes: int, out: str) -> int:  # fmt: skip
+    """One transfer run into ``out`` (resumed if it is there), PPO with the packaged settings."""
+    train_transfer(
+        task, method, "auto", seed=seed, steps=steps, algo="ppo", out=Path(out), reward=reward,
+        eval_every=every, eval_episodes=episodes, n_threads=1, progress=False,
+    )  # fmt: skip
+    return seed
+
+
+def _band(values: list[float]) -> dict[str, float]:
+    est = estimate(values)
+    return {"mean": est.mean, "ci_low": est.low, "ci_high": est.high}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default="pickplace_nut_m12")
+    parser.add_argument("--reward", type=Path, required=True, help="the generated reward (.py)")
+    parser.add_argument("--method", default="itn")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--steps", type=int, default=300_000)
+    parser.add_argument("--eval-every", type=int, default=20_000)
+    parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--held-out", type=int, default=100, help="held-out episodes per policy")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("runs/reward_at_budget"))
+    parser.add_argument("--results", type=Path, required=True)
+    args = parser.parse_args(argv)
+    if not args.reward.is_file():
+        parser.error(f"no reward file {args.reward}")
+
+    rewards = {"generated": str(args.reward), "expert": "expert"}
+    runs = {(r, s): args.out / f"{r}_seed{s}" for r in rewards for s in args.seeds}
+    t0 = time.perf_counter()
+    jobs = [
+        (args.task, args.method, rewards[r], s, args.steps, args.eval_every, args.eval_episodes,
+         str(d))
+        for (r, s), d in runs.items()
+    ]  # fmt: skip
+    failed = False
+    for job in run_jobs(train_one, jobs, workers=args.workers):
+        if not job.ok:
+            print(f"run {jobs[job.index][-1]} failed: {job.error}", file=sys.stderr)
+            failed = True
+    if failed:
+        return 1
+    train_s = time.perf_counter() - t0
+
+    spec = get_task(args.task)
+    summary: dict[str, Any] = {
+        "task": args.task,
+        "method": args.method,
+        "reward": str(args.reward),
+        "algo": "ppo",
+        "steps": args.steps,
+        "eval_every": args.eval_every,
+        "eval_episodes": args.eval_episodes,
+        "heldout_episodes": args.held_out,
+        "heldout_seed": HELD_OUT_SEED,
+        "machine": f"{platform.node()}, {args.workers} runs at a time",
+        "rewards": {},
+    }
+    bands = {}
+    print(f"{args.task} on {args.method}, {args.steps:,} env-steps, best/ on {args.held_out} "
+          f"held-out episodes (seed {HELD_OUT_SEED})")  # fmt: skip
+    for name in rewards:
+        curves, heldout, stage_steps = [], [], []
+        for s in args.seeds:
+            run_dir = runs[name, s]
+            curves.append(read_curve(run_dir, args.steps))
+            res = evaluate(spec, as_policy(run_dir / BEST_DIR), args.held_out,
+                           seed=HELD_OUT_SEED, num_envs=25)  # fmt: skip
+            heldout.append(res.success_rate)
+            stage_steps.append(res.stage_steps)
+            keep = args.results / name / f"seed_{s}"
+            keep.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(run_dir / EVAL_FILE, keep / EVAL_FILE)
+            write_json(keep / "heldout_eval.json", res.to_dict())
+        reached = time_to_threshold(curves, THRESHOLD)
+        final = [float(c.success[-1]) for c in curves]
+        bands[name] = mean_band(curves, common_grid(curves))
+        summary["rewards"][name] = {
+            "seeds": args.seeds,
+            "final": final,
+            "best": [float(np.max(c.success)) for c in curves],
+            "heldout": heldout,
+            "reached_80": [
+                int(v) if ok else None for v, ok in zip(reached.steps, reached.reached, strict=True)
+            ],
+            "stage_steps": np.mean(stage_steps, axis=0).tolist(),
+            "final_band": _band(final),
+            "heldout_band": _band(heldout),
+        }
+        band = summary["rewards"][name]["heldout_band"]
+        print(
+            f"{name:>9}: final {', '.join(f'{v:.0%}' for v in final)}; held-out "
+            f"{', '.join(f'{v:.0%}' for v in heldout)}; mean {band['mean']:.0%} "
+            f"[{max(band['ci_low'], 0):.0%}, {min(band['ci_high'], 1):.0%}]; 80% reached: "
+            f"{reached.format_steps()}"
+        )
+    plot_learning_curves(bands, f"{args.task}: generated vs expert reward ({args.method})",
+                         args.results / "curves.png", threshold=THRESHOLD)  # fmt: skip
+    write_json(args.results / "summary.json", summary)
+    print(f"training {train_s / 60:.1f} min this call; results in {args.results}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
