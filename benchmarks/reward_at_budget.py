@@ -36,6 +36,7 @@ from itskill.experiments.analysis import (
     read_curve,
     time_to_threshold,
 )
+from itskill.experiments.learn import EVAL_SEED
 from itskill.experiments.plots import plot_learning_curves
 from itskill.files import write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy
@@ -44,8 +45,6 @@ from itskill.tasks import get_task
 from itskill.tasks.evaluate import evaluate
 from itskill.transfer import train_transfer
 
-HELD_OUT_SEED = 10_000
-"""The seed of ``itskill learn``'s final evaluation: other episodes than the training-time ones."""
 THRESHOLD = 0.8
 
 
@@ -108,20 +107,20 @@ def main(argv: list[str] | None = None) -> int:
         "eval_every": args.eval_every,
         "eval_episodes": args.eval_episodes,
         "heldout_episodes": args.held_out,
-        "heldout_seed": HELD_OUT_SEED,
+        "heldout_seed": EVAL_SEED,
         "machine": f"{platform.node()}, {args.workers} runs at a time",
         "rewards": {},
     }
     bands = {}
     print(f"{args.task} on {args.method}, {args.steps:,} env-steps, best/ on {args.held_out} "
-          f"held-out episodes (seed {HELD_OUT_SEED})")  # fmt: skip
+          f"held-out episodes (seed {EVAL_SEED})")  # fmt: skip
     for name in rewards:
         curves, heldout, stage_steps = [], [], []
         for s in args.seeds:
             run_dir = runs[name, s]
             curves.append(read_curve(run_dir, args.steps))
             res = evaluate(spec, as_policy(run_dir / BEST_DIR), args.held_out,
-                           seed=HELD_OUT_SEED, num_envs=25)  # fmt: skip
+                           seed=EVAL_SEED, num_envs=25)  # fmt: skip
             heldout.append(res.success_rate)
             stage_steps.append(res.stage_steps)
             keep = args.results / name / f"seed_{s}"
