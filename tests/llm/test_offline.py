@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from itskill.llm import (
     reward_messages,
     task_description,
 )
+from itskill.llm.offline import synthesiser
 from itskill.llm.offline.analyzer import FLOOR
 from itskill.reward.sandbox import compile_reward
 from itskill.tasks import all_tasks, get_task, make_batch_env
@@ -154,6 +156,23 @@ def test_a_stage_that_must_keep_the_part_upright_pays_less_for_a_tipped_one() ->
     assert upright[0] == pytest.approx(0.5) and upright[1] < 0.05
     # A stage whose condition says nothing of uprightness gets no such term.
     assert not [k for k in comps if k.startswith("0.") and k.endswith("/upright")]
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (('distance_of = "reach"', 'distance_of = "grasped"'), "distance_of names no term"),
+        (('approach = ["reach", "reach_fine"]', 'approach = ["reach", "nearby"]'), "'nearby'"),
+    ],
+)
+def test_a_broken_vocabulary_file_is_refused_with_its_path(tmp_path, edit, message) -> None:
+    text = (Path(synthesiser.__file__).parent / "terms.toml").read_text()
+    assert edit[0] in text
+    broken = tmp_path / "terms.toml"
+    broken.write_text(text.replace(edit[0], edit[1], 1))
+    with pytest.raises(ValueError, match=message) as err:
+        synthesiser.vocabulary(broken)
+    assert str(broken) in str(err.value)
 
 
 def pick_context(n: int) -> dict[str, np.ndarray]:
