@@ -4,8 +4,8 @@ For each task, run the full loop (:func:`itskill.reward.generate_reward`, defaul
 10 samples, the packaged candidate budget), then report the wall time on this machine and the
 chosen reward's final success (mean over the final seeds, 95% interval) beside the expert
 reward's (same env-steps, same seeds). Results go to ``results/reward_search/<task>/`` (the
-search's ``summary.json`` and ``fig6.png``); the run directories to ``--runs`` (resumable:
-rerunning the same command continues an interrupted search).
+search's ``summary.json``, ``fig6.png`` and the chosen ``best_reward.py``); the run directories
+to ``--runs`` (resumable: rerunning the same command continues an interrupted search).
 
 Targets (issue 4): the basic-skill loop under 60 minutes on 2 cores; generated reward success >=
 the expert's.
@@ -33,7 +33,7 @@ from rich.console import Console
 
 from itskill.executors import EXECUTORS
 from itskill.reward import generate_reward, load_search_config, search_client
-from itskill.reward.search import CONFIG_FILE, FIGURE_FILE, NETWORK_DIR, SUMMARY_FILE
+from itskill.reward.search import BEST_FILE, CONFIG_FILE, FIGURE_FILE, NETWORK_DIR, SUMMARY_FILE
 from itskill.transfer import search_network
 
 DEFAULT_TASKS = ("pick_nut_m12", "pickplace_nut_m12")
@@ -105,7 +105,8 @@ def main() -> None:
             "python": platform.python_version(),
         }
         (target / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
-        shutil.copyfile(run_dir / FIGURE_FILE, target / FIGURE_FILE)
+        for file in (FIGURE_FILE, BEST_FILE):
+            shutil.copyfile(run_dir / file, target / file)
         rows.append((name, summary, result))
     print(
         f"\n{config.iterations} iterations x {config.samples} samples, {config.steps} env-steps "
