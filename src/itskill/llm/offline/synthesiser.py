@@ -101,13 +101,6 @@ def vocabulary(path: Path | None = None) -> dict[str, Any]:
     if stray:
         raise ValueError(f"{source}: [conditions] names unknown predicates {sorted(stray)}")
     for name, term in data["terms"].items():
-        if "distance_of" in term:
-            other = data["terms"].get(term["distance_of"], {})
-            if "distance" not in other:
-                raise ValueError(
-                    f"{source}: terms.{name}: distance_of names no term with a distance"
-                )
-            term["distance"] = other["distance"]
         needed = ["doc", "kind", "weight"] + (
             ["distance", "temperature"] if term.get("kind") == "distance" else ["value"]
         )
@@ -439,13 +432,10 @@ def render_code(task: TaskStructure, params: RewardParams, label: str) -> str:
     for stage in task.stages:
         k, f = stage.index, stage.fields
         out.append(f"    # stage {k}: {stage.action} (object {f['i']}, recipe {stage.recipe})")
-        distance = None  # the last `d` written: a fine-scale term reuses its coarse twin's
         for name in stage.terms:
             term = vocab["terms"][name]
             if term["kind"] == "distance":
-                if term["distance"].format(**f) != distance:
-                    distance = term["distance"].format(**f)
-                    out.append(f"    d = {distance}")
+                out.append(f"    d = {term['distance'].format(**f)}")
                 out.append(f"    value = {transform.format(t=f'temp_{name}_{k}')}")
             else:
                 out.append(f"    value = {term['value'].format(**f)}")
