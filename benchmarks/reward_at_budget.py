@@ -19,6 +19,7 @@ Target (issue 4): generated reward success >= the expert's.
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import shutil
 import sys
@@ -108,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         "eval_episodes": args.eval_episodes,
         "heldout_episodes": args.held_out,
         "heldout_seed": EVAL_SEED,
-        "machine": f"{platform.node()}, {args.workers} runs at a time",
+        "machine": f"{os.cpu_count()} CPUs ({platform.machine()}), {args.workers} runs at a time",
         "rewards": {},
     }
     bands = {}
