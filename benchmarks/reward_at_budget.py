@@ -42,6 +42,7 @@ from itskill.experiments.plots import plot_learning_curves
 from itskill.files import write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy
 from itskill.rl.eval_callback import EVAL_FILE
+from itskill.stats import format_rate_interval
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import evaluate
 from itskill.transfer import train_transfer
@@ -146,9 +147,9 @@ def main(argv: list[str] | None = None) -> int:
         band = summary["rewards"][name]["heldout_band"]
         print(
             f"{name:>9}: final {', '.join(f'{v:.0%}' for v in final)}; held-out "
-            f"{', '.join(f'{v:.0%}' for v in heldout)}; mean {band['mean']:.0%} "
-            f"[{max(band['ci_low'], 0):.0%}, {min(band['ci_high'], 1):.0%}]; 80% reached: "
-            f"{reached.format_steps()}"
+            f"{', '.join(f'{v:.0%}' for v in heldout)}; "
+            f"mean {format_rate_interval(band['mean'], band['ci_low'], band['ci_high'])}; "
+            f"80% reached: {reached.format_steps()}"
         )
     plot_learning_curves(bands, f"{args.task}: generated vs expert reward ({args.method})",
                          args.results / "curves.png", threshold=THRESHOLD)  # fmt: skip

@@ -34,6 +34,7 @@ from rich.console import Console
 from itskill.executors import EXECUTORS
 from itskill.reward import generate_reward, load_search_config, search_client
 from itskill.reward.search import BEST_FILE, CONFIG_FILE, FIGURE_FILE, NETWORK_DIR, SUMMARY_FILE
+from itskill.stats import format_rate_interval
 from itskill.transfer import search_network
 
 DEFAULT_TASKS = ("pick_nut_m12", "pickplace_nut_m12")
@@ -42,8 +43,7 @@ DEFAULT_TASKS = ("pick_nut_m12", "pickplace_nut_m12")
 def _interval(band: dict | None) -> str:
     if not band or band.get("mean") is None:
         return "-"
-    low, high = max(band["ci_low"], 0.0), min(band["ci_high"], 1.0)
-    return f"{band['mean']:.0%} [{low:.0%}, {high:.0%}]"
+    return format_rate_interval(band["mean"], band["ci_low"], band["ci_high"])
 
 
 def main() -> None:

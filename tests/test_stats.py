@@ -1,6 +1,6 @@
 import pytest
 
-from itskill.stats import mean_interval, steps_to_threshold, wilson_interval
+from itskill.stats import format_rate_interval, mean_interval, steps_to_threshold, wilson_interval
 
 
 @pytest.mark.parametrize(
@@ -47,3 +47,9 @@ def test_steps_to_threshold_is_the_first_crossing() -> None:
     steps = [10, 20, 30, 40]
     assert steps_to_threshold(steps, [0.1, 0.85, 0.7, 0.95], 0.8) == 20
     assert steps_to_threshold(steps, [0.1, 0.2, 0.3, 0.4], 0.8) is None
+
+
+def test_a_rate_interval_is_cut_to_what_a_rate_can_be() -> None:
+    assert format_rate_interval(0.75, 0.5712, 0.9288) == "75% [57%, 93%]"
+    assert format_rate_interval(0.65, 0.0621, 1.2445) == "65% [6%, 100%]"
+    assert format_rate_interval(0.35, -0.1123, 0.8056) == "35% [0%, 81%]"

@@ -52,6 +52,12 @@ def mean_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[fl
     return mean, mean - half, mean + half
 
 
+def format_rate_interval(mean: float, low: float, high: float) -> str:
+    """A success rate with its interval as ``"75% [57%, 93%]"``; a t-interval over few seeds can
+    reach past 0 or 1, where no rate can lie, so it is cut to that range."""
+    return f"{mean:.0%} [{max(low, 0.0):.0%}, {min(high, 1.0):.0%}]"
+
+
 def steps_to_threshold(
     steps: Sequence[float], values: Sequence[float], threshold: float
 ) -> float | None:
