@@ -25,4 +25,4 @@ def checkpoint(tmp_path: Path) -> Path:
 @pytest.fixture(autouse=True)
 def no_shipped_library(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Skill spaces start empty in tests, whatever library the checkout ships."""
-    monkeypatch.setattr("itskill.skills.library.SHIPPED_LIBRARY", tmp_path / "no-shipped-library")
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", tmp_path / "no-shipped-library")

@@ -10,7 +10,7 @@ import numpy as np
 from itskill.rl import load_policy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.skills import ManifestEntry, open_skill_space, read_manifest, write_manifest
-from itskill.skills.library import SHIPPED_LIBRARY as SHIPPED
+from itskill.skills.store import SHIPPED_LIBRARY as SHIPPED
 from itskill.tasks import all_tasks
 
 
@@ -37,7 +37,7 @@ def _ship(shipped: Path, tasks: tuple[str, ...], success: float = 0.9) -> None:
 def test_fresh_skill_space_gets_the_shipped_library_once(tmp_path, monkeypatch, home) -> None:
     shipped = tmp_path / "shipped"
     _ship(shipped, ("reach_nut_m12", "pick_nut_m12"))
-    monkeypatch.setattr("itskill.skills.library.SHIPPED_LIBRARY", shipped)
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
 
     with open_skill_space() as space:
         skills = {s.name: s for s in space.list()}
@@ -58,7 +58,7 @@ def test_a_space_marked_by_an_older_release_gets_the_skills_it_lacks(
 ) -> None:
     shipped = tmp_path / "shipped"
     _ship(shipped, ("reach_nut_m12",))
-    monkeypatch.setattr("itskill.skills.library.SHIPPED_LIBRARY", shipped)
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
     with open_skill_space() as space:
         marker = space.path.with_name(space.path.name + ".shipped-library-installed")
     marker.write_text(f"{shipped}\n")  # the older marker: the library's path only
@@ -72,7 +72,7 @@ def test_an_upgrade_that_retrained_a_shipped_skill_updates_its_measurements(
 ) -> None:
     shipped = tmp_path / "shipped"
     _ship(shipped, ("reach_nut_m12", "pick_nut_m12"), success=0.5)
-    monkeypatch.setattr("itskill.skills.library.SHIPPED_LIBRARY", shipped)
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
     own = tmp_path / "own.safetensors"
     own.write_bytes(b"weights")
     with open_skill_space() as space:
@@ -86,6 +86,29 @@ def test_an_upgrade_that_retrained_a_shipped_skill_updates_its_measurements(
     with open_skill_space() as space:
         assert space.get("reach_nut_m12").success_rate == 0.96
         assert space.get("pick_nut_m12").success_rate == 0.3
+
+
+def test_shipped_skills_follow_the_package_when_it_is_reinstalled_elsewhere(
+    tmp_path, monkeypatch, home
+) -> None:
+    first = tmp_path / "venv1" / "itskill" / "skills" / "library"
+    _ship(first, ("reach_nut_m12", "pick_nut_m12"))
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", first)
+    with open_skill_space() as space:
+        assert space.get("pick_nut_m12").checkpoint == "package:pick_nut_m12/policy.safetensors"
+        # An entry as releases before ``package:`` paths wrote it: the install's absolute path.
+        space.set_checkpoint("reach_nut_m12", str(first / "reach_nut_m12/policy.safetensors"))
+    # The old install is deleted; itskill now lives in another virtualenv.
+    second = tmp_path / "venv2" / "itskill" / "skills" / "library"
+    first.rename(tmp_path / "gone")
+    _ship(second, ("reach_nut_m12", "pick_nut_m12"), success=0.97)
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", second)
+    with open_skill_space() as space:
+        for name in ("reach_nut_m12", "pick_nut_m12"):
+            skill = space.get(name)
+            assert space.checkpoint_path(skill) == second / name / "policy.safetensors"
+            assert space.checkpoint_path(skill).is_file()
+            assert skill.success_rate == 0.97
 
 
 def test_every_shipped_skill_loads_and_acts() -> None:

@@ -17,9 +17,8 @@ from itskill.skills import (
     UnknownSkillError,
     itskill_home,
 )
-from itskill.skills.library import SHIPPED_LIBRARY
 from itskill.skills.manifest import read_manifest
-from itskill.skills.store import MIGRATIONS, SCHEMA_VERSION, MigrationError
+from itskill.skills.store import MIGRATIONS, SCHEMA_VERSION, SHIPPED_LIBRARY, MigrationError
 
 
 def test_home_defaults(monkeypatch, tmp_path):
@@ -70,7 +69,11 @@ def test_unknown_skill_lists_close_names(home, checkpoint):
             space.remove(99)
 
 
-def test_checkpoint_must_exist_and_relative_paths_use_library(home, checkpoint):
+def test_checkpoint_must_exist_and_relative_paths_use_library(
+    home, checkpoint, tmp_path, monkeypatch
+):
+    shipped = tmp_path / "site-packages" / "itskill" / "skills" / "library"
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
     with SkillSpace() as space:
         with pytest.raises(MissingCheckpointError, match=r"nope\.zip"):
             space.add(make_skill("x", checkpoint.parent / "nope.zip"))
@@ -78,6 +81,13 @@ def test_checkpoint_must_exist_and_relative_paths_use_library(home, checkpoint):
         (space.library_dir / "rel.zip").write_bytes(b"x")
         s = space.add(make_skill("rel", Path("rel.zip")))
         assert space.checkpoint_path(s) == home / "library" / "rel.zip"
+        # Each stored form reads back as the file it was made from.
+        for path in (home / "library" / "rel.zip", shipped / "x.zip", checkpoint):
+            ref = space.checkpoint_ref(path)
+            assert space.checkpoint_path(make_skill("y", Path(ref))) == path
+        assert space.checkpoint_ref(shipped / "a" / "b.zip") == "package:a/b.zip"
+        with pytest.raises(MissingCheckpointError, match=r"gone\.zip"):
+            space.set_checkpoint("rel", "package:gone.zip")
 
 
 def _add_many(args: tuple[str, str, int]) -> None:

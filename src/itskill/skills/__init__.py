@@ -5,7 +5,7 @@ Importing this package is cheap: the embedding model loads on the first embeddin
 
 from __future__ import annotations
 
-from itskill.skills.library import SHIPPED_LIBRARY, open_skill_space
+from itskill.skills.library import open_skill_space
 from itskill.skills.manifest import (
     ManifestEntry,
     ManifestError,
@@ -15,6 +15,7 @@ from itskill.skills.manifest import (
 )
 from itskill.skills.retrieval import search, skill_text
 from itskill.skills.store import (
+    SHIPPED_LIBRARY,
     CorruptDatabaseError,
     DuplicateSkillError,
     MigrationError,

@@ -6,7 +6,8 @@ skill's policy weights and normaliser (``policy.safetensors``, no optimiser stat
 :func:`open_skill_space` registers each shipped skill in the skill space once: a fresh install
 has the skills without training, an upgrade that ships new skills adds those, and a user who
 removes a skill does not get it back. A shipped skill's entry points at the package's own
-checkpoint, so when a release retrains one, its measured success and budget are updated with it.
+checkpoint (``package:<path>``, wherever the package is installed), so when a release retrains
+one, its measured success and budget are updated with it.
 """
 
 from __future__ import annotations
@@ -15,10 +16,9 @@ import json
 from pathlib import Path
 
 from itskill.files import write_json
+from itskill.skills import store
 from itskill.skills.manifest import MANIFEST_NAME, ManifestEntry, install_library, read_manifest
-from itskill.skills.store import SkillSpace, SkillSpaceConfig
-
-SHIPPED_LIBRARY = Path(__file__).resolve().parent / "library"
+from itskill.skills.store import PACKAGE_PREFIX, SkillSpace, SkillSpaceConfig
 
 
 def open_skill_space(
@@ -26,16 +26,31 @@ def open_skill_space(
 ) -> SkillSpace:
     """Open the skill space, registering the shipped skills it has not been offered yet."""
     space = SkillSpace(path, config)
-    if (SHIPPED_LIBRARY / MANIFEST_NAME).is_file():
+    library = store.SHIPPED_LIBRARY  # looked up per call: tests point it elsewhere
+    if (library / MANIFEST_NAME).is_file():
         marker = space.path.with_name(space.path.name + ".shipped-library-installed")
         offered = _offered(marker, space)
-        entries = read_manifest(SHIPPED_LIBRARY)
+        entries = read_manifest(library)
+        _repoint_to_package(space, entries)
         shipped = {e.name for e in entries}
         if shipped - offered:
-            install_library(space, SHIPPED_LIBRARY, only=shipped - offered)
+            install_library(space, library, only=shipped - offered)
             write_json(marker, sorted(offered | shipped))
         _refresh_shipped_metrics(space, entries)
     return space
+
+
+def _repoint_to_package(space: SkillSpace, entries: list[ManifestEntry]) -> None:
+    """Point shipped skills recorded by the absolute path of some itskill install (releases
+    before ``package:`` paths) at this package's copy, so a reinstall elsewhere keeps them."""
+    stored = {s.name: s for s in space.list()}
+    for entry in entries:
+        skill = stored.get(entry.name)
+        if skill is None or not Path(skill.checkpoint).is_absolute():
+            continue
+        tail = ("itskill", "skills", "library", *Path(entry.checkpoint).parts)
+        if Path(skill.checkpoint).parts[-len(tail) :] == tail:
+            space.set_checkpoint(skill.name, PACKAGE_PREFIX + Path(entry.checkpoint).as_posix())
 
 
 def _refresh_shipped_metrics(space: SkillSpace, entries: list[ManifestEntry]) -> None:
@@ -45,7 +60,7 @@ def _refresh_shipped_metrics(space: SkillSpace, entries: list[ManifestEntry]) ->
         skill = stored.get(entry.name)
         if skill is None:
             continue
-        if space.checkpoint_path(skill).resolve() != (SHIPPED_LIBRARY / entry.checkpoint).resolve():
+        if skill.checkpoint != PACKAGE_PREFIX + Path(entry.checkpoint).as_posix():
             continue  # the user's own skill under a shipped name, or a copy elsewhere
         measured = (entry.success, entry.success_ci, entry.steps, entry.wall_s)
         if (

@@ -150,8 +150,8 @@ def install_library(
     Every checkpoint must exist, or nothing is installed and the error names each missing file.
     Entries whose name is already in the space are skipped when ``skip_existing`` (so installing
     twice, or from two processes opening a new space at once, is harmless). Checkpoints are
-    stored relative when ``library_dir`` is the space's own library directory (relocatable with
-    it) and absolute otherwise.
+    stored as :meth:`SkillSpace.checkpoint_ref` says: relative inside the space's own library
+    directory or the package's shipped library (each relocatable), absolute otherwise.
     """
     library_dir = Path(library_dir).expanduser().resolve()
     entries = [e for e in read_manifest(library_dir) if only is None or e.name in only]
@@ -162,10 +162,9 @@ def install_library(
             f"{library_dir / MANIFEST_NAME}: {len(missing)} checkpoint file(s) missing: "
             + ", ".join(missing)
         )
-    own = library_dir == space.library_dir.expanduser().resolve()
     existing = {s.name for s in space.list()} if skip_existing else set()
     todo = [
-        e.to_skill(e.checkpoint if own else str(library_dir / e.checkpoint))
+        e.to_skill(space.checkpoint_ref(library_dir / e.checkpoint))
         for e in entries
         if e.name not in existing
     ]

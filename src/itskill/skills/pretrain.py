@@ -107,7 +107,7 @@ def record(entry: ManifestEntry, library_dir: Path, space: SkillSpace | None) ->
         return
     with contextlib.suppress(UnknownSkillError):  # a retrained skill replaces the old one
         space.remove(entry.name)
-    space.add(entry.to_skill(str(Path(library_dir).resolve() / entry.checkpoint)))
+    space.add(entry.to_skill(space.checkpoint_ref(Path(library_dir) / entry.checkpoint)))
 
 
 def read_manifest_or_empty(library_dir: Path) -> list[ManifestEntry]:

@@ -31,6 +31,11 @@ import numpy as np
 
 HOME_ENV = "ITSKILL_HOME"
 EMBEDDING_DIM = 384
+# The pretrained library inside the installed package. Its checkpoints are stored as
+# ``package:<path inside it>``: an absolute path would tie a skill space to the checkout or
+# virtualenv it was first opened from, and break when itskill is reinstalled elsewhere.
+SHIPPED_LIBRARY = Path(__file__).resolve().parent / "library"
+PACKAGE_PREFIX = "package:"
 
 
 @dataclass(frozen=True)
@@ -108,8 +113,10 @@ class UnknownSkillError(SkillSpaceError, KeyError):
 class Skill:
     """One learned skill as stored.
 
-    ``checkpoint`` is stored as given: an absolute path, or a path relative to the library
-    directory (see :meth:`SkillSpace.checkpoint_path`), which keeps a shipped library relocatable.
+    ``checkpoint`` is stored as given: an absolute path, a path relative to the space's library
+    directory, or ``package:<path>`` inside the package's shipped library (see
+    :meth:`SkillSpace.checkpoint_path` and :meth:`SkillSpace.checkpoint_ref`), so neither the
+    space nor the package is tied to where it was first installed.
     ``embedding`` is the normalised vector of :func:`itskill.skills.retrieval.skill_text`, or None
     for a row that predates embeddings (it is filled in by the first search).
     """
@@ -322,11 +329,32 @@ class SkillSpace:
 
     # -- paths
     def checkpoint_path(self, skill: Skill) -> Path:
-        """The checkpoint file of ``skill``: relative paths are inside the library directory."""
+        """The checkpoint file of ``skill``: ``package:`` paths are inside the shipped library,
+        other relative paths inside the space's library directory."""
+        if skill.checkpoint.startswith(PACKAGE_PREFIX):
+            return SHIPPED_LIBRARY / skill.checkpoint[len(PACKAGE_PREFIX) :]
         p = Path(skill.checkpoint).expanduser()
         return p if p.is_absolute() else self.library_dir / p
 
+    def checkpoint_ref(self, path: Path | str) -> str:
+        """How the space stores the checkpoint file at ``path`` (the inverse of
+        :meth:`checkpoint_path`): relative inside its library directory, ``package:`` inside the
+        shipped library, absolute anywhere else."""
+        path = Path(path).expanduser().resolve()
+        for base, prefix in ((self.library_dir, ""), (SHIPPED_LIBRARY, PACKAGE_PREFIX)):
+            base = base.expanduser().resolve()
+            if path.is_relative_to(base):
+                return prefix + path.relative_to(base).as_posix()
+        return str(path)
+
     # -- writes
+    def _require_checkpoint(self, skill: Skill) -> None:
+        if not self.checkpoint_path(skill).is_file():
+            raise MissingCheckpointError(
+                f"skill {skill.name!r}: checkpoint {self.checkpoint_path(skill)} does not exist "
+                "(only learned skills, with a trained policy, go into the skill space)"
+            )
+
     def add(self, skill: Skill) -> Skill:
         """Add one skill (embedding it first if it has no embedding); returns it with its id."""
         return self.add_many([skill])[0]
@@ -341,11 +369,7 @@ class SkillSpace:
         """
         skills = list(skills)
         for s in skills:
-            if not self.checkpoint_path(s).is_file():
-                raise MissingCheckpointError(
-                    f"skill {s.name!r}: checkpoint {self.checkpoint_path(s)} does not exist "
-                    "(only learned skills, with a trained policy, go into the skill space)"
-                )
+            self._require_checkpoint(s)
         skills = self._with_embeddings(skills)  # Outside the transaction: the model is slow.
         now = time.time()
         added: list[Skill] = []
@@ -412,6 +436,14 @@ class SkillSpace:
         with self._write() as conn:
             skill = self._get(conn, key)
             conn.execute("DELETE FROM skills WHERE id = ?", (skill.id,))
+        return skill
+
+    def set_checkpoint(self, key: int | str, checkpoint: str) -> Skill:
+        """Point a skill at another checkpoint (stored as given; the file must exist)."""
+        with self._write() as conn:
+            skill = replace(self._get(conn, key), checkpoint=checkpoint)
+            self._require_checkpoint(skill)
+            conn.execute("UPDATE skills SET checkpoint = ? WHERE id = ?", (checkpoint, skill.id))
         return skill
 
     def update_metrics(
