@@ -128,8 +128,11 @@ class BatchSim:
         self.obj_mask[:k] = 1
         self.obj_height = np.zeros(MAX_OBJECTS)
         self.obj_width = np.zeros(MAX_OBJECTS)
+        self.obj_lead = np.zeros(MAX_OBJECTS)
         for i, part in enumerate(self._objects):
             self.obj_height[i], self.obj_width[i] = part.height, part.grasp_width
+            if isinstance(part, NutSpec):
+                self.obj_lead[i] = part.pitch / (2 * math.pi)
         self.fix_mask = np.zeros(MAX_FIXTURES)
         self.fix_pos = np.zeros((MAX_FIXTURES, 3))
         self.fix_yaw = np.zeros(MAX_FIXTURES)
@@ -476,6 +479,7 @@ class BatchSim:
             "engaged": engaged.astype(np.float64),
             "insertion_depth": depth,
             "seat_gap": (bottom - self.obj_seat_z[None]) * om,
+            "thread_lead": np.broadcast_to(self.obj_lead, (n, MAX_OBJECTS)).copy(),
             "n_stages": np.full(n, float(self.task.n_stages)),
             "time_frac": np.asarray(step_count, dtype=np.float64) / self.task.max_steps,
         }

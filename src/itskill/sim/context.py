@@ -8,10 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from itskill.sim.controller import ControllerConfig
+
 MAX_OBJECTS = 2
 MAX_FIXTURES = 2
 
-CONTEXT_DOC = """\
+_YAW_LOW, _YAW_HIGH = ControllerConfig().yaw_limits
+
+CONTEXT_DOC = f"""\
 Reward context `ctx`: a dict of NumPy arrays batched over N parallel environments.
 Units are metres, radians and seconds; positions are in the world frame, whose origin is the robot
 base on the table top (z = 0 is the table surface, +z is up). Every scene has 2 object slots and 2
@@ -21,7 +25,8 @@ fixture slots; an unused slot has mask 0 and zeros elsewhere. Object i is meant 
 Robot
   ee_pos          (N, 3)  grip point between the fingertip pads
   ee_vel          (N, 3)  grip point velocity, m/s
-  ee_yaw          (N,)    hand yaw relative to its start orientation; the hand always points down
+  ee_yaw          (N,)    hand yaw relative to its start orientation, within the wrist's range
+                          [{_YAW_LOW:g}, {_YAW_HIGH:g}]; the hand always points down
   gripper_width   (N,)    distance between the fingers, 0 (closed) to 0.08 (open)
   grip_closed     (N,)    1.0 if the last action commanded the fingers closed
   action          (N, 5)  last action [dx, dy, dz, dyaw, grip] in [-1, 1]
@@ -49,6 +54,8 @@ Fixtures (fixed to the table: bolts, holes)
   insertion_depth (N, 2)  how far the part's bottom is below the fixture point while engaged
                           (peg depth in the hole, nut travel down the bolt), else 0
   seat_gap        (N, 2)  part bottom minus the fixture's seat_z
+  thread_lead     (N, 2)  how far an engaged nut moves along its bolt per radian it turns
+                          (pitch / 2 pi; down when turned clockwise seen from above); 0 for a peg
 Task
   stage           (N,)    index of the current subtask (0-based)
   n_stages        (N,)    number of subtasks

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from itskill.sim.context import min_grasp_width
+from itskill.sim.controller import ControllerConfig
 from itskill.sim.task import Context, RewardFn
 from itskill.tasks.predicates import fixture_offset
 from itskill.tasks.spec import TaskSpec
@@ -47,6 +48,8 @@ so a policy that keeps the part lifted or seated keeps earning it)."""
 ACTION_PENALTY = 0.01
 """Weight of the mean squared motion action [dx, dy, dz, dyaw]: discourages jitter, small enough
 not to stop exploration."""
+
+_YAW_LOW, _YAW_HIGH = ControllerConfig().yaw_limits
 
 APPROACH_SLOPE = 1.0
 """Height over a part that its approach aims at, per metre of lateral offset (see ``near``)."""
@@ -188,13 +191,30 @@ def engaged_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str,
     return {"engage": np.maximum(engaged, 0.9 * _closeness(d, t["engage"]))}
 
 
+def _turn_left(ctx: Context, clockwise: bool) -> np.ndarray:
+    """Radians the hand can still turn clockwise (seen from above) or anticlockwise before the
+    wrist's limit."""
+    yaw = ctx["ee_yaw"]
+    return np.maximum(yaw - _YAW_LOW if clockwise else _YAW_HIGH - yaw, 0.0)
+
+
 def seated_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
-    """Screw a nut down: the seat gap still to travel, while engaged; and holding the nut, since
-    only a gripped nut can be turned."""
+    """Screw a nut down: the seat gap still to travel, while engaged; the gap a gripped turn to
+    the wrist's limit would leave (``wind``); and the grip point on the nut, since only a gripped
+    nut turns.
+
+    The wrist turns the hand less than a turn, so screwing is cycles of turning the held nut and
+    turning the open hand back. ``wind`` pays the second half: a gripped turn leaves it as it is
+    (the ``screw`` term pays that), turning back raises it. Without it, turning back pays nothing
+    for many steps and the policy stops at the wrist's limit, a third of a turn in.
+    """
     tolerance = args[0] if args else 0.0
     gap = ctx["seat_gap"][:, i] - tolerance
+    engaged = ctx["engaged"][:, i]
+    reachable = gap - ctx["thread_lead"][:, i] * _turn_left(ctx, clockwise=True)
     return {
-        "screw": ctx["engaged"][:, i] * _closeness(gap, t["screw"]),
+        "screw": engaged * _closeness(gap, t["screw"]),
+        "wind": engaged * _closeness(reachable, t["screw"]),
         "reach_fine": _closeness(_ee_dist(ctx, i), t["reach_fine"]),
     }
 
@@ -220,15 +240,23 @@ def inserted_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str
 
 def removed_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
     """Unscrew or pull a part off its fixture: its bottom's height from the seat up to ``height``
-    above the fixture point (the whole travel, linear), while the grip point stays on the part."""
+    above the fixture point (the whole travel, linear), while the grip point stays on the part.
+    A nut also gets ``wind``, as in :func:`seated_terms` the other way round: the height an
+    anticlockwise gripped turn to the wrist's limit would reach, while its thread is engaged."""
     height = args[0] if args else 0.02
     rows, fix = _fixture_of(ctx, i)
     seat = ctx["seat_z"][rows, fix]
     travel = ctx["fix_pos"][rows, fix, 2] + height - seat
-    return {
-        "raise": _fraction(ctx["obj_bottom_z"][:, i] - seat, travel),
+    bottom = ctx["obj_bottom_z"][:, i]
+    lead = ctx["thread_lead"][:, i]
+    terms = {
+        "raise": _fraction(bottom - seat, travel),
         "reach_fine": _closeness(_ee_dist(ctx, i), t["reach_fine"]),
     }
+    if np.any(lead > 0):  # the slot holds a nut (the same part in every environment)
+        reachable = bottom + lead * _turn_left(ctx, clockwise=False)
+        terms["wind"] = ctx["engaged"][:, i] * _fraction(reachable - seat, travel)
+    return terms
 
 
 def displaced_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
