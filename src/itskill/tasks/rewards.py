@@ -200,8 +200,8 @@ def _turn_left(ctx: Context, clockwise: bool) -> np.ndarray:
 
 def seated_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
     """Screw a nut down: the seat gap still to travel, while engaged; the gap a gripped turn to
-    the wrist's limit would leave (``wind``); and the grip point on the nut, since only a gripped
-    nut turns.
+    the wrist's limit would leave (``wind``); and the grip point on the nut, on the coarse and
+    the fine scale (the hand starts several centimetres away), since only a gripped nut turns.
 
     The wrist turns the hand less than a turn, so screwing is cycles of turning the held nut and
     turning the open hand back. ``wind`` pays the second half: a gripped turn leaves it as it is
@@ -215,7 +215,7 @@ def seated_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, 
     return {
         "screw": engaged * _closeness(gap, t["screw"]),
         "wind": engaged * _closeness(reachable, t["screw"]),
-        "reach_fine": _closeness(_ee_dist(ctx, i), t["reach_fine"]),
+        **_reach_terms(ctx, i, t),
     }
 
 
@@ -242,7 +242,9 @@ def removed_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str,
     """Unscrew or pull a part off its fixture: its bottom's height from the seat up to ``height``
     above the fixture point (the whole travel, linear), while the grip point stays on the part.
     A nut also gets ``wind``, as in :func:`seated_terms` the other way round: the height an
-    anticlockwise gripped turn to the wrist's limit would reach, while its thread is engaged."""
+    anticlockwise gripped turn to the wrist's limit would reach, while its thread is engaged;
+    and, as there, the coarse scale of the grip point's distance (a pull starts with the hand on
+    the part, an unscrew several centimetres away)."""
     height = args[0] if args else 0.02
     rows, fix = _fixture_of(ctx, i)
     seat = ctx["seat_z"][rows, fix]
@@ -256,7 +258,14 @@ def removed_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str,
     if np.any(lead > 0):  # the slot holds a nut (the same part in every environment)
         reachable = bottom + lead * _turn_left(ctx, clockwise=False)
         terms["wind"] = ctx["engaged"][:, i] * _fraction(reachable - seat, travel)
+        terms.update(_reach_terms(ctx, i, t))
     return terms
+
+
+def _reach_terms(ctx: Context, i: int, t: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """The grip point's closeness to a part's centre on the coarse and the fine scale."""
+    d = _ee_dist(ctx, i)
+    return {"reach": _closeness(d, t["reach"]), "reach_fine": _closeness(d, t["reach_fine"])}
 
 
 def displaced_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str, float]):
