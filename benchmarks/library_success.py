@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 from itskill.files import write_json
-from itskill.skills.library import SHIPPED_LIBRARY
+from itskill.skills import SHIPPED_LIBRARY
 from itskill.skills.manifest import read_manifest, write_manifest
 from itskill.skills.pretrain import PretrainConfig, measure_skill
 from itskill.tasks import get_task

@@ -13,6 +13,7 @@ from itskill.tasks.scripted import ScriptedPolicy
 N = 3
 NUT_HEIGHT = 0.01
 NUT_WIDTH = 0.018
+M12_LEAD = 0.00175 / (2 * np.pi)
 
 
 def _ctx(**overrides) -> dict[str, np.ndarray]:
@@ -44,6 +45,7 @@ def _ctx(**overrides) -> dict[str, np.ndarray]:
         "yaw_error": np.zeros((N, MAX_OBJECTS)),
         "engaged": np.zeros((N, MAX_OBJECTS)),
         "insertion_depth": np.zeros((N, MAX_OBJECTS)),
+        "thread_lead": np.tile([M12_LEAD, 0.0], (N, 1)),
         "stage": np.zeros(N, dtype=np.int64),
         "n_stages": np.full(N, 3.0),
         "time_frac": np.zeros(N),
@@ -207,6 +209,39 @@ def test_a_nut_held_tipped_on_its_side_neither_finishes_the_grasp_nor_pays_as_mu
     # Held but tipped pays the grasp term in full and little of the upright term.
     assert c_tipped["1.grasp/grasp"][0] == c_tipped["1.grasp/grasp"][1] > 0
     assert c_tipped["1.grasp/upright"][0] < 0.01 < c_tipped["1.grasp/upright"][1]
+
+
+@pytest.mark.parametrize(("task", "clockwise"), [("screw_nut_m12", 1), ("unscrew_nut_m12", -1)])
+def test_both_halves_of_a_regrasp_cycle_pay(task: str, clockwise: int) -> None:
+    # The hand holds a nut engaged on its bolt, 2 mm above the seat gap the task accepts.
+    def state(yaw: float, nut_z: float) -> dict[str, np.ndarray]:
+        nut = np.array([0.55, 0.12, nut_z])
+        obj_pos = np.zeros((N, MAX_OBJECTS, 3))
+        obj_pos[:, 0] = nut
+        return _ctx(
+            obj_pos=obj_pos,
+            ee_pos=np.tile(nut, (N, 1)),
+            ee_yaw=np.full(N, yaw),
+            engaged=np.tile([1.0, 0.0], (N, 1)),
+            fix_pos=np.tile([[0.55, 0.12, 0.03], [0.0, 0.0, 0.0]], (N, 1, 1)),
+        )
+
+    def terms(yaw: float, nut_z: float) -> dict[str, float]:
+        _, comps = _reward(task, state(yaw, nut_z))
+        return {k.split("/")[1]: float(v[0]) for k, v in comps.items() if "/" in k}
+
+    z = 0.005 + 0.00175 + 0.002 + NUT_HEIGHT / 2
+    progress = "screw" if clockwise > 0 else "raise"
+    start = terms(0.0, z)
+    # Turning the held nut one radian the task's way moves it one lead along the thread: the
+    # progress term pays, and what the rest of the turn could still do (wind) stays.
+    turned = terms(-clockwise * 1.0, z - clockwise * M12_LEAD)
+    assert turned[progress] > start[progress]
+    assert turned["wind"] == pytest.approx(start["wind"], abs=1e-9)
+    # Turning the open hand back one radian leaves the nut where it is: wind pays.
+    back = terms(0.0, z - clockwise * M12_LEAD)
+    assert back[progress] == pytest.approx(turned[progress], abs=1e-9)
+    assert back["wind"] > turned["wind"]
 
 
 def test_components_sum_to_total_and_stages_only_pay_their_own_terms() -> None:
