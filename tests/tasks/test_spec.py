@@ -131,9 +131,26 @@ def test_training_starts_take_the_named_tasks_start(monkeypatch, tmp_path):
     assert tasks["my_pick"].to_sim_task().training_starts == (lift, grasp)
 
 
+def test_a_training_start_can_be_written_out_in_the_task(monkeypatch, tmp_path):
+    starts = (
+        '[{ share = 0.25, init = { ee = { yaw = [-2.0, 3.0] }, objects = [{ mode = "table",'
+        " x = [0.5, 0.5], y = [0.0, 0.0] }] } }, "
+        '{ task = "grasp_nut_m12", share = 0.1 }]'
+    )
+    tasks = _user_registry(monkeypatch, tmp_path, starts)
+    inline, grasp = tasks["my_pick"].training_starts
+    assert (inline.name, inline.share) == ("", 0.25)
+    assert (inline.init.ee_yaw.low, inline.init.ee_yaw.high) == (-2.0, 3.0)
+    assert inline.init.objects[0].x.low == 0.5
+    assert grasp.init == tasks["grasp_nut_m12"].init
+
+
 @pytest.mark.parametrize(
     ("starts", "problem"),
     [
+        ("[{ share = 0.2 }]", "either task"),
+        ('[{ task = "lift_nut_m12", init = { objects = [] }, share = 0.2 }]', "either task"),
+        ("[{ share = 0.2, init = { objects = [] } }]", "expected 1 entries"),
         ('[{ task = "lift_nut_m99", share = 0.2 }]', "unknown task 'lift_nut_m99'"),
         ('[{ task = "lift_nut_m16", share = 0.2 }]', "other parts or fixtures"),
         (

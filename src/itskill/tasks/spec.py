@@ -81,8 +81,9 @@ class TaskSpec:
     terminate_on_success: bool = False
     tags: tuple[str, ...] = field(default=())
     training_starts: tuple[TrainingStart, ...] = field(default=())
-    """Starts borrowed from other tasks of the same scene, used only in training (resolved by
-    the registry: a start's ``name`` is the task whose ``init`` it is)."""
+    """Starts used only in training: borrowed from other tasks of the same scene (resolved by
+    the registry: a start's ``name`` is the task whose ``init`` it is) or written out in the
+    task's file (``name`` empty)."""
 
     def stage_index(self, ctx) -> Any:
         """Current subtask: one past the furthest stage whose ``done`` predicate holds."""
@@ -269,11 +270,23 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
     starts = []
     for k, raw_start in enumerate(r.get("training_starts", list, [])):
         sr = _Reader(path, f"task {task_id!r}.training_starts[{k}]", raw_start)
-        sr.check_keys({"task", "share"})
-        share, name = sr.get("share", float), sr.get("task", str)
+        sr.check_keys({"task", "init", "share"})
+        share = sr.get("share", float)
+        if ("task" in raw_start) == ("init" in raw_start):
+            raise TaskFileError(path, sr.where, "expected either task (a task's start) or init")
+        if "init" in raw_start:
+            start_init = _parse_init(
+                _Reader(path, sr.where + ".init", sr.get("init", dict)),
+                objects,
+                tuple(fixtures),
+                object_fixture,
+            )
+            name = ""
+        else:
+            # The other task's init; the registry fills it in once every file is read.
+            start_init, name = init, sr.get("task", str)
         try:
-            # The init is the other task's; the registry fills it in once every file is read.
-            starts.append(TrainingStart(init, share, name))
+            starts.append(TrainingStart(start_init, share, name))
         except ValueError as err:
             raise TaskFileError(path, sr.where + ".share", str(err)) from err
     try:
@@ -483,6 +496,9 @@ def _resolve_starts(spec: TaskSpec, tasks: dict[str, TaskSpec]) -> TaskSpec:
         return spec
     resolved = []
     for k, start in enumerate(spec.training_starts):
+        if not start.name:  # written out in the task's own file
+            resolved.append(start)
+            continue
         where = f"task {spec.id!r}.training_starts[{k}].task"
         other = tasks.get(start.name)
         if other is None:
