@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from itskill.skills import open_skill_space
+from itskill.skills import open_skill_space, search
+from itskill.tasks import get_task
 from itskill.transfer import SourceError, resolve_sources
 
 
@@ -61,6 +62,19 @@ def test_the_first_steps_go_to_a_skill_of_the_same_part_and_start(home: Path) ->
     sources = resolve_sources("pickplaceinsert_peg_round", "auto", k=3)
     assert sources[0].name == "pick_peg_round"
     assert [s.name for s in sources[1:]] == ["place_peg_round", "insert_peg_round"]
+
+
+def test_once_every_step_is_covered_a_skill_of_the_targets_steps_comes_next(home: Path) -> None:
+    # "Screw the M12 nut onto the bottom of the bolt" reads closest to the pick-and-place
+    # command, but screwing is none of its steps; carrying the nut over the bolt is one.
+    with open_skill_space() as space:
+        command = get_task("pickplace_nut_m12").command
+        ranked = [s.name for s, _ in search(space, command, k=len(space))]
+    assert ranked.index("screw_nut_m12") < ranked.index("carry_nut_m12")
+    sources = resolve_sources("pickplace_nut_m12", "auto", k=3)
+    assert [s.name for s in sources] == ["pick_nut_m12", "place_nut_m12", "carry_nut_m12"]
+    # Where screwing is a step, the screw skill is a source.
+    assert "screw_nut_m12" in [s.name for s in resolve_sources("pickplacescrew_nut_m12", "auto")]
 
 
 def test_named_sources_by_name_and_id(home: Path) -> None:

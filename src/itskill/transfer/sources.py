@@ -3,9 +3,9 @@
 ``resolve_sources(target, "auto")`` retrieves skills by the similarity of their text to the target
 task's command (:func:`itskill.skills.retrieval.search`, the paper's SBERT retrieval). With
 ``distinct_actions`` (the default) only the most similar skill of each action sequence is kept,
-so the ``k`` sources are ``k`` different behaviours rather than one primitive on several part sizes
-(for "Pick up the M12 nut and place it on the bolt" the top five are place M12, place M16,
-reach M12, reach M16, pick M12; de-duplicated, the first three are place, reach and pick).
+so the ``k`` sources are ``k`` different behaviours rather than one primitive on several part sizes;
+and the skills are taken to cover the target's steps (see :func:`resolve_sources`), as similarity
+alone ranks a screw first for a pick-and-place.
 
 Every source must be a finished checkpoint on the shared observation layout and action space:
 :func:`itskill.rl.checkpoint.read_meta` checks the layout, and a missing skill or checkpoint is a
@@ -187,6 +187,7 @@ def resolve_sources(
             seen: set[tuple[str, ...]] = set()
             covered: set[int] = set()
             pool = [(skill, score, _differences(skill, spec)) for skill, score in ranked]
+            fits = [bool(_placement(sk.actions, target_steps, set())) for sk, _, _ in pool]
             while pool and len(chosen) < k:
                 # Greedy cover of the target's steps: next, the skill that performs the most
                 # steps no chosen skill performs yet (a pick covers approach, grasp and lift of
@@ -194,18 +195,22 @@ def resolve_sources(
                 # of the target's own family first: a nut's "approach, place" fits steps of a
                 # peg task but was learned on another part. Then skills of the target's own
                 # parts, and for the first steps those that start where the target starts.
-                # Ties keep the similarity order.
+                # Once every step is covered, a skill that performs some of them comes before
+                # one that performs none (a screw is no source for a pick-and-place, however
+                # alike the commands read). Ties keep the similarity order.
                 adds = [_placement(sk.actions, target_steps, covered) for sk, _, _ in pool]
                 best = min(
                     range(len(pool)),
                     key=lambda j: (
                         pool[j][2][0],
                         -len(adds[j]),
+                        not fits[j],
                         pool[j][2][1],
                         0 in adds[j] and pool[j][2][2],
                     ),
                 )
                 skill, score, _ = pool.pop(best)
+                fits.pop(best)
                 if distinct_actions and tuple(skill.actions) in seen:
                     continue
                 seen.add(tuple(skill.actions))
