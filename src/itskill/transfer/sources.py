@@ -126,9 +126,14 @@ def _parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
     return keys
 
 
-def _placement(actions: tuple[str, ...], target: tuple[str, ...], covered: set[int]) -> set[int]:
+def _placement(
+    actions: tuple[str, ...],
+    target: tuple[str, ...],
+    covered: frozenset[int] | set[int] = frozenset(),
+) -> set[int]:
     """The positions of ``target`` that ``actions`` would newly cover: of the places where it
-    occurs as a contiguous run, the one covering most positions not yet in ``covered``."""
+    occurs as a contiguous run, the one covering most positions not yet in ``covered`` (empty if
+    it occurs nowhere)."""
     best: set[int] = set()
     for i in runs(target, actions):
         new = set(range(i, i + len(actions))) - covered
@@ -186,8 +191,10 @@ def resolve_sources(
             chosen: list[tuple[Skill, float | None]] = []
             seen: set[tuple[str, ...]] = set()
             covered: set[int] = set()
-            pool = [(skill, score, _differences(skill, spec)) for skill, score in ranked]
-            fits = [bool(_placement(sk.actions, target_steps, set())) for sk, _, _ in pool]
+            pool = [
+                (skill, score, _differences(skill, spec), _placement(skill.actions, target_steps))
+                for skill, score in ranked
+            ]
             while pool and len(chosen) < k:
                 # Greedy cover of the target's steps: next, the skill that performs the most
                 # steps no chosen skill performs yet (a pick covers approach, grasp and lift of
@@ -198,19 +205,18 @@ def resolve_sources(
                 # Once every step is covered, a skill that performs some of them comes before
                 # one that performs none (a screw is no source for a pick-and-place, however
                 # alike the commands read). Ties keep the similarity order.
-                adds = [_placement(sk.actions, target_steps, covered) for sk, _, _ in pool]
+                adds = [_placement(sk.actions, target_steps, covered) for sk, *_ in pool]
                 best = min(
                     range(len(pool)),
                     key=lambda j: (
                         pool[j][2][0],
                         -len(adds[j]),
-                        not fits[j],
+                        not pool[j][3],
                         pool[j][2][1],
                         0 in adds[j] and pool[j][2][2],
                     ),
                 )
-                skill, score, _ = pool.pop(best)
-                fits.pop(best)
+                skill, score, *_ = pool.pop(best)
                 if distinct_actions and tuple(skill.actions) in seen:
                     continue
                 seen.add(tuple(skill.actions))
