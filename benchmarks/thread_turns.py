@@ -23,44 +23,45 @@ from pathlib import Path
 import numpy as np
 
 from itskill.rl import load_policy
-from itskill.sim.controller import ControllerConfig
 from itskill.skills.pretrain import PretrainConfig
 from itskill.tasks import get_task, make_batch_env
 
-LIMIT_MARGIN = 0.2
-"""The hand counts as at its wrist limit within this many radians of it."""
+WIND_MIN = 1.0
+"""Radians the open hand must turn back between two grips for the second to count as a sweep."""
 
 
 def policy_turns(task: str, policy_dir: Path, episodes: int, seed: int) -> dict:
-    """Roll ``episodes`` deterministic episodes at once and measure the hand's and nut's turns."""
+    """Roll ``episodes`` deterministic episodes at once; measure the hand's sweeps and the nut's
+    turn. Turns are in the task's direction (clockwise to screw, anticlockwise to unscrew), the
+    nut's counted only while its thread is engaged (a nut lifted off the bolt turns no more)."""
     spec = get_task(task)
-    screw = "screw" in spec.actions
-    low, high = ControllerConfig().yaw_limits
+    way = -1.0 if "screw" in spec.actions else 1.0  # the sign of the hand's yaw rate that works
     policy = load_policy(policy_dir)
     env = make_batch_env(spec, num_envs=episodes, seed=seed)
     try:
         obs = env.reset()
         ctx = env.context()
-        start = ctx["obj_bottom_z"][:, 0].copy()
         lead = ctx["thread_lead"][:, 0]
-        reached = np.zeros(episodes, bool)
-        back = np.zeros(episodes, bool)
         success = np.zeros(episodes, bool)
-        first = np.full(episodes, np.nan)
+        sweeps = np.zeros(episodes)
+        gripped_turn = np.zeros(episodes)
+        nut_turn = np.zeros(episodes)
+        wound = np.zeros(episodes)  # open-hand turn back since the last grip
         for _ in range(spec.max_steps - 1):
             actions, _ = policy.predict(obs, deterministic=True)
             obs, _, _, _ = env.step(actions)
-            ctx = env.context()
-            yaw, opened = ctx["ee_yaw"], ctx["grip_closed"] < 0.5
-            at_limit = yaw < low + LIMIT_MARGIN if screw else yaw > high - LIMIT_MARGIN
-            newly = ~reached & at_limit
-            first[newly] = np.abs(start - ctx["obj_bottom_z"][:, 0])[newly] / lead[newly]
-            reached |= newly
-            # Another sweep: the open hand back past the middle of the wrist's range.
-            middle = (low + high) / 2
-            back |= reached & opened & ((yaw > middle) if screw else (yaw < middle))
-            success |= np.asarray(spec.success(ctx), bool)
-        total = np.abs(start - ctx["obj_bottom_z"][:, 0]) / lead
+            new = env.context()
+            turn = way * (new["ee_yaw"] - ctx["ee_yaw"])
+            closed, was_closed = new["grip_closed"] > 0.5, ctx["grip_closed"] > 0.5
+            gripped_turn += np.where(closed & was_closed, turn, 0.0)
+            wound = np.where(~closed, wound - turn, wound)
+            sweeps += closed & ~was_closed & (wound >= WIND_MIN)
+            wound = np.where(closed, 0.0, wound)
+            engaged = (new["engaged"][:, 0] > 0.5) & (ctx["engaged"][:, 0] > 0.5)
+            rise = new["obj_bottom_z"][:, 0] - ctx["obj_bottom_z"][:, 0]
+            nut_turn += np.where(engaged, way * rise / lead, 0.0)
+            success |= np.asarray(spec.success(new), bool)
+            ctx = new
     finally:
         env.close()
     return {
@@ -68,10 +69,10 @@ def policy_turns(task: str, policy_dir: Path, episodes: int, seed: int) -> dict:
         "policy": str(policy_dir),
         "episodes": episodes,
         "success": float(success.mean()),
-        "reached_wrist_limit": float(reached.mean()),
-        "turned_back_for_another_sweep": float(back.mean()),
-        "nut_turn_at_first_limit_rad": float(np.nanmean(first)) if reached.any() else None,
-        "nut_turn_by_the_end_rad": float(total.mean()),
+        "sweeps_after_turning_back": float(sweeps.mean()),
+        "episodes_with_such_a_sweep": float((sweeps > 0).mean()),
+        "hand_turn_gripped_rad": float(gripped_turn.mean()),
+        "nut_turn_rad": float(nut_turn.mean()),
     }
 
 
@@ -114,14 +115,13 @@ def main(argv: list[str] | None = None) -> int:
     else:
         result = policy_turns(args.task, args.policy, args.episodes, args.seed)
         print(
-            f"{args.task}: success {result['success']:.0%}, wrist limit reached in "
-            f"{result['reached_wrist_limit']:.0%}, another sweep in "
-            f"{result['turned_back_for_another_sweep']:.0%} of {args.episodes} episodes"
+            f"{args.task}: success {result['success']:.0%} of {args.episodes} episodes; "
+            f"{result['sweeps_after_turning_back']:.1f} grips after turning the open hand back "
+            f"per episode ({result['episodes_with_such_a_sweep']:.0%} of episodes have one)"
         )
-        first = result["nut_turn_at_first_limit_rad"]
         print(
-            f"nut turned {first if first is None else round(first, 2)} rad when the hand first "
-            f"reached its limit, {result['nut_turn_by_the_end_rad']:.2f} rad by the end"
+            f"the nut turned {result['nut_turn_rad']:.2f} rad while engaged; the gripping hand "
+            f"turned {result['hand_turn_gripped_rad']:.2f} rad"
         )
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
