@@ -1,12 +1,12 @@
 """How a policy turns a threaded nut: the hand's sweeps against the nut's own turn.
 
 For screwing and unscrewing policies: over N episodes from the held-out starts (one batch, each
-environment one episode), the success rate, the share of episodes whose hand reached the wrist's
-limit and of those that then turned the open hand back for another sweep, and how far the nut
-turned (its travel along the thread over the thread's lead) by the time the hand first reached
-the limit and by the end. A nut that turns further than the hand did was turned by something
-other than the grip, such as pressing on it; ``--press`` measures that directly: the open and
-the closed hand pushed down onto a nut threaded on its bolt for 40 steps, without turning.
+environment one episode), the success rate, how often the hand grips again after turning the
+open hand back (a new sweep), how far the gripping hand turned the task's way, and how far the
+nut turned while engaged (its travel along the thread over the thread's lead). A nut that turns
+further than the gripping hand was turned by something else, the fingers' contact; ``--press``
+measures that directly: the open and the closed hand pushed down beside a nut threaded on its
+bolt for 40 steps, without turning.
 
     python benchmarks/thread_turns.py --task screw_nut_m16 \
         --policy src/itskill/skills/library/screw_nut_m16
