@@ -211,8 +211,9 @@ def test_a_nut_held_tipped_on_its_side_neither_finishes_the_grasp_nor_pays_as_mu
     assert c_tipped["1.grasp/upright"][0] < 0.01 < c_tipped["1.grasp/upright"][1]
 
 
-@pytest.mark.parametrize(("task", "clockwise"), [("screw_nut_m12", 1), ("unscrew_nut_m12", -1)])
-def test_both_halves_of_a_regrasp_cycle_pay(task: str, clockwise: int) -> None:
+# ``down`` is 1 where turning the nut clockwise (seen from above) is the task, -1 anticlockwise.
+@pytest.mark.parametrize(("task", "down"), [("screw_nut_m12", 1), ("unscrew_nut_m12", -1)])
+def test_both_halves_of_a_regrasp_cycle_pay(task: str, down: int) -> None:
     # The hand holds a nut engaged on its bolt, 2 mm above the seat gap the task accepts.
     def state(yaw: float, nut_z: float) -> dict[str, np.ndarray]:
         nut = np.array([0.55, 0.12, nut_z])
@@ -231,15 +232,15 @@ def test_both_halves_of_a_regrasp_cycle_pay(task: str, clockwise: int) -> None:
         return {k.split("/")[1]: float(v[0]) for k, v in comps.items() if "/" in k}
 
     z = 0.005 + 0.00175 + 0.002 + NUT_HEIGHT / 2
-    progress = "screw" if clockwise > 0 else "raise"
+    progress = "screw" if down > 0 else "raise"
     start = terms(0.0, z)
     # Turning the held nut one radian the task's way moves it one lead along the thread: the
     # progress term pays, and what the rest of the turn could still do (wind) stays.
-    turned = terms(-clockwise * 1.0, z - clockwise * M12_LEAD)
+    turned = terms(-down * 1.0, z - down * M12_LEAD)
     assert turned[progress] > start[progress]
     assert turned["wind"] == pytest.approx(start["wind"], abs=1e-9)
     # Turning the open hand back one radian leaves the nut where it is: wind pays.
-    back = terms(0.0, z - clockwise * M12_LEAD)
+    back = terms(0.0, z - down * M12_LEAD)
     assert back[progress] == pytest.approx(turned[progress], abs=1e-9)
     assert back["wind"] > turned["wind"]
 
