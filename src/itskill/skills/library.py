@@ -18,7 +18,7 @@ from pathlib import Path
 from itskill.files import write_json
 from itskill.skills import store
 from itskill.skills.manifest import MANIFEST_NAME, ManifestEntry, install_library, read_manifest
-from itskill.skills.store import PACKAGE_PREFIX, SkillSpace, SkillSpaceConfig
+from itskill.skills.store import SkillSpace, SkillSpaceConfig
 
 
 def open_skill_space(
@@ -31,16 +31,16 @@ def open_skill_space(
         marker = space.path.with_name(space.path.name + ".shipped-library-installed")
         offered = _offered(marker, space)
         entries = read_manifest(library)
-        _repoint_to_package(space, entries)
+        _repoint_to_package(space, library, entries)
         shipped = {e.name for e in entries}
         if shipped - offered:
             install_library(space, library, only=shipped - offered)
             write_json(marker, sorted(offered | shipped))
-        _refresh_shipped_metrics(space, entries)
+        _refresh_shipped_metrics(space, library, entries)
     return space
 
 
-def _repoint_to_package(space: SkillSpace, entries: list[ManifestEntry]) -> None:
+def _repoint_to_package(space: SkillSpace, library: Path, entries: list[ManifestEntry]) -> None:
     """Point shipped skills recorded by the absolute path of some itskill install (releases
     before ``package:`` paths) at this package's copy, so a reinstall elsewhere keeps them."""
     stored = {s.name: s for s in space.list()}
@@ -50,17 +50,19 @@ def _repoint_to_package(space: SkillSpace, entries: list[ManifestEntry]) -> None
             continue
         tail = ("itskill", "skills", "library", *Path(entry.checkpoint).parts)
         if Path(skill.checkpoint).parts[-len(tail) :] == tail:
-            space.set_checkpoint(skill.name, PACKAGE_PREFIX + Path(entry.checkpoint).as_posix())
+            space.set_checkpoint(skill.name, space.checkpoint_ref(library / entry.checkpoint))
 
 
-def _refresh_shipped_metrics(space: SkillSpace, entries: list[ManifestEntry]) -> None:
+def _refresh_shipped_metrics(
+    space: SkillSpace, library: Path, entries: list[ManifestEntry]
+) -> None:
     """Give each space entry that uses a shipped checkpoint that checkpoint's measurements."""
     stored = {s.name: s for s in space.list()}
     for entry in entries:
         skill = stored.get(entry.name)
         if skill is None:
             continue
-        if skill.checkpoint != PACKAGE_PREFIX + Path(entry.checkpoint).as_posix():
+        if skill.checkpoint != space.checkpoint_ref(library / entry.checkpoint):
             continue  # the user's own skill under a shipped name, or a copy elsewhere
         measured = (entry.success, entry.success_ci, entry.steps, entry.wall_s)
         if (

@@ -126,14 +126,9 @@ def _parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
     return keys
 
 
-def _placement(
-    actions: tuple[str, ...],
-    target: tuple[str, ...],
-    covered: frozenset[int] | set[int] = frozenset(),
-) -> set[int]:
+def _placement(actions: tuple[str, ...], target: tuple[str, ...], covered: set[int]) -> set[int]:
     """The positions of ``target`` that ``actions`` would newly cover: of the places where it
-    occurs as a contiguous run, the one covering most positions not yet in ``covered`` (empty if
-    it occurs nowhere)."""
+    occurs as a contiguous run, the one covering most positions not yet in ``covered``."""
     best: set[int] = set()
     for i in runs(target, actions):
         new = set(range(i, i + len(actions))) - covered
@@ -192,7 +187,7 @@ def resolve_sources(
             seen: set[tuple[str, ...]] = set()
             covered: set[int] = set()
             pool = [
-                (skill, score, _differences(skill, spec), _placement(skill.actions, target_steps))
+                (skill, score, _differences(skill, spec), bool(runs(target_steps, skill.actions)))
                 for skill, score in ranked
             ]
             while pool and len(chosen) < k:
