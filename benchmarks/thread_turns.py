@@ -4,13 +4,13 @@ For screwing and unscrewing policies: over N episodes from the held-out starts (
 environment one episode), the success rate, how often the hand grips again after turning the
 open hand back (a new sweep), how far the gripping hand turned the task's way, and how far the
 nut turned while engaged (its travel along the thread over the thread's lead). A nut that turns
-further than the gripping hand was turned by something else, the fingers' contact; ``--press``
-measures that directly: the open and the closed hand pushed down beside a nut threaded on its
-bolt for 40 steps, without turning.
+further than the gripping hand was turned by something else, the fingers' contact; ``--contact``
+measures that directly on a nut threaded on its bolt, over one episode without turning the hand:
+the open and the closed hand pushed down, and the closed hand rubbed sideways across the nut.
 
     python benchmarks/thread_turns.py --task screw_nut_m16 \
         --policy src/itskill/skills/library/screw_nut_m16
-    python benchmarks/thread_turns.py --press
+    python benchmarks/thread_turns.py --contact
 """
 
 from __future__ import annotations
@@ -28,12 +28,22 @@ from itskill.tasks import get_task, make_batch_env
 
 WIND_MIN = 1.0
 """Radians the open hand must turn back between two grips for the second to count as a sweep."""
+HAND_STILL = 0.01
+"""Radians per step under which the hand counts as not turning."""
+
+
+def thread_turn(before: dict, after: dict) -> np.ndarray:
+    """Each environment's nut turn over one step, anticlockwise positive: its travel along the
+    thread over the lead, counted only while engaged at both ends (a nut lifted off the bolt turns
+    no more, and its yaw reading wraps at +-pi)."""
+    engaged = (after["engaged"][:, 0] > 0.5) & (before["engaged"][:, 0] > 0.5)
+    rise = after["obj_bottom_z"][:, 0] - before["obj_bottom_z"][:, 0]
+    return np.where(engaged, rise / after["thread_lead"][:, 0], 0.0)
 
 
 def policy_turns(task: str, policy_dir: Path, episodes: int, seed: int) -> dict:
     """Roll ``episodes`` deterministic episodes at once; measure the hand's sweeps and the nut's
-    turn. Turns are in the task's direction (clockwise to screw, anticlockwise to unscrew), the
-    nut's counted only while its thread is engaged (a nut lifted off the bolt turns no more)."""
+    turn. Turns are in the task's direction (clockwise to screw, anticlockwise to unscrew)."""
     spec = get_task(task)
     way = -1.0 if "screw" in spec.actions else 1.0  # the sign of the hand's yaw rate that works
     policy = load_policy(policy_dir)
@@ -41,11 +51,11 @@ def policy_turns(task: str, policy_dir: Path, episodes: int, seed: int) -> dict:
     try:
         obs = env.reset()
         ctx = env.context()
-        lead = ctx["thread_lead"][:, 0]
         success = np.zeros(episodes, bool)
         sweeps = np.zeros(episodes)
         gripped_turn = np.zeros(episodes)
         nut_turn = np.zeros(episodes)
+        nut_turn_hand_still = np.zeros(episodes)  # while the hand turns less than HAND_STILL
         wound = np.zeros(episodes)  # open-hand turn back since the last grip
         for _ in range(spec.max_steps - 1):
             actions, _ = policy.predict(obs, deterministic=True)
@@ -57,9 +67,9 @@ def policy_turns(task: str, policy_dir: Path, episodes: int, seed: int) -> dict:
             wound = np.where(~closed, wound - turn, wound)
             sweeps += closed & ~was_closed & (wound >= WIND_MIN)
             wound = np.where(closed, 0.0, wound)
-            engaged = (new["engaged"][:, 0] > 0.5) & (ctx["engaged"][:, 0] > 0.5)
-            rise = new["obj_bottom_z"][:, 0] - ctx["obj_bottom_z"][:, 0]
-            nut_turn += np.where(engaged, way * rise / lead, 0.0)
+            step_turn = way * thread_turn(ctx, new)
+            nut_turn += step_turn
+            nut_turn_hand_still += np.where(np.abs(turn) < HAND_STILL, step_turn, 0.0)
             success |= np.asarray(spec.success(new), bool)
             ctx = new
     finally:
@@ -73,25 +83,44 @@ def policy_turns(task: str, policy_dir: Path, episodes: int, seed: int) -> dict:
         "episodes_with_such_a_sweep": float((sweeps > 0).mean()),
         "hand_turn_gripped_rad": float(gripped_turn.mean()),
         "nut_turn_rad": float(nut_turn.mean()),
+        "nut_turn_while_hand_still_rad": float(nut_turn_hand_still.mean()),
     }
 
 
-def press_turns(task: str, seed: int, steps: int = 40, envs: int = 8) -> dict:
-    """How far pushing the open or the closed hand down onto the threaded nut turns it."""
-    result = {"task": task, "steps": steps, "episodes": envs}
-    for name, grip in (("open", -1.0), ("closed", 1.0)):
-        env = make_batch_env(task, num_envs=envs, seed=seed)
+CONTACT_MODES = {
+    "open hand pressed down": (-1.0, 0.0),
+    "closed hand pressed down": (1.0, 0.0),
+    "closed hand rubbed sideways": (1.0, 1.0),
+}
+"""Mode -> (grip action, sideways action amplitude). Rubbing moves the hand along x, four steps
+each way; every mode also pushes down, and none turns the hand."""
+RUB_PERIOD = 4
+
+
+def contact_turns(task: str, seed: int, envs: int = 8) -> dict:
+    """How far the hand's contact alone turns a threaded nut in each of :data:`CONTACT_MODES`,
+    over one episode of ``task`` (whose start puts the open hand around the engaged nut)."""
+    spec = get_task(task)
+    # One step short of the episode's end: the next step would reset to a new start.
+    steps = spec.max_steps - 1
+    result: dict = {"task": task, "steps": steps, "episodes": envs, "turn_rad": {}}
+    for mode, (grip, rub) in CONTACT_MODES.items():
+        env = make_batch_env(spec, num_envs=envs, seed=seed)
         try:
             env.reset()
-            yaw0 = env.context()["obj_yaw"][:, 0].copy()
-            push = np.zeros((envs, 5))
-            push[:, 2], push[:, 4] = -1.0, grip
-            for _ in range(steps):
-                env.step(push)
-            turn = env.context()["obj_yaw"][:, 0] - yaw0
+            ctx = env.context()
+            turn = np.zeros(envs)
+            for t in range(steps):
+                action = np.zeros((envs, 5))
+                action[:, 2], action[:, 4] = -1.0, grip
+                action[:, 0] = rub * (1.0 if (t // RUB_PERIOD) % 2 == 0 else -1.0)
+                env.step(action)
+                new = env.context()
+                turn += thread_turn(ctx, new)
+                ctx = new
         finally:
             env.close()
-        result[f"{name}_hand_turn_rad"] = [round(float(t), 3) for t in turn]
+        result["turn_rad"][mode] = [round(float(t), 3) for t in turn]
     return result
 
 
@@ -101,17 +130,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--policy", type=Path, help="a policy directory (a skill's or best/)")
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--seed", type=int, default=PretrainConfig.eval_seed)
-    parser.add_argument("--press", action="store_true", help="push on a threaded nut instead")
+    parser.add_argument(
+        "--contact", action="store_true", help="push and rub on a threaded nut instead"
+    )
     parser.add_argument("--json", type=Path, help="also write the result as JSON")
     args = parser.parse_args(argv)
-    if args.press:
-        # The open hand starts around the nut, one to two turns up the thread.
-        result = press_turns("grasp_nut_m12_bolt", args.seed)
-        for name in ("open", "closed"):
-            turns = result[f"{name}_hand_turn_rad"]
-            print(f"{name} hand pressed {result['steps']} steps: nut turned {turns} rad")
+    if args.contact:
+        result = contact_turns("grasp_nut_m12_bolt", args.seed)
+        for mode, turns in result["turn_rad"].items():
+            print(f"{mode}, {result['steps']} steps: the nut turned {turns} rad")
     elif args.policy is None:
-        parser.error("give --policy DIR (or --press)")
+        parser.error("give --policy DIR (or --contact)")
     else:
         result = policy_turns(args.task, args.policy, args.episodes, args.seed)
         print(
@@ -121,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         print(
             f"the nut turned {result['nut_turn_rad']:.2f} rad while engaged; the gripping hand "
-            f"turned {result['hand_turn_gripped_rad']:.2f} rad"
+            f"turned {result['hand_turn_gripped_rad']:.2f} rad; the nut turned "
+            f"{result['nut_turn_while_hand_still_rad']:.2f} rad while the hand did not turn"
         )
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
