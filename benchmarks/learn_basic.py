@@ -60,6 +60,7 @@ def run_one(
     # wall time of resumed sessions.
     curve = read_curve(run_dir, steps)
     return {
+        "seed": seed,
         "steps": [int(x) for x in curve.steps],
         "wall_s": [float(x) for x in curve.wall_s],
         "success": [float(x) for x in curve.success],
@@ -81,6 +82,7 @@ def summarise(curves: list[dict]) -> dict:
                 mean_interval([w for w in walls if w is not None])[0] / 60 if reached else None
             ),
         }
+    curves = sorted(curves, key=lambda c: c["seed"])
     finals = [c["success"][-1] for c in curves]
     mean, low, high = mean_interval(finals)
     # A rate's interval is clipped to [0, 1]; with 3 seeds the t-interval easily runs past it.
@@ -88,6 +90,7 @@ def summarise(curves: list[dict]) -> dict:
         "mean": mean,
         "ci": [max(low, 0.0), min(high, 1.0)],
         "per_seed": finals,
+        "seeds": [c["seed"] for c in curves],
     }
     out["final_steps"] = max(c["steps"][-1] for c in curves)
     return out
