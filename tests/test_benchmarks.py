@@ -3,6 +3,7 @@ would otherwise only show when someone next measures something."""
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -19,3 +20,21 @@ def test_benchmark_parses_its_arguments(script: Path) -> None:
     )
     assert done.returncode == 0, done.stderr
     assert "usage:" in done.stdout
+
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS[0].parent / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_pull_jam_tells_a_straight_pull_from_a_sideways_drag() -> None:
+    """docs/skills.md explains Remove's hold-still optimum with these two pulls: straight up, a
+    freshly grasped peg comes out held; dragged sideways, the fingers lose it in the hole."""
+    pull = _load("pull_jam").pull
+    straight = pull("remove_peg_rect", 0.0, 1.0, envs=4, seed=0)
+    dragged = pull("remove_peg_rect", -1.0, 1.0, envs=4, seed=0)
+    assert straight["pulling"] == 1.0 and dragged["pulling"] == 1.0
+    assert straight["out_held"] == 1.0 and straight["lost_in_hole"] == 0.0
+    assert dragged["out_held"] == 0.0 and dragged["lost_in_hole"] == 1.0
