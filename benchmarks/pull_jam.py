@@ -16,12 +16,12 @@ exploring with sideways noise meets that, which is how Remove learned to hold th
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from itskill.files import write_json
 from itskill.skills.pretrain import PretrainConfig
 from itskill.tasks import get_task, make_batch_env
 from itskill.tasks.scripted import ScriptedPolicy
@@ -76,6 +76,17 @@ def pull(task: str, dx: float, dz: float, envs: int, seed: int) -> dict:
         env.close()
 
 
+def table(rows: list[dict]) -> str:
+    """The pulls as a text table, one line each."""
+    lines = ["   dz    dx  pulled  out, held  lost in the hole"]
+    lines += [
+        f"{r['dz']:5.1f} {r['dx']:5.1f}  {r['pulling']:6.0%}  {r['out_held']:9.0%}"
+        f"  {r['lost_in_hole']:16.0%}"
+        for r in rows
+    ]
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pegs", nargs="+", choices=list(STARTS), default=list(STARTS))
@@ -89,15 +100,9 @@ def main(argv: list[str] | None = None) -> int:
             rows = [pull(task, dx, dz, args.envs, args.seed) for dz in UPWARD for dx in SIDEWAYS]
             result["pulls"][f"{peg}/{start}"] = {"task": task, "rows": rows}
             print(f"{peg} peg, {start} start ({task}), {args.envs} episodes per pull")
-            print("   dz    dx  pulled  out, held  lost in the hole")
-            for r in rows:
-                print(
-                    f"{r['dz']:5.1f} {r['dx']:5.1f}  {r['pulling']:6.0%}  {r['out_held']:9.0%}"
-                    f"  {r['lost_in_hole']:16.0%}"
-                )
+            print(table(rows))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result)
     return 0
 
 

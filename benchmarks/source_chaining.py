@@ -19,12 +19,12 @@ the part's offsets from the grip point and from its fixture when the stage began
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from itskill.files import write_json
 from itskill.rl.checkpoint import TrainedPolicy
 from itskill.tasks import get_task, make_batch_env
 from itskill.tasks.evaluate import evaluate
@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         record = {"chain": args.chain, "own_stage": not args.target_stage, **res.to_dict()}
         if handovers is not None:
             record["handovers"] = handovers
-        args.json.write_text(json.dumps(record, indent=2) + "\n")
+        write_json(args.json, record)
     return 0
 
 

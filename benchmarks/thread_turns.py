@@ -16,12 +16,12 @@ the open and the closed hand pushed down, and the closed hand rubbed sideways ac
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from itskill.files import write_json
 from itskill.rl import load_policy
 from itskill.skills.pretrain import PretrainConfig
 from itskill.tasks import get_task, make_batch_env
@@ -154,8 +154,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{result['nut_turn_while_hand_still_rad']:.2f} rad while the hand did not turn"
         )
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result)
     return 0
 
 
