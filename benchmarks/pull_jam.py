@@ -6,9 +6,8 @@ placed there). Once the peg has been held for a few steps, every environment sen
 action: up at ``dz`` and sideways along x at ``dx`` (action units, fingers closed). For each pair
 the table gives the share of episodes in which the peg came out of the hole while held (the
 task's success at any step) and the share in which the fingers lost it while it was still in
-the hole: a pull that drags the peg sideways wedges it, and the fingers slide off. A policy
-exploring with sideways noise meets that, which is how Remove learned to hold the peg still
-(docs/skills.md, "remove_peg_rect learned").
+the hole. A policy exploring with sideways noise meets those losses, which is how Remove learned
+to hold the peg still (docs/skills.md, "Fifteenth pretraining").
 
     python benchmarks/pull_jam.py --json results/pull_jam/pull_jam.json
 """
@@ -39,7 +38,7 @@ STARTS = {
 
 def pull(task: str, dx: float, dz: float, envs: int, seed: int) -> dict:
     """One constant pull ``(dx, dz)`` in ``envs`` episodes of ``task``, each begun by the task's
-    script until the peg has been held for :data:`HELD_STEPS` steps."""
+    script until the peg is held, then held still for :data:`HELD_STEPS` steps."""
     spec = get_task(task)
     env = make_batch_env(spec, num_envs=envs, seed=seed)
     script = ScriptedPolicy(spec, envs)
@@ -56,6 +55,8 @@ def pull(task: str, dx: float, dz: float, envs: int, seed: int) -> dict:
         # One step short of the episode's end: the next step would reset to a new start.
         for _ in range(spec.max_steps - 1):
             action = script(ctx)
+            # Held: keep still with the fingers closed (not the script's lift) until the pull.
+            action[held_for > 0] = [0.0, 0.0, 0.0, 0.0, 1.0]
             pulling = held_for >= HELD_STEPS
             action[pulling] = [dx, 0.0, dz, 0.0, 1.0]
             env.step(action)
