@@ -46,9 +46,6 @@ def pull(task: str, dx: float, dz: float, envs: int, seed: int) -> dict:
         env.reset()
         script.reset()
         ctx = env.context()
-        rows = np.arange(envs)
-        seat = ctx["obj_bottom_z"][:, 0].copy()
-        depth = ctx["fix_pos"][rows, 0, 2] - seat
         held_for = np.zeros(envs, int)
         out = np.zeros(envs, bool)
         lost_in_hole = np.zeros(envs, bool)
@@ -62,7 +59,9 @@ def pull(task: str, dx: float, dz: float, envs: int, seed: int) -> dict:
             env.step(action)
             ctx = env.context()
             held = ctx["grasped"][:, 0] > 0.5
-            in_hole = ctx["obj_bottom_z"][:, 0] - seat < depth
+            # Its bottom below the hole's entrance: the figures in docs/skills.md. ``engaged``
+            # also asks for the hole's footprint and counts a few dragged pegs as out already.
+            in_hole = ctx["obj_bottom_z"][:, 0] < ctx["fix_pos"][:, 0, 2]
             lost_in_hole |= pulling & ~held & in_hole & ~out
             out |= pulling & np.asarray(spec.success(ctx), bool)
             held_for = np.where(held | pulling, held_for + 1, 0)
