@@ -201,7 +201,15 @@ def skills_pretrain(
     ] = None,
     steps: Annotated[int, typer.Option(help="Env-steps per skill.")] = 300_000,
     algo: Annotated[str, typer.Option(help="a2c or ppo.")] = "ppo",
-    seed: Annotated[int, typer.Option()] = 0,
+    seed: Annotated[int, typer.Option(help="The first seed each skill tries.")] = 0,
+    seeds: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Seeds a skill may try: a run with 0% success at every evaluation by half "
+            "its budget is abandoned for the next seed.",
+        ),
+    ] = 3,
     episodes: Annotated[int, typer.Option(help="Evaluation episodes per skill.")] = 100,
     eval_every: Annotated[
         int,
@@ -230,12 +238,13 @@ def skills_pretrain(
     """
     from itskill.executors import ExecutorError
     from itskill.skills import open_skill_space
-    from itskill.skills.pretrain import PretrainConfig, basic_tasks, pretrain
+    from itskill.skills.pretrain import ABANDONED_KEY, PretrainConfig, basic_tasks, pretrain
 
     config = PretrainConfig(
         algo=algo,
         steps=steps,
         seed=seed,
+        seeds=seeds,
         eval_episodes=episodes,
         min_success=min_success,
         eval_every=eval_every,
@@ -249,8 +258,16 @@ def skills_pretrain(
             learned = "" if entry.success >= config.min_success else " - not learned, not added"
             console.print(
                 f"{task}: success {entry.success:.0%} (95% CI {lo:.0%}-{hi:.0%}) after "
-                f"{entry.steps:,} env-steps, {entry.wall_s / 60:.1f} min{learned}"
+                f"{entry.steps:,} env-steps, {entry.wall_s / 60:.1f} min, seed {entry.seed}"
+                f"{learned}"
             )
+            for run in entry.extra.get(ABANDONED_KEY, []):
+                best = run["best_success"]
+                console.print(
+                    f"  seed {run['seed']} abandoned at {run['steps']:,} env-steps "
+                    f"({run['wall_s'] / 60:.1f} min): best evaluation "
+                    + ("none kept" if best is None else f"{best:.0%}")
+                )
 
     with user_errors(), _skill_errors(), open_skill_space() as space:
         try:

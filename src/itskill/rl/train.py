@@ -344,13 +344,16 @@ def train(
             )
             raise
         session_s = clock.session_s()
-        _save(model, run_dir, meta, clock.prior_s + session_s)
+        # Rounded as the checkpoint stores it, so a later call that finds the run finished
+        # reports the same figure.
+        total_s = round(clock.prior_s + session_s, 2)
+        _save(model, run_dir, meta, total_s)
         return TrainResult(
             run_dir,
             int(model.num_timesteps),
             resumed_from,
             False,
-            clock.prior_s + session_s,
+            total_s,
             session_s,
             metrics.last_row,
             read_selection(run_dir),

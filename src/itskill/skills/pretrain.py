@@ -1,12 +1,20 @@
 """Pretrain skills from scratch with the expert reward, measure them, and add them to a library.
 
 Each task is one job (:func:`pretrain_task`): train with :func:`itskill.rl.train.train` into
-``runs_dir/<task>`` (resumable: a rerun continues from the last checkpoint), evaluate the policy
-it kept (the best of its evaluations during training, ``best/``) deterministically over
+``runs_dir/<task>/seed<N>`` (resumable: a rerun continues from the last checkpoint), evaluate the
+policy it kept (the best of its evaluations during training, ``best/``) deterministically over
 ``eval_episodes`` held-out episodes, and copy its weights and metadata (no optimiser state) into
-``library_dir/<task>/``. :func:`pretrain` runs the jobs through an executor
-and, as each one finishes, rewrites the library's manifest and registers the skill in a skill
-space, so an interrupted pretraining keeps every skill already finished.
+``library_dir/<task>/``.
+
+Some tasks have a local optimum that a run either leaves early or never leaves (remove_peg_rect
+holds the peg down in its hole in half of its runs, docs/skills.md): such a run scores 0% at every
+evaluation. A run that has scored nothing by ``restart_at`` of its budget is therefore abandoned
+and the next seed trains from scratch, up to ``seeds`` seeds; the abandoned runs are listed in the
+skill's manifest entry (``abandoned_seeds``) so the budget they cost stays visible.
+
+:func:`pretrain` runs the jobs through an executor and, as each one finishes, rewrites the
+library's manifest and registers the skill in a skill space, so an interrupted pretraining keeps
+every skill already finished.
 """
 
 from __future__ import annotations
@@ -19,12 +27,16 @@ from pathlib import Path
 
 from itskill.executors import Executor, run_jobs
 from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy, best_policy_dir
-from itskill.rl.train import train
+from itskill.rl.eval_callback import read_selection
+from itskill.rl.train import TrainResult, train
 from itskill.skills.manifest import MANIFEST_NAME, ManifestEntry, read_manifest, write_manifest
 from itskill.skills.store import SkillSpace, UnknownSkillError
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import EvalResult, evaluate
 from itskill.tasks.spec import TaskSpec
+
+ABANDONED_KEY = "abandoned_seeds"
+"""Manifest entry field: the runs a skill gave up on (seed, env-steps, wall_s, best_success)."""
 
 
 @dataclass(frozen=True)
@@ -35,6 +47,15 @@ class PretrainConfig:
     steps: int = 300_000
     """Env-steps per skill."""
     seed: int = 0
+    """The first seed tried."""
+    seeds: int = 3
+    """Seeds a skill may use (``seed``, ``seed + 1``, ...): a run stalled at ``restart_at`` of
+    its budget gives way to the next one. 1 trains one seed whatever it scores."""
+    restart_at: float = 0.5
+    """Fraction of ``steps`` after which a run is checked for a stall."""
+    restart_success: float = 0.0
+    """A run whose best evaluation so far is at most this success has stalled. The check needs
+    evaluations during training, so ``eval_every=0`` trains one seed."""
     num_envs: int = 16
     eval_episodes: int = 100
     eval_seed: int = 10_000
@@ -46,6 +67,12 @@ class PretrainConfig:
     """A policy below this deterministic success is reported but not exported or registered:
     it has not learned the skill, and would only mislead retrieval and transfer."""
 
+    def __post_init__(self) -> None:
+        if self.seeds < 1:
+            raise ValueError(f"seeds must be at least 1, got {self.seeds}")
+        if not 0.0 < self.restart_at < 1.0:
+            raise ValueError(f"restart_at must be in (0, 1), got {self.restart_at}")
+
 
 def measure_skill(spec: TaskSpec, policy_dir: Path, config: PretrainConfig) -> EvalResult:
     """Deterministic success of the policy in ``policy_dir`` over the held-out evaluation episodes
@@ -56,24 +83,22 @@ def measure_skill(spec: TaskSpec, policy_dir: Path, config: PretrainConfig) -> E
 
 
 def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir: Path) -> dict:
-    """Train, evaluate and (if it learned) export one skill.
+    """Train (trying further seeds while runs stall), evaluate and, if it learned, export one skill.
 
     Returns its manifest entry as JSON (picklable), with ``"exported"`` telling whether it reached
     ``config.min_success`` and was copied into the library.
     """
     spec = get_task(task)
-    run_dir = Path(runs_dir) / task
-    result = train(
-        task,
-        algo=config.algo,
-        steps=config.steps,
-        seed=config.seed,
-        reward="expert",
-        out=run_dir,
-        num_envs=config.num_envs,
-        n_threads=1,
-        eval_every=config.eval_every or None,
-    )
+    abandoned: list[dict] = []
+    seed = config.seed
+    while config.eval_every and seed < config.seed + config.seeds - 1:
+        stall = _stall(task, config, seed, _run_dir(runs_dir, task, seed))
+        if stall is None:
+            break
+        abandoned.append(stall)
+        seed += 1
+    run_dir = _run_dir(runs_dir, task, seed)
+    result = _train_seed(task, config, seed, run_dir, config.steps)
     # A run can lose a level it reached; the figure recorded is still the held-out one.
     policy_dir = best_policy_dir(run_dir)
     ev = measure_skill(spec, policy_dir, config)
@@ -88,7 +113,8 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
         steps=result.num_timesteps,
         wall_s=round(result.wall_s, 1),
         algo=config.algo,
-        seed=config.seed,
+        seed=seed,
+        extra={ABANDONED_KEY: abandoned} if abandoned else {},
     )
     exported = ev.success_rate >= config.min_success
     if exported:
@@ -97,6 +123,44 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
         for name in (POLICY_FILE, META_FILE):
             shutil.copyfile(policy_dir / name, target / name)
     return {**entry.to_json(), "exported": exported}
+
+
+def _run_dir(runs_dir: Path, task: str, seed: int) -> Path:
+    return Path(runs_dir) / task / f"seed{seed}"
+
+
+def _stall(task: str, config: PretrainConfig, seed: int, run_dir: Path) -> dict | None:
+    """Train ``seed`` to its check; the record of the abandoned run if it stalled, else None.
+
+    Training on from the check to the budget is a resume, so a rerun of a whole pretraining
+    replays these decisions from the runs' checkpoints without training again.
+    """
+    check = _train_seed(task, config, seed, run_dir, round(config.steps * config.restart_at))
+    best = read_selection(run_dir)
+    if best is not None and float(best["success"]) > config.restart_success:
+        return None
+    return {
+        "seed": seed,
+        "steps": check.num_timesteps,
+        "wall_s": round(check.wall_s, 1),
+        "best_success": None if best is None else float(best["success"]),
+    }
+
+
+def _train_seed(
+    task: str, config: PretrainConfig, seed: int, run_dir: Path, steps: int
+) -> TrainResult:
+    return train(
+        task,
+        algo=config.algo,
+        steps=steps,
+        seed=seed,
+        reward="expert",
+        out=run_dir,
+        num_envs=config.num_envs,
+        n_threads=1,
+        eval_every=config.eval_every or None,
+    )
 
 
 def record(entry: ManifestEntry, library_dir: Path, space: SkillSpace | None) -> None:
@@ -158,4 +222,4 @@ def basic_tasks() -> list[str]:
     return [t.id for t in all_tasks().values() if t.kind == "basic"]
 
 
-__all__ = ["PretrainConfig", "basic_tasks", "pretrain", "pretrain_task", "record"]
+__all__ = ["ABANDONED_KEY", "PretrainConfig", "basic_tasks", "pretrain", "pretrain_task", "record"]
