@@ -206,8 +206,8 @@ def skills_pretrain(
         int,
         typer.Option(
             min=1,
-            help="Seeds a skill may try: a run with 0% success at every evaluation by half "
-            "its budget is abandoned for the next seed.",
+            help="Runs a skill may use: while every run so far ends below --min-success, "
+            "the next seed trains; the best run is kept.",
         ),
     ] = 3,
     episodes: Annotated[int, typer.Option(help="Evaluation episodes per skill.")] = 100,
@@ -262,11 +262,9 @@ def skills_pretrain(
                 f"{learned}"
             )
             for run in entry.extra.get(ABANDONED_KEY, []):
-                best = run["best_success"]
                 console.print(
-                    f"  seed {run['seed']} abandoned at {run['steps']:,} env-steps "
-                    f"({run['wall_s'] / 60:.1f} min): best evaluation "
-                    + ("none kept" if best is None else f"{best:.0%}")
+                    f"  not kept: seed {run['seed']}, success {run['success']:.0%} after "
+                    f"{run['steps']:,} env-steps, {run['wall_s'] / 60:.1f} min"
                 )
 
     with user_errors(), _skill_errors(), open_skill_space() as space:
