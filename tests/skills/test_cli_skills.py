@@ -63,3 +63,19 @@ def test_corrupt_database_names_path(home):
     result = runner.invoke(app, ["skills", "list"])
     assert result.exit_code == 2
     assert str(home / "skills.sqlite") in " ".join(result.output.split())
+
+
+def test_pretrain_reports_the_seeds_it_tried(home, tmp_path):
+    # No run can reach a success above 1: both seeds train, the better is reported, not added.
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--steps", "512", "--seeds", "2"]
+    args += ["--eval-every", "256", "--episodes", "4", "--min-success", "1.01"]
+    args += ["--runs", str(tmp_path / "runs"), "--library", str(tmp_path / "library")]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "reach_nut_m12: success" in result.output
+    assert "not learned, not added" in result.output
+    assert result.output.count("not kept: seed") == 1
+    assert sorted(p.name for p in (tmp_path / "runs" / "reach_nut_m12").iterdir()) == [
+        "seed0",
+        "seed1",
+    ]
