@@ -10,6 +10,7 @@ import numpy as np
 from itskill.rl import load_policy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.skills import ManifestEntry, open_skill_space, read_manifest, write_manifest
+from itskill.skills.library import shipped_budgets
 from itskill.skills.store import SHIPPED_LIBRARY as SHIPPED
 from itskill.tasks import all_tasks
 
@@ -109,6 +110,16 @@ def test_shipped_skills_follow_the_package_when_it_is_reinstalled_elsewhere(
             assert space.checkpoint_path(skill) == second / name / "policy.safetensors"
             assert space.checkpoint_path(skill).is_file()
             assert skill.success_rate == 0.97
+
+
+def test_pretraining_budgets_are_those_the_shipped_library_records(tmp_path, monkeypatch) -> None:
+    shipped = tmp_path / "shipped"
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
+    assert shipped_budgets() == {}  # no library shipped: every task gets the default
+    _ship(shipped, ("reach_nut_m12", "pick_nut_m12"))
+    entries = read_manifest(shipped)
+    write_manifest(shipped, [replace(entries[0], steps=50_176), replace(entries[1], steps=None)])
+    assert shipped_budgets() == {"reach_nut_m12": 50_176}
 
 
 def test_every_shipped_skill_loads_and_acts() -> None:

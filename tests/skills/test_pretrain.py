@@ -84,12 +84,17 @@ def test_runs_below_min_success_try_the_next_seeds_and_the_skill_is_not_added(
 
 
 def test_a_run_that_reaches_min_success_is_kept_without_trying_another_seed(tmp_path) -> None:
+    # The task's own budget (512 env-steps, one rollout of 64 steps x 8 environments) goes over
+    # the configuration's.
     config = PretrainConfig(
-        steps=512, num_envs=8, eval_episodes=4, min_success=0.0, eval_every=256, seeds=3, seed=5
+        steps=4096, num_envs=8, eval_episodes=4, min_success=0.0, eval_every=256, seeds=3, seed=5
     )
     runs, library = tmp_path / "runs", tmp_path / "library"
-    (entry,) = pretrain(["reach_nut_m12"], config, runs, library, workers=1)
+    (entry,) = pretrain(
+        ["reach_nut_m12"], config, runs, library, workers=1, steps={"reach_nut_m12": 512}
+    )
     assert entry.seed == 5 and ABANDONED_KEY not in entry.extra
+    assert entry.steps == 512
     assert [d.name for d in (runs / "reach_nut_m12").iterdir()] == ["seed5"]
     (listed,) = read_manifest(library)
     assert listed == entry

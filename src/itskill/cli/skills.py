@@ -199,7 +199,14 @@ def skills_pretrain(
         list[str] | None,
         typer.Option("--tasks", help="Tasks to train (default: every basic task)."),
     ] = None,
-    steps: Annotated[int, typer.Option(help="Env-steps per skill.")] = 300_000,
+    steps: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Env-steps per skill (default: the budget the shipped library records for "
+            "the skill, 300,000 for a task it lacks).",
+        ),
+    ] = None,
     algo: Annotated[str, typer.Option(help="a2c or ppo.")] = "ppo",
     seed: Annotated[int, typer.Option(help="The first seed each skill tries.")] = 0,
     seeds: Annotated[
@@ -238,11 +245,12 @@ def skills_pretrain(
     """
     from itskill.executors import ExecutorError
     from itskill.skills import open_skill_space
+    from itskill.skills.library import shipped_budgets
     from itskill.skills.pretrain import ABANDONED_KEY, PretrainConfig, basic_tasks, pretrain
 
     config = PretrainConfig(
         algo=algo,
-        steps=steps,
+        steps=PretrainConfig.steps if steps is None else steps,
         seed=seed,
         seeds=seeds,
         eval_episodes=episodes,
@@ -279,6 +287,7 @@ def skills_pretrain(
                 workers=workers,
                 ray_address=ray_address,
                 on_result=report,
+                steps=shipped_budgets() if steps is None else None,
             )
         except ExecutorError as err:
             console.print(f"[red]{err}[/red]")

@@ -40,6 +40,15 @@ def open_skill_space(
     return space
 
 
+def shipped_budgets() -> dict[str, int]:
+    """Env-steps each task's shipped skill was trained for, from the library's manifest: the
+    budgets with which ``itskill skills pretrain`` rebuilds the library."""
+    library = store.SHIPPED_LIBRARY
+    if not (library / MANIFEST_NAME).is_file():
+        return {}
+    return {e.task: e.steps for e in read_manifest(library) if e.steps is not None}
+
+
 def _repoint_to_package(space: SkillSpace, library: Path, entries: list[ManifestEntry]) -> None:
     """Point shipped skills recorded by the absolute path of some itskill install (releases
     before ``package:`` paths) at this package's copy, so a reinstall elsewhere keeps them."""

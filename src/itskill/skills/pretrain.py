@@ -20,8 +20,9 @@ every skill already finished.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import shutil
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,7 +45,7 @@ class PretrainConfig:
 
     algo: str = "ppo"
     steps: int = 300_000
-    """Env-steps per skill."""
+    """Env-steps per skill (per run), where :func:`pretrain` is not given a task's own."""
     seed: int = 0
     """The first seed tried."""
     seeds: int = 3
@@ -162,8 +163,12 @@ def pretrain(
     workers: int | None = None,
     ray_address: str | None = None,
     on_result: Callable[[str, ManifestEntry | None, BaseException | None], None] | None = None,
+    steps: Mapping[str, int] | None = None,
 ) -> list[ManifestEntry]:
     """Pretrain every task in ``tasks``; returns the entries of the skills added to the library.
+
+    ``steps`` gives tasks their own budgets (``itskill skills pretrain`` passes the shipped
+    library's, :func:`itskill.skills.library.shipped_budgets`); other tasks get ``config.steps``.
 
     Every finished task is reported through ``on_result`` with its entry (success and budget),
     whether or not it reached ``config.min_success``; a task whose job fails is reported with its
@@ -171,7 +176,12 @@ def pretrain(
     """
     tasks = [get_task(t).id for t in tasks]  # unknown names fail before any training starts
     Path(library_dir).mkdir(parents=True, exist_ok=True)
-    jobs = [(t, config, Path(runs_dir), Path(library_dir)) for t in tasks]
+    budgets = dict(steps or {})
+    jobs = [
+        (t, dataclasses.replace(config, steps=budgets.get(t, config.steps)), Path(runs_dir),
+         Path(library_dir))
+        for t in tasks
+    ]  # fmt: skip
     finished = []
     for res in run_jobs(pretrain_task, jobs, executor, workers, ray_address):
         task = tasks[res.index]
