@@ -20,10 +20,9 @@ every skill already finished.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import shutil
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from itskill.executors import Executor, run_jobs
@@ -178,7 +177,7 @@ def pretrain(
     Path(library_dir).mkdir(parents=True, exist_ok=True)
     budgets = dict(steps or {})
     jobs = [
-        (t, dataclasses.replace(config, steps=budgets.get(t, config.steps)), Path(runs_dir),
+        (t, replace(config, steps=budgets.get(t, config.steps)), Path(runs_dir),
          Path(library_dir))
         for t in tasks
     ]  # fmt: skip
