@@ -260,7 +260,7 @@ def test_stage_index_is_one_past_the_furthest_done_stage():
 def test_all_packaged_tasks_load(monkeypatch):
     monkeypatch.delenv(spec_module.TASKS_DIR_ENV, raising=False)
     tasks = all_tasks()
-    assert len(tasks) == 54
+    assert len(tasks) == 56
     for name, task in tasks.items():
         assert task.id == name
         assert 1 <= len(task.stages) <= 8, name
