@@ -4,6 +4,7 @@ registered."""
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import pytest
 
@@ -98,6 +99,28 @@ def test_a_run_that_reaches_min_success_is_kept_without_trying_another_seed(tmp_
     assert [d.name for d in (runs / "reach_nut_m12").iterdir()] == ["seed5"]
     (listed,) = read_manifest(library)
     assert listed == entry
+
+
+def test_the_first_seed_to_learn_is_exported_with_the_runs_before_it_listed(
+    tmp_path, monkeypatch
+) -> None:
+    # Seed 0's run "fails" its held-out measure and seed 1's "learns" (the measure is stubbed,
+    # so which run learns does not depend on a 512-step training).
+    def measure(spec, policy_dir, config):
+        learned = "seed1" in str(policy_dir)
+        return SimpleNamespace(success_rate=0.9 if learned else 0.1, ci_low=0.0, ci_high=1.0)
+
+    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", measure)
+    config = PretrainConfig(
+        steps=512, num_envs=8, eval_episodes=4, min_success=0.5, eval_every=256, seeds=3
+    )
+    runs, library = tmp_path / "runs", tmp_path / "library"
+    (entry,) = pretrain(["reach_nut_m12"], config, runs, library, workers=1)
+    assert entry.seed == 1 and entry.success == 0.9
+    assert [(r["seed"], r["success"]) for r in entry.extra[ABANDONED_KEY]] == [(0, 0.1)]
+    assert sorted(d.name for d in (runs / "reach_nut_m12").iterdir()) == ["seed0", "seed1"]
+    exported = json.loads((library / "reach_nut_m12" / "checkpoint.json").read_text())
+    assert exported["seed"] == 1
 
 
 def _pretrain_reports(config, runs, library, space=None) -> list:
