@@ -92,7 +92,7 @@ def test_a_run_that_reaches_min_success_is_kept_without_trying_another_seed(tmp_
     )
     runs, library = tmp_path / "runs", tmp_path / "library"
     (entry,) = pretrain(
-        ["reach_nut_m12"], config, runs, library, workers=1, steps={"reach_nut_m12": 512}
+        ["reach_nut_m12"], config, runs, library, workers=1, budgets={"reach_nut_m12": 512}
     )
     assert entry.seed == 5 and ABANDONED_KEY not in entry.extra
     assert entry.steps == 512

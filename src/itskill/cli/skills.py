@@ -287,7 +287,7 @@ def skills_pretrain(
                 workers=workers,
                 ray_address=ray_address,
                 on_result=report,
-                steps=shipped_budgets() if steps is None else None,
+                budgets=shipped_budgets() if steps is None else None,
             )
         except ExecutorError as err:
             console.print(f"[red]{err}[/red]")

@@ -162,11 +162,11 @@ def pretrain(
     workers: int | None = None,
     ray_address: str | None = None,
     on_result: Callable[[str, ManifestEntry | None, BaseException | None], None] | None = None,
-    steps: Mapping[str, int] | None = None,
+    budgets: Mapping[str, int] | None = None,
 ) -> list[ManifestEntry]:
     """Pretrain every task in ``tasks``; returns the entries of the skills added to the library.
 
-    ``steps`` gives tasks their own budgets (``itskill skills pretrain`` passes the shipped
+    ``budgets`` gives tasks their own env-steps (``itskill skills pretrain`` passes the shipped
     library's, :func:`itskill.skills.library.shipped_budgets`); other tasks get ``config.steps``.
 
     Every finished task is reported through ``on_result`` with its entry (success and budget),
@@ -175,7 +175,7 @@ def pretrain(
     """
     tasks = [get_task(t).id for t in tasks]  # unknown names fail before any training starts
     Path(library_dir).mkdir(parents=True, exist_ok=True)
-    budgets = dict(steps or {})
+    budgets = budgets or {}
     jobs = [
         (t, replace(config, steps=budgets.get(t, config.steps)), Path(runs_dir),
          Path(library_dir))
