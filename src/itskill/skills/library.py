@@ -17,7 +17,13 @@ from pathlib import Path
 
 from itskill.files import write_json
 from itskill.skills import store
-from itskill.skills.manifest import MANIFEST_NAME, ManifestEntry, install_library, read_manifest
+from itskill.skills.manifest import (
+    MANIFEST_NAME,
+    ManifestEntry,
+    install_library,
+    read_manifest,
+    read_manifest_or_empty,
+)
 from itskill.skills.store import SkillSpace, SkillSpaceConfig
 
 
@@ -43,10 +49,8 @@ def open_skill_space(
 def shipped_budgets() -> dict[str, int]:
     """Env-steps each task's shipped skill was trained for, from the library's manifest: the
     budgets with which ``itskill skills pretrain`` rebuilds the library."""
-    library = store.SHIPPED_LIBRARY
-    if not (library / MANIFEST_NAME).is_file():
-        return {}
-    return {e.task: e.steps for e in read_manifest(library) if e.steps is not None}
+    entries = read_manifest_or_empty(store.SHIPPED_LIBRARY)
+    return {e.task: e.steps for e in entries if e.steps is not None}
 
 
 def _repoint_to_package(space: SkillSpace, library: Path, entries: list[ManifestEntry]) -> None:

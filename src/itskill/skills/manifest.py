@@ -126,6 +126,11 @@ def read_manifest(library_dir: Path | str) -> list[ManifestEntry]:
     ]
 
 
+def read_manifest_or_empty(library_dir: Path | str) -> list[ManifestEntry]:
+    """The library's manifest entries; none for a library not yet written."""
+    return read_manifest(library_dir) if (Path(library_dir) / MANIFEST_NAME).is_file() else []
+
+
 def write_manifest(library_dir: Path | str, entries: Sequence[ManifestEntry]) -> Path:
     """Write ``<library_dir>/manifest.json`` atomically (a reader never sees half a file)."""
     library_dir = Path(library_dir)

@@ -28,7 +28,7 @@ from pathlib import Path
 from itskill.executors import Executor, run_jobs
 from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy, best_policy_dir
 from itskill.rl.train import TrainResult, train
-from itskill.skills.manifest import MANIFEST_NAME, ManifestEntry, read_manifest, write_manifest
+from itskill.skills.manifest import ManifestEntry, read_manifest_or_empty, write_manifest
 from itskill.skills.store import SkillSpace, UnknownSkillError
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import EvalResult, evaluate
@@ -97,11 +97,11 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
             eval_every=config.eval_every or None,
         )
         # A run can lose a level it reached; the figure recorded is still the held-out one.
-        runs.append((result, measure_skill(spec, best_policy_dir(result.run_dir), config), seed))
-        if runs[-1][1].success_rate >= config.min_success:
+        ev = measure_skill(spec, best_policy_dir(result.run_dir), config)
+        runs.append((result, ev, seed))
+        if ev.success_rate >= config.min_success:
             break
-    kept = max(runs, key=lambda run: run[1].success_rate)  # the earliest of equals
-    result, ev, seed = kept
+    result, ev, seed = max(runs, key=lambda run: run[1].success_rate)  # the earliest of equals
     abandoned = [
         {
             "seed": s,
@@ -145,11 +145,6 @@ def record(entry: ManifestEntry, library_dir: Path, space: SkillSpace | None) ->
     with contextlib.suppress(UnknownSkillError):  # a retrained skill replaces the old one
         space.remove(entry.name)
     space.add(entry.to_skill(space.checkpoint_ref(Path(library_dir) / entry.checkpoint)))
-
-
-def read_manifest_or_empty(library_dir: Path) -> list[ManifestEntry]:
-    """The library's manifest entries; none for a library not yet written."""
-    return read_manifest(library_dir) if (Path(library_dir) / MANIFEST_NAME).is_file() else []
 
 
 def pretrain(
