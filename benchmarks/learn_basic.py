@@ -12,7 +12,8 @@ with PPO; A2C within 2x PPO's steps; every basic skill >= 95% final success.
 ``--reward FILE.py`` trains with another reward than the expert's (a generated one, say, to set
 it against the expert's at a budget that learns the task: the reward search's own budget is too
 short to tell the two apart, docs/reward.md). The file is run as trusted Python, as by
-``itskill train --reward``.
+``itskill train --reward``. ``--hyperparams FILE.toml`` trains with a hyper-parameter file of the
+packaged file's shape instead of the packaged one, to screen settings on several seeds.
 
     python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos ppo a2c --seeds 0 1 2 \
         --steps 200000 --a2c-steps 300000
@@ -41,7 +42,15 @@ THRESHOLDS = (0.8, 0.9)
 
 
 def run_one(
-    task: str, algo: str, seed: int, steps: int, every: int, episodes: int, out: str, reward: str
+    task: str,
+    algo: str,
+    seed: int,
+    steps: int,
+    every: int,
+    episodes: int,
+    out: str,
+    reward: str,
+    hyperparams: str | None,
 ):
     """One training run with evaluations; returns its eval curve (picklable)."""
     run_dir = Path(out) / "runs" / task / algo / f"seed{seed}"
@@ -52,6 +61,7 @@ def run_one(
         seed=seed,
         reward=reward,
         out=run_dir,
+        hyperparams=hyperparams,
         n_threads=1,
         eval_every=every,
         eval_episodes=episodes,
@@ -144,6 +154,12 @@ def main() -> None:
     parser.add_argument("--eval-every", type=int, default=10_000)
     parser.add_argument("--eval-episodes", type=int, default=50)
     parser.add_argument("--reward", default="expert", help="expert, or a reward file (.py)")
+    parser.add_argument(
+        "--hyperparams",
+        type=Path,
+        default=None,
+        help="a hyper-parameter TOML file instead of the packaged one (to screen settings)",
+    )
     parser.add_argument("--executor", choices=EXECUTORS, default="local")
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--out", type=Path, default=Path("results/learn_basic"))
@@ -152,7 +168,8 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     cells = [(t, a, s) for t in args.tasks for a in args.algos for s in args.seeds]
     budget = {"a2c": args.a2c_steps or args.steps}
-    common = (args.eval_every, args.eval_episodes, str(args.out), args.reward)
+    hyperparams = str(args.hyperparams) if args.hyperparams else None
+    common = (args.eval_every, args.eval_episodes, str(args.out), args.reward, hyperparams)
     jobs = [(t, a, s, budget.get(a, args.steps), *common) for t, a, s in cells]
     curves: dict[tuple[str, str], list[dict]] = {}
     for res in run_jobs(run_one, jobs, args.executor, args.workers):
@@ -165,7 +182,9 @@ def main() -> None:
 
     summary = {
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
-        "settings": {k: v for k, v in vars(args).items() if k != "out"},
+        "settings": {
+            k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items() if k != "out"
+        },
         "results": {},
     }
     print(f"\n{'task':24s} {'algo':5s} {'to 80%: steps / min (seeds)':32s} {'to 90%':28s} final")

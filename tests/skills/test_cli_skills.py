@@ -25,6 +25,9 @@ def test_add_list_search_show_remove(home, checkpoint):
     listed = json.loads(runner.invoke(app, ["skills", "list", "--json"]).stdout)
     assert [(s["id"], s["name"]) for s in listed] == [(1, "insert_peg_round"), (2, "pick")]
     assert listed[1]["actions"] == ["a", "b"]
+    markdown = runner.invoke(app, ["skills", "list", "--markdown"]).stdout.splitlines()
+    assert markdown[2].startswith("| insert_peg_round | `insert_peg_round` | insert | 90% |")
+    assert "| 1,000 |" in markdown[2] and markdown[3].startswith("| pick | `pick_nut_m12` | a → b |")
 
     result = runner.invoke(
         app, ["skills", "search", "insert the peg in the hole", "-k", "1", "--json"]

@@ -5,7 +5,7 @@ Imports of itskill.skills stay inside the commands: the other commands should no
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
@@ -60,8 +60,36 @@ def _skill_table(rows: list[tuple[Any, float | None]], title: str) -> Table:
     return table
 
 
+def skills_markdown(skills: Sequence[Any]) -> str:
+    """Skills as a Markdown table: what each does, how well and what it cost to learn (the
+    library table in docs/skills.md is this output on a new skill space)."""
+    rows = [
+        "| name | task | actions | success [95% CI] | env-steps | wall-min | algorithm, seed |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for s in skills:
+        success = "" if s.success_rate is None else f"{s.success_rate:.0%}"
+        if s.success_rate is not None and s.success_ci:
+            success += f" [{s.success_ci[0]:.0%}, {s.success_ci[1]:.0%}]"
+        steps = "" if s.train_steps is None else f"{s.train_steps:,}"
+        wall = "" if s.train_wall_s is None else f"{s.train_wall_s / 60:.1f}"
+        trained = ", ".join(
+            part
+            for part in (s.algo, None if s.seed is None else f"seed {s.seed}")
+            if part is not None
+        )
+        rows.append(
+            f"| {s.name} | `{s.task_id}` | {' → '.join(s.actions)} | {success} | {steps} "
+            f"| {wall} | {trained} |"
+        )
+    return "\n".join(rows)
+
+
 @skills_app.command("list")
-def skills_list(as_json: JsonOpt = False) -> None:
+def skills_list(
+    as_json: JsonOpt = False,
+    markdown: Annotated[bool, typer.Option("--markdown", help="Print a Markdown table.")] = False,
+) -> None:
     """List every skill in the skill space ($ITSKILL_HOME/skills.sqlite)."""
     from itskill.skills import open_skill_space
 
@@ -70,6 +98,9 @@ def skills_list(as_json: JsonOpt = False) -> None:
         path = space.path
     if as_json:
         print_json([s.to_dict() for s in skills])
+        return
+    if markdown:
+        typer.echo(skills_markdown(skills))
         return
     console.print(_skill_table([(s, None) for s in skills], f"{len(skills)} skills in {path}"))
 
