@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# A2C settings screened on Pick (nut M12), 3 seeds x 300k env-steps each (docs/training.md,
+# "A2C settings screened"). Each variant's hyperparams.toml is the packaged file with the
+# changes in its hyperparams.diff; base is the packaged file itself. Two runs at a time on the
+# project machine (2 vCPUs), with two to four other training processes beside them for most of
+# the time, so the wall-minutes in the summaries are upper bounds; compare env-steps.
+set -euo pipefail
+for v in base adam adam7 envs32; do
+  python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 --steps 300000 \
+    --eval-every 20000 --eval-episodes 50 --workers 2 \
+    --hyperparams results/learn_basic/a2c_screening/$v/hyperparams.toml --out runs/a2c_screening/$v
+done
