@@ -27,7 +27,8 @@ def test_add_list_search_show_remove(home, checkpoint):
     assert listed[1]["actions"] == ["a", "b"]
     markdown = runner.invoke(app, ["skills", "list", "--markdown"]).stdout.splitlines()
     assert markdown[2].startswith("| insert_peg_round | `insert_peg_round` | insert | 90% |")
-    assert "| 1,000 |" in markdown[2] and markdown[3].startswith("| pick | `pick_nut_m12` | a → b |")
+    assert "| 1,000 |" in markdown[2]
+    assert markdown[3].startswith("| pick | `pick_nut_m12` | a → b |")
 
     result = runner.invoke(
         app, ["skills", "search", "insert the peg in the hole", "-k", "1", "--json"]
