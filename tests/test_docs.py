@@ -13,6 +13,11 @@ from itskill.skills.store import SHIPPED_LIBRARY
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
+def shipped_skills() -> list:
+    """The skills a new skill space holds: exactly the shipped ones, in the manifest's order."""
+    return [e.to_skill(e.checkpoint) for e in read_manifest(SHIPPED_LIBRARY)]
+
+
 def test_the_task_table_is_itskill_tasks_list() -> None:
     assert tasks_markdown() in (DOCS / "tasks.md").read_text(), (
         "docs/tasks.md: regenerate its table with `itskill tasks list --markdown`"
@@ -20,8 +25,7 @@ def test_the_task_table_is_itskill_tasks_list() -> None:
 
 
 def test_the_library_table_is_the_shipped_library() -> None:
-    # A new skill space holds exactly the shipped skills, in the manifest's order.
-    skills = [e.to_skill(e.checkpoint) for e in read_manifest(SHIPPED_LIBRARY)]
+    skills = shipped_skills()
     assert len(skills) >= 30
     assert skills_markdown(skills) in (DOCS / "skills.md").read_text(), (
         "docs/skills.md: regenerate its library table with `itskill skills list --markdown` "
@@ -30,7 +34,7 @@ def test_the_library_table_is_the_shipped_library() -> None:
 
 
 def test_the_library_table_shows_each_skills_measured_success() -> None:
-    skills = [e.to_skill(e.checkpoint) for e in read_manifest(SHIPPED_LIBRARY)]
+    skills = shipped_skills()
     table = skills_markdown(skills).splitlines()
     assert len(table) == 2 + len(skills)
     row = next(r for r in table if r.startswith("| pick_nut_m12 |"))
