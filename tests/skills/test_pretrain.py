@@ -8,10 +8,11 @@ from types import SimpleNamespace
 
 import pytest
 
+from itskill.rl import config as config_module
 from itskill.rl.checkpoint import MODEL_FILE, load_policy
 from itskill.skills import SkillSpace
 from itskill.skills.manifest import read_manifest
-from itskill.skills.pretrain import ABANDONED_KEY, PretrainConfig, pretrain
+from itskill.skills.pretrain import ABANDONED_KEY, DEMO_STEPS_KEY, PretrainConfig, pretrain
 
 
 def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) -> None:
@@ -136,3 +137,24 @@ def _pretrain_reports(config, runs, library, space=None) -> list:
 def test_pretrain_config_refuses_no_seeds() -> None:
     with pytest.raises(ValueError, match="seeds"):
         PretrainConfig(seeds=0)
+
+
+def test_a_warm_started_skill_records_the_demonstrations_env_steps(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    packaged = config_module.default_path().read_text()
+    hp = tmp_path / "hyperparams.toml"
+    hp.write_text(packaged + "\n[nutbolt.tasks.reach_nut_m12.demos]\nepisodes = 8\n")
+    monkeypatch.setattr(config_module, "default_path", lambda: hp)
+    config = PretrainConfig(
+        steps=256, num_envs=8, eval_episodes=4, min_success=0.0, eval_every=256, seeds=1
+    )
+    (entry,) = pretrain(
+        ["reach_nut_m12"], config, tmp_path / "runs", tmp_path / "lib", None, workers=1
+    )
+    run = tmp_path / "runs" / "reach_nut_m12" / "seed0"
+    demos = json.loads((run / "demos.json").read_text())
+    assert entry.extra[DEMO_STEPS_KEY] == demos["env_steps"] >= 8 * 50
+    assert entry.steps == _steps(run)  # the trainer's own; the demonstrations' are on top
+    # The cloned policy was evaluated before the first update, as a candidate for the best.
+    rows = (run / "eval.csv").read_text().splitlines()
+    assert rows[1].startswith("0,")

@@ -37,6 +37,14 @@ def train_cmd(
     hyperparams: HyperparamsOpt = None,
     eval_every: EvalEveryOpt = None,
     eval_episodes: EvalEpisodesOpt = 50,
+    demos: Annotated[
+        int | None,
+        typer.Option(
+            min=0,
+            help="Warm start: clone the task's scripted controller over this many episodes "
+            "before RL (0: off; default: the hyper-parameters' demos.episodes).",
+        ),
+    ] = None,
 ) -> None:
     """Train a policy with A2C or PPO; rerun the same command to resume from the last checkpoint."""
     from itskill.rl.config import HyperparamError
@@ -55,6 +63,7 @@ def train_cmd(
                 out,
                 num_envs,
                 hyperparams,
+                overrides=None if demos is None else {"demos": {"episodes": demos}},
                 console=console,
                 eval_every=eval_every,
                 eval_episodes=eval_episodes,

@@ -15,6 +15,7 @@ from typing import Any, Literal
 from stable_baselines3.common.utils import LinearSchedule
 
 from itskill.datafile import DataFileError, check_like, read_toml
+from itskill.rl.demos import DemoConfig
 from itskill.rl.policy import PolicyConfig
 
 Algo = Literal["a2c", "ppo"]
@@ -109,6 +110,9 @@ class Hyperparams:
     clip and shrink every actor update with them."""
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo_config: A2CConfig | PPOConfig = field(default_factory=PPOConfig)
+    demos: DemoConfig = field(default_factory=DemoConfig)
+    """Warm start from the task's scripted controller before RL (off by default;
+    :mod:`itskill.rl.demos`)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -119,6 +123,7 @@ class Hyperparams:
             "normalize_reward": self.normalize_reward,
             "policy": self.policy.to_dict(),
             self.algo: asdict(self.algo_config),
+            "demos": asdict(self.demos),
         }
 
 
@@ -179,6 +184,7 @@ def _layer(
     return replace(
         base,
         policy=_build(path, f"{where}.policy", PolicyConfig, table.get("policy", {}), base.policy),
+        demos=_build(path, f"{where}.demos", DemoConfig, table.get("demos", {}), base.demos),
         algo_config=_build(
             path, f"{where}.{algo}", ALGO_CONFIGS[algo], table.get(algo, {}), base.algo_config
         ),
@@ -208,7 +214,7 @@ def load_hyperparams(
         raise HyperparamError(
             path, family, f"no table for this task family; the file has {sorted(data)}"
         )
-    fields_ = set(_FAMILY_KEYS) | {"policy", *ALGOS}
+    fields_ = set(_FAMILY_KEYS) | {"policy", "demos", *ALGOS}
     base = Hyperparams(family=family, algo=algo, algo_config=ALGO_CONFIGS[algo]())  # type: ignore[arg-type]
     hp = _layer(path, family, data[family], algo, fields_ | {"tasks"}, base)
     tasks = data[family].get("tasks", {})
@@ -222,7 +228,9 @@ def load_hyperparams(
     hp = per_task.get(task, hp)
     if overrides:
         # The same layer as a file's table, with the algorithm's fields given by name.
-        table = {k: v for k, v in overrides.items() if k in _FAMILY_KEYS or k == "policy"}
+        table = {
+            k: v for k, v in overrides.items() if k in _FAMILY_KEYS or k in ("policy", "demos")
+        }
         table[algo] = {k: v for k, v in overrides.items() if k not in table}
         hp = _layer("overrides", "overrides", table, algo, fields_, hp)
     if isinstance(hp.algo_config, PPOConfig):

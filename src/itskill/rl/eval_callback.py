@@ -55,7 +55,9 @@ class DeterministicEvalCallback(BaseCallback):
     """Evaluate the deterministic policy every ``every`` env-steps over ``episodes`` episodes.
 
     With ``meta`` (the run's checkpoint metadata), the best policy so far is written to
-    ``run_dir/best`` after each evaluation that matches or beats it.
+    ``run_dir/best`` after each evaluation that matches or beats it. With ``at_start``, a run that
+    starts from step 0 is evaluated before its first update too (a warm-started policy, which
+    reinforcement learning may make worse before it makes it better).
     """
 
     def __init__(
@@ -66,8 +68,10 @@ class DeterministicEvalCallback(BaseCallback):
         episodes: int = 50,
         seed: int = 20_000,
         meta: Mapping[str, Any] | None = None,
+        at_start: bool = False,
     ) -> None:
         super().__init__()
+        self.at_start = at_start
         self.spec, self.run_dir, self.path = spec, Path(run_dir), Path(run_dir) / EVAL_FILE
         self.every, self.episodes, self.seed = every, episodes, seed
         self.meta = None if meta is None else dict(meta)
@@ -88,6 +92,8 @@ class DeterministicEvalCallback(BaseCallback):
         with open(self.path, newline="") as fh:
             # A run resumed from an older release keeps its file's columns.
             self._columns = next(csv.reader(fh))
+        if self.at_start and self.num_timesteps == 0:
+            self.evaluate()
 
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next:

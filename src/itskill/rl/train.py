@@ -9,6 +9,7 @@ the last checkpoint: the model (optimiser included) is reloaded and the step cou
 from __future__ import annotations
 
 import hashlib
+import json
 import runpy
 import time
 from collections.abc import Mapping
@@ -35,6 +36,7 @@ from itskill.rl.checkpoint import (
     save_checkpoint,
 )
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
+from itskill.rl.demos import DEMOS_FILE, warm_start
 from itskill.rl.eval_callback import DeterministicEvalCallback, read_selection
 from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
 from itskill.rl.policy import StagedActorCriticPolicy
@@ -242,6 +244,13 @@ def train(
     if num_envs is not None:
         ov["num_envs"] = num_envs
     hp: Hyperparams = load_hyperparams(spec.family, algo, hyperparams, ov, task=spec.id)
+    if hp.demos.episodes and not issubclass(policy_class, StagedActorCriticPolicy):
+        raise HyperparamError(
+            hyperparams or "hyperparams",
+            "demos.episodes",
+            f"a warm start from demonstrations needs a {StagedActorCriticPolicy.__name__}, "
+            f"not {policy_class.__name__}",
+        )
     reward_fn, reward_meta = load_reward(reward, spec)
     meta: dict[str, Any] = {
         "task": spec.id,
@@ -284,6 +293,7 @@ def train(
         if resuming:
             restore_reward_norm(train_env, run_dir)
     cls = ALGO_CLASSES[algo]
+    clock = WallClock(prior_wall_s)  # from here, so that a warm start's time counts
     try:
         if resuming:
             try:
@@ -305,6 +315,17 @@ def train(
                 verbose=0,
                 **hp.algo_config.sb3_kwargs(),
             )
+            if hp.demos.episodes:
+                summary = warm_start(
+                    model, spec, env, train_env, hp.demos, hp.algo_config.gamma, seed
+                )
+                run_dir.mkdir(parents=True, exist_ok=True)
+                (run_dir / DEMOS_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+        if hp.demos.episodes:
+            # The normaliser keeps the statistics of the demonstrations the policy was cloned
+            # on: statistics that moved with the RL rollouts would shift every input the clone
+            # was fitted to (a policy object forgets this flag, so a resumed run sets it again).
+            model.policy.update_obs_stats = False
         if model.num_timesteps >= steps:
             return TrainResult(
                 run_dir,
@@ -320,14 +341,20 @@ def train(
         if resuming:
             MetricsWriter(run_dir).truncate_after(resumed_from)
         metrics = MetricsCallback(env, run_dir, steps, logger, console)
-        clock = WallClock(prior_wall_s)
         callbacks: list[BaseCallback] = [
             metrics,
             CheckpointCallback(run_dir, hp.checkpoint_every, meta, clock),
         ]
         if eval_every:
             callbacks.append(
-                DeterministicEvalCallback(spec, run_dir, eval_every, eval_episodes, meta=meta)
+                DeterministicEvalCallback(
+                    spec,
+                    run_dir,
+                    eval_every,
+                    eval_episodes,
+                    meta=meta,
+                    at_start=hp.demos.episodes > 0,
+                )
             )
         try:
             model.learn(

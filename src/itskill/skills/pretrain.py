@@ -27,6 +27,7 @@ from pathlib import Path
 
 from itskill.executors import Executor, run_jobs
 from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy, best_policy_dir
+from itskill.rl.demos import read_demo_summary
 from itskill.rl.train import TrainResult, train
 from itskill.skills.manifest import ManifestEntry, read_manifest_or_empty, write_manifest
 from itskill.skills.store import SkillSpace, UnknownSkillError
@@ -34,6 +35,8 @@ from itskill.tasks import get_task
 from itskill.tasks.evaluate import EvalResult, evaluate
 from itskill.tasks.spec import TaskSpec
 
+DEMO_STEPS_KEY = "demo_env_steps"
+"""Manifest entry field: env-steps the scripted demonstrations of a warm start took."""
 ABANDONED_KEY = "abandoned_seeds"
 """Manifest entry field: the runs tried and not kept (seed, env-steps, wall_s, held-out success)."""
 
@@ -72,6 +75,15 @@ def measure_skill(spec: TaskSpec, policy_dir: Path, config: PretrainConfig) -> E
     runs exactly the same episodes."""
     policy = as_policy(policy_dir)
     return evaluate(spec, policy, config.eval_episodes, seed=config.eval_seed, num_envs=25)
+
+
+def _extra(abandoned: list[dict], demos: dict | None) -> dict:
+    """A manifest entry's extra fields: the runs not kept, and a warm start's env-steps (spent
+    on top of the trainer's ``steps``)."""
+    extra: dict = {ABANDONED_KEY: abandoned} if abandoned else {}
+    if demos is not None:
+        extra[DEMO_STEPS_KEY] = demos["env_steps"]
+    return extra
 
 
 def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir: Path) -> dict:
@@ -124,7 +136,7 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
         wall_s=round(result.wall_s, 1),
         algo=config.algo,
         seed=seed,
-        extra={ABANDONED_KEY: abandoned} if abandoned else {},
+        extra=_extra(abandoned, read_demo_summary(result.run_dir)),
     )
     exported = ev.success_rate >= config.min_success
     if exported:
