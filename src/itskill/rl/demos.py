@@ -55,8 +55,10 @@ class DemoConfig:
 
     episodes: int = 0
     """Scripted episodes to run; only the successful ones are learned from."""
-    epochs: int = 30
-    """Passes over the demonstrations."""
+    epochs: int = 100
+    """Passes over the demonstrations. At 30, clones of Pick (round peg) from 200 episodes
+    scored 100%, 20% and 90% on seeds 0-2 before any RL; at 100, 64%, 100%, 100% and 88% on
+    seeds 0-3, and each run's kept policy 100% held-out (docs/skills.md)."""
     batch_size: int = 256
     learning_rate: float = 1e-3
     """Adam's step size for the warm start only (the algorithm keeps its own optimiser)."""
