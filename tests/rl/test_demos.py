@@ -11,6 +11,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from typer.testing import CliRunner
 
 from itskill.cli import app
+from itskill.rl import demos as demos_module
 from itskill.rl.checkpoint import as_policy, load_policy
 from itskill.rl.config import HyperparamError, load_hyperparams
 from itskill.rl.demos import DemoConfig, Demonstrations, collect_demos, discounted_returns
@@ -121,3 +122,18 @@ def test_a_warm_start_needs_the_staged_policy(tmp_path: Path) -> None:
             overrides={"demos": {"episodes": 4}}, policy_class=ActorCriticPolicy,
         )  # fmt: skip
     assert not (tmp_path / "run").exists()
+
+
+def test_a_script_that_never_succeeds_stops_the_run_with_a_clear_error(
+    tmp_path: Path, monkeypatch
+) -> None:
+    def stand_still(self, ctx):
+        return np.zeros((self.num_envs, 5))
+
+    monkeypatch.setattr(demos_module.ScriptedPolicy, "__call__", stand_still)
+    out = tmp_path / "run"
+    args = ["train", TASK, "--steps", "32", "--num-envs", "4", "--demos", "4", "--out", str(out)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2
+    assert "succeeded in none of 4 episodes" in " ".join(result.output.split())
+    assert not (out / "checkpoint.json").exists()

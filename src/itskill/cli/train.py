@@ -48,6 +48,7 @@ def train_cmd(
 ) -> None:
     """Train a policy with A2C or PPO; rerun the same command to resume from the last checkpoint."""
     from itskill.rl.config import HyperparamError
+    from itskill.rl.demos import DemoError
     from itskill.rl.train import ResumeMismatchError, RewardLoadError, train
 
     if algo not in ("a2c", "ppo"):
@@ -68,7 +69,7 @@ def train_cmd(
                 eval_every=eval_every,
                 eval_episodes=eval_episodes,
             )
-    except (HyperparamError, RewardLoadError, ResumeMismatchError) as err:
+    except (HyperparamError, RewardLoadError, ResumeMismatchError, DemoError) as err:
         err_console.print(f"[red]error:[/red] {err}", highlight=False, markup=True)
         raise typer.Exit(USAGE_ERROR) from err
     except KeyboardInterrupt:

@@ -16,9 +16,11 @@ task's starts, so before reinforcement learning begins the trainer can
 
 Reinforcement learning then continues from the clone with the task's reward. It needs little
 action noise and a small step: at the family's log-std -0.5 and 3e-4, PPO's first updates undo a
-clone of Pick (round peg) from 92% to 8% within 200k env-steps; at -3 and 1e-4 it stays at
-92-100% (docs/training.md, "Warm start from demonstrations"). The run evaluates the clone before
-its first update, so the best-policy selection keeps it when RL does not improve on it.
+clone of Pick (round peg) from 92% to 8% within 200k env-steps; at -3 and 1e-4 it stayed at
+92-100% on that seed, and raised weaker clones to 98-100% on others, but took one perfect clone
+down to 34% (docs/training.md, "Warm start from demonstrations"; docs/skills.md). So the run
+evaluates the clone before its first update, and the best-policy selection keeps it when RL
+does not improve on it.
 """
 
 from __future__ import annotations
@@ -38,6 +40,11 @@ from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.sim.vec_env import BatchEnv
 from itskill.tasks.scripted import ScriptedPolicy
 from itskill.tasks.spec import TaskSpec
+
+
+class DemoError(ValueError):
+    """A warm start that cannot be made: the task has no script, or its script never succeeded."""
+
 
 DEMOS_FILE = "demos.json"
 """A warm-started run's summary (:func:`warm_start`), in its run directory."""
@@ -98,6 +105,8 @@ def collect_demos(spec: TaskSpec, env: BatchEnv, episodes: int) -> Demonstration
     ``env`` is the training environment (its reward and starts); it is reset first and left
     mid-episode, so the caller resets it before training on it.
     """
+    if not spec.script:
+        raise DemoError(f"task {spec.id!r} has no script to demonstrate it; train without demos")
     policy = ScriptedPolicy(spec, env.num_envs)
     n = env.num_envs
     ongoing: list[list[tuple[np.ndarray, np.ndarray, float]]] = [[] for _ in range(n)]
@@ -120,9 +129,9 @@ def collect_demos(spec: TaskSpec, env: BatchEnv, episodes: int) -> Demonstration
         policy.reset(np.flatnonzero(dones))
         obs = next_obs
     if not kept:
-        raise RuntimeError(
+        raise DemoError(
             f"task {spec.id!r}: its script succeeded in none of {attempted} episodes, "
-            "so there is nothing to learn from; train without demonstrations"
+            "so there is nothing to learn from; train without demos"
         )
     flat = [step for episode in kept for step in episode]
     return Demonstrations(
