@@ -1,6 +1,8 @@
 from __future__ import annotations
 
 import json
+import multiprocessing
+from dataclasses import replace
 
 import pytest
 
@@ -10,6 +12,7 @@ from itskill.skills import (
     SkillSpace,
     install_library,
     read_manifest,
+    update_manifest,
     write_manifest,
 )
 
@@ -43,6 +46,32 @@ def test_manifest_round_trip(tmp_path):
     path = write_manifest(tmp_path, entries())
     assert json.loads(path.read_text())["format"] == 1
     assert read_manifest(tmp_path) == entries()
+
+
+def _record_many(library: str, prefix: str, count: int) -> None:
+    template = entries()[0]
+    for i in range(count):
+        update_manifest(library, replace(template, name=f"{prefix}{i}", task=f"{prefix}{i}"))
+
+
+def test_concurrent_writers_keep_every_entry(tmp_path):
+    """Two processes recording skills into one library at once (two pretraining commands)."""
+    update_manifest(tmp_path, entries()[1])
+    ctx = multiprocessing.get_context("spawn")
+    workers = [
+        ctx.Process(target=_record_many, args=(str(tmp_path), prefix, 150)) for prefix in "ab"
+    ]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join(timeout=120)
+    assert [w.exitcode for w in workers] == [0, 0]
+    names = sorted(e.name for e in read_manifest(tmp_path))
+    assert names == sorted(["insert_peg_round", *(f"{p}{i}" for p in "ab" for i in range(150))])
+    # A name already there is replaced, not repeated.
+    update_manifest(tmp_path, replace(entries()[1], success=0.5))
+    again = [e for e in read_manifest(tmp_path) if e.name == "insert_peg_round"]
+    assert [e.success for e in again] == [0.5]
 
 
 def test_bad_manifest_names_file(tmp_path):

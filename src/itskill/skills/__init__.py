@@ -11,6 +11,7 @@ from itskill.skills.manifest import (
     ManifestError,
     install_library,
     read_manifest,
+    update_manifest,
     write_manifest,
 )
 from itskill.skills.retrieval import search, skill_text
@@ -49,5 +50,6 @@ __all__ = [
     "read_manifest",
     "search",
     "skill_text",
+    "update_manifest",
     "write_manifest",
 ]

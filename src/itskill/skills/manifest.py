@@ -16,11 +16,15 @@ Format (``format`` is bumped on incompatible changes)::
 
 from __future__ import annotations
 
+import hashlib
 import json
+import tempfile
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from filelock import FileLock
 
 from itskill.files import write_text
 from itskill.skills.store import Skill, SkillSpace, SkillSpaceError
@@ -141,6 +145,25 @@ def write_manifest(library_dir: Path | str, entries: Sequence[ManifestEntry]) ->
     )
     write_text(path, text + "\n")
     return path
+
+
+def _manifest_lock(library_dir: Path) -> FileLock:
+    # In the temporary directory, not the library: a lock file beside the shipped manifest would
+    # show up in the checkout and the package.
+    key = hashlib.sha256(str(library_dir.resolve()).encode()).hexdigest()[:16]
+    return FileLock(str(Path(tempfile.gettempdir()) / f"itskill-manifest-{key}.lock"))
+
+
+def update_manifest(library_dir: Path | str, entry: ManifestEntry) -> Path:
+    """Put ``entry`` in ``<library_dir>/manifest.json``, replacing an entry of the same name.
+
+    The read and the write happen under a lock on the library, so two processes recording skills
+    into one library at once (two ``itskill skills pretrain`` commands) keep each other's
+    entries."""
+    library_dir = Path(library_dir)
+    with _manifest_lock(library_dir):
+        entries = [e for e in read_manifest_or_empty(library_dir) if e.name != entry.name]
+        return write_manifest(library_dir, [*entries, entry])
 
 
 def install_library(

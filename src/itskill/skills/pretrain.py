@@ -29,7 +29,7 @@ from itskill.executors import Executor, run_jobs
 from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy, best_policy_dir
 from itskill.rl.demos import read_demo_summary
 from itskill.rl.train import TrainResult, train
-from itskill.skills.manifest import ManifestEntry, read_manifest_or_empty, write_manifest
+from itskill.skills.manifest import ManifestEntry, update_manifest
 from itskill.skills.store import SkillSpace, UnknownSkillError
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import EvalResult, evaluate
@@ -150,8 +150,7 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
 
 def record(entry: ManifestEntry, library_dir: Path, space: SkillSpace | None) -> None:
     """Put ``entry`` in the library's manifest (replacing an older one) and in ``space``."""
-    entries = [e for e in read_manifest_or_empty(library_dir) if e.name != entry.name]
-    write_manifest(library_dir, [*entries, entry])
+    update_manifest(library_dir, entry)
     if space is None:
         return
     with contextlib.suppress(UnknownSkillError):  # a retrained skill replaces the old one
