@@ -21,6 +21,7 @@ from itskill.cli.common import (
     print_json,
     user_errors,
 )
+from itskill.stats import format_rate_interval
 from itskill.tasks import TaskFileError, UnknownTaskError, get_task
 
 skills_app = typer.Typer(
@@ -68,9 +69,12 @@ def skills_markdown(skills: Sequence[Any]) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for s in skills:
-        success = "" if s.success_rate is None else f"{s.success_rate:.0%}"
-        if s.success_rate is not None and s.success_ci:
-            success += f" [{s.success_ci[0]:.0%}, {s.success_ci[1]:.0%}]"
+        if s.success_rate is None:
+            success = ""
+        elif s.success_ci:
+            success = format_rate_interval(s.success_rate, *s.success_ci)
+        else:
+            success = f"{s.success_rate:.0%}"
         steps = "" if s.train_steps is None else f"{s.train_steps:,}"
         wall = "" if s.train_wall_s is None else f"{s.train_wall_s / 60:.1f}"
         trained = ", ".join(

@@ -129,6 +129,8 @@ class Hyperparams:
 
 ALGO_CONFIGS: dict[str, type] = {"a2c": A2CConfig, "ppo": PPOConfig}
 _FAMILY_KEYS = {"num_envs": int, "checkpoint_every": int, "normalize_reward": bool}
+_SUB_TABLES = ("policy", "demos")
+"""Sub-tables besides the algorithms': :class:`PolicyConfig`, :class:`DemoConfig`."""
 _POSITIVE = {"num_envs", "checkpoint_every", "n_steps", "batch_size", "n_epochs", "learning_rate"}
 
 
@@ -214,7 +216,7 @@ def load_hyperparams(
         raise HyperparamError(
             path, family, f"no table for this task family; the file has {sorted(data)}"
         )
-    fields_ = set(_FAMILY_KEYS) | {"policy", "demos", *ALGOS}
+    fields_ = {*_FAMILY_KEYS, *_SUB_TABLES, *ALGOS}
     base = Hyperparams(family=family, algo=algo, algo_config=ALGO_CONFIGS[algo]())  # type: ignore[arg-type]
     hp = _layer(path, family, data[family], algo, fields_ | {"tasks"}, base)
     tasks = data[family].get("tasks", {})
@@ -228,9 +230,7 @@ def load_hyperparams(
     hp = per_task.get(task, hp)
     if overrides:
         # The same layer as a file's table, with the algorithm's fields given by name.
-        table = {
-            k: v for k, v in overrides.items() if k in _FAMILY_KEYS or k in ("policy", "demos")
-        }
+        table = {k: v for k, v in overrides.items() if k in _FAMILY_KEYS or k in _SUB_TABLES}
         table[algo] = {k: v for k, v in overrides.items() if k not in table}
         hp = _layer("overrides", "overrides", table, algo, fields_, hp)
     if isinstance(hp.algo_config, PPOConfig):

@@ -98,6 +98,10 @@ class Demonstrations:
     def episodes(self) -> int:
         return len(self.episode_ends)
 
+    def episode_rewards(self) -> list[np.ndarray]:
+        """The rewards of each episode, in order (views into ``rewards``)."""
+        return np.split(self.rewards, self.episode_ends[:-1])
+
 
 def collect_demos(spec: TaskSpec, env: BatchEnv, episodes: int) -> Demonstrations:
     """Run ``spec``'s script on ``env`` until ``episodes`` episodes have ended.
@@ -151,29 +155,27 @@ def discounted_returns(demos: Demonstrations, gamma: float) -> np.ndarray:
     the trainer bootstraps at time limits, so the value past the end is taken as the last reward
     kept up for ever: ``r_last / (1 - gamma)``.
     """
-    out = np.empty_like(demos.rewards)
-    start = 0
-    for end in demos.episode_ends:
-        g = demos.rewards[end - 1] / (1.0 - gamma)
-        for t in range(end - 1, start - 1, -1):
-            g = demos.rewards[t] + gamma * g
+    returns = []
+    for rewards in demos.episode_rewards():
+        out = np.empty_like(rewards)
+        g = rewards[-1] / (1.0 - gamma)
+        for t in range(len(rewards) - 1, -1, -1):
+            g = rewards[t] + gamma * g
             out[t] = g
-        start = end
-    return out
+        returns.append(out)
+    return np.concatenate(returns)
 
 
 def seed_reward_normalizer(env: VecNormalize, demos: Demonstrations) -> None:
     """Feed the demonstrations' running returns to ``env``'s reward normaliser, as
     :class:`VecNormalize` would have seen them had it stepped through the episodes."""
-    start = 0
-    for end in demos.episode_ends:
+    for rewards in demos.episode_rewards():
         running = 0.0
-        acc = np.empty(end - start)
-        for i, r in enumerate(demos.rewards[start:end]):
+        acc = np.empty_like(rewards)
+        for i, r in enumerate(rewards):
             running = running * env.gamma + r
             acc[i] = running
         env.ret_rms.update(acc)
-        start = end
 
 
 def pretrain_policy(
