@@ -52,6 +52,11 @@ def mean_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[fl
     return mean, mean - half, mean + half
 
 
+def format_rate(value: float | None) -> str:
+    """A success rate as a whole percentage, ``"-"`` where there is none (yet)."""
+    return "-" if value is None else f"{value:.0%}"
+
+
 def format_rate_interval(mean: float, low: float, high: float) -> str:
     """A success rate with its interval as ``"75% [57%, 93%]"``; a t-interval over few seeds can
     reach past 0 or 1, where no rate can lie, so it is cut to that range."""

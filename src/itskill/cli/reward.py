@@ -265,10 +265,6 @@ def _network(target: str, method: str, out: Path, client: Any, algo: str) -> Any
     return network
 
 
-def _pct(value: float | None) -> str:
-    return "-" if value is None else f"{value:.0%}"
-
-
 @reward_app.command("show")
 def show_cmd(
     run: Annotated[Path, typer.Argument(help="A reward search run directory.")],
@@ -276,6 +272,7 @@ def show_cmd(
 ) -> None:
     """Show a reward search: plan, iterations, the best reward, the comparison, LLM usage."""
     from itskill.reward.search import OFFLINE_NOTE, read_run
+    from itskill.stats import format_rate
 
     with _errors():
         data = read_run(run)
@@ -308,9 +305,9 @@ def show_cmd(
             f"{it['accepted']}/{len(it['samples'])}",
             str(it["trained"]),
             "-" if it["best_sample"] is None else str(it["best_sample"]),
-            _pct(it["best_success"]),
+            format_rate(it["best_success"]),
             "-" if corr is None else f"{corr:+.2f}",
-            _pct(it["best_so_far"]),
+            format_rate(it["best_so_far"]),
         )
     console.print(table)
     if data["best_code"]:
@@ -328,9 +325,10 @@ def show_cmd(
         for key, label in (("generated", "generated (best)"), ("expert", "expert")):
             band = final.get(key)
             if band and band.get("mean") is not None:
+                low, high = format_rate(band["ci_low"]), format_rate(band["ci_high"])
                 console.print(
-                    f"{label}: success {_pct(band['mean'])} (95% CI {_pct(band['ci_low'])}–"
-                    f"{_pct(band['ci_high'])}) over seeds {band['seeds']}, "
+                    f"{label}: success {format_rate(band['mean'])} (95% CI {low}–{high}) "
+                    f"over seeds {band['seeds']}, "
                     f"{final['steps']} env-steps each",
                     highlight=False,
                 )
@@ -342,18 +340,18 @@ def show_cmd(
                 highlight=False,
             )
             for row in selection["candidates"]:
-                per_seed = ", ".join(_pct(v) for v in row["select_success"])
+                per_seed = ", ".join(format_rate(v) for v in row["select_success"])
                 console.print(
                     f"  iteration {row['iteration'] + 1}, sample {row['sample']}: search "
-                    f"{_pct(row['search_success'])}, more seeds {per_seed}, "
-                    f"mean {_pct(row['mean'])}",
+                    f"{format_rate(row['search_success'])}, more seeds {per_seed}, "
+                    f"mean {format_rate(row['mean'])}",
                     highlight=False,
                 )
         best = summary["best"]
         console.print(
             f"chosen: iteration {best['iteration'] + 1}, sample {best['sample']} "
-            f"(search success {_pct(best['success'])}"
-            + (f", over every seed {_pct(best['selected_success'])}" if selection else "")
+            f"(search success {format_rate(best['success'])}"
+            + (f", over every seed {format_rate(best['selected_success'])}" if selection else "")
             + f"); figure: {Path(run) / 'fig6.png'}",
             highlight=False,
         )

@@ -48,7 +48,7 @@ from itskill.reward.candidate import RESULT_FILE, CandidateJob, CandidateNetwork
 from itskill.reward.config import RewardSearchConfig, load_search_config
 from itskill.reward.generator import Sample, fenced, generate_samples, probe_contexts
 from itskill.reward.plan import TaskPlan, plan_command, plan_for_task
-from itskill.stats import mean_interval
+from itskill.stats import format_rate, mean_interval
 from itskill.tasks import all_tasks, get_task
 
 RUN_KIND = "itskill-reward-search"
@@ -509,8 +509,8 @@ def generate_reward(
         write_json(it_dir / SUMMARY_FILE, summary)
         history.append(summary)
         console.print(
-            f"{label}: best success {_pct(summary['best_success'])}, "
-            f"best so far {_pct(summary['best_so_far'])}",
+            f"{label}: best success {format_rate(summary['best_success'])}, "
+            f"best so far {format_rate(summary['best_so_far'])}",
             highlight=False,
         )
 
@@ -567,8 +567,9 @@ def generate_reward(
     write_json(out / SUMMARY_FILE, summary)
     console.print(
         f"best reward: iteration {best['iteration'] + 1}, sample {best['sample']}, in "
-        f"{out / BEST_FILE}; over seeds {final_seeds}: generated {_pct(summary['best_success'])}"
-        + (f", expert {_pct(summary['expert_success'])}" if compare_expert else ""),
+        f"{out / BEST_FILE}; over seeds {final_seeds}: "
+        f"generated {format_rate(summary['best_success'])}"
+        + (f", expert {format_rate(summary['expert_success'])}" if compare_expert else ""),
         highlight=False,
     )
     return load_search(out)
@@ -618,7 +619,8 @@ def _select(
     run.console.print(
         f"selection over seeds {list(config.seeds) + seeds}: "
         + ", ".join(
-            f"iteration {r['iteration'] + 1} sample {r['sample']} {_pct(r['mean'])}" for r in rows
+            f"iteration {r['iteration'] + 1} sample {r['sample']} {format_rate(r['mean'])}"
+            for r in rows
         )
         + f"; chosen: iteration {rows[chosen]['iteration'] + 1} sample {rows[chosen]['sample']}",
         highlight=False,
@@ -630,10 +632,6 @@ def _select(
         "chosen": chosen,
     }
     return summary, top[chosen]
-
-
-def _pct(value: float | None) -> str:
-    return "-" if value is None else f"{value:.0%}"
 
 
 def load_search(run_dir: str | Path) -> RewardSearchResult:
