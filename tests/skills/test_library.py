@@ -11,6 +11,7 @@ from itskill.rl import load_policy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.skills import ManifestEntry, open_skill_space, read_manifest, write_manifest
 from itskill.skills.library import shipped_budgets
+from itskill.skills.manifest import REFINED_KEY
 from itskill.skills.store import SHIPPED_LIBRARY as SHIPPED
 from itskill.tasks import all_tasks
 
@@ -120,6 +121,10 @@ def test_pretraining_budgets_are_those_the_shipped_library_records(tmp_path, mon
     entries = read_manifest(shipped)
     write_manifest(shipped, [replace(entries[0], steps=50_176), replace(entries[1], steps=None)])
     assert shipped_budgets() == {"reach_nut_m12": 50_176}
+    # A refined skill is rebuilt from scratch with its first round's budget, then refined.
+    refined = replace(entries[1], steps=400_384, extra={REFINED_KEY: {"steps": 300_032}})
+    write_manifest(shipped, [replace(entries[0], steps=50_176), refined])
+    assert shipped_budgets() == {"reach_nut_m12": 50_176, "pick_nut_m12": 300_032}
 
 
 def test_every_shipped_skill_loads_and_acts() -> None:

@@ -4,7 +4,9 @@ registered."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from types import SimpleNamespace
+from unittest.mock import ANY
 
 import pytest
 
@@ -12,7 +14,13 @@ from itskill.rl import config as config_module
 from itskill.rl.checkpoint import MODEL_FILE, load_policy
 from itskill.skills import SkillSpace
 from itskill.skills.manifest import read_manifest
-from itskill.skills.pretrain import ABANDONED_KEY, DEMO_STEPS_KEY, PretrainConfig, pretrain
+from itskill.skills.pretrain import (
+    ABANDONED_KEY,
+    DEMO_STEPS_KEY,
+    REFINED_KEY,
+    PretrainConfig,
+    pretrain,
+)
 
 
 def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) -> None:
@@ -158,3 +166,56 @@ def test_a_warm_started_skill_records_the_demonstrations_env_steps(tmp_path, mon
     # The cloned policy was evaluated before the first update, as a candidate for the best.
     rows = (run / "eval.csv").read_text().splitlines()
     assert rows[1].startswith("0,")
+
+
+def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_better(
+    tmp_path, monkeypatch
+) -> None:
+    packaged = config_module.default_path().read_text()
+    hp = tmp_path / "hyperparams.toml"
+    hp.write_text(packaged.replace("critic_episodes = 64", "critic_episodes = 8"))
+    monkeypatch.setattr(config_module, "default_path", lambda: hp)
+    measured = {"success": 0.6}
+
+    def measure(spec, policy_dir, config):  # stubbed: the test is about the bookkeeping
+        return SimpleNamespace(success_rate=measured["success"], ci_low=0.0, ci_high=1.0)
+
+    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", measure)
+    config = PretrainConfig(
+        steps=256, num_envs=8, eval_episodes=4, min_success=0.5, eval_every=256, seeds=1
+    )
+    library = tmp_path / "lib"
+    (first,) = pretrain(["reach_nut_m12"], config, tmp_path / "runs", library, None, workers=1)
+    skill_file = library / "reach_nut_m12" / "policy.safetensors"
+    original = skill_file.read_bytes()
+
+    refine = replace(config, refine=True, steps=512)
+    measured["success"] = 0.6  # no better than the skill: the library keeps it
+    assert _pretrain_reports(refine, tmp_path / "refine_a", library) == [ANY]
+    assert skill_file.read_bytes() == original
+    assert read_manifest(library) == [first]
+
+    measured["success"] = 0.8
+    (refined,) = pretrain(["reach_nut_m12"], refine, tmp_path / "refine_b", library, workers=1)
+    run = tmp_path / "refine_b" / "reach_nut_m12" / "seed0"
+    started = json.loads((run / "checkpoint.json").read_text())["init"]
+    assert started["path"] == str((run.parent / "refined_from").resolve())
+    assert skill_file.read_bytes() != original
+    # Both rounds' budgets count; the first round's is kept with where the skill stood.
+    assert refined.steps == first.steps + _steps(run)
+    origin = refined.extra[REFINED_KEY]
+    assert (origin["steps"], origin["success"]) == (first.steps, 0.6)
+    assert origin["critic_env_steps"] >= 8 * 50
+    assert read_manifest(library) == [refined]
+    # A rerun starts from the same copy, not from the library's new skill, and trains no further.
+    (again,) = pretrain(["reach_nut_m12"], refine, tmp_path / "refine_b", library, workers=1)
+    assert again.steps == refined.steps
+
+
+def test_refining_a_skill_the_library_lacks_is_a_clear_error(tmp_path) -> None:
+    errors = []
+    pretrain(
+        ["reach_nut_m12"], PretrainConfig(refine=True), tmp_path / "runs", tmp_path / "empty",
+        workers=1, on_result=lambda task, entry, error: errors.append(error),
+    )  # fmt: skip
+    assert "no skill 'reach_nut_m12' to refine" in str(errors[0])

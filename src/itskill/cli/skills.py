@@ -273,6 +273,14 @@ def skills_pretrain(
     library: Annotated[
         Path | None, typer.Option(help="Library directory (default: the skill space's own).")
     ] = None,
+    refine: Annotated[
+        bool,
+        typer.Option(
+            "--refine",
+            help="Train each skill on from the library's own (default --steps 100,000); the "
+            "result replaces it only if it succeeds more often.",
+        ),
+    ] = False,
 ) -> None:
     """Train skills from scratch with expert rewards, evaluate each, add them to the skill space.
 
@@ -281,11 +289,20 @@ def skills_pretrain(
     from itskill.executors import ExecutorError
     from itskill.skills import open_skill_space
     from itskill.skills.library import shipped_budgets
-    from itskill.skills.pretrain import ABANDONED_KEY, PretrainConfig, basic_tasks, pretrain
+    from itskill.skills.pretrain import (
+        ABANDONED_KEY,
+        REFINE_STEPS,
+        REFINED_KEY,
+        PretrainConfig,
+        basic_tasks,
+        pretrain,
+    )
 
+    default_steps = REFINE_STEPS if refine else PretrainConfig.steps
     config = PretrainConfig(
         algo=algo,
-        steps=PretrainConfig.steps if steps is None else steps,
+        steps=default_steps if steps is None else steps,
+        refine=refine,
         seed=seed,
         seeds=seeds,
         eval_episodes=episodes,
@@ -298,7 +315,13 @@ def skills_pretrain(
             console.print(f"[red]{task}: failed: {type(error).__name__}: {error}[/red]")
         else:
             lo, hi = entry.success_ci
-            learned = "" if entry.success >= config.min_success else " - not learned, not added"
+            before = entry.extra.get(REFINED_KEY, {}).get("success")
+            if entry.success < config.min_success:
+                learned = " - not learned, not added"
+            elif before is not None and entry.success <= before:
+                learned = f" - no better than the library's {before:.0%}, not replaced"
+            else:
+                learned = ""
             console.print(
                 f"{task}: success {entry.success:.0%} (95% CI {lo:.0%}-{hi:.0%}) after "
                 f"{entry.steps:,} env-steps, {entry.wall_s / 60:.1f} min, seed {entry.seed}"
@@ -322,7 +345,7 @@ def skills_pretrain(
                 workers=workers,
                 ray_address=ray_address,
                 on_result=report,
-                budgets=shipped_budgets() if steps is None else None,
+                budgets=shipped_budgets() if steps is None and not refine else None,
             )
         except ExecutorError as err:
             console.print(f"[red]{err}[/red]")

@@ -45,6 +45,14 @@ def train_cmd(
             "before RL (0: off; default: the hyper-parameters' demos.episodes).",
         ),
     ] = None,
+    init: Annotated[
+        Path | None,
+        typer.Option(
+            help="Start from this trained policy (a run or skill directory with the same "
+            "network shape) instead of random weights, with the hyper-parameters' init "
+            "table's action noise and learning rate.",
+        ),
+    ] = None,
 ) -> None:
     """Train a policy with A2C or PPO; rerun the same command to resume from the last checkpoint."""
     from itskill.rl.config import HyperparamError
@@ -68,6 +76,7 @@ def train_cmd(
                 console=console,
                 eval_every=eval_every,
                 eval_episodes=eval_episodes,
+                init=init,
             )
     except (HyperparamError, RewardLoadError, ResumeMismatchError, DemoError) as err:
         err_console.print(f"[red]error:[/red] {err}", highlight=False, markup=True)

@@ -16,6 +16,7 @@ from stable_baselines3.common.utils import LinearSchedule
 
 from itskill.datafile import DataFileError, check_like, read_toml
 from itskill.rl.demos import DemoConfig
+from itskill.rl.init_policy import InitConfig
 from itskill.rl.policy import PolicyConfig
 
 Algo = Literal["a2c", "ppo"]
@@ -113,6 +114,18 @@ class Hyperparams:
     demos: DemoConfig = field(default_factory=DemoConfig)
     """Warm start from the task's scripted controller before RL (off by default;
     :mod:`itskill.rl.demos`)."""
+    init: InitConfig = field(default_factory=InitConfig)
+    """How a run started from a trained policy explores and learns
+    (:mod:`itskill.rl.init_policy`)."""
+
+    def starting_from_policy(self) -> Hyperparams:
+        """These settings for a run that starts from a trained policy: the ``init`` table's action
+        noise and learning rate in place of the policy's and the algorithm's."""
+        return replace(
+            self,
+            policy=replace(self.policy, log_std_init=self.init.log_std_init),
+            algo_config=replace(self.algo_config, learning_rate=self.init.learning_rate),
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -124,14 +137,19 @@ class Hyperparams:
             "policy": self.policy.to_dict(),
             self.algo: asdict(self.algo_config),
             "demos": asdict(self.demos),
+            "init": asdict(self.init),
         }
 
 
 ALGO_CONFIGS: dict[str, type] = {"a2c": A2CConfig, "ppo": PPOConfig}
 _FAMILY_KEYS = {"num_envs": int, "checkpoint_every": int, "normalize_reward": bool}
-_SUB_TABLES = ("policy", "demos")
-"""Sub-tables besides the algorithms': :class:`PolicyConfig`, :class:`DemoConfig`."""
-_POSITIVE = {"num_envs", "checkpoint_every", "n_steps", "batch_size", "n_epochs", "learning_rate"}
+_SUB_TABLES = ("policy", "demos", "init")
+"""Sub-tables besides the algorithms': :class:`PolicyConfig`, :class:`DemoConfig`,
+:class:`InitConfig`."""
+_POSITIVE = {
+    "num_envs", "checkpoint_every", "n_steps", "batch_size", "n_epochs", "learning_rate",
+    "critic_episodes",
+}  # fmt: skip
 
 
 def default_path() -> Path:
@@ -187,6 +205,7 @@ def _layer(
         base,
         policy=_build(path, f"{where}.policy", PolicyConfig, table.get("policy", {}), base.policy),
         demos=_build(path, f"{where}.demos", DemoConfig, table.get("demos", {}), base.demos),
+        init=_build(path, f"{where}.init", InitConfig, table.get("init", {}), base.init),
         algo_config=_build(
             path, f"{where}.{algo}", ALGO_CONFIGS[algo], table.get(algo, {}), base.algo_config
         ),

@@ -38,6 +38,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.sim.vec_env import BatchEnv
+from itskill.tasks.evaluate import Policy
 from itskill.tasks.scripted import ScriptedPolicy
 from itskill.tasks.spec import TaskSpec
 
@@ -103,23 +104,24 @@ class Demonstrations:
         return np.split(self.rewards, self.episode_ends[:-1])
 
 
-def collect_demos(spec: TaskSpec, env: BatchEnv, episodes: int) -> Demonstrations:
-    """Run ``spec``'s script on ``env`` until ``episodes`` episodes have ended.
+def collect_episodes(
+    env: BatchEnv, actor: Policy, episodes: int, successes_only: bool
+) -> tuple[Demonstrations | None, int]:
+    """Run ``actor`` on ``env`` until ``episodes`` episodes have ended; returns their transitions
+    (the successful ones only, with ``successes_only``; None if no episode is kept) and how many
+    succeeded.
 
     ``env`` is the training environment (its reward and starts); it is reset first and left
     mid-episode, so the caller resets it before training on it.
     """
-    if not spec.script:
-        raise DemoError(f"task {spec.id!r} has no script to demonstrate it; train without demos")
-    policy = ScriptedPolicy(spec, env.num_envs)
     n = env.num_envs
     ongoing: list[list[tuple[np.ndarray, np.ndarray, float]]] = [[] for _ in range(n)]
     kept: list[list[tuple[np.ndarray, np.ndarray, float]]] = []
-    attempted = steps = 0
+    attempted = steps = succeeded = 0
     obs = env.reset()
-    policy.reset()
+    actor.reset()
     while attempted < episodes:
-        actions = policy(env.context()).astype(np.float32)
+        actions = np.asarray(actor(env.context()), dtype=np.float32)
         next_obs, rewards, dones, infos = env.step(actions)
         steps += n
         for e in range(n):
@@ -127,18 +129,17 @@ def collect_demos(spec: TaskSpec, env: BatchEnv, episodes: int) -> Demonstration
         for e in np.flatnonzero(dones):
             if attempted < episodes:
                 attempted += 1
-                if infos[e].get("is_success"):
+                success = bool(infos[e].get("is_success"))
+                succeeded += success
+                if success or not successes_only:
                     kept.append(ongoing[e])
             ongoing[e] = []
-        policy.reset(np.flatnonzero(dones))
+        actor.reset(np.flatnonzero(dones))
         obs = next_obs
     if not kept:
-        raise DemoError(
-            f"task {spec.id!r}: its script succeeded in none of {attempted} episodes, "
-            "so there is nothing to learn from; train without demos"
-        )
+        return None, succeeded
     flat = [step for episode in kept for step in episode]
-    return Demonstrations(
+    demos = Demonstrations(
         obs=np.stack([s[0] for s in flat]).astype(np.float32),
         actions=np.clip(np.stack([s[1] for s in flat]), -1.0, 1.0).astype(np.float32),
         rewards=np.array([s[2] for s in flat], dtype=np.float64),
@@ -146,6 +147,21 @@ def collect_demos(spec: TaskSpec, env: BatchEnv, episodes: int) -> Demonstration
         attempted=attempted,
         env_steps=steps,
     )
+    return demos, succeeded
+
+
+def collect_demos(spec: TaskSpec, env: BatchEnv, episodes: int) -> Demonstrations:
+    """Run ``spec``'s script on ``env`` until ``episodes`` episodes have ended and keep the
+    successful ones (:func:`collect_episodes`)."""
+    if not spec.script:
+        raise DemoError(f"task {spec.id!r} has no script to demonstrate it; train without demos")
+    demos, _ = collect_episodes(env, ScriptedPolicy(spec, env.num_envs), episodes, True)
+    if demos is None:
+        raise DemoError(
+            f"task {spec.id!r}: its script succeeded in none of {episodes} episodes, "
+            "so there is nothing to learn from; train without demos"
+        )
+    return demos
 
 
 def discounted_returns(demos: Demonstrations, gamma: float) -> np.ndarray:
@@ -184,18 +200,27 @@ def pretrain_policy(
     value_targets: np.ndarray,
     config: DemoConfig,
     seed: int = 0,
+    clone: bool = True,
 ) -> dict[str, float]:
     """Fit ``policy``'s normaliser, actor mean and critic to ``demos``; returns final losses.
 
     ``value_targets`` are the returns in the units the algorithm's critic will regress on (after
-    reward normalisation). The action head's log standard deviation is left as configured.
+    reward normalisation). The action head's log standard deviation is left as configured. With
+    ``clone`` False only the critic learns (its own trunk and the value head; the value head
+    alone over a shared trunk): the actions and the normaliser stay as they are.
     """
     obs = torch.as_tensor(demos.obs)
     actions = torch.as_tensor(demos.actions)
     targets = torch.as_tensor(value_targets, dtype=torch.float32)
-    if policy.obs_norm is not None:
+    if clone and policy.obs_norm is not None:
         policy.obs_norm.update(obs)
-    params = [p for name, p in policy.named_parameters() if name != "log_std" and p.requires_grad]
+    if clone:
+        named = policy.named_parameters()
+    else:
+        named = policy.value_net.named_parameters()
+        if policy.mlp_extractor.critic is not None:
+            named = [*named, *policy.mlp_extractor.critic.named_parameters()]
+    params = [p for name, p in named if name != "log_std" and p.requires_grad]
     optimiser = torch.optim.Adam(params, lr=config.learning_rate)
     generator = torch.Generator().manual_seed(seed)
     policy.set_training_mode(True)
@@ -210,7 +235,7 @@ def pretrain_policy(
                 policy.value_net(latent_vf).squeeze(-1), targets[idx]
             )
             optimiser.zero_grad()
-            (actor_loss + critic_loss).backward()
+            (actor_loss + critic_loss if clone else critic_loss).backward()
             optimiser.step()
     policy.set_training_mode(False)
     return {"actor_mse": actor_loss.item(), "critic_mse": critic_loss.item()}

@@ -38,6 +38,12 @@ from itskill.rl.checkpoint import (
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
 from itskill.rl.demos import DEMOS_FILE, warm_start
 from itskill.rl.eval_callback import DeterministicEvalCallback, read_selection
+from itskill.rl.init_policy import (
+    CRITIC_WARM_UP_FILE,
+    describe_init,
+    init_policy,
+    warm_up_critic,
+)
 from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.sim.task import RewardFn
@@ -189,6 +195,13 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
                 f"{run_dir}: holds a run with {key}={meta.get(key)!r}, this call asks for "
                 f"{key}={want[key]!r}; use another --out directory or the same settings"
             )
+    have_init, want_init = meta.get("init") or {}, want.get("init") or {}
+    if have_init.get("sha256") != want_init.get("sha256"):
+        raise ResumeMismatchError(
+            f"{run_dir}: holds a run started from {have_init.get('path', 'random weights')}, "
+            f"this call starts from {want_init.get('path', 'random weights')}; "
+            "use another --out directory or the same --init"
+        )
     have, new = meta.get("reward", {}), want["reward"]
     if have.get("kind") != new.get("kind") or have.get("sha256") != new.get("sha256"):
         raise ResumeMismatchError(
@@ -213,6 +226,7 @@ def train(
     eval_episodes: int = 50,
     policy_class: type[ActorCriticPolicy] = StagedActorCriticPolicy,
     policy_kwargs: Mapping[str, Any] | None = None,
+    init: str | Path | None = None,
 ) -> TrainResult:
     """Train ``algo`` on ``task`` until ``steps`` env-steps in total, in run directory ``out``.
 
@@ -232,6 +246,13 @@ def train(
     every ``eval_every`` env-steps and at the end, into ``eval.csv``, and the best of them is kept
     in ``out/best`` (:class:`itskill.rl.eval_callback.DeterministicEvalCallback`;
     :func:`itskill.rl.checkpoint.best_policy_dir` picks it).
+
+    ``init`` starts the run from a trained policy instead of random weights: a run directory (its
+    best policy if it was evaluated) or a skill directory, of any task, with the same network
+    shape (:mod:`itskill.rl.init_policy`). The run then explores and learns with the
+    hyper-parameters' ``init`` table, its critic is fitted to the policy's returns first, the
+    observation normaliser keeps the statistics it came with, and the starting policy is
+    evaluated at env-step 0, so the best policy kept is never worse than the one it started from.
     """
     torch.set_num_threads(1)
     if algo not in ALGO_CLASSES:
@@ -244,12 +265,21 @@ def train(
     if num_envs is not None:
         ov["num_envs"] = num_envs
     hp: Hyperparams = load_hyperparams(spec.family, algo, hyperparams, ov, task=spec.id)
-    if hp.demos.episodes and not issubclass(policy_class, StagedActorCriticPolicy):
+    if init is not None:
+        hp = hp.starting_from_policy()
+    if hp.demos.episodes and init is not None:
         raise HyperparamError(
             hyperparams or "hyperparams",
             "demos.episodes",
-            f"a warm start from demonstrations needs a {StagedActorCriticPolicy.__name__}, "
-            f"not {policy_class.__name__}",
+            "a run starts from demonstrations or from a trained policy (init), not both",
+        )
+    if (hp.demos.episodes or init is not None) and not issubclass(
+        policy_class, StagedActorCriticPolicy
+    ):
+        raise HyperparamError(
+            hyperparams or "hyperparams",
+            "demos.episodes" if hp.demos.episodes else "init",
+            f"a warm start needs a {StagedActorCriticPolicy.__name__}, not {policy_class.__name__}",
         )
     reward_fn, reward_meta = load_reward(reward, spec)
     meta: dict[str, Any] = {
@@ -262,6 +292,9 @@ def train(
         "hyperparams": hp.to_dict(),
         "policy_class": class_path(policy_class),
     }
+    if init is not None:
+        meta["init"] = describe_init(init)
+    keep_obs_stats = bool(hp.demos.episodes) or init is not None
 
     resumed_from = 0
     prior_wall_s = 0.0
@@ -321,10 +354,16 @@ def train(
                 )
                 run_dir.mkdir(parents=True, exist_ok=True)
                 (run_dir / DEMOS_FILE).write_text(json.dumps(summary, indent=2) + "\n")
-        if hp.demos.episodes:
-            # The normaliser keeps the statistics of the demonstrations the policy was cloned
-            # on: statistics that moved with the RL rollouts would shift every input the clone
-            # was fitted to (a policy object forgets this flag, so a resumed run sets it again).
+            if init is not None:
+                init_policy(model.policy, meta["init"])
+                summary = warm_up_critic(model, env, train_env, hp.algo_config.gamma, hp.init, seed)
+                run_dir.mkdir(parents=True, exist_ok=True)
+                (run_dir / CRITIC_WARM_UP_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+        if keep_obs_stats:
+            # The normaliser keeps the statistics the starting policy was fitted to (the
+            # demonstrations', or the trained policy's): statistics that moved with the RL
+            # rollouts would shift every input it learned on (a policy object forgets this flag,
+            # so a resumed run sets it again).
             model.policy.update_obs_stats = False
         if model.num_timesteps >= steps:
             return TrainResult(
@@ -353,7 +392,7 @@ def train(
                     eval_every,
                     eval_episodes,
                     meta=meta,
-                    at_start=hp.demos.episodes > 0,
+                    at_start=keep_obs_stats,
                 )
             )
         try:

@@ -19,6 +19,7 @@ from itskill.files import write_json
 from itskill.skills import store
 from itskill.skills.manifest import (
     MANIFEST_NAME,
+    REFINED_KEY,
     ManifestEntry,
     install_library,
     read_manifest,
@@ -47,10 +48,16 @@ def open_skill_space(
 
 
 def shipped_budgets() -> dict[str, int]:
-    """Env-steps each task's shipped skill was trained for, from the library's manifest: the
-    budgets with which ``itskill skills pretrain`` rebuilds the library."""
+    """Env-steps each task's shipped skill was trained for from scratch, from the library's
+    manifest: the budgets with which ``itskill skills pretrain`` rebuilds the library. A refined
+    skill's is its first round's; ``--refine`` then adds the second."""
     entries = read_manifest_or_empty(store.SHIPPED_LIBRARY)
-    return {e.task: e.steps for e in entries if e.steps is not None}
+    budgets = {}
+    for e in entries:
+        steps = e.extra.get(REFINED_KEY, {}).get("steps", e.steps)
+        if steps is not None:
+            budgets[e.task] = int(steps)
+    return budgets
 
 
 def _repoint_to_package(space: SkillSpace, library: Path, entries: list[ManifestEntry]) -> None:

@@ -33,6 +33,12 @@ MANIFEST_NAME = "manifest.json"
 MANIFEST_FORMAT = 1
 
 
+REFINED_KEY = "refined_from"
+"""Entry field of a skill trained on from an earlier one (``itskill skills pretrain --refine``):
+that skill's env-steps, wall seconds, seed and held-out success, and the env-steps the critic
+warm-up took. The entry's own budget counts both rounds."""
+
+
 class ManifestError(SkillSpaceError):
     """A manifest that cannot be read, or that names checkpoints that are not there."""
 

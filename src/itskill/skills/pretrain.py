@@ -15,11 +15,17 @@ listed in the skill's manifest entry (``abandoned_seeds``) so the budget they co
 :func:`pretrain` runs the jobs through an executor and, as each one finishes, rewrites the
 library's manifest and registers the skill in a skill space, so an interrupted pretraining keeps
 every skill already finished.
+
+With ``refine``, each run starts from the library's own skill of that name instead of random
+weights (:mod:`itskill.rl.init_policy`): a further round for a skill below its target. The refined
+policy replaces the skill only if it succeeds in more of the held-out episodes than the skill
+did, and its manifest entry counts both rounds' budgets (``refined_from`` keeps the first's).
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import shutil
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
@@ -28,8 +34,15 @@ from pathlib import Path
 from itskill.executors import Executor, run_jobs
 from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy, best_policy_dir
 from itskill.rl.demos import read_demo_summary
+from itskill.rl.init_policy import CRITIC_WARM_UP_FILE
 from itskill.rl.train import TrainResult, train
-from itskill.skills.manifest import ManifestEntry, update_manifest
+from itskill.skills.manifest import (
+    REFINED_KEY,
+    ManifestEntry,
+    ManifestError,
+    read_manifest_or_empty,
+    update_manifest,
+)
 from itskill.skills.store import SkillSpace, UnknownSkillError
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import EvalResult, evaluate
@@ -37,6 +50,8 @@ from itskill.tasks.spec import TaskSpec
 
 DEMO_STEPS_KEY = "demo_env_steps"
 """Manifest entry field: env-steps the scripted demonstrations of a warm start took."""
+REFINE_STEPS = 100_000
+"""Env-steps of a refining run unless told otherwise."""
 ABANDONED_KEY = "abandoned_seeds"
 """Manifest entry field: the runs tried and not kept (seed, env-steps, wall_s, held-out success)."""
 
@@ -63,6 +78,8 @@ class PretrainConfig:
     min_success: float = 0.5
     """A policy below this deterministic success is reported but not exported or registered:
     it has not learned the skill, and would only mislead retrieval and transfer."""
+    refine: bool = False
+    """Start each run from the library's skill of the same name (module docstring)."""
 
     def __post_init__(self) -> None:
         if self.seeds < 1:
@@ -77,13 +94,45 @@ def measure_skill(spec: TaskSpec, policy_dir: Path, config: PretrainConfig) -> E
     return evaluate(spec, policy, config.eval_episodes, seed=config.eval_seed, num_envs=25)
 
 
-def _extra(abandoned: list[dict], demos: dict | None) -> dict:
-    """A manifest entry's extra fields: the runs not kept, and a warm start's env-steps (spent
-    on top of the trainer's ``steps``)."""
+def _extra(abandoned: list[dict], run_dir: Path, source: ManifestEntry | None) -> dict:
+    """A manifest entry's extra fields: the runs not kept, a warm start's env-steps (spent on
+    top of the trainer's ``steps``), and a refined skill's origin."""
     extra: dict = {ABANDONED_KEY: abandoned} if abandoned else {}
+    demos = read_demo_summary(run_dir)
     if demos is not None:
         extra[DEMO_STEPS_KEY] = demos["env_steps"]
+    if source is not None:
+        warm_up = json.loads((run_dir / CRITIC_WARM_UP_FILE).read_text())
+        extra[REFINED_KEY] = {
+            "steps": source.steps,
+            "wall_s": source.wall_s,
+            "seed": source.seed,
+            "success": source.success,
+            "critic_env_steps": warm_up["env_steps"],
+        }
     return extra
+
+
+def refine_source(task: str, library_dir: Path, runs_dir: Path) -> tuple[Path, ManifestEntry]:
+    """The skill ``task`` of ``library_dir`` that a refining run starts from, copied with its
+    manifest entry into ``runs_dir/<task>/refined_from`` on first use: the library's copy is
+    replaced when the refined skill is exported, and a rerun must find the same start."""
+    copy = Path(runs_dir) / task / "refined_from"
+    entry_file = copy / "manifest_entry.json"
+    if not entry_file.is_file():
+        entries = {e.name: e for e in read_manifest_or_empty(library_dir)}
+        if task not in entries:
+            raise ManifestError(
+                f"{library_dir}: no skill {task!r} to refine (pretrain it first, without --refine)"
+            )
+        entry = entries[task]
+        skill_dir = (Path(library_dir) / entry.checkpoint).parent
+        copy.mkdir(parents=True, exist_ok=True)
+        for name in (POLICY_FILE, META_FILE):
+            shutil.copyfile(skill_dir / name, copy / name)
+        entry_file.write_text(json.dumps(entry.to_json(), indent=2) + "\n")
+    entry = ManifestEntry.from_json(json.loads(entry_file.read_text()), where=str(entry_file))
+    return copy, entry
 
 
 def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir: Path) -> dict:
@@ -91,10 +140,12 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
     it learned, export one skill.
 
     Returns the kept run's manifest entry as JSON (picklable), with ``"exported"`` telling whether
-    it reached ``config.min_success`` and was copied into the library. A rerun finds each run's
+    it reached ``config.min_success`` (and, when refining, beat the skill it started from) and
+    was copied into the library. A rerun finds each run's
     checkpoint, trains nothing further and makes the same choice.
     """
     spec = get_task(task)
+    init, source = refine_source(task, library_dir, runs_dir) if config.refine else (None, None)
     runs: list[tuple[TrainResult, EvalResult, int]] = []
     for seed in range(config.seed, config.seed + config.seeds):
         result = train(
@@ -107,6 +158,7 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
             num_envs=config.num_envs,
             n_threads=1,
             eval_every=config.eval_every or None,
+            init=init,
         )
         # A run can lose a level it reached; the figure recorded is still the held-out one.
         ev = measure_skill(spec, best_policy_dir(result.run_dir), config)
@@ -132,13 +184,15 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
         checkpoint=f"{task}/{POLICY_FILE}",
         success=ev.success_rate,
         success_ci=(ev.ci_low, ev.ci_high),
-        steps=result.num_timesteps,
-        wall_s=round(result.wall_s, 1),
+        steps=result.num_timesteps + ((source.steps or 0) if source else 0),
+        wall_s=round(result.wall_s + ((source.wall_s or 0.0) if source else 0.0), 1),
         algo=config.algo,
         seed=seed,
-        extra=_extra(abandoned, read_demo_summary(result.run_dir)),
+        extra=_extra(abandoned, result.run_dir, source),
     )
-    exported = ev.success_rate >= config.min_success
+    exported = ev.success_rate >= config.min_success and (
+        source is None or ev.success_rate > (source.success or 0.0)
+    )
     if exported:
         target = Path(library_dir) / task
         target.mkdir(parents=True, exist_ok=True)
@@ -210,4 +264,14 @@ def basic_tasks() -> list[str]:
     return [t.id for t in all_tasks().values() if t.kind == "basic"]
 
 
-__all__ = ["ABANDONED_KEY", "PretrainConfig", "basic_tasks", "pretrain", "pretrain_task", "record"]
+__all__ = [
+    "ABANDONED_KEY",
+    "REFINED_KEY",
+    "REFINE_STEPS",
+    "PretrainConfig",
+    "basic_tasks",
+    "pretrain",
+    "pretrain_task",
+    "record",
+    "refine_source",
+]

@@ -61,16 +61,18 @@ class CheckpointError(ValueError):
 
 
 class PolicyActor:
-    """A Stable-Baselines3 policy (anything with SB3's ``predict``) acting deterministically."""
+    """A Stable-Baselines3 policy (anything with SB3's ``predict``) acting deterministically
+    (the mean action), or sampling its actions with ``deterministic=False``."""
 
-    def __init__(self, policy: Any) -> None:
-        self.policy = policy
+    def __init__(self, policy: Any, deterministic: bool = True) -> None:
+        self.policy, self.deterministic = policy, deterministic
 
     def reset(self, env_ids: np.ndarray | None = None) -> None:
         """Nothing to reset: PPO and A2C policies are feed-forward, without memory."""
 
     def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
-        actions, _ = self.policy.predict(OBSERVATION_LAYOUT.build(ctx), deterministic=True)
+        obs = OBSERVATION_LAYOUT.build(ctx)
+        actions, _ = self.policy.predict(obs, deterministic=self.deterministic)
         return np.asarray(actions)
 
 
