@@ -20,7 +20,9 @@ from itskill.skills.pretrain import (
     REFINED_KEY,
     PretrainConfig,
     pretrain,
+    refine_source,
 )
+from itskill.skills.store import SHIPPED_LIBRARY
 
 
 def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) -> None:
@@ -212,10 +214,20 @@ def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_bett
     assert again.steps == refined.steps
 
 
-def test_refining_a_skill_the_library_lacks_is_a_clear_error(tmp_path) -> None:
+def test_refining_a_skill_the_library_lacks_is_a_clear_error(tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr("itskill.skills.pretrain.SHIPPED_LIBRARY", tmp_path / "no_shipped")
     errors = []
     pretrain(
         ["reach_nut_m12"], PretrainConfig(refine=True), tmp_path / "runs", tmp_path / "empty",
         workers=1, on_result=lambda task, entry, error: errors.append(error),
     )  # fmt: skip
     assert "no skill 'reach_nut_m12' to refine" in str(errors[0])
+
+
+def test_a_skill_space_without_its_own_copy_refines_the_shipped_skill(tmp_path) -> None:
+    runs = tmp_path / "runs"
+    start, entry = refine_source("reach_nut_m12", tmp_path / "own_library", runs)
+    assert start == runs / "reach_nut_m12" / "refined_from"
+    shipped = SHIPPED_LIBRARY / "reach_nut_m12" / "policy.safetensors"
+    assert (start / "policy.safetensors").read_bytes() == shipped.read_bytes()
+    assert entry == next(e for e in read_manifest(SHIPPED_LIBRARY) if e.name == "reach_nut_m12")

@@ -282,7 +282,8 @@ def skills_pretrain(
         ),
     ] = False,
 ) -> None:
-    """Train skills from scratch with expert rewards, evaluate each, add them to the skill space.
+    """Train skills from scratch with expert rewards (or, with --refine, on from the library's
+    or the shipped skill), evaluate each, add them to the skill space.
 
     Rerunning the same command resumes unfinished trainings from their last checkpoint.
     """

@@ -43,7 +43,7 @@ from itskill.skills.manifest import (
     read_manifest_or_empty,
     update_manifest,
 )
-from itskill.skills.store import SkillSpace, UnknownSkillError
+from itskill.skills.store import SHIPPED_LIBRARY, SkillSpace, UnknownSkillError
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import EvalResult, evaluate
 from itskill.tasks.spec import TaskSpec
@@ -114,19 +114,26 @@ def _extra(abandoned: list[dict], run_dir: Path, source: ManifestEntry | None) -
 
 
 def refine_source(task: str, library_dir: Path, runs_dir: Path) -> tuple[Path, ManifestEntry]:
-    """The skill ``task`` of ``library_dir`` that a refining run starts from, copied with its
-    manifest entry into ``runs_dir/<task>/refined_from`` on first use: the library's copy is
-    replaced when the refined skill is exported, and a rerun must find the same start."""
+    """The skill ``task`` that a refining run starts from: ``library_dir``'s, else the shipped
+    library's (a skill space's own library starts empty), copied with its manifest entry into
+    ``runs_dir/<task>/refined_from`` on first use: the library's copy is replaced when the
+    refined skill is exported, and a rerun must find the same start."""
     copy = Path(runs_dir) / task / "refined_from"
     entry_file = copy / "manifest_entry.json"
     if not entry_file.is_file():
-        entries = {e.name: e for e in read_manifest_or_empty(library_dir)}
-        if task not in entries:
+        found = [
+            (Path(lib), e)
+            for lib in (library_dir, SHIPPED_LIBRARY)
+            for e in read_manifest_or_empty(lib)
+            if e.name == task
+        ]
+        if not found:
             raise ManifestError(
-                f"{library_dir}: no skill {task!r} to refine (pretrain it first, without --refine)"
+                f"no skill {task!r} to refine in {library_dir} or the shipped library "
+                "(pretrain it first, without --refine)"
             )
-        entry = entries[task]
-        skill_dir = (Path(library_dir) / entry.checkpoint).parent
+        library, entry = found[0]
+        skill_dir = (library / entry.checkpoint).parent
         copy.mkdir(parents=True, exist_ok=True)
         for name in (POLICY_FILE, META_FILE):
             shutil.copyfile(skill_dir / name, copy / name)
