@@ -326,6 +326,12 @@ def train(
         if resuming:
             restore_reward_norm(train_env, run_dir)
     cls = ALGO_CLASSES[algo]
+
+    def note(text: str) -> None:
+        # A warm start takes up to a minute or two before the progress bar appears.
+        if (logger or LoggerConfig()).progress:
+            (console or Console(stderr=True)).print(text, highlight=False)
+
     clock = WallClock(prior_wall_s)  # from here, so that a warm start's time counts
     try:
         if resuming:
@@ -349,16 +355,31 @@ def train(
                 **hp.algo_config.sb3_kwargs(),
             )
             if hp.demos.episodes:
+                note(
+                    f"warm start: cloning the scripted controller over {hp.demos.episodes} episodes"
+                )
                 summary = warm_start(
                     model, spec, env, train_env, hp.demos, hp.algo_config.gamma, seed
                 )
                 run_dir.mkdir(parents=True, exist_ok=True)
                 (run_dir / DEMOS_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+                note(
+                    f"warm start: {summary['episodes_kept']} of {summary['episodes_run']} "
+                    f"demonstrations kept, clone fitted in {summary['wall_s']:.0f} s"
+                )
             if init is not None:
                 init_policy(model.policy, meta["init"])
+                note(
+                    f"starting from {meta['init']['path']}: fitting the critic to "
+                    f"{hp.init.critic_episodes} of its episodes"
+                )
                 summary = warm_up_critic(model, env, train_env, hp.algo_config.gamma, hp.init, seed)
                 run_dir.mkdir(parents=True, exist_ok=True)
                 (run_dir / CRITIC_WARM_UP_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+                note(
+                    f"critic fitted in {summary['wall_s']:.0f} s ({summary['successes']} of "
+                    f"{summary['episodes_run']} episodes succeeded with the run's action noise)"
+                )
         if keep_obs_stats:
             # The normaliser keeps the statistics the starting policy was fitted to (the
             # demonstrations', or the trained policy's): statistics that moved with the RL
