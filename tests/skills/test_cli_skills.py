@@ -83,3 +83,18 @@ def test_pretrain_reports_the_seeds_it_tried(home, tmp_path):
         "seed0",
         "seed1",
     ]
+
+
+def test_refining_reports_the_runs_own_budget_and_keeps_a_skill_it_does_not_beat(home, tmp_path):
+    # The shipped reach succeeds in every held-out episode: nothing can beat it.
+    library = tmp_path / "library"
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--refine", "--steps", "256"]
+    args += ["--seeds", "1", "--eval-every", "256", "--episodes", "4"]
+    args += ["--runs", str(tmp_path / "runs"), "--library", str(library)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    output = " ".join(result.output.split())  # the console wraps long lines
+    shipped = 100_352  # the shipped skill's budget, in the manifest
+    assert f"after 1,024 env-steps more ({shipped + 1024:,} in all)" in output
+    assert "no better than the library's 100%, not replaced" in output
+    assert not (library / "reach_nut_m12").exists()

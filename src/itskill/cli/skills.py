@@ -316,17 +316,23 @@ def skills_pretrain(
             console.print(f"[red]{task}: failed: {type(error).__name__}: {error}[/red]")
         else:
             lo, hi = entry.success_ci
-            before = entry.extra.get(REFINED_KEY, {}).get("success")
+            origin = entry.extra.get(REFINED_KEY)
             if entry.success < config.min_success:
                 learned = " - not learned, not added"
-            elif before is not None and entry.success <= before:
-                learned = f" - no better than the library's {before:.0%}, not replaced"
+            elif origin and entry.success <= (origin["success"] or 0.0):
+                learned = f" - no better than the library's {origin['success']:.0%}, not replaced"
             else:
                 learned = ""
+            # A refined skill's budget counts both rounds; this run's share is what it cost now.
+            steps, wall_s = entry.steps, entry.wall_s
+            more = ""
+            if origin:
+                steps -= origin["steps"] or 0
+                wall_s -= origin["wall_s"] or 0.0
+                more = f" more ({entry.steps:,} in all)"
             console.print(
                 f"{task}: success {entry.success:.0%} (95% CI {lo:.0%}-{hi:.0%}) after "
-                f"{entry.steps:,} env-steps, {entry.wall_s / 60:.1f} min, seed {entry.seed}"
-                f"{learned}"
+                f"{steps:,} env-steps{more}, {wall_s / 60:.1f} min, seed {entry.seed}{learned}"
             )
             for run in entry.extra.get(ABANDONED_KEY, []):
                 console.print(
