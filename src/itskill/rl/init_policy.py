@@ -1,8 +1,9 @@
 """Start a training run from a trained policy instead of random weights.
 
-A skill that ends its training below its target (Place (nut M12) at 89%, Unscrew (nut M16) at
-93%) can be trained on from where it is: ``itskill train TASK --init SKILL_DIR`` or
-``itskill skills pretrain --refine``. Three things make that work:
+A skill that ends its training below its target can be trained on from where it is:
+``itskill train TASK --init SKILL_DIR`` or ``itskill skills pretrain --refine`` (Carry (nut M12)
+went from 93% to 99% of its held-out episodes in 100k env-steps more; docs/skills.md,
+"Eighteenth pretraining"). Three things make that work:
 
 1. the policy's weights and observation statistics are copied, all but its action noise, which
    is the run's (:class:`InitConfig`): a converged policy's noise is whatever its last updates
