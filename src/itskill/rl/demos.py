@@ -25,7 +25,6 @@ does not improve on it.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +35,7 @@ import torch
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from itskill.files import read_json
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.sim.vec_env import BatchEnv
 from itskill.tasks.evaluate import Policy
@@ -54,7 +54,7 @@ DEMOS_FILE = "demos.json"
 def read_demo_summary(run_dir: str | Path) -> dict[str, Any] | None:
     """The warm start's summary of the run in ``run_dir``, or None if it started from scratch."""
     path = Path(run_dir) / DEMOS_FILE
-    return json.loads(path.read_text()) if path.is_file() else None
+    return read_json(path) if path.is_file() else None
 
 
 @dataclass(frozen=True)
@@ -194,6 +194,17 @@ def seed_reward_normalizer(env: VecNormalize, demos: Demonstrations) -> None:
         env.ret_rms.update(acc)
 
 
+def critic_targets(demos: Demonstrations, train_env: VecEnv, gamma: float) -> np.ndarray:
+    """Each transition's discounted return in the units the algorithm's critic will regress on:
+    where ``train_env`` normalises rewards (a :class:`VecNormalize`), its statistics are seeded
+    from these episodes and the returns divided by the scale they give."""
+    returns = discounted_returns(demos, gamma)
+    if isinstance(train_env, VecNormalize):
+        seed_reward_normalizer(train_env, demos)
+        returns = returns / np.sqrt(train_env.ret_rms.var + train_env.epsilon)
+    return returns
+
+
 def pretrain_policy(
     policy: StagedActorCriticPolicy,
     demos: Demonstrations,
@@ -256,10 +267,7 @@ def warm_start(
     Returns a summary for the run directory."""
     start = time.perf_counter()
     demos = collect_demos(spec, env, config.episodes)
-    returns = discounted_returns(demos, gamma)
-    if isinstance(train_env, VecNormalize):
-        seed_reward_normalizer(train_env, demos)
-        returns = returns / np.sqrt(train_env.ret_rms.var + train_env.epsilon)
+    returns = critic_targets(demos, train_env, gamma)
     losses = pretrain_policy(model.policy, demos, returns, config, seed)
     return {
         "episodes_run": demos.attempted,

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv
 
 from itskill.rl.checkpoint import (
     META_FILE,
@@ -40,13 +40,7 @@ from itskill.rl.checkpoint import (
     load_policy,
     read_meta,
 )
-from itskill.rl.demos import (
-    DemoConfig,
-    collect_episodes,
-    discounted_returns,
-    pretrain_policy,
-    seed_reward_normalizer,
-)
+from itskill.rl.demos import DemoConfig, collect_episodes, critic_targets, pretrain_policy
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.sim.vec_env import BatchEnv
 from itskill.tasks.evaluate import CheckpointError, PolicyActor
@@ -134,10 +128,7 @@ def warm_up_critic(
     actor = PolicyActor(model.policy, deterministic=False)
     runs, succeeded = collect_episodes(env, actor, config.critic_episodes, successes_only=False)
     assert runs is not None  # every episode is kept
-    returns = discounted_returns(runs, gamma)
-    if isinstance(train_env, VecNormalize):
-        seed_reward_normalizer(train_env, runs)
-        returns = returns / np.sqrt(train_env.ret_rms.var + train_env.epsilon)
+    returns = critic_targets(runs, train_env, gamma)
     with torch.no_grad():
         values = model.policy.predict_values(torch.as_tensor(runs.obs)).squeeze(-1).numpy()
     losses = pretrain_policy(model.policy, runs, returns, DemoConfig(), seed, clone=False)

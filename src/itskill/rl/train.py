@@ -9,7 +9,6 @@ the last checkpoint: the model (optimiser included) is reloaded and the step cou
 from __future__ import annotations
 
 import hashlib
-import json
 import runpy
 import time
 from collections.abc import Mapping
@@ -27,6 +26,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from itskill.files import write_json
 from itskill.rl.checkpoint import (
     MODEL_FILE,
     STAGED_POLICY_CLASS,
@@ -361,8 +361,7 @@ def train(
                 summary = warm_start(
                     model, spec, env, train_env, hp.demos, hp.algo_config.gamma, seed
                 )
-                run_dir.mkdir(parents=True, exist_ok=True)
-                (run_dir / DEMOS_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+                write_json(run_dir / DEMOS_FILE, summary)
                 note(
                     f"warm start: {summary['episodes_kept']} of {summary['episodes_run']} "
                     f"demonstrations kept, clone fitted in {summary['wall_s']:.0f} s"
@@ -374,8 +373,7 @@ def train(
                     f"{hp.init.critic_episodes} of its episodes"
                 )
                 summary = warm_up_critic(model, env, train_env, hp.algo_config.gamma, hp.init, seed)
-                run_dir.mkdir(parents=True, exist_ok=True)
-                (run_dir / CRITIC_WARM_UP_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+                write_json(run_dir / CRITIC_WARM_UP_FILE, summary)
                 note(
                     f"critic fitted in {summary['wall_s']:.0f} s ({summary['successes']} of "
                     f"{summary['episodes_run']} episodes succeeded with the run's action noise)"

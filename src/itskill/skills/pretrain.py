@@ -25,13 +25,13 @@ did, and its manifest entry counts both rounds' budgets (``refined_from`` keeps 
 from __future__ import annotations
 
 import contextlib
-import json
 import shutil
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from itskill.executors import Executor, run_jobs
+from itskill.files import read_json, write_json
 from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy, best_policy_dir
 from itskill.rl.demos import read_demo_summary
 from itskill.rl.init_policy import CRITIC_WARM_UP_FILE
@@ -102,7 +102,7 @@ def _extra(abandoned: list[dict], run_dir: Path, source: ManifestEntry | None) -
     if demos is not None:
         extra[DEMO_STEPS_KEY] = demos["env_steps"]
     if source is not None:
-        warm_up = json.loads((run_dir / CRITIC_WARM_UP_FILE).read_text())
+        warm_up = read_json(run_dir / CRITIC_WARM_UP_FILE)
         extra[REFINED_KEY] = {
             "steps": source.steps,
             "wall_s": source.wall_s,
@@ -137,8 +137,8 @@ def refine_source(task: str, library_dir: Path, runs_dir: Path) -> tuple[Path, M
         copy.mkdir(parents=True, exist_ok=True)
         for name in (POLICY_FILE, META_FILE):
             shutil.copyfile(skill_dir / name, copy / name)
-        entry_file.write_text(json.dumps(entry.to_json(), indent=2) + "\n")
-    entry = ManifestEntry.from_json(json.loads(entry_file.read_text()), where=str(entry_file))
+        write_json(entry_file, entry.to_json())
+    entry = ManifestEntry.from_json(read_json(entry_file), where=str(entry_file))
     return copy, entry
 
 
