@@ -35,7 +35,7 @@ def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) 
     with SkillSpace() as space:
         entries = pretrain(
             ["reach_nut_m12"], config, runs, library, space, workers=1,
-            on_result=lambda task, entry, error: seen.append((task, error)),
+            on_result=lambda task, entry, added, error: seen.append((task, error)),
         )  # fmt: skip
         assert seen == [("reach_nut_m12", None)]
         skill = space.get("reach_nut_m12")
@@ -135,13 +135,14 @@ def test_the_first_seed_to_learn_is_exported_with_the_runs_before_it_listed(
 
 
 def _pretrain_reports(config, runs, library, space=None) -> list:
+    """The entries reported for a pretraining that must add nothing to the library."""
     reported = []
     added = pretrain(
         ["reach_nut_m12"], config, runs, library, space, workers=1,
-        on_result=lambda task, entry, error: reported.append(entry),
+        on_result=lambda task, entry, added, error: reported.append((entry, added)),
     )  # fmt: skip
-    assert added == []
-    return reported
+    assert added == [] and [a for _, a in reported] == [False] * len(reported)
+    return [entry for entry, _ in reported]
 
 
 def test_pretrain_config_refuses_no_seeds() -> None:
@@ -203,6 +204,9 @@ def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_bett
     started = json.loads((run / "checkpoint.json").read_text())["init"]
     assert started["path"] == str((run.parent / "refined_from").resolve())
     assert skill_file.read_bytes() != original
+    # The library's copy says which policy it started from, but not where that lay on this disk.
+    exported = json.loads((library / "reach_nut_m12" / "checkpoint.json").read_text())["init"]
+    assert exported == {k: v for k, v in started.items() if k != "path"}
     # Both rounds' budgets count; the first round's is kept with where the skill stood.
     assert refined.steps == first.steps + _steps(run)
     origin = refined.extra[REFINED_KEY]
@@ -219,7 +223,7 @@ def test_refining_a_skill_the_library_lacks_is_a_clear_error(tmp_path, monkeypat
     errors = []
     pretrain(
         ["reach_nut_m12"], PretrainConfig(refine=True), tmp_path / "runs", tmp_path / "empty",
-        workers=1, on_result=lambda task, entry, error: errors.append(error),
+        workers=1, on_result=lambda task, entry, added, error: errors.append(error),
     )  # fmt: skip
     assert "no skill 'reach_nut_m12' to refine" in str(errors[0])
 

@@ -311,18 +311,18 @@ def skills_pretrain(
         eval_every=eval_every,
     )
 
-    def report(task: str, entry, error) -> None:
+    def report(task: str, entry, added: bool, error) -> None:
         if error is not None:
             console.print(f"[red]{task}: failed: {type(error).__name__}: {error}[/red]")
         else:
             lo, hi = entry.success_ci
             origin = entry.extra.get(REFINED_KEY)
-            if entry.success < config.min_success:
-                learned = " - not learned, not added"
-            elif origin and entry.success <= (origin["success"] or 0.0):
-                learned = f" - no better than the library's {origin['success']:.0%}, not replaced"
-            else:
+            if added:
                 learned = ""
+            elif entry.success < config.min_success:
+                learned = " - not learned, not added"
+            else:
+                learned = f" - no better than the library's {origin['success']:.0%}, not replaced"
             # A refined skill's budget counts both rounds; this run's share is what it cost now.
             steps, wall_s = entry.steps, entry.wall_s
             more = ""

@@ -24,6 +24,7 @@ import importlib
 import json
 import os
 import platform
+import shutil
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -164,6 +165,24 @@ def best_policy_dir(run_dir: str | Path) -> Path:
     """
     best = Path(run_dir) / BEST_DIR
     return best if (best / META_FILE).is_file() else Path(run_dir)
+
+
+def export_policy(run_dir: str | Path, target: str | Path) -> Path:
+    """Copy the policy to use from a training run (:func:`best_policy_dir`) into ``target``, as
+    a skill directory that another machine can load.
+
+    The path of a policy the run started from stays behind (it names a directory on this
+    machine); its task, env-steps and weight hash still say which policy that was.
+    """
+    source = best_policy_dir(run_dir)
+    meta = read_meta(source)
+    if "init" in meta:
+        meta["init"] = {k: v for k, v in meta["init"].items() if k != "path"}
+    target = Path(target)
+    target.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(source / POLICY_FILE, target / POLICY_FILE)
+    write_text(target / META_FILE, json.dumps(meta, indent=2) + "\n")
+    return target
 
 
 def build_policy(config: PolicyConfig) -> StagedActorCriticPolicy:

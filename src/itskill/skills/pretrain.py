@@ -32,7 +32,13 @@ from pathlib import Path
 
 from itskill.executors import Executor, run_jobs
 from itskill.files import read_json, write_json
-from itskill.rl.checkpoint import META_FILE, POLICY_FILE, as_policy, best_policy_dir
+from itskill.rl.checkpoint import (
+    META_FILE,
+    POLICY_FILE,
+    as_policy,
+    best_policy_dir,
+    export_policy,
+)
 from itskill.rl.demos import read_demo_summary
 from itskill.rl.init_policy import CRITIC_WARM_UP_FILE
 from itskill.rl.train import TrainResult, train
@@ -201,11 +207,7 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
         source is None or ev.success_rate > (source.success or 0.0)
     )
     if exported:
-        target = Path(library_dir) / task
-        target.mkdir(parents=True, exist_ok=True)
-        policy_dir = best_policy_dir(result.run_dir)
-        for name in (POLICY_FILE, META_FILE):
-            shutil.copyfile(policy_dir / name, target / name)
+        export_policy(result.run_dir, Path(library_dir) / task)
     return {**entry.to_json(), "exported": exported}
 
 
@@ -228,7 +230,8 @@ def pretrain(
     executor: Executor = "local",
     workers: int | None = None,
     ray_address: str | None = None,
-    on_result: Callable[[str, ManifestEntry | None, BaseException | None], None] | None = None,
+    on_result: Callable[[str, ManifestEntry | None, bool, BaseException | None], None]
+    | None = None,
     budgets: Mapping[str, int] | None = None,
 ) -> list[ManifestEntry]:
     """Pretrain every task in ``tasks``; returns the entries of the skills added to the library.
@@ -236,8 +239,9 @@ def pretrain(
     ``budgets`` gives tasks their own env-steps (``itskill skills pretrain`` passes the shipped
     library's, :func:`itskill.skills.library.shipped_budgets`); other tasks get ``config.steps``.
 
-    Every finished task is reported through ``on_result`` with its entry (success and budget),
-    whether or not it reached ``config.min_success``; a task whose job fails is reported with its
+    Every finished task is reported through ``on_result`` with its entry (success and budget)
+    and whether it was added to the library (it reached ``config.min_success`` and, when
+    refining, beat the skill it started from); a task whose job fails is reported with its
     exception and skipped, and the others go on.
     """
     tasks = [get_task(t).id for t in tasks]  # unknown names fail before any training starts
@@ -251,7 +255,7 @@ def pretrain(
     finished = []
     for res in run_jobs(pretrain_task, jobs, executor, workers, ray_address):
         task = tasks[res.index]
-        entry = None
+        entry, exported = None, False
         if res.ok:
             value = dict(res.value)
             exported = value.pop("exported")
@@ -260,7 +264,7 @@ def pretrain(
                 record(entry, Path(library_dir), space)
                 finished.append(entry)
         if on_result is not None:
-            on_result(task, entry, res.error)
+            on_result(task, entry, exported, res.error)
     return finished
 
 
