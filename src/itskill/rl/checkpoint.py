@@ -168,8 +168,8 @@ def best_policy_dir(run_dir: str | Path) -> Path:
 
 
 def export_policy(run_dir: str | Path, target: str | Path) -> Path:
-    """Copy the policy to use from a training run (:func:`best_policy_dir`) into ``target``, as
-    a skill directory that another machine can load.
+    """Copy the policy to use from a training run (:func:`best_policy_dir`) or a skill directory
+    into ``target``, as a skill directory that another machine can load.
 
     The path of a policy the run started from stays behind (it names a directory on this
     machine); its task, env-steps and weight hash still say which policy that was.

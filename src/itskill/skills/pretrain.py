@@ -25,7 +25,6 @@ did, and its manifest entry counts both rounds' budgets (``refined_from`` keeps 
 from __future__ import annotations
 
 import contextlib
-import shutil
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -33,7 +32,6 @@ from pathlib import Path
 from itskill.executors import Executor, run_jobs
 from itskill.files import read_json, write_json
 from itskill.rl.checkpoint import (
-    META_FILE,
     POLICY_FILE,
     as_policy,
     best_policy_dir,
@@ -139,10 +137,7 @@ def refine_source(task: str, library_dir: Path, runs_dir: Path) -> tuple[Path, M
                 "(pretrain it first, without --refine)"
             )
         library, entry = found[0]
-        skill_dir = (library / entry.checkpoint).parent
-        copy.mkdir(parents=True, exist_ok=True)
-        for name in (POLICY_FILE, META_FILE):
-            shutil.copyfile(skill_dir / name, copy / name)
+        export_policy((library / entry.checkpoint).parent, copy)
         write_json(entry_file, entry.to_json())
     entry = ManifestEntry.from_json(read_json(entry_file), where=str(entry_file))
     return copy, entry
