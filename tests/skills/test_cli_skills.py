@@ -96,5 +96,5 @@ def test_refining_reports_the_runs_own_budget_and_keeps_a_skill_it_does_not_beat
     output = " ".join(result.output.split())  # the console wraps long lines
     shipped = 100_352  # the shipped skill's budget, in the manifest
     assert f"after 1,024 env-steps more ({shipped + 1024:,} in all)" in output
-    assert "no better than the library's 100%, not replaced" in output
+    assert "no better than the library's skill on the same episodes (100%), not replaced" in output
     assert not (library / "reach_nut_m12").exists()

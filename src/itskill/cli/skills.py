@@ -252,7 +252,10 @@ def skills_pretrain(
             "the next seed trains; the best run is kept.",
         ),
     ] = 3,
-    episodes: Annotated[int, typer.Option(help="Evaluation episodes per skill.")] = 100,
+    episodes: Annotated[
+        int | None,
+        typer.Option(min=1, help="Held-out evaluation episodes per skill (default: 400)."),
+    ] = None,
     eval_every: Annotated[
         int,
         typer.Option(
@@ -306,7 +309,7 @@ def skills_pretrain(
         refine=refine,
         seed=seed,
         seeds=seeds,
-        eval_episodes=episodes,
+        eval_episodes=PretrainConfig.eval_episodes if episodes is None else episodes,
         min_success=min_success,
         eval_every=eval_every,
     )
@@ -322,7 +325,10 @@ def skills_pretrain(
             elif entry.success < config.min_success:
                 learned = " - not learned, not added"
             else:
-                learned = f" - no better than the library's {origin['success']:.0%}, not replaced"
+                learned = (
+                    f" - no better than the library's skill on the same episodes "
+                    f"({origin['success']:.0%}), not replaced"
+                )
             # A refined skill's budget counts both rounds; this run's share is what it cost now.
             steps, wall_s = entry.steps, entry.wall_s
             more = ""
