@@ -85,6 +85,14 @@ def test_pretrain_reports_the_seeds_it_tried(home, tmp_path):
     ]
 
 
+def test_pretrain_takes_a_comma_separated_task_list(home, tmp_path):
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12, no_such_task", "--steps", "256"]
+    result = runner.invoke(app, [*args, "--runs", str(tmp_path / "runs")])
+    assert result.exit_code == 2
+    assert "unknown task 'no_such_task'" in result.output
+    assert not (tmp_path / "runs").exists()
+
+
 def test_refining_reports_the_runs_own_budget_and_keeps_a_skill_it_does_not_beat(home, tmp_path):
     # The shipped reach succeeds in every held-out episode: nothing can beat it.
     library = tmp_path / "library"

@@ -232,7 +232,10 @@ def skills_install(
 def skills_pretrain(
     tasks: Annotated[
         list[str] | None,
-        typer.Option("--tasks", help="Tasks to train (default: every basic task)."),
+        typer.Option(
+            "--tasks",
+            help="Tasks to train, comma-separated or repeated (default: every basic task).",
+        ),
     ] = None,
     steps: Annotated[
         int | None,
@@ -349,7 +352,8 @@ def skills_pretrain(
     with user_errors(), _skill_errors(), open_skill_space() as space:
         try:
             pretrain(
-                tasks or basic_tasks(),
+                [t.strip() for item in tasks or () for t in item.split(",") if t.strip()]
+                or basic_tasks(),
                 config,
                 runs,
                 library or space.library_dir,
