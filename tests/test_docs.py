@@ -39,5 +39,5 @@ def test_the_library_table_shows_each_skills_measured_success() -> None:
     assert len(table) == 2 + len(skills)
     row = next(r for r in table if r.startswith("| pick_nut_m12 |"))
     pick = next(s for s in skills if s.name == "pick_nut_m12")
-    assert f"{pick.success_rate:.0%} [{pick.success_ci[0]:.0%}, {pick.success_ci[1]:.0%}]" in row
+    assert f"{pick.success_rate:.1%} [{pick.success_ci[0]:.1%}, {pick.success_ci[1]:.1%}]" in row
     assert f"{pick.train_steps:,}" in row

@@ -53,3 +53,4 @@ def test_a_rate_interval_is_cut_to_what_a_rate_can_be() -> None:
     assert format_rate_interval(0.75, 0.5712, 0.9288) == "75% [57%, 93%]"
     assert format_rate_interval(0.65, 0.0621, 1.2445) == "65% [6%, 100%]"
     assert format_rate_interval(0.35, -0.1123, 0.8056) == "35% [0%, 81%]"
+    assert format_rate_interval(0.9475, 0.9211, 0.9651, decimals=1) == "94.8% [92.1%, 96.5%]"

@@ -57,10 +57,12 @@ def format_rate(value: float | None) -> str:
     return "-" if value is None else f"{value:.0%}"
 
 
-def format_rate_interval(mean: float, low: float, high: float) -> str:
+def format_rate_interval(mean: float, low: float, high: float, decimals: int = 0) -> str:
     """A success rate with its interval as ``"75% [57%, 93%]"``; a t-interval over few seeds can
-    reach past 0 or 1, where no rate can lie, so it is cut to that range."""
-    return f"{mean:.0%} [{max(low, 0.0):.0%}, {min(high, 1.0):.0%}]"
+    reach past 0 or 1, where no rate can lie, so it is cut to that range. ``decimals=1`` suits
+    rates over hundreds of episodes, where whole percents would round 94.75% up to a 95% target."""
+    f = f".{decimals}%"
+    return f"{mean:{f}} [{max(low, 0.0):{f}}, {min(high, 1.0):{f}}]"
 
 
 def steps_to_threshold(

@@ -26,7 +26,7 @@ def test_add_list_search_show_remove(home, checkpoint):
     assert [(s["id"], s["name"]) for s in listed] == [(1, "insert_peg_round"), (2, "pick")]
     assert listed[1]["actions"] == ["a", "b"]
     markdown = runner.invoke(app, ["skills", "list", "--markdown"]).stdout.splitlines()
-    assert markdown[2].startswith("| insert_peg_round | `insert_peg_round` | insert | 90% |")
+    assert markdown[2].startswith("| insert_peg_round | `insert_peg_round` | insert | 90.0% |")
     assert "| 1,000 |" in markdown[2]
     assert markdown[3].startswith("| pick | `pick_nut_m12` | a → b |")
 
@@ -104,5 +104,5 @@ def test_refining_reports_the_runs_own_budget_and_keeps_a_skill_it_does_not_beat
     output = " ".join(result.output.split())  # the console wraps long lines
     shipped = 100_352  # the shipped skill's budget, in the manifest
     assert f"after 1,024 env-steps more ({shipped + 1024:,} in all)" in output
-    assert "no better than the library's skill on the same episodes (100%), not replaced" in output
+    assert "no better than the library's skill on the same episodes (100.0%), not replaced" in output
     assert not (library / "reach_nut_m12").exists()

@@ -72,9 +72,9 @@ def skills_markdown(skills: Sequence[Any]) -> str:
         if s.success_rate is None:
             success = ""
         elif s.success_ci:
-            success = format_rate_interval(s.success_rate, *s.success_ci)
+            success = format_rate_interval(s.success_rate, *s.success_ci, decimals=1)
         else:
-            success = f"{s.success_rate:.0%}"
+            success = f"{s.success_rate:.1%}"
         steps = "" if s.train_steps is None else f"{s.train_steps:,}"
         wall = "" if s.train_wall_s is None else f"{s.train_wall_s / 60:.1f}"
         trained = ", ".join(
@@ -330,7 +330,7 @@ def skills_pretrain(
             else:
                 learned = (
                     f" - no better than the library's skill on the same episodes "
-                    f"({origin['success']:.0%}), not replaced"
+                    f"({origin['success']:.1%}), not replaced"
                 )
             # A refined skill's budget counts both rounds; this run's share is what it cost now.
             steps, wall_s = entry.steps, entry.wall_s
@@ -340,12 +340,12 @@ def skills_pretrain(
                 wall_s -= origin["wall_s"] or 0.0
                 more = f" more ({entry.steps:,} in all)"
             console.print(
-                f"{task}: success {entry.success:.0%} (95% CI {lo:.0%}-{hi:.0%}) after "
+                f"{task}: success {entry.success:.1%} (95% CI {lo:.1%}-{hi:.1%}) after "
                 f"{steps:,} env-steps{more}, {wall_s / 60:.1f} min, seed {entry.seed}{learned}"
             )
             for run in entry.extra.get(ABANDONED_KEY, []):
                 console.print(
-                    f"  not kept: seed {run['seed']}, success {run['success']:.0%} after "
+                    f"  not kept: seed {run['seed']}, success {run['success']:.1%} after "
                     f"{run['steps']:,} env-steps, {run['wall_s'] / 60:.1f} min"
                 )
 
