@@ -47,10 +47,10 @@ def main(argv: list[str] | None = None) -> int:
     for entry in chosen:
         start = time.perf_counter()
         ev = measure_skill(get_task(entry.task), (args.library / entry.checkpoint).parent, config)
-        before = "-" if entry.success is None else f"{entry.success:.0%}"
+        before = "-" if entry.success is None else f"{entry.success:.1%}"
         print(
-            f"{entry.name:22s} {before:>7s} {ev.success_rate:6.0%} "
-            f"[{ev.ci_low:5.0%}, {ev.ci_high:5.0%}] {time.perf_counter() - start:5.1f}s",
+            f"{entry.name:22s} {before:>7s} {ev.success_rate:6.1%} "
+            f"[{ev.ci_low:5.1%}, {ev.ci_high:5.1%}] {time.perf_counter() - start:5.1f}s",
             flush=True,
         )
         results.append(
