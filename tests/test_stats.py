@@ -1,6 +1,13 @@
 import pytest
 
-from itskill.stats import format_rate_interval, mean_interval, steps_to_threshold, wilson_interval
+from itskill.stats import (
+    format_rate_interval,
+    mean_interval,
+    paired_gain_p,
+    paired_wins,
+    steps_to_threshold,
+    wilson_interval,
+)
 
 
 @pytest.mark.parametrize(
@@ -54,3 +61,16 @@ def test_a_rate_interval_is_cut_to_what_a_rate_can_be() -> None:
     assert format_rate_interval(0.65, 0.0621, 1.2445) == "65% [6%, 100%]"
     assert format_rate_interval(0.35, -0.1123, 0.8056) == "35% [0%, 81%]"
     assert format_rate_interval(0.9475, 0.9211, 0.9651, decimals=1) == "94.8% [92.1%, 96.5%]"
+
+
+def test_a_paired_comparison_counts_only_the_episodes_the_policies_differ_on() -> None:
+    old = [True, True, False, False, True, False]
+    new = [True, False, True, True, True, False]
+    assert paired_wins(new, old) == (2, 1)
+    # 2 of 3 under a fair coin: P(X >= 2) = 4/8.
+    assert paired_gain_p(2, 1) == pytest.approx(0.5)
+    assert paired_gain_p(0, 0) == 1.0
+    # 15 won, 3 lost: what a refined skill gaining three points on 400 episodes can look like.
+    assert paired_gain_p(15, 3) < 0.01 < paired_gain_p(6, 3)
+    with pytest.raises(ValueError, match="cannot be paired"):
+        paired_wins(new, old[:-1])

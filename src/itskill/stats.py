@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from statistics import NormalDist
 
 import numpy as np
+from scipy.stats import binomtest
 from scipy.stats import t as t_dist
 
 
@@ -55,6 +56,26 @@ def mean_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[fl
 def format_rate(value: float | None) -> str:
     """A success rate as a whole percentage, ``"-"`` where there is none (yet)."""
     return "-" if value is None else f"{value:.0%}"
+
+
+def paired_wins(new: Sequence[bool], old: Sequence[bool]) -> tuple[int, int]:
+    """Of the episodes both policies ran, those only ``new`` succeeded in and those only ``old``
+    did: the discordant pairs a paired comparison rests on."""
+    if len(new) != len(old):
+        raise ValueError(f"outcomes of {len(new)} and {len(old)} episodes cannot be paired")
+    won = sum(bool(a) and not b for a, b in zip(new, old, strict=True))
+    lost = sum(bool(b) and not a for a, b in zip(new, old, strict=True))
+    return won, lost
+
+
+def paired_gain_p(won: int, lost: int) -> float:
+    """One-sided exact McNemar test that a policy succeeds more often than another on the same
+    episodes (:func:`paired_wins`): the chance under a fair coin of winning at least ``won`` of
+    the ``won + lost`` episodes where they differ. Pairing removes each episode's own difficulty,
+    which two separate intervals would count against both."""
+    if won + lost == 0:
+        return 1.0
+    return float(binomtest(won, won + lost, 0.5, alternative="greater").pvalue)
 
 
 def format_rate_interval(mean: float, low: float, high: float, decimals: int = 0) -> str:

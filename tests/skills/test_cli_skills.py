@@ -93,6 +93,11 @@ def test_pretrain_takes_a_comma_separated_task_list(home, tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_refined_skill_must_beat_its_start_at_a_p_value_above_zero(home):
+    result = runner.invoke(app, ["skills", "pretrain", "--refine", "--replace-p", "0"])
+    assert result.exit_code == 2 and "must be above 0" in result.output
+
+
 def test_refining_reports_the_runs_own_budget_and_keeps_a_skill_it_does_not_beat(home, tmp_path):
     # The shipped reach succeeds in every held-out episode: nothing can beat it.
     library = tmp_path / "library"
@@ -104,5 +109,6 @@ def test_refining_reports_the_runs_own_budget_and_keeps_a_skill_it_does_not_beat
     output = " ".join(result.output.split())  # the console wraps long lines
     shipped = 100_352  # the shipped skill's budget, in the manifest
     assert f"after 1,024 env-steps more ({shipped + 1024:,} in all)" in output
-    assert "no better than the library's skill on the same episodes (100.0%), not replaced" in output
+    same = "the library's skill on the same episodes (100.0%; 0 won, 0 lost, p = 1)"
+    assert f"not clearly better than {same}, not replaced" in output
     assert not (library / "reach_nut_m12").exists()

@@ -183,7 +183,11 @@ def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_bett
 
     def measure(spec, policy_dir, config):  # stubbed: the test is about the bookkeeping
         key = "refined_from" if Path(policy_dir).name == "refined_from" else "success"
-        return SimpleNamespace(success_rate=measured[key], ci_low=0.0, ci_high=1.0)
+        # 100 paired episodes, the easiest first: the better policy wins every one they differ on.
+        outcomes = [i < round(measured[key] * 100) for i in range(100)]
+        return SimpleNamespace(
+            success_rate=measured[key], ci_low=0.0, ci_high=1.0, outcomes=outcomes
+        )
 
     monkeypatch.setattr("itskill.skills.pretrain.measure_skill", measure)
     config = PretrainConfig(
@@ -201,6 +205,12 @@ def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_bett
     assert _pretrain_reports(refine, tmp_path / "refine_a", library) == [ANY]
     assert skill_file.read_bytes() == original
     assert read_manifest(library) == [first]
+    # Two more episodes of 100 is a higher rate but no evidence: a coin wins both one time in four.
+    measured["success"] = 0.72
+    (lucky,) = _pretrain_reports(refine, tmp_path / "refine_c", library)
+    origin = lucky.extra[REFINED_KEY]
+    assert (origin["episodes_won"], origin["episodes_lost"], origin["p"]) == (2, 0, 0.25)
+    assert skill_file.read_bytes() == original
 
     measured["success"] = 0.8
     (refined,) = pretrain(["reach_nut_m12"], refine, tmp_path / "refine_b", library, workers=1)
@@ -215,6 +225,8 @@ def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_bett
     assert refined.steps == first.steps + _steps(run)
     origin = refined.extra[REFINED_KEY]
     assert (origin["steps"], origin["success"]) == (first.steps, 0.7)
+    assert (origin["episodes_won"], origin["episodes_lost"]) == (10, 0)
+    assert origin["p"] == pytest.approx(0.5**10)
     assert origin["critic_env_steps"] >= 8 * 50
     assert read_manifest(library) == [refined]
     # A rerun starts from the same copy, not from the library's new skill, and trains no further.

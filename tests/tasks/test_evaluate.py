@@ -54,3 +54,27 @@ def test_an_episode_that_stops_half_way_counts_the_stages_it_finished():
     approach, grasp, lift = half.stage_steps
     assert approach > 0 and grasp > 0 and lift > approach + grasp
     assert sum(half.stage_steps) == spec.max_steps == half.mean_length
+
+
+class ScriptedInFirstEnv:
+    """The scripted controller in environment 0, a still hand in every other."""
+
+    def __init__(self, spec, num_envs: int) -> None:
+        self.script = ScriptedPolicy(spec, num_envs)
+
+    def reset(self, env_ids=None) -> None:
+        self.script.reset(env_ids)
+
+    def __call__(self, ctx):
+        actions = self.script(ctx)
+        actions[1:] = [0.0, 0.0, 0.0, 0.0, -1.0]
+        return actions
+
+
+def test_outcomes_list_each_environments_episodes_in_turn():
+    # 5 episodes on 2 environments: the first runs 3, the second 2, in that order in outcomes,
+    # so two policies measured alike line up episode by episode.
+    spec = get_task("reach_nut_m12")
+    result = evaluate(spec, ScriptedInFirstEnv, episodes=5, num_envs=2)
+    assert result.outcomes == [True, True, True, False, False]
+    assert result.successes == 3 and result.success_rate == 0.6

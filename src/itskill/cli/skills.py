@@ -284,9 +284,19 @@ def skills_pretrain(
         typer.Option(
             "--refine",
             help="Train each skill on from the library's own (default --steps 100,000); the "
-            "result replaces it only if it succeeds more often.",
+            "result replaces it only if it succeeds significantly more often on the same "
+            "held-out episodes (--replace-p).",
         ),
     ] = False,
+    replace_p: Annotated[
+        float | None,
+        typer.Option(
+            max=1.0,
+            help="With --refine: the one-sided p-value (exact McNemar test over the paired "
+            "held-out episodes) a refined skill must be below to replace the library's "
+            "(default: 0.05; 1 replaces on any higher success).",
+        ),
+    ] = None,
 ) -> None:
     """Train skills from scratch with expert rewards (or, with --refine, on from the library's
     or the shipped skill), evaluate each, add them to the skill space.
@@ -305,6 +315,8 @@ def skills_pretrain(
         pretrain,
     )
 
+    if replace_p is not None and replace_p <= 0.0:
+        raise typer.BadParameter("must be above 0", param_hint="'--replace-p'")
     default_steps = REFINE_STEPS if refine else PretrainConfig.steps
     config = PretrainConfig(
         algo=algo,
@@ -315,6 +327,7 @@ def skills_pretrain(
         eval_episodes=PretrainConfig.eval_episodes if episodes is None else episodes,
         min_success=min_success,
         eval_every=eval_every,
+        replace_p=PretrainConfig.replace_p if replace_p is None else replace_p,
     )
 
     def report(task: str, entry, added: bool, error) -> None:
@@ -329,8 +342,9 @@ def skills_pretrain(
                 learned = " - not learned, not added"
             else:
                 learned = (
-                    f" - no better than the library's skill on the same episodes "
-                    f"({origin['success']:.1%}), not replaced"
+                    f" - not clearly better than the library's skill on the same episodes "
+                    f"({origin['success']:.1%}; {origin['episodes_won']} won, "
+                    f"{origin['episodes_lost']} lost, p = {origin['p']:.2g}), not replaced"
                 )
             # A refined skill's budget counts both rounds; this run's share is what it cost now.
             steps, wall_s = entry.steps, entry.wall_s

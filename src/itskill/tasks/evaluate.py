@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 import zipfile
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -161,6 +161,10 @@ class EvalResult:
     stage_steps: list[float]
     """Steps an episode spent in each stage, averaged: where a policy loses its time. The last
     stage also counts the steps after it is done (a task's stage index stops at its last)."""
+    outcomes: list[bool] = field(default_factory=list)
+    """Each counted episode's success, environment by environment and each environment's
+    episodes in turn: the same episode sits at the same index whatever the policy, so two
+    policies measured with the same ``seed`` and ``num_envs`` can be compared episode by episode."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -190,6 +194,7 @@ def evaluate(
         raise ValueError(f"episodes must be positive, got {episodes}")
     num_envs = max(1, min(num_envs, episodes))
     quotas = episode_quotas(episodes, num_envs)
+    first_index = np.cumsum(quotas) - quotas  # where each environment's episodes go in outcomes
     start = time.perf_counter()
     env = make_batch_env(spec, num_envs=num_envs, seed=seed)
     try:
@@ -200,7 +205,8 @@ def evaluate(
         running_return = np.zeros(num_envs)
         running_length = np.zeros(num_envs, dtype=np.int64)
         running_stage_steps = np.zeros((num_envs, len(spec.stages)))
-        successes, returns, lengths, stages, stage_steps = 0, [], [], [], []
+        outcomes = np.zeros(episodes, dtype=bool)
+        returns, lengths, stages, stage_steps = [], [], [], []
         while (done_count < quotas).any():
             ctx = env.context()
             running_stage_steps[np.arange(num_envs), ctx["stage"]] += 1
@@ -209,7 +215,7 @@ def evaluate(
             running_length += 1
             for e in np.flatnonzero(dones):
                 if done_count[e] < quotas[e]:
-                    successes += bool(infos[e]["is_success"])
+                    outcomes[first_index[e] + done_count[e]] = bool(infos[e]["is_success"])
                     stages.append(infos[e]["stages_done"])
                     returns.append(running_return[e])
                     lengths.append(running_length[e])
@@ -222,6 +228,7 @@ def evaluate(
                 actor.reset(np.flatnonzero(dones))
     finally:
         env.close()
+    successes = int(outcomes.sum())
     low, high = wilson_interval(successes, episodes)
     return EvalResult(
         task=spec.id,
@@ -237,4 +244,5 @@ def evaluate(
         mean_stages_done=float(np.mean(stages)),
         n_stages=len(spec.stages),
         stage_steps=[float(x) for x in np.mean(stage_steps, axis=0)],
+        outcomes=outcomes.tolist(),
     )
