@@ -56,14 +56,8 @@ def test_an_episode_that_stops_half_way_counts_the_stages_it_finished():
     assert sum(half.stage_steps) == spec.max_steps == half.mean_length
 
 
-class ScriptedInFirstEnv:
+class ScriptedInFirstEnv(GraspThenHold):
     """The scripted controller in environment 0, a still hand in every other."""
-
-    def __init__(self, spec, num_envs: int) -> None:
-        self.script = ScriptedPolicy(spec, num_envs)
-
-    def reset(self, env_ids=None) -> None:
-        self.script.reset(env_ids)
 
     def __call__(self, ctx):
         actions = self.script(ctx)
