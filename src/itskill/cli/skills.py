@@ -315,20 +315,21 @@ def skills_pretrain(
         pretrain,
     )
 
-    if replace_p is not None and replace_p <= 0.0:
-        raise typer.BadParameter("must be above 0", param_hint="'--replace-p'")
     default_steps = REFINE_STEPS if refine else PretrainConfig.steps
-    config = PretrainConfig(
-        algo=algo,
-        steps=default_steps if steps is None else steps,
-        refine=refine,
-        seed=seed,
-        seeds=seeds,
-        eval_episodes=PretrainConfig.eval_episodes if episodes is None else episodes,
-        min_success=min_success,
-        eval_every=eval_every,
-        replace_p=PretrainConfig.replace_p if replace_p is None else replace_p,
-    )
+    try:
+        config = PretrainConfig(
+            algo=algo,
+            steps=default_steps if steps is None else steps,
+            refine=refine,
+            seed=seed,
+            seeds=seeds,
+            eval_episodes=PretrainConfig.eval_episodes if episodes is None else episodes,
+            min_success=min_success,
+            eval_every=eval_every,
+            replace_p=PretrainConfig.replace_p if replace_p is None else replace_p,
+        )
+    except ValueError as err:  # the config validates what the options' ranges cannot say
+        raise typer.BadParameter(str(err)) from err
 
     def report(task: str, entry, added: bool, error) -> None:
         if error is not None:

@@ -101,7 +101,7 @@ class PretrainConfig:
         if self.seeds < 1:
             raise ValueError(f"seeds must be at least 1, got {self.seeds}")
         if not 0.0 < self.replace_p <= 1.0:
-            raise ValueError(f"replace_p must be in (0, 1], got {self.replace_p}")
+            raise ValueError(f"replace_p must be above 0 and at most 1, got {self.replace_p}")
 
 
 def measure_skill(spec: TaskSpec, policy_dir: Path, config: PretrainConfig) -> EvalResult:
