@@ -47,6 +47,16 @@ def test_tasks_show_json_is_complete():
     assert data["max_steps"] > 0 and data["stages"] and data["script"]
 
 
+def test_tasks_show_json_reports_holds_and_written_out_training_starts():
+    result = runner.invoke(app, ["tasks", "show", "place_nut_m12", "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    assert data["init"]["objects"][0]["hold"] == pytest.approx([-0.011, 0.003])
+    (start,) = data["training_starts"]
+    assert "task" not in start and start["share"] == pytest.approx(0.3)
+    assert start["init"]["objects"][0]["hold"] == pytest.approx([-0.011, -0.008])
+
+
 def test_tasks_show_table():
     result = runner.invoke(app, ["tasks", "show", "pick_nut_m12"])
     assert result.exit_code == 0

@@ -17,18 +17,13 @@ from itskill.cli.common import (
     user_errors,
 )
 from itskill.tasks import all_tasks, get_task
-from itskill.tasks.spec import TaskSpec
+from itskill.tasks.spec import TaskSpec, init_table
 
 tasks_app = typer.Typer(no_args_is_help=True, help="The task suite: list tasks, show one.")
 
 
-def _range(r) -> list[float]:
-    return [r.low, r.high]
-
-
 def task_dict(spec: TaskSpec) -> dict[str, Any]:
     """Everything a task file says about ``spec``, as JSON-ready data."""
-    init = spec.init
     return {
         "id": spec.id,
         "family": spec.family,
@@ -43,28 +38,16 @@ def task_dict(spec: TaskSpec) -> dict[str, Any]:
             {"part": asdict(f.part), "xy": list(f.xy), "yaw": f.yaw} for f in spec.fixtures
         ],
         "object_fixture": list(spec.object_fixture),
-        "init": {
-            "ee": {
-                "x": _range(init.ee_x),
-                "y": _range(init.ee_y),
-                "z": _range(init.ee_z),
-                "yaw": _range(init.ee_yaw),
-            },
-            "objects": [
-                {
-                    "mode": o.mode,
-                    "fixture": o.fixture,
-                    **{k: _range(getattr(o, k)) for k in ("x", "y", "z", "yaw", "turns", "depth")},
-                }
-                for o in init.objects
-            ],
-        },
+        "init": init_table(spec.init),
         "stages": [{"name": s.name, "done": s.done.source} for s in spec.stages],
         "success": spec.success.source,
         "max_steps": spec.max_steps,
         "terminate_on_success": spec.terminate_on_success,
         "script": list(spec.script),
-        "training_starts": [{"task": t.name, "share": t.share} for t in spec.training_starts],
+        "training_starts": [
+            {"share": t.share} | ({"task": t.name} if t.name else {"init": init_table(t.init)})
+            for t in spec.training_starts
+        ],
         "tags": list(spec.tags),
         "source": spec.source,
     }
@@ -140,7 +123,12 @@ def tasks_show(task: TaskArg, as_json: JsonOpt = False) -> None:
     kv.add_row("episode length", f"{data['max_steps']} steps")
     kv.add_row("script", "; ".join(data["script"]) or "(none)")
     if data["training_starts"]:
-        starts = [f"{t['share']:.0%} from {t['task']}'s start" for t in data["training_starts"]]
+        starts = [
+            f"{t['share']:.0%} from {t['task']}'s start"
+            if "task" in t
+            else f"{t['share']:.0%} from {json.dumps(t['init'])}"
+            for t in data["training_starts"]
+        ]
         kv.add_row("training starts", "; ".join(starts))
     kv.add_row("file", data["source"])
     console.print(kv)

@@ -388,7 +388,7 @@ def _parse_init(
     )
 
 
-def _init_table(init: InitSpec) -> dict[str, Any]:
+def init_table(init: InitSpec) -> dict[str, Any]:
     """``init`` as the table a task file writes for it (the inverse of :func:`_parse_init`)."""
 
     def span(r: Range) -> list[float]:
@@ -422,7 +422,7 @@ def load_starts(path: str | Path, spec: TaskSpec) -> list[tuple[str, TaskSpec]]:
     raw_starts = data.get("start", [])
     if not isinstance(raw_starts, list) or not raw_starts:
         raise TaskFileError(path, "start", "expected one or more [[start]] tables")
-    own = _init_table(spec.init)
+    own = init_table(spec.init)
     starts = []
     for k, raw in enumerate(raw_starts):
         r = _Reader(path, f"start[{k}]", raw)
