@@ -35,8 +35,9 @@ MANIFEST_FORMAT = 1
 
 REFINED_KEY = "refined_from"
 """Entry field of a skill trained on from an earlier one (``itskill skills pretrain --refine``):
-that skill's env-steps, wall seconds, seed and held-out success, and the env-steps the critic
-warm-up took. The entry's own budget counts both rounds."""
+that skill's env-steps and wall seconds (counting any round before it), seed and held-out
+success, the env-steps the critic warm-up took and, since the paired test, the held-out episodes
+each won and the test's p-value. The entry's own budget counts both rounds."""
 
 
 class ManifestError(SkillSpaceError):

@@ -20,7 +20,8 @@ With ``refine``, each run starts from the library's own skill of that name inste
 weights (:mod:`itskill.rl.init_policy`): a further round for a skill below its target. The refined
 policy replaces the skill only if, on the same held-out episodes, it succeeds in significantly
 more of them than the skill does (``replace_p``), and its manifest entry counts both rounds'
-budgets (``refined_from`` keeps the first's, and the paired comparison).
+budgets (``refined_from`` records the skill it started from, whose budget already counts any
+round before it, and the paired comparison).
 """
 
 from __future__ import annotations
