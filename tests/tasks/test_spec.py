@@ -145,12 +145,28 @@ def test_a_training_start_can_be_written_out_in_the_task(monkeypatch, tmp_path):
     assert grasp.init == tasks["grasp_nut_m12"].init
 
 
+def test_a_written_out_training_start_keeps_what_it_leaves_out_from_the_tasks_start(
+    monkeypatch, tmp_path
+):
+    starts = "[{ share = 0.3, init = { objects = [{ y = [-0.1, -0.09] }] } }]"
+    task = _user_registry(monkeypatch, tmp_path, starts)["my_pick"]
+    (start,) = task.training_starts
+    own, changed = task.init.objects[0], start.init.objects[0]
+    assert (changed.y.low, changed.y.high) == (-0.1, -0.09)
+    assert (changed.mode, changed.x, changed.yaw) == (own.mode, own.x, own.yaw)
+    assert (start.init.ee_x, start.init.ee_y, start.init.ee_z) == (
+        task.init.ee_x,
+        task.init.ee_y,
+        task.init.ee_z,
+    )
+
+
 @pytest.mark.parametrize(
     ("starts", "problem"),
     [
         ("[{ share = 0.2 }]", "either task"),
         ('[{ task = "lift_nut_m12", init = { objects = [] }, share = 0.2 }]', "either task"),
-        ("[{ share = 0.2, init = { objects = [] } }]", "expected 1 entries"),
+        ("[{ share = 0.2, init = { objects = [{}, {}] } }]", "the task has 1 object(s)"),
         ('[{ task = "lift_nut_m99", share = 0.2 }]', "unknown task 'lift_nut_m99'"),
         ('[{ task = "lift_nut_m16", share = 0.2 }]', "other parts or fixtures"),
         (

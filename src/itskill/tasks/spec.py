@@ -275,8 +275,9 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         if ("task" in raw_start) == ("init" in raw_start):
             raise TaskFileError(path, sr.where, "expected either task (a task's start) or init")
         if "init" in raw_start:
+            # Like a starts file's start: what the table leaves out keeps the task's own start.
             start_init = _parse_init(
-                _Reader(path, sr.where + ".init", sr.get("init", dict)),
+                _changed_init(path, sr.where + ".init", init_table(init), sr.get("init", dict)),
                 objects,
                 tuple(fixtures),
                 object_fixture,
@@ -428,27 +429,36 @@ def load_starts(path: str | Path, spec: TaskSpec) -> list[tuple[str, TaskSpec]]:
         r = _Reader(path, f"start[{k}]", raw)
         r.check_keys({"name", "ee", "objects"})
         name = r.get("name", str)
-        ee = own["ee"] | _Reader(path, f"start {name!r}.ee", r.get("ee", dict, {})).table
-        changes = r.get("objects", list, [])
-        if len(changes) > len(own["objects"]):
-            raise TaskFileError(
-                path, f"start {name!r}.objects", f"the task has {len(own['objects'])} object(s)"
-            )
-        padded = [*changes, *[{}] * (len(own["objects"]) - len(changes))]
-        objects = []
-        for i, (base, raw_change) in enumerate(zip(own["objects"], padded, strict=True)):
-            change = _Reader(path, f"start {name!r}.objects[{i}]", raw_change).table
-            if "mode" in change and change["mode"] != base["mode"]:
-                base = {"mode": change["mode"]}  # another mode: nothing of the old start applies
-            objects.append(base | change)
+        changes = {key: raw[key] for key in ("ee", "objects") if key in raw}
         init = _parse_init(
-            _Reader(path, f"start {name!r}", {"ee": ee, "objects": objects}),
+            _changed_init(path, f"start {name!r}", own, changes),
             spec.objects,
             spec.fixtures,
             spec.object_fixture,
         )
         starts.append((name, replace(spec, init=init)))
     return starts
+
+
+def _changed_init(path: Path, where: str, own: dict[str, Any], changes: Any) -> _Reader:
+    """The init table ``own`` (:func:`init_table`) with ``changes`` applied: the ``ee`` fields
+    and, per object, the fields that ``changes`` names; the rest keeps ``own``'s values."""
+    r = _Reader(path, where, changes)
+    r.check_keys({"ee", "objects"})
+    ee = own["ee"] | _Reader(path, f"{where}.ee", r.get("ee", dict, {})).table
+    object_changes = r.get("objects", list, [])
+    if len(object_changes) > len(own["objects"]):
+        raise TaskFileError(
+            path, f"{where}.objects", f"the task has {len(own['objects'])} object(s)"
+        )
+    padded = [*object_changes, *[{}] * (len(own["objects"]) - len(object_changes))]
+    objects = []
+    for i, (base, raw_change) in enumerate(zip(own["objects"], padded, strict=True)):
+        change = _Reader(path, f"{where}.objects[{i}]", raw_change).table
+        if "mode" in change and change["mode"] != base["mode"]:
+            base = {"mode": change["mode"]}  # another mode: nothing of the old start applies
+        objects.append(base | change)
+    return _Reader(path, where, {"ee": ee, "objects": objects})
 
 
 def load_task_file(path: Path, parts: dict[str, Any]) -> list[TaskSpec]:
