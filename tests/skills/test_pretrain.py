@@ -29,7 +29,13 @@ from itskill.skills.store import SHIPPED_LIBRARY
 def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
     config = PretrainConfig(
-        steps=1024, num_envs=8, eval_episodes=6, min_success=0.0, eval_every=512, seeds=1
+        steps=1024,
+        num_envs=8,
+        eval_episodes=6,
+        min_success=0.0,
+        eval_every=512,
+        select_episodes=5,
+        seeds=1,
     )
     runs, library = tmp_path / "runs", tmp_path / "library"
     seen = []
@@ -53,7 +59,8 @@ def test_pretrain_registers_a_measured_skill_and_resumes(tmp_path, monkeypatch) 
     # What was exported is the policy the run kept as its best evaluated one.
     exported = (library / "reach_nut_m12" / "checkpoint.json").read_text()
     assert exported == (runs / "reach_nut_m12" / "seed0" / "best" / "checkpoint.json").read_text()
-    assert json.loads(exported)["selection"]["env_steps"] in (512, 1024)
+    selection = json.loads(exported)["selection"]
+    assert selection["env_steps"] in (512, 1024) and selection["episodes"] == 5
     assert [e.name for e in read_manifest(library)] == ["reach_nut_m12"]
 
     # A rerun with the same budget finds the finished checkpoint and trains no further.
@@ -146,9 +153,11 @@ def _pretrain_reports(config, runs, library, space=None) -> list:
     return [entry for entry, _ in reported]
 
 
-def test_pretrain_config_refuses_no_seeds() -> None:
+def test_pretrain_config_refuses_no_seeds_and_no_selection_episodes() -> None:
     with pytest.raises(ValueError, match="seeds"):
         PretrainConfig(seeds=0)
+    with pytest.raises(ValueError, match="select_episodes"):
+        PretrainConfig(select_episodes=0)
 
 
 def test_a_warm_started_skill_records_the_demonstrations_env_steps(tmp_path, monkeypatch) -> None:

@@ -267,6 +267,14 @@ def skills_pretrain(
             "(0: the last one).",
         ),
     ] = 50_000,
+    select_episodes: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Episodes of each evaluation during training, which chooses the policy "
+            "exported (default: 50).",
+        ),
+    ] = None,
     min_success: Annotated[
         float, typer.Option(help="Success a skill needs to be added to the library.")
     ] = 0.5,
@@ -326,6 +334,9 @@ def skills_pretrain(
             eval_episodes=PretrainConfig.eval_episodes if episodes is None else episodes,
             min_success=min_success,
             eval_every=eval_every,
+            select_episodes=(
+                PretrainConfig.select_episodes if select_episodes is None else select_episodes
+            ),
             replace_p=PretrainConfig.replace_p if replace_p is None else replace_p,
         )
     except ValueError as err:  # the config validates what the options' ranges cannot say

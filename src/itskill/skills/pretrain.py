@@ -86,6 +86,10 @@ class PretrainConfig:
     eval_every: int = 50_000
     """Evaluate during training every so many env-steps (over the trainer's own episodes, not the
     held-out ones) and export the best of those policies; 0 exports the last checkpoint."""
+    select_episodes: int = 50
+    """Episodes of each evaluation during training (``eval_every``), the one that chooses the
+    policy exported. Over 50 episodes a 92% policy scores anywhere from 84% to 98%, so a refining
+    run, whose checkpoints differ by a few points, is better chosen over a few hundred."""
     min_success: float = 0.5
     """A policy below this deterministic success is reported but not exported or registered:
     it has not learned the skill, and would only mislead retrieval and transfer."""
@@ -101,6 +105,8 @@ class PretrainConfig:
     def __post_init__(self) -> None:
         if self.seeds < 1:
             raise ValueError(f"seeds must be at least 1, got {self.seeds}")
+        if self.select_episodes < 1:
+            raise ValueError(f"select_episodes must be at least 1, got {self.select_episodes}")
         if not 0.0 < self.replace_p <= 1.0:
             raise ValueError(f"replace_p must be above 0 and at most 1, got {self.replace_p}")
 
@@ -195,6 +201,7 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
             num_envs=config.num_envs,
             n_threads=1,
             eval_every=config.eval_every or None,
+            eval_episodes=config.select_episodes,
             init=init,
         )
         # A run can lose a level it reached; the figure recorded is still the held-out one.
