@@ -267,12 +267,12 @@ def skills_pretrain(
             "(0: the last one).",
         ),
     ] = 50_000,
-    select_episodes: Annotated[
+    eval_episodes: Annotated[
         int | None,
         typer.Option(
             min=1,
-            help="Episodes of each evaluation during training, which chooses the policy "
-            "exported (default: 50).",
+            help="Episodes of each evaluation during training (--eval-every), which chooses "
+            "the policy exported (default: 50).",
         ),
     ] = None,
     min_success: Annotated[
@@ -335,7 +335,7 @@ def skills_pretrain(
             min_success=min_success,
             eval_every=eval_every,
             select_episodes=(
-                PretrainConfig.select_episodes if select_episodes is None else select_episodes
+                PretrainConfig.select_episodes if eval_episodes is None else eval_episodes
             ),
             replace_p=PretrainConfig.replace_p if replace_p is None else replace_p,
         )
