@@ -110,6 +110,20 @@ def test_eval_corrupt_checkpoint_is_a_clear_error(tmp_path):
     assert str(corrupt) in flat(result.output)
 
 
+def test_eval_takes_a_skill_of_the_skill_space_by_name(tmp_path, monkeypatch):
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    args = ["eval", "reach_nut_m12", "--policy", "skill:reach_nut_m12", "--episodes", "4"]
+    result = runner.invoke(app, [*args, "--num-envs", "4", "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    assert data["episodes"] == 4 and data["successes"] >= 3  # shipped at 99.8%
+    assert "reach_nut_m12" in data["policy"]
+    unknown = runner.invoke(app, ["eval", "reach_nut_m12", "--policy", "skill:reach_nut_m13"])
+    assert unknown.exit_code == 2
+    text = flat(unknown.output)
+    assert "unknown skill 'reach_nut_m13'" in text and "reach_nut_m12" in text
+
+
 def test_eval_scripted_json():
     args = ["eval", "reach_nut_m12", "--episodes", "3", "--num-envs", "2", "--json"]
     result = runner.invoke(app, args)

@@ -30,8 +30,9 @@ TaskArg = Annotated[str, typer.Argument(help="Task id (see `itskill tasks list`)
 PolicyOpt = Annotated[
     str,
     typer.Option(
-        help="'scripted', a training run directory (itskill train --out; its last checkpoint, "
-        "RUN/best for its best evaluated policy) or an SB3 .zip."
+        help="'scripted', 'skill:NAME' (a skill of the skill space), a training run directory "
+        "(itskill train --out; its last checkpoint, RUN/best for its best evaluated policy) "
+        "or an SB3 .zip."
     ),
 ]
 
@@ -91,8 +92,22 @@ def print_json(data: Any) -> None:
     typer.echo(json.dumps(data, indent=2))
 
 
+SKILL_PREFIX = "skill:"
+
+
 def policy_ref(policy: str) -> Any:
-    """A training run directory becomes its checkpoint's policy; other references pass through."""
+    """``skill:NAME`` (a skill of the skill space) or a training run directory becomes its
+    checkpoint's policy; other references pass through."""
     from itskill.rl.checkpoint import as_policy
 
+    if policy.startswith(SKILL_PREFIX):
+        from itskill.skills import open_skill_space
+        from itskill.skills.store import SkillSpaceError
+
+        try:
+            with open_skill_space() as space:
+                policy_file = space.checkpoint_path(space.get(policy[len(SKILL_PREFIX) :]))
+        except SkillSpaceError as err:
+            raise CheckpointError(policy, str(err)) from err
+        return as_policy(policy_file.parent)
     return as_policy(policy)
