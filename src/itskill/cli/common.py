@@ -98,7 +98,7 @@ SKILL_PREFIX = "skill:"
 def policy_ref(policy: str) -> Any:
     """``skill:NAME`` (a skill of the skill space) or a training run directory becomes its
     checkpoint's policy; other references pass through."""
-    from itskill.rl.checkpoint import as_policy
+    from itskill.rl.checkpoint import as_policy, policy_location
 
     if policy.startswith(SKILL_PREFIX):
         from itskill.skills import open_skill_space
@@ -109,5 +109,5 @@ def policy_ref(policy: str) -> Any:
                 policy_file = space.checkpoint_path(space.get(policy[len(SKILL_PREFIX) :]))
         except SkillSpaceError as err:
             raise CheckpointError(policy, str(err)) from err
-        return as_policy(policy_file.parent)
+        return as_policy(policy_location(policy_file))
     return as_policy(policy)

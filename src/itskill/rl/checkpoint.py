@@ -156,6 +156,14 @@ def read_meta(run_dir: str | Path) -> dict[str, Any]:
     return meta
 
 
+def policy_location(checkpoint_file: str | Path) -> Path:
+    """Where the policy in ``checkpoint_file`` loads from: a weights file (``.safetensors``) from
+    its directory, which holds its metadata; any other file (a Stable-Baselines3 ``.zip``) as it
+    is."""
+    path = Path(checkpoint_file)
+    return path.parent if path.suffix == ".safetensors" else path
+
+
 def best_policy_dir(run_dir: str | Path) -> Path:
     """The directory of the policy to use from a training run: its best evaluated policy
     (``run_dir/best``) if the run was evaluated while it trained, else its last checkpoint.

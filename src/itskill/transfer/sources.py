@@ -22,7 +22,13 @@ from typing import Any
 
 from stable_baselines3.common.policies import ActorCriticPolicy
 
-from itskill.rl.checkpoint import POLICY_FILE, STAGED_POLICY_CLASS, load_policy, read_meta
+from itskill.rl.checkpoint import (
+    POLICY_FILE,
+    STAGED_POLICY_CLASS,
+    load_policy,
+    policy_location,
+    read_meta,
+)
 from itskill.sim.vec_env import action_space
 from itskill.skills import SkillSpace, SkillSpaceError, open_skill_space, search
 from itskill.skills.store import Skill
@@ -89,8 +95,7 @@ def weights_sha256(run_dir: Path) -> str:
 
 
 def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSkill:
-    path = space.checkpoint_path(skill)
-    run_dir = path.parent if path.suffix == ".safetensors" else path
+    run_dir = policy_location(space.checkpoint_path(skill))
     try:
         meta = read_meta(run_dir)
     except CheckpointError as err:
