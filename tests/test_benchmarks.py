@@ -4,6 +4,7 @@ would otherwise only show when someone next measures something."""
 from __future__ import annotations
 
 import importlib.util
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -39,3 +40,15 @@ def test_pull_jam_tells_a_straight_pull_from_a_sideways_drag() -> None:
     assert straight["pulling"] == 1.0 and dragged["pulling"] == 1.0
     assert straight["out_held"] == 1.0 and straight["lost_in_hole"] == 0.0
     assert dragged["out_held"] == 0.0 and dragged["lost_in_hole"] == 1.0
+
+
+def test_paired_policies_finds_no_difference_between_a_policy_and_itself(tmp_path, capsys) -> None:
+    from itskill.skills import SHIPPED_LIBRARY
+
+    skill = SHIPPED_LIBRARY / "reach_nut_m12"
+    out = tmp_path / "paired.json"
+    args = ["reach_nut_m12", str(skill), str(skill), "--episodes", "4", "--json", str(out)]
+    assert _load("paired_policies").main(args) == 0
+    assert "won 0 episodes and lost 0" in capsys.readouterr().out
+    result = json.loads(out.read_text())
+    assert result["before"]["success"] == result["after"]["success"] and result["p"] == 1.0
