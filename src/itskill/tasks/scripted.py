@@ -396,12 +396,14 @@ def _push(part: _Part, dx: float, dy: float) -> list[Phase]:
         fix = ctx["obj_fixture"][rows, part.index].astype(int)
         return ctx["fix_pos"][rows, fix, :2] + np.array([dx, dy])
 
-    def direction(ctx, rows):
-        d = target(ctx, rows) - ctx["obj_pos"][rows, part.index, :2]
-        return d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-6)
+    def toward(ctx, rows):
+        """Unit direction from the part to its target (n, 2) and the distance left (n, 1)."""
+        gap = target(ctx, rows) - ctx["obj_pos"][rows, part.index, :2]
+        distance = np.linalg.norm(gap, axis=-1, keepdims=True)
+        return gap / np.maximum(distance, 1e-6), distance
 
     def behind(ctx, rows, st, z):
-        d = direction(ctx, rows)
+        d, _ = toward(ctx, rows)
         pos = np.empty((len(rows), 3))
         pos[:, :2] = ctx["obj_pos"][rows, part.index, :2] - d * standoff
         pos[:, 2] = z
@@ -419,11 +421,9 @@ def _push(part: _Part, dx: float, dy: float) -> list[Phase]:
     def shove(ctx, rows, st):
         # Advance towards the target while sliding sideways to stay behind the part: aimed at the
         # target instead, the hand lets the part drift off the line it is pushed along (76%).
-        d = direction(ctx, rows)
-        part_xy = ctx["obj_pos"][rows, part.index, :2]
+        d, remaining = toward(ctx, rows)
         hand = ctx["ee_pos"][rows, :2]
-        remaining = np.linalg.norm(target(ctx, rows) - part_xy, axis=-1, keepdims=True)
-        off = part_xy - d * standoff - hand
+        off = ctx["obj_pos"][rows, part.index, :2] - d * standoff - hand
         sideways = off - (off * d).sum(-1, keepdims=True) * d
         pos = np.empty((len(rows), 3))
         pos[:, :2] = hand + d * np.minimum(remaining, PUSH_LEAD) + sideways
@@ -433,9 +433,10 @@ def _push(part: _Part, dx: float, dy: float) -> list[Phase]:
     def arrived(ctx, rows, st):
         # Stop a little short along the line the push began on: the part slides on about a
         # centimetre after the hand stops, and near the target the direction to it swings about.
-        line = target(ctx, rows) - st.anchor[rows, :2]
+        goal = target(ctx, rows)
+        line = goal - st.anchor[rows, :2]
         line /= np.maximum(np.linalg.norm(line, axis=-1, keepdims=True), 1e-6)
-        short = ((target(ctx, rows) - ctx["obj_pos"][rows, part.index, :2]) * line).sum(-1)
+        short = ((goal - ctx["obj_pos"][rows, part.index, :2]) * line).sum(-1)
         return short < PUSH_STOP
 
     return [
