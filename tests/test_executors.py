@@ -89,3 +89,49 @@ def test_local_workers_end_when_the_parent_is_killed(tmp_path) -> None:
             if m.exists() and m.read_text():
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(int(m.read_text()), signal.SIGKILL)
+
+
+INTERRUPT_SCRIPT = """
+import os, sys, time
+from itskill.executors import run_jobs
+
+def work(directory, i):
+    with open(os.path.join(directory, f"{i}.started"), "w") as fh:
+        fh.write(str(os.getpid()))
+    try:
+        time.sleep(120)
+    except KeyboardInterrupt:
+        time.sleep(1.0)  # a trainer saving its checkpoint; a second Ctrl-C must not cut it short
+        open(os.path.join(directory, f"{i}.saved"), "w").close()
+        raise
+
+if __name__ == "__main__":
+    try:
+        list(run_jobs(work, [(sys.argv[1], i) for i in range(6)], "local", 2))
+    except KeyboardInterrupt:
+        sys.exit(130)
+"""
+
+
+@pytest.mark.parametrize("target", ["process group", "parent only"])
+def test_ctrl_c_stops_the_jobs_in_flight_and_starts_no_more(tmp_path, target: str) -> None:
+    # A terminal's Ctrl-C reaches the parent and its workers; `kill -INT` the parent alone.
+    script = tmp_path / "parent.py"
+    script.write_text(INTERRUPT_SCRIPT)
+    parent = subprocess.Popen([sys.executable, str(script), str(tmp_path)], start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(tmp_path.glob("*.started"))) < 2:
+            assert time.monotonic() < deadline, "workers did not start"
+            time.sleep(0.1)
+        time.sleep(0.5)
+        if target == "process group":
+            os.killpg(parent.pid, signal.SIGINT)
+        else:
+            parent.send_signal(signal.SIGINT)
+        assert parent.wait(timeout=30) == 130
+        assert len(list(tmp_path.glob("*.started"))) == 2
+        assert len(list(tmp_path.glob("*.saved"))) == 2
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(parent.pid, signal.SIGKILL)

@@ -4,13 +4,16 @@ Pretraining skills, reward candidates and experiment cells are all "call this fu
 arguments, somewhere, and give me the result": :func:`run_jobs` does that and yields each result
 as soon as it is finished, so callers write it to disk at once and a killed run loses only the jobs
 in flight. A job that raises is reported with its exception, not raised, so one failure does not
-take down the others.
+take down the others. Ctrl-C stops the jobs in flight (each gets the ``KeyboardInterrupt``, so a
+trainer saves its checkpoint) and starts none of the queued ones.
 """
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -20,6 +23,9 @@ from typing import Any, Literal
 
 Executor = Literal["local", "ray"]
 EXECUTORS: tuple[str, ...] = ("local", "ray")
+
+
+_interrupted = False
 
 
 class ExecutorError(RuntimeError):
@@ -75,23 +81,67 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
                 yield JobResult(i, error=err)
         return
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(
+    pool = ProcessPoolExecutor(
         max_workers=workers,
         mp_context=context,
-        initializer=_exit_with_parent,
+        initializer=_init_worker,
         initargs=(os.getpid(),),
-    ) as pool:
-        pending: dict[Future, int] = {pool.submit(fn, *args): i for i, args in enumerate(jobs)}
+    )
+    try:
+        pending: dict[Future, int] = {
+            pool.submit(_run_job, fn, *args): i for i, args in enumerate(jobs)
+        }
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
                 index = pending.pop(future)
                 error = future.exception()
                 yield JobResult(index, value=None if error else future.result(), error=error)
+    except BaseException:
+        # Ctrl-C (or a caller that stopped reading): cancel the queue and interrupt the workers,
+        # as a terminal's Ctrl-C would; `kill -INT` reaches this process alone. Without this the
+        # pool's shutdown below would train every queued job before returning.
+        pool.shutdown(wait=False, cancel_futures=True)
+        for child in multiprocessing.active_children():
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(child.pid, signal.SIGINT)
+        raise
+    finally:
+        pool.shutdown(wait=True)
+
+
+def stop_on_first_interrupt() -> None:
+    """Make SIGINT raise ``KeyboardInterrupt`` once in this process and be ignored after that.
+
+    A worker may get Ctrl-C twice (from the terminal, and forwarded by its parent); the second
+    must not cut short the checkpoint the first one made it save. A process started with SIGINT
+    ignored (a background job of a script) keeps ignoring it.
+    """
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, _interrupt_once)
+
+
+def _interrupt_once(signum: int, frame: Any) -> None:
+    global _interrupted
+    if not _interrupted:
+        _interrupted = True
+        raise KeyboardInterrupt
+
+
+def _init_worker(parent: int) -> None:
+    stop_on_first_interrupt()
+    _exit_with_parent(parent)
+
+
+def _run_job(fn: Callable[..., Any], *args: Any) -> Any:
+    if _interrupted:
+        # Handed to this worker after Ctrl-C (a pool queues a job per worker ahead): refused.
+        raise KeyboardInterrupt
+    return fn(*args)
 
 
 def _exit_with_parent(parent: int, poll_s: float = 1.0) -> None:
-    """Worker initializer: end this worker when the process that started it is gone.
+    """End this worker when the process that started it is gone.
 
     A parent killed by SIGTERM or SIGKILL runs no clean-up, and its pool workers would otherwise
     go on training (and holding the cores) with nobody to collect their results.

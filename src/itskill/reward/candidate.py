@@ -22,6 +22,7 @@ A candidate whose reward raises or times out during training, or whose process d
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import signal
@@ -35,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from itskill.executors import stop_on_first_interrupt
 from itskill.files import read_json, write_json
 from itskill.reward.sandbox import SandboxConfig, apply_process_limits, compile_reward
 
@@ -46,8 +48,6 @@ _EVAL_SEED = 20_000
 """Seed of the evaluation episodes (with 25 environments): DeterministicEvalCallback's."""
 _INTERRUPTED = 130
 """Exit code of a candidate process stopped by Ctrl-C (as a shell reports SIGINT)."""
-_interrupted = False
-"""Set in a worker once Ctrl-C has reached it."""
 
 
 @dataclass(frozen=True)
@@ -99,14 +99,9 @@ class CandidateJob:
 
 def run_candidate(job: CandidateJob) -> dict[str, Any]:
     """Train ``job`` in a child process and return its ``result.json`` (written either way)."""
-    global _interrupted
     path = Path(job.out) / RESULT_FILE
     if path.is_file():
         return read_json(path)
-    if _interrupted:
-        # After Ctrl-C a process pool still hands its queued jobs to the workers: refuse them,
-        # so that the run stops now rather than after training them.
-        raise KeyboardInterrupt
     Path(job.out).mkdir(parents=True, exist_ok=True)
     start = time.monotonic()
     parent = os.getppid()
@@ -117,13 +112,15 @@ def run_candidate(job: CandidateJob) -> dict[str, Any]:
     try:
         problem = _supervise(child, job, start, parent)
     except KeyboardInterrupt:
-        _interrupted = True
-        child.join(60.0)  # it got the same Ctrl-C and is saving a checkpoint
+        # A terminal's Ctrl-C has reached the child already, a forwarded one has not; either way
+        # it saves a checkpoint and stops (a second SIGINT is ignored there).
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(child.pid, signal.SIGINT)
+        child.join(60.0)
         if child.is_alive():
             child.kill()
         raise
     if child.exitcode == _INTERRUPTED:
-        _interrupted = True
         raise KeyboardInterrupt
     if not path.is_file():
         problem = problem or _death_cause(child.exitcode, job.sandbox)
@@ -171,6 +168,7 @@ def _watch_parent(parent_pid: int) -> None:
 
 
 def _child_main(job: CandidateJob, parent_pid: int) -> None:
+    stop_on_first_interrupt()
     _watch_parent(parent_pid)
     start = time.monotonic()
     try:
