@@ -123,3 +123,21 @@ def test_cli_reports_a_bad_experiment_file_in_one_line(tmp_path):
     assert "Traceback" not in result.output and not (tmp_path / "r").exists()
     report = CliRunner().invoke(app, ["report", str(tmp_path)])
     assert report.exit_code == 2 and "not an experiment run directory" in report.output
+
+
+def test_cli_reports_an_unreadable_skill_space_and_records_no_run(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "skills.sqlite").write_bytes(b"garbage" * 1000)
+    monkeypatch.setenv("ITSKILL_HOME", str(home))
+    out = tmp_path / "r"
+    args = ["experiment", "run", str(write(tmp_path, MINIMAL)), "--out", str(out)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert "skills.sqlite" in "".join(result.output.split()) and "Traceback" not in result.output
+    # Nothing recorded: the same command runs once the skill space is fixed, without --resume.
+    assert not (out / "config.json").exists()

@@ -149,6 +149,19 @@ def test_report_films_the_best_methods_final_policy(run, tmp_path):
         assert video.stat().st_size > 0 and "<video controls" in html
 
 
+def test_a_run_committed_without_its_policies_still_gets_a_report(run, tmp_path):
+    # results/ keeps curves and results, not checkpoints: the video is left out, with a note.
+    import shutil
+
+    kept = tmp_path / "kept"
+    shutil.copytree(run, kept)
+    for meta in kept.glob("cells/*/*/*/checkpoint.json"):
+        meta.unlink()
+    files = experiment_report(kept, tmp_path / "report")
+    assert "Success at fractions of the budget (Table II)" in files.markdown.read_text()
+    assert any("no video" in n and "checkpoint.json" in n for n in files.notes)
+
+
 def test_runs_recorded_without_subtask_progress_still_get_a_report(run, tmp_path):
     import shutil
 

@@ -123,3 +123,23 @@ def test_resume_refuses_other_training_settings(toy, tmp_path):
     longer = type(config)(**{**small.__dict__, "steps": 512})
     with pytest.raises(ExperimentRunError, match="steps=256"):
         run_experiment(longer, run, "local", 1, resume=True, console=quiet())
+
+
+def test_resume_needs_a_run_and_records_every_sessions_cells(toy, tmp_path):
+    config, _ = toy
+    run = tmp_path / "run"
+    with pytest.raises(ExperimentRunError, match="nothing to resume"):
+        run_experiment(config, run, "local", 1, resume=True, console=quiet())
+    first = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
+    run_experiment(first, run, "local", 1, console=quiet())
+    # A later session adds seed 1 only; its cell failed once in an earlier attempt.
+    second = type(config)(**{**first.__dict__, "seeds": (1,)})
+    failed = Cell("pickplace_nut_m12", "no_transfer", 1).dir(run)
+    failed.mkdir(parents=True)
+    (failed / "error.txt").write_text("LLMError: endpoint unreachable\n")
+    summary = run_experiment(second, run, "local", 1, resume=True, console=quiet())
+    assert [c.seed for c in summary.finished] == [1]
+    assert not (failed / "error.txt").exists()
+    recorded = json.loads((run / "config.json").read_text())
+    assert recorded["seeds"] == [0, 1]  # the report covers both sessions' cells
+    assert len(load_cell_results(run)) == 2

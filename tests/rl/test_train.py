@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import csv
 import importlib
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -107,6 +109,32 @@ def test_the_best_evaluated_policy_is_kept_across_a_resume(
     second = _train(out, reach_reward, 384, eval_every=64, eval_episodes=2)
     assert second.best is not None and second.best["env_steps"] == 384
     assert torch.equal(load_policy(out / "best").action_net.weight, evaluated[5])
+
+
+def test_the_learning_curves_clock_goes_on_across_a_resume_without_the_evaluations(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # Reports read env-steps and wall time to 80% off eval.csv: a resumed run must not restart
+    # its clock (it undercounted the time trained before the interruption).
+    def slow_evaluate(spec, actor, episodes, seed, num_envs):
+        time.sleep(0.5)
+        return EvalResult(
+            spec.id, episodes, 0, 0.5, 0.0, 1.0, 0.0, 10.0, 0.0, "live",
+            0.0, len(spec.stages), [10.0] + [0.0] * (len(spec.stages) - 1),
+        )  # fmt: skip
+
+    monkeypatch.setattr(eval_callback, "evaluate", slow_evaluate)
+    out = tmp_path / "run"
+    _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
+    _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    with open(out / "eval.csv", newline="") as fh:
+        rows = [(int(r["env_steps"]), float(r["wall_s"])) for r in csv.DictReader(fh)]
+    assert [step for step, _ in rows] == [64, 128, 192, 256]
+    walls = [wall for _, wall in rows]
+    assert walls == sorted(walls) and walls[2] > walls[1]
+    meta = json.loads((out / "checkpoint.json").read_text())
+    assert meta["eval_wall_s"] >= 4 * 0.5
+    assert walls[-1] <= meta["train_wall_s"] - meta["eval_wall_s"] + 0.01
 
 
 def test_a_run_without_evaluations_keeps_no_best_policy(tmp_path: Path, reach_reward: Path) -> None:

@@ -5,6 +5,7 @@ import json
 from typer.testing import CliRunner
 
 from itskill.cli import app
+from itskill.skills.store import SHIPPED_LIBRARY
 
 runner = CliRunner()
 
@@ -61,6 +62,20 @@ def test_add_needs_existing_checkpoint_and_known_task(home, tmp_path, checkpoint
     assert add(checkpoint, "no_such_task").exit_code == 2
 
 
+def test_add_takes_a_run_directory_and_refuses_weights_without_their_metadata(home, tmp_path):
+    run_dir = SHIPPED_LIBRARY / "reach_nut_m12"  # laid out as a training run's kept policy
+    result = add(run_dir, "reach_nut_m12")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["checkpoint"] == str(run_dir.resolve() / "policy.safetensors")
+    lone = tmp_path / "lone" / "policy.safetensors"
+    lone.parent.mkdir()
+    lone.write_bytes((run_dir / "policy.safetensors").read_bytes())
+    result = add(lone, "reach_nut_m12", "--name", "lone")
+    assert result.exit_code == 2
+    text = "".join(result.output.replace("│", "").split())  # the error box wraps anywhere
+    assert "--checkpoint" in text and "checkpoint.json" in text
+
+
 def test_corrupt_database_names_path(home):
     home.mkdir()
     (home / "skills.sqlite").write_bytes(b"garbage" * 1000)
@@ -96,6 +111,13 @@ def test_pretrain_takes_a_comma_separated_task_list(home, tmp_path):
 def test_a_refined_skill_must_beat_its_start_at_a_p_value_above_zero(home):
     result = runner.invoke(app, ["skills", "pretrain", "--refine", "--replace-p", "0"])
     assert result.exit_code == 2 and "must be above 0" in result.output
+
+
+def test_replace_p_without_refine_is_refused(home):
+    # Without --refine a new skill replaces the library's on its success alone: a p-value given
+    # there would be silently ignored.
+    result = runner.invoke(app, ["skills", "pretrain", "--replace-p", "0.01"])
+    assert result.exit_code == 2 and "add --refine" in " ".join(result.output.split())
 
 
 def test_refining_reports_the_runs_own_budget_and_keeps_a_skill_it_does_not_beat(home, tmp_path):

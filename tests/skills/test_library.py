@@ -16,7 +16,12 @@ from itskill.skills.store import SHIPPED_LIBRARY as SHIPPED
 from itskill.tasks import all_tasks
 
 
-def _ship(shipped: Path, tasks: tuple[str, ...], success: float = 0.9) -> None:
+def _ship(
+    shipped: Path,
+    tasks: tuple[str, ...],
+    success: float = 0.9,
+    actions: tuple[str, ...] = ("approach",),
+) -> None:
     """Write a shipped library of ``tasks`` (placeholder weights) with its manifest."""
     entries = []
     for task in tasks:
@@ -27,7 +32,7 @@ def _ship(shipped: Path, tasks: tuple[str, ...], success: float = 0.9) -> None:
                 name=task,
                 task=task,
                 description=f"command of {task}",
-                actions=("approach",),
+                actions=actions,
                 checkpoint=f"{task}/policy.safetensors",
                 success=success,
                 steps=1000,
@@ -88,6 +93,23 @@ def test_an_upgrade_that_retrained_a_shipped_skill_updates_its_measurements(
     with open_skill_space() as space:
         assert space.get("reach_nut_m12").success_rate == 0.96
         assert space.get("pick_nut_m12").success_rate == 0.3
+
+
+def test_an_upgrade_that_changed_a_shipped_skills_actions_updates_them(
+    tmp_path, monkeypatch, home
+) -> None:
+    # Retrieval and the choice of transfer sources read a skill's text and actions: a space kept
+    # from an older release must not go on choosing by what that release said.
+    shipped = tmp_path / "shipped"
+    _ship(shipped, ("place_peg_rect",), actions=("approach", "align"))
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
+    with open_skill_space() as space:
+        assert space.get("place_peg_rect").actions == ("approach", "align")
+    _ship(shipped, ("place_peg_rect",), actions=("approach", "place"))
+    with open_skill_space() as space:
+        skill = space.get("place_peg_rect")
+        assert skill.actions == ("approach", "place")
+        assert skill.embedding is None  # embedded again from the new text by the next search
 
 
 def test_shipped_skills_follow_the_package_when_it_is_reinstalled_elsewhere(

@@ -81,6 +81,12 @@ def test_bad_manifest_names_file(tmp_path):
     (tmp_path / "manifest.json").write_text('{"skills": [{"name": "x"}]}')
     with pytest.raises(ManifestError, match=r"skills\[0\]"):
         read_manifest(tmp_path)
+    (tmp_path / "manifest.json").write_text('{"skills": ["pick_nut_m12"]}')
+    with pytest.raises(ManifestError, match=r"skills\[0\].*expected an object"):
+        read_manifest(tmp_path)
+    (tmp_path / "manifest.json").write_text('{"format": "1", "skills": []}')
+    with pytest.raises(ManifestError, match="'format' must be a whole number"):
+        read_manifest(tmp_path)
 
 
 def test_install_requires_every_checkpoint(home, tmp_path):

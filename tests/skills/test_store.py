@@ -18,7 +18,13 @@ from itskill.skills import (
     itskill_home,
 )
 from itskill.skills.manifest import read_manifest
-from itskill.skills.store import MIGRATIONS, SCHEMA_VERSION, SHIPPED_LIBRARY, MigrationError
+from itskill.skills.store import (
+    MIGRATIONS,
+    SCHEMA_VERSION,
+    SHIPPED_LIBRARY,
+    InvalidSkillNameError,
+    MigrationError,
+)
 
 
 def test_home_defaults(monkeypatch, tmp_path):
@@ -49,7 +55,7 @@ def test_add_get_list_update_remove(home, checkpoint):
         assert got == a and space.get(1) == a and space.get("2") == b
         np.testing.assert_array_equal(got.embedding, a.embedding)
         assert [s.name for s in space.list()] == ["a", "b"]
-        new = space.update_metrics("a", success_rate=0.9, success_ci=(0.8, 0.95))
+        new = space.update("a", success_rate=0.9, success_ci=(0.8, 0.95))
         assert space.get("a").success_rate == 0.9
         assert space.get("a").success_ci == (0.8, 0.95) == new.success_ci
         assert space.get("a").train_steps == 1000  # Untouched fields are kept.
@@ -112,14 +118,56 @@ def test_concurrent_adds_lose_nothing(home, checkpoint):
     assert sorted(ids) == list(range(1, 101))
 
 
-def test_skip_existing_leaves_out_names_taken_meanwhile(home, checkpoint):
+def test_a_name_taken_meanwhile_is_refused_skipped_or_replaced(home, checkpoint):
     with SkillSpace() as space:
         space.add(make_skill("taken", Path(checkpoint)))
         both = [make_skill("taken", Path(checkpoint), seed=9), make_skill("new", Path(checkpoint))]
         with pytest.raises(DuplicateSkillError, match="'taken' already exists"):
             space.add_many(both)
-        assert [s.name for s in space.add_many(both, skip_existing=True)] == ["new"]
+        assert [s.name for s in space.add_many(both, on_conflict="skip")] == ["new"]
         assert space.get("taken").seed != 9  # the first one stays
+        newer = make_skill("taken", Path(checkpoint), success_rate=0.75)
+        assert [s.success_rate for s in space.add_many([newer], on_conflict="replace")] == [0.75]
+        assert [s.success_rate for s in space.list() if s.name == "taken"] == [0.75]
+
+
+def _replace_many(args) -> None:
+    home, checkpoint, worker = args
+    import os
+
+    os.environ["ITSKILL_HOME"] = home
+    with SkillSpace() as space:
+        for i in range(10):
+            skill = make_skill("shared", Path(checkpoint), seed=worker * 100 + i)
+            space.add_many([skill], on_conflict="replace")
+
+
+def test_processes_replacing_one_skill_always_leave_exactly_one(home, checkpoint):
+    # Retraining replaces a skill; a remove then an add let two processes interleave into a
+    # duplicate-name error or, killed in between, into no skill at all.
+    with mp.get_context("spawn").Pool(2) as pool:
+        pool.map(_replace_many, [(str(home), str(checkpoint), w) for w in range(2)])
+    with SkillSpace() as space:
+        assert [s.name for s in space.list()] == ["shared"]
+
+
+def test_a_name_of_digits_is_refused(home, checkpoint):
+    # get("1") and remove("1") take a string of digits for a serial number.
+    with SkillSpace() as space:
+        with pytest.raises(InvalidSkillNameError, match="'1' is all digits"):
+            space.add(make_skill("1", Path(checkpoint)))
+        assert len(space) == 0
+
+
+def test_a_new_description_clears_the_embedding(home, checkpoint):
+    with SkillSpace() as space:
+        space.add(make_skill("a", Path(checkpoint)))
+        assert space.update("a", success_rate=0.5).embedding is not None
+        updated = space.update("a", actions=["approach", "place"])
+        assert updated.actions == ("approach", "place")
+        assert space.get("a").embedding is None  # the next search embeds the new text
+        with pytest.raises(TypeError, match="cannot update"):
+            space.update("a", checkpoint="elsewhere")
 
 
 def _open_fresh_space(home: str) -> int:
@@ -164,7 +212,7 @@ def test_old_version_is_upgraded_and_keeps_rows(home, checkpoint):
         assert space.schema_version == SCHEMA_VERSION > 1
         old = space.get("old")
         assert (old.success_rate, old.actions, old.embedding) == (0.7, ("approach",), None)
-        space.update_metrics("old", train_steps=5, success_ci=(0.6, 0.8))
+        space.update("old", train_steps=5, success_ci=(0.6, 0.8))
         assert space.get("old").train_steps == 5
 
 

@@ -46,10 +46,13 @@ def experiment_run(
     from itskill.experiments.config import ExperimentConfigError, load_experiment
     from itskill.experiments.report import experiment_report
     from itskill.experiments.runner import ExperimentRunError, run_experiment
+    from itskill.llm import LLMError
+    from itskill.skills import SkillSpaceError
     from itskill.transfer.sources import SourceError
 
     if executor is not None and executor not in EXECUTORS:
         raise typer.BadParameter(f"expected one of {list(EXECUTORS)}", param_hint="--executor")
+    run_dir = out
     try:
         with user_errors():
             config = load_experiment(file)
@@ -57,10 +60,20 @@ def experiment_run(
             summary = run_experiment(
                 config, run_dir, executor, workers, ray_address, resume, file, console
             )
-    except (ExperimentConfigError, ExperimentRunError, ExecutorError, SourceError) as err:
+    except (
+        ExperimentConfigError,
+        ExperimentRunError,
+        ExecutorError,
+        SourceError,
+        SkillSpaceError,
+        LLMError,
+    ) as err:
         raise _fail(err) from err
     except KeyboardInterrupt:
-        err_console.print(f"interrupted; continue with: itskill experiment run {file} --resume")
+        where = f" --out {run_dir}" if run_dir is not None else ""
+        err_console.print(
+            f"interrupted; continue with: itskill experiment run {file}{where} --resume"
+        )
         raise typer.Exit(130) from None
     console.print(
         f"{len(summary.finished)} cells trained, {len(summary.skipped)} already done, "

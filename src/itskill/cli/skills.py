@@ -152,7 +152,14 @@ def skills_search(
 @skills_app.command("add")
 def skills_add(
     task: Annotated[str, typer.Option(help="Task id the skill solves.")],
-    checkpoint: Annotated[Path, typer.Option(help="Trained policy checkpoint (must exist).")],
+    checkpoint: Annotated[
+        Path,
+        typer.Option(
+            help="The trained policy: a training run directory (its kept, best evaluated "
+            "policy), its policy.safetensors, or a Stable-Baselines3 .zip (which itskill eval "
+            "loads but a transfer cannot use as a source).",
+        ),
+    ],
     name: Annotated[str | None, typer.Option(help="Unique name (default: the task id).")] = None,
     description: Annotated[
         str | None, typer.Option(help="Task command (default: the task's command).")
@@ -170,10 +177,25 @@ def skills_add(
     as_json: JsonOpt = False,
 ) -> None:
     """Add a learned skill (its checkpoint must exist)."""
+    from itskill.rl.checkpoint import (
+        POLICY_FILE,
+        CheckpointError,
+        best_policy_dir,
+        policy_location,
+        read_meta,
+    )
     from itskill.skills import Skill, open_skill_space
 
     if (ci_low is None) != (ci_high is None):
         raise typer.BadParameter("give both --ci-low and --ci-high, or neither")
+    checkpoint = checkpoint.expanduser().resolve()
+    if checkpoint.is_dir():
+        checkpoint = best_policy_dir(checkpoint) / POLICY_FILE
+    if checkpoint.suffix == ".safetensors" and checkpoint.exists():
+        try:
+            read_meta(policy_location(checkpoint))  # what a transfer reads from a source skill
+        except CheckpointError as err:
+            raise typer.BadParameter(str(err), param_hint="--checkpoint") from err
     with _skill_errors():
         spec = get_task(task)
         acts = spec.actions if actions is None else tuple(a.strip() for a in actions.split(","))
@@ -183,7 +205,7 @@ def skills_add(
             description=description or spec.command,
             actions=tuple(a for a in acts if a),
             # Absolute: a path relative to the shell's directory means nothing to other processes.
-            checkpoint=str(checkpoint.expanduser().resolve()),
+            checkpoint=str(checkpoint),
             success_rate=success,
             success_ci=None if ci_low is None else (ci_low, ci_high),
             train_steps=steps,
@@ -311,6 +333,11 @@ def skills_pretrain(
 
     Rerunning the same command resumes unfinished trainings from their last checkpoint.
     """
+    if replace_p is not None and not refine:
+        raise typer.BadParameter(
+            "it decides whether a refined skill replaces the library's; add --refine",
+            param_hint="--replace-p",
+        )
     from itskill.executors import ExecutorError
     from itskill.skills import open_skill_space
     from itskill.skills.library import shipped_budgets

@@ -54,11 +54,12 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
     ``column`` picks what the curve's ``success`` values hold: the success rate, or
     ``stages_done`` (the fraction of the task's subtasks finished at the end of an episode).
 
-    A run resumed after a crash appends a new session to the file: its wall time restarts from
-    zero and its first rows may repeat env-steps the crashed session had evaluated after its last
-    checkpoint. Those superseded rows are dropped, and each session's wall time is offset by the
-    time of the previous session's last kept row, so ``wall_s`` counts training time across
-    sessions (the time between that row and the crash is not counted: its work was thrown away).
+    A run resumed after a crash appends a new session to the file, whose first rows may repeat
+    env-steps the crashed session had evaluated after its last checkpoint: those superseded rows
+    are dropped. ``wall_s`` is the run's training time from its first session on (the trainer
+    resumes its clock from the checkpoint); in files of older releases each session's clock
+    restarted from zero, and such a session is offset by the time of the previous session's
+    last kept row (the time between that row and the interruption is then not counted).
     """
     path = Path(run_dir) / EVAL_FILE
     if not path.is_file():
@@ -72,17 +73,16 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
             raw = [(float(r["env_steps"]), float(r["wall_s"]), float(r[column])) for r in reader]
         except (TypeError, ValueError) as err:
             raise CurveError(path, f"not a number: {err}") from err
-    kept: list[list[float]] = []  # [step, session-relative wall, success, wall offset]
+    kept: list[list[float]] = []  # [step, wall over the run, success]
     offset = 0.0
     for step, wall, success in raw:
-        if kept and (step <= kept[-1][0] or wall < kept[-1][1]):
-            # A new session: the rows it re-evaluates belong to the thrown-away trajectory.
-            while kept and kept[-1][0] >= step:
-                kept.pop()
-            offset = kept[-1][1] + kept[-1][3] if kept else 0.0
-        kept.append([step, wall, success, offset])
-    data = np.asarray(kept, dtype=float).reshape(-1, 4)
-    return Curve(data[:, 0], data[:, 2], data[:, 1] + data[:, 3], float(budget))
+        while kept and kept[-1][0] >= step:
+            kept.pop()  # re-evaluated by a resumed session: that trajectory was thrown away
+        if kept and wall + offset < kept[-1][1]:
+            offset = kept[-1][1]  # a session of an older release, its clock restarted at zero
+        kept.append([step, wall + offset, success])
+    data = np.asarray(kept, dtype=float).reshape(-1, 3)
+    return Curve(data[:, 0], data[:, 2], data[:, 1], float(budget))
 
 
 def common_grid(curves: Sequence[Curve], points: int = 101) -> np.ndarray:

@@ -159,13 +159,20 @@ def video_section(
     doc: Document, task: str, run_dir: Path, label: str, videos: Path, notes: list[str]
 ) -> None:
     """A rollout video of the policy in ``run_dir``; says why when it cannot render."""
-    from itskill.rl.checkpoint import as_policy
+    from itskill.rl.checkpoint import CheckpointError, as_policy
     from itskill.tasks import get_task
     from itskill.tasks.render import RenderError, record
 
     out = videos / f"{task}_{label}.mp4"
     try:
-        res = record(get_task(task), as_policy(run_dir), out, episodes=1, seed=0)
+        policy = as_policy(run_dir)
+    except CheckpointError as err:
+        # Committed results keep curves and results, not policies: the report still gets written.
+        notes.append(f"no video: {err}")
+        doc.add(Paragraph(f"No video: the policy is not in the run directory ({err})."))
+        return
+    try:
+        res = record(get_task(task), policy, out, episodes=1, seed=0)
     except RenderError as err:
         notes.append(f"no video: {err}")
         doc.add(Paragraph(f"No video: offscreen rendering is not available here ({err})."))

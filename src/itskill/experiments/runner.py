@@ -18,7 +18,7 @@ worker that trained the cell, atomically, so a killed run loses only the cells i
 from __future__ import annotations
 
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -142,10 +142,14 @@ class RunSummary:
     failed: dict[Cell, str] = field(default_factory=dict)
 
 
-def _prepare_dir(
-    config: ExperimentConfig, run_dir: Path, resume: bool, source_file: Path | None
-) -> None:
+def _run_record(config: ExperimentConfig, run_dir: Path, resume: bool) -> ExperimentConfig:
+    """Check ``run_dir`` against ``config``; the configuration to record there.
+
+    A resumed run records the union of its sessions' tasks, methods and seeds, so the report
+    covers every cell trained in the directory, not only those of the latest file.
+    """
     config_path = run_dir / CONFIG_FILE
+    record = config
     if config_path.is_file():
         if not resume:
             raise ExperimentRunError(
@@ -153,20 +157,43 @@ def _prepare_dir(
                 "or choose another --out"
             )
         old = ExperimentConfig.from_dict(read_json(config_path))
-        have, want = old.training_settings(), config.training_settings()
-        for key in want:
-            if have.get(key) != want[key]:
-                raise ExperimentRunError(
-                    f"{run_dir}: was run with {key}={have.get(key)!r}, the experiment file now "
-                    f"says {key}={want[key]!r}; resume with the same training settings or use "
-                    "another --out (tasks, methods and seeds may change)"
-                )
-    elif resume and run_dir.exists() and any(run_dir.iterdir()):
-        raise ExperimentRunError(f"{run_dir} is not an experiment run directory (no {CONFIG_FILE})")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_json(config_path, config.to_dict())
-    if source_file is not None:
-        shutil.copyfile(source_file, run_dir / EXPERIMENT_FILE)
+        _check_same_training(old, config, run_dir)
+        record = _union(old, config)
+    elif resume:
+        what = "is not an experiment run directory" if run_dir.exists() else "does not exist"
+        raise ExperimentRunError(
+            f"nothing to resume: {run_dir} {what} (no {CONFIG_FILE}); give the run's --out, "
+            "or leave out --resume to start a new run"
+        )
+    return record
+
+
+def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: Path) -> None:
+    have, want = old.training_settings(), new.training_settings()
+    for key in want:
+        mismatch = have.get(key) != want[key]
+        if key in ("reward", "sources"):  # per task: a task added on resume brings its own
+            mismatch = any(have[key].get(t, want[key][t]) != want[key][t] for t in want[key])
+        if mismatch:
+            raise ExperimentRunError(
+                f"{run_dir}: was run with {key}={have.get(key)!r}, the experiment file now "
+                f"says {key}={want[key]!r}; resume with the same training settings or use "
+                "another --out (tasks, methods and seeds may change)"
+            )
+
+
+def _union(old: ExperimentConfig, new: ExperimentConfig) -> ExperimentConfig:
+    def merged(a: tuple, b: tuple) -> tuple:
+        return tuple(dict.fromkeys((*a, *b)))
+
+    return replace(
+        new,
+        tasks=merged(old.tasks, new.tasks),
+        methods=merged(old.methods, new.methods),
+        seeds=merged(old.seeds, new.seeds),
+        reward={**old.reward, **new.reward},
+        sources={**old.sources, **new.sources},
+    )
 
 
 def resolve_all_sources(config: ExperimentConfig, run_dir: Path) -> dict[str, list[str]]:
@@ -205,8 +232,12 @@ def run_experiment(
     """
     console = console or Console(stderr=True)
     run_dir = Path(run_dir)
-    _prepare_dir(config, run_dir, resume, source_file)
+    record = _run_record(config, run_dir, resume)
+    # Before the run is recorded: a source that cannot be found leaves no run to --resume.
     sources = resolve_all_sources(config, run_dir)
+    write_json(run_dir / CONFIG_FILE, record.to_dict())
+    if source_file is not None:
+        shutil.copyfile(source_file, run_dir / EXPERIMENT_FILE)
     summary = RunSummary(run_dir)
     todo: list[Cell] = []
     for cell in cells(config):
@@ -216,6 +247,8 @@ def run_experiment(
             continue
         if (out / "checkpoint.json").is_file():
             summary.resumed.append(cell)
+        # A failure of an earlier session is retried now: the report must not call it failed.
+        (out / ERROR_FILE).unlink(missing_ok=True)
         todo.append(cell)
     jobs = [
         (

@@ -25,6 +25,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from itskill.rl.checkpoint import BEST_DIR, META_FILE, save_checkpoint
+from itskill.rl.clock import WallClock
 from itskill.tasks.evaluate import PolicyActor, evaluate
 from itskill.tasks.spec import TaskSpec
 
@@ -57,7 +58,9 @@ class DeterministicEvalCallback(BaseCallback):
     With ``meta`` (the run's checkpoint metadata), the best policy so far is written to
     ``run_dir/best`` after each evaluation that matches or beats it. With ``at_start``, a run that
     starts from step 0 is evaluated before its first update too (a warm-started policy, which
-    reinforcement learning may make worse before it makes it better).
+    reinforcement learning may make worse before it makes it better). A row's ``wall_s`` is the
+    training time of ``clock`` (the run's, counted across the sessions of a resumed run), the
+    evaluations left out.
     """
 
     def __init__(
@@ -69,6 +72,7 @@ class DeterministicEvalCallback(BaseCallback):
         seed: int = 20_000,
         meta: Mapping[str, Any] | None = None,
         at_start: bool = False,
+        clock: WallClock | None = None,
     ) -> None:
         super().__init__()
         self.at_start = at_start
@@ -76,8 +80,7 @@ class DeterministicEvalCallback(BaseCallback):
         self.every, self.episodes, self.seed = every, episodes, seed
         self.meta = None if meta is None else dict(meta)
         self._next = every
-        self._start = time.perf_counter()
-        self._eval_time = 0.0
+        self.clock = clock or WallClock()
         self._last_evaluated = -1
         self._best: tuple[float, float] | None = None
 
@@ -112,13 +115,12 @@ class DeterministicEvalCallback(BaseCallback):
         res = evaluate(
             self.spec, PolicyActor(self.model.policy), self.episodes, self.seed, num_envs=25
         )
-        self._eval_time += time.perf_counter() - t0
-        # Wall time counts training only, so steps-to-threshold times are not inflated by
-        # the evaluations themselves.
-        wall = time.perf_counter() - self._start - self._eval_time
+        self.clock.add_eval(time.perf_counter() - t0)
         row = {
             "env_steps": self.num_timesteps,
-            "wall_s": round(wall, 2),
+            # Training only, over every session of the run: steps-to-threshold times are not
+            # inflated by the evaluations themselves, nor cut by a resume.
+            "wall_s": round(self.clock.training_s(), 2),
             "success": res.success_rate,
             "ci_low": res.ci_low,
             "ci_high": res.ci_high,

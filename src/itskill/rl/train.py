@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import runpy
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +34,7 @@ from itskill.rl.checkpoint import (
     restore_reward_norm,
     save_checkpoint,
 )
+from itskill.rl.clock import TRAIN_WALL_KEY, WallClock
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
 from itskill.rl.demos import DEMOS_FILE, warm_start
 from itskill.rl.eval_callback import DeterministicEvalCallback, read_selection
@@ -105,26 +105,11 @@ class TrainResult:
     run was evaluated while it trained."""
 
 
-TRAIN_WALL_KEY = "train_wall_s"
-"""Checkpoint metadata field: training wall seconds of the run up to that checkpoint."""
-
-
-class WallClock:
-    """A run's training wall time: what its checkpoint recorded, plus this session's."""
-
-    def __init__(self, prior_s: float = 0.0) -> None:
-        self.prior_s = prior_s
-        self._start = time.perf_counter()
-
-    def session_s(self) -> float:
-        return time.perf_counter() - self._start
-
-    def total_s(self) -> float:
-        return self.prior_s + self.session_s()
-
-
-def _save(model: Any, run_dir: Path, meta: Mapping[str, Any], wall_s: float) -> None:
-    save_checkpoint(model, run_dir, {**meta, TRAIN_WALL_KEY: round(wall_s, 2)})
+def _save(model: Any, run_dir: Path, meta: Mapping[str, Any], clock: WallClock) -> float:
+    """Save a checkpoint; returns the run's wall seconds as recorded in it."""
+    fields = clock.checkpoint_fields()
+    save_checkpoint(model, run_dir, {**meta, **fields})
+    return fields[TRAIN_WALL_KEY]
 
 
 def load_reward(
@@ -182,7 +167,7 @@ class CheckpointCallback(BaseCallback):
         # Runs between collecting a rollout and the update on it: the saved weights have not seen
         # that rollout, so a resumed run simply collects fresh data from the saved step count.
         if self.num_timesteps - self._last >= self.every:
-            _save(self.model, self.run_dir, self.meta, self.clock.total_s())
+            _save(self.model, self.run_dir, self.meta, self.clock)
             self._last = self.num_timesteps
 
 
@@ -297,7 +282,7 @@ def train(
     keep_obs_stats = bool(hp.demos.episodes) or init is not None
 
     resumed_from = 0
-    prior_wall_s = 0.0
+    old: dict[str, Any] = {}
     model_path = run_dir / MODEL_FILE
     resuming = (run_dir / "checkpoint.json").exists()
     if resuming:
@@ -306,7 +291,6 @@ def train(
         if not model_path.is_file():
             raise CheckpointError(model_path, "missing: cannot resume training without it")
         resumed_from = int(old["num_timesteps"])
-        prior_wall_s = float(old.get(TRAIN_WALL_KEY, 0.0))
 
     # A resumed run draws fresh initial states, not a replay of the first ones.
     env_seed = int(np.random.SeedSequence([seed, resumed_from]).generate_state(1)[0])
@@ -332,7 +316,7 @@ def train(
         if (logger or LoggerConfig()).progress:
             (console or Console(stderr=True)).print(text, highlight=False)
 
-    clock = WallClock(prior_wall_s)  # from here, so that a warm start's time counts
+    clock = WallClock.from_checkpoint(old)  # from here, so that a warm start's time counts
     try:
         if resuming:
             try:
@@ -390,7 +374,7 @@ def train(
                 model.num_timesteps,
                 resumed_from,
                 False,
-                prior_wall_s,
+                clock.prior_s,
                 0.0,
                 None,
                 read_selection(run_dir),
@@ -412,6 +396,7 @@ def train(
                     eval_episodes,
                     meta=meta,
                     at_start=keep_obs_stats,
+                    clock=clock,
                 )
             )
         try:
@@ -423,16 +408,15 @@ def train(
             )
         except KeyboardInterrupt:
             metrics.close()
-            _save(model, run_dir, meta, clock.total_s())
+            _save(model, run_dir, meta, clock)
             (console or Console(stderr=True)).print(
                 f"interrupted: checkpoint saved at {model.num_timesteps} env-steps in {run_dir}"
             )
             raise
         session_s = clock.session_s()
-        # Rounded as the checkpoint stores it, so a later call that finds the run finished
-        # reports the same figure.
-        total_s = round(clock.prior_s + session_s, 2)
-        _save(model, run_dir, meta, total_s)
+        # As the checkpoint stores it, so a later call that finds the run finished reports the
+        # same figure.
+        total_s = _save(model, run_dir, meta, clock)
         return TrainResult(
             run_dir,
             int(model.num_timesteps),

@@ -25,7 +25,7 @@ from itskill.skills.manifest import (
     read_manifest,
     read_manifest_or_empty,
 )
-from itskill.skills.store import SkillSpace, SkillSpaceConfig
+from itskill.skills.store import UPDATABLE_FIELDS, SkillSpace, SkillSpaceConfig
 
 
 def open_skill_space(
@@ -43,7 +43,7 @@ def open_skill_space(
         if shipped - offered:
             install_library(space, library, only=shipped - offered)
             write_json(marker, sorted(offered | shipped))
-        _refresh_shipped_metrics(space, library, entries)
+        _refresh_shipped(space, library, entries)
     return space
 
 
@@ -73,10 +73,10 @@ def _repoint_to_package(space: SkillSpace, library: Path, entries: list[Manifest
             space.set_checkpoint(skill.name, space.checkpoint_ref(library / entry.checkpoint))
 
 
-def _refresh_shipped_metrics(
-    space: SkillSpace, library: Path, entries: list[ManifestEntry]
-) -> None:
-    """Give each space entry that uses a shipped checkpoint that checkpoint's measurements."""
+def _refresh_shipped(space: SkillSpace, library: Path, entries: list[ManifestEntry]) -> None:
+    """Give each space entry that uses a shipped checkpoint what this release's manifest says of
+    it: its measurements, and its description and actions where a release changed them (which
+    retrieval and the choice of transfer sources read)."""
     stored = {s.name: s for s in space.list()}
     for entry in entries:
         skill = stored.get(entry.name)
@@ -84,20 +84,14 @@ def _refresh_shipped_metrics(
             continue
         if skill.checkpoint != space.checkpoint_ref(library / entry.checkpoint):
             continue  # the user's own skill under a shipped name, or a copy elsewhere
-        measured = (entry.success, entry.success_ci, entry.steps, entry.wall_s)
-        if (
-            skill.success_rate,
-            skill.success_ci,
-            skill.train_steps,
-            skill.train_wall_s,
-        ) != measured:
-            space.update_metrics(
-                skill.name,
-                success_rate=entry.success,
-                success_ci=entry.success_ci,
-                train_steps=entry.steps,
-                train_wall_s=entry.wall_s,
-            )
+        shipped = entry.to_skill(skill.checkpoint)
+        changes = {
+            name: getattr(shipped, name)
+            for name in UPDATABLE_FIELDS
+            if getattr(shipped, name) != getattr(skill, name)
+        }
+        if changes:
+            space.update(skill.name, **changes)
 
 
 def _offered(marker: Path, space: SkillSpace) -> set[str]:

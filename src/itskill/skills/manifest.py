@@ -78,6 +78,8 @@ class ManifestEntry:
 
     @classmethod
     def from_json(cls, data: dict[str, Any], where: str) -> ManifestEntry:
+        if not isinstance(data, dict):
+            raise ManifestError(f"{where}: bad skill entry (expected an object, got {data!r})")
         try:
             budget = data.get("budget") or {}
             ci = data.get("success_ci")
@@ -127,7 +129,10 @@ def read_manifest(library_dir: Path | str) -> list[ManifestEntry]:
         raise ManifestError(f"{path}: not valid JSON ({err})") from err
     if not isinstance(data, dict) or not isinstance(data.get("skills"), list):
         raise ManifestError(f"{path}: expected an object with a 'skills' list")
-    if data.get("format", MANIFEST_FORMAT) > MANIFEST_FORMAT:
+    fmt = data.get("format", MANIFEST_FORMAT)
+    if not isinstance(fmt, int) or isinstance(fmt, bool):
+        raise ManifestError(f"{path}: 'format' must be a whole number, got {fmt!r}")
+    if fmt > MANIFEST_FORMAT:
         raise ManifestError(
             f"{path}: manifest format {data['format']} is newer than this itskill supports "
             f"({MANIFEST_FORMAT})"
@@ -203,4 +208,4 @@ def install_library(
         for e in entries
         if e.name not in existing
     ]
-    return space.add_many(todo, skip_existing=skip_existing)
+    return space.add_many(todo, on_conflict="skip" if skip_existing else "error")

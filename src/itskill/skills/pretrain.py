@@ -26,7 +26,6 @@ round before it, and the paired comparison).
 
 from __future__ import annotations
 
-import contextlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -49,7 +48,7 @@ from itskill.skills.manifest import (
     read_manifest_or_empty,
     update_manifest,
 )
-from itskill.skills.store import SHIPPED_LIBRARY, SkillSpace, UnknownSkillError
+from itskill.skills.store import SHIPPED_LIBRARY, SkillSpace
 from itskill.stats import paired_gain_p, paired_wins
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import EvalResult, evaluate
@@ -244,13 +243,11 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
 
 
 def record(entry: ManifestEntry, library_dir: Path, space: SkillSpace | None) -> None:
-    """Put ``entry`` in the library's manifest (replacing an older one) and in ``space``."""
+    """Put ``entry`` in the library's manifest and in ``space``, replacing an older one in each."""
     update_manifest(library_dir, entry)
-    if space is None:
-        return
-    with contextlib.suppress(UnknownSkillError):  # a retrained skill replaces the old one
-        space.remove(entry.name)
-    space.add(entry.to_skill(space.checkpoint_ref(Path(library_dir) / entry.checkpoint)))
+    if space is not None:
+        skill = entry.to_skill(space.checkpoint_ref(Path(library_dir) / entry.checkpoint))
+        space.add_many([skill], on_conflict="replace")
 
 
 def pretrain(

@@ -25,7 +25,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -91,6 +91,10 @@ class DuplicateSkillError(SkillSpaceError):
     """A skill with this name already exists (names are unique)."""
 
 
+class InvalidSkillNameError(SkillSpaceError):
+    """A name that would be read as something else (all digits: a serial number)."""
+
+
 class MissingCheckpointError(SkillSpaceError):
     """A skill whose policy checkpoint file does not exist: a skill must be learned to be added."""
 
@@ -106,6 +110,18 @@ class UnknownSkillError(SkillSpaceError, KeyError):
     def __str__(self) -> str:
         hint = f" Did you mean: {', '.join(self.close)}?" if self.close else ""
         return f"unknown skill {self.key!r}.{hint} (`itskill skills list` shows them all)"
+
+
+UPDATABLE_FIELDS = (
+    "task_id",
+    "description",
+    "actions",
+    "success_rate",
+    "success_ci",
+    "train_steps",
+    "train_wall_s",
+)
+"""What :meth:`SkillSpace.update` may change; the name, checkpoint and provenance stay."""
 
 
 # ---------------------------------------------------------------------------- the record
@@ -359,27 +375,37 @@ class SkillSpace:
         """Add one skill (embedding it first if it has no embedding); returns it with its id."""
         return self.add_many([skill])[0]
 
-    def add_many(self, skills: Iterable[Skill], skip_existing: bool = False) -> list[Skill]:
+    def add_many(
+        self, skills: Iterable[Skill], on_conflict: Literal["error", "skip", "replace"] = "error"
+    ) -> list[Skill]:
         """Add several skills in one transaction (all or none); returns those added.
 
-        Raises :class:`MissingCheckpointError` if a checkpoint file does not exist and
-        :class:`DuplicateSkillError` if a name is taken, unless ``skip_existing``: then a skill
-        whose name is taken by the time the transaction runs is left out (another process may
-        have added it while this one was embedding).
+        Raises :class:`MissingCheckpointError` if a checkpoint file does not exist,
+        :class:`InvalidSkillNameError` for a name of digits only (``get`` and ``remove`` would take
+        it for a serial number) and, where a name is taken by the time the transaction runs
+        (another process may have added it while this one was embedding), what ``on_conflict``
+        says: ``error`` raises :class:`DuplicateSkillError`, ``skip`` leaves the skill out,
+        ``replace`` deletes the old skill in the same transaction, so there is no moment without
+        one and two processes replacing the same skill leave the later one.
         """
         skills = list(skills)
         for s in skills:
+            if s.name.isdigit():
+                raise InvalidSkillNameError(
+                    f"skill name {s.name!r} is all digits, which reads as a serial number; "
+                    "give it a name with a letter"
+                )
             self._require_checkpoint(s)
         skills = self._with_embeddings(skills)  # Outside the transaction: the model is slow.
         now = time.time()
         added: list[Skill] = []
         with self._write() as conn:
             for s in skills:
-                if (
-                    skip_existing
-                    and conn.execute("SELECT 1 FROM skills WHERE name = ?", (s.name,)).fetchone()
-                ):
+                taken = conn.execute("SELECT 1 FROM skills WHERE name = ?", (s.name,)).fetchone()
+                if taken and on_conflict == "skip":
                     continue
+                if taken and on_conflict == "replace":
+                    conn.execute("DELETE FROM skills WHERE name = ?", (s.name,))
                 ci_low, ci_high = s.success_ci if s.success_ci else (None, None)
                 created = s.created if s.created is not None else now
                 try:
@@ -446,30 +472,43 @@ class SkillSpace:
             conn.execute("UPDATE skills SET checkpoint = ? WHERE id = ?", (checkpoint, skill.id))
         return skill
 
-    def update_metrics(
-        self,
-        key: int | str,
-        *,
-        success_rate: float | None = None,
-        success_ci: tuple[float, float] | None = None,
-        train_steps: int | None = None,
-        train_wall_s: float | None = None,
-    ) -> Skill:
-        """Replace the given measurements of a skill (arguments left as None are kept)."""
+    def update(self, key: int | str, **changes: Any) -> Skill:
+        """Replace the given fields of a skill: ``task_id``, ``description``, ``actions`` or its
+        measurements (``success_rate``, ``success_ci``, ``train_steps``, ``train_wall_s``).
+
+        A new description or action sequence clears the stored embedding, so the next search
+        embeds the new text instead of retrieving the skill by the old one.
+        """
+        unknown = set(changes) - set(UPDATABLE_FIELDS)
+        if unknown:
+            raise TypeError(f"cannot update {sorted(unknown)}; fields: {list(UPDATABLE_FIELDS)}")
+        if changes.get("actions") is not None:
+            changes["actions"] = tuple(changes["actions"])
+        if changes.get("success_ci") is not None:
+            changes["success_ci"] = tuple(changes["success_ci"])
         with self._write() as conn:
             skill = self._get(conn, key)
-            new = replace(
-                skill,
-                success_rate=skill.success_rate if success_rate is None else success_rate,
-                success_ci=skill.success_ci if success_ci is None else tuple(success_ci),
-                train_steps=skill.train_steps if train_steps is None else train_steps,
-                train_wall_s=skill.train_wall_s if train_wall_s is None else train_wall_s,
-            )
+            new = replace(skill, **changes)
+            if (new.description, new.actions) != (skill.description, skill.actions):
+                new = replace(new, embedding=None, embedding_model=None)
             ci_low, ci_high = new.success_ci if new.success_ci else (None, None)
             conn.execute(
-                "UPDATE skills SET success_rate = ?, success_ci_low = ?, success_ci_high = ?, "
-                "train_steps = ?, train_wall_s = ? WHERE id = ?",
-                (new.success_rate, ci_low, ci_high, new.train_steps, new.train_wall_s, skill.id),
+                "UPDATE skills SET task_id = ?, description = ?, actions = ?, success_rate = ?, "
+                "success_ci_low = ?, success_ci_high = ?, train_steps = ?, train_wall_s = ?, "
+                "embedding = ?, embedding_model = ? WHERE id = ?",
+                (
+                    new.task_id,
+                    new.description,
+                    json.dumps(list(new.actions)),
+                    new.success_rate,
+                    ci_low,
+                    ci_high,
+                    new.train_steps,
+                    new.train_wall_s,
+                    _blob(new.embedding),
+                    new.embedding_model,
+                    skill.id,
+                ),
             )
         return new
 
