@@ -316,7 +316,9 @@ def run_experiment(
 
 def _describe(cell: Cell, result: dict[str, Any]) -> str:
     t = result.get("steps_to_threshold")
-    reached = f"{t:,.0f} steps to {result['threshold']:.0%}" if t else "threshold not reached"
+    reached = (
+        f"{t:,.0f} steps to {result['threshold']:.0%}" if t is not None else "threshold not reached"
+    )
     return (
         f"[green]done[/green] {cell.name}: success {result['final_success']:.0%}, {reached}, "
         f"{result['train_wall_s'] / 60:.1f} min"

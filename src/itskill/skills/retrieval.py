@@ -10,7 +10,7 @@ by wording even when it is the same multi-step task; with the actions appended, 
 primitive matches a verb of the query (``insert``) rise to the top. Repeats are dropped because
 composite skills list the same primitives several times (``approach`` twice in pick-place), and a
 long repeated list otherwise dominates the sentence vector and drowns the description. Measured on
-the 31 task commands, query "Pick up the round peg and insert it into the round hole":
+the 31 task commands of the time, query "Pick up the round peg and insert it into the round hole":
 ``insert_peg_round`` 0.874, ``pickplaceinsert_peg_round`` 0.802, ``insert_peg_rect`` 0.799. (With
 repeats kept, the exact multi-step task falls to 4th; with the command alone it is 1st at 1.0 and
 ``insert_peg_round`` 2nd at 0.980.)
