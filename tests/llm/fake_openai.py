@@ -7,7 +7,8 @@ Each choice of a request takes the next scripted item: a string is a reply text;
 :class:`Status` makes the whole request fail with that HTTP status; a callable gets the request
 body (a dict) and returns either. When the script runs out, the last string is repeated.
 ``n_mode`` says what the server does with ``n``: ``"support"`` (n choices), ``"reject"`` (400 for
-n > 1, like some local servers) or ``"ignore"`` (one choice, like Ollama and llama.cpp).
+n > 1, like some local servers), ``"ignore"`` (one choice, like Ollama and llama.cpp) or
+``"empty"`` (no choices at all, as some proxies answer a filtered request).
 Usage is counted as words: prompt tokens = words in the messages, completion tokens = words in
 the replies. ``requests`` records every request body, failed ones included.
 
@@ -47,7 +48,7 @@ class FakeOpenAIServer:
         self,
         replies: list[Item],
         *,
-        n_mode: Literal["support", "reject", "ignore"] = "support",
+        n_mode: Literal["support", "reject", "ignore", "empty"] = "support",
         model: str = "fake-model",
     ) -> None:
         self.script = list(replies)
@@ -88,7 +89,7 @@ class FakeOpenAIServer:
             if n > 1 and self.n_mode == "reject":
                 error = {"message": "n > 1 is not supported", "type": "invalid_request_error"}
                 return 400, {"error": error}, {}
-            count = 1 if self.n_mode == "ignore" else n
+            count = {"ignore": 1, "empty": 0}.get(self.n_mode, n)
             texts = []
             for _ in range(count):
                 item = self._next(body)

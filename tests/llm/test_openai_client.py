@@ -59,6 +59,15 @@ def test_falls_back_to_repeated_calls_when_n_is_not_served(mode: str) -> None:
     assert all("n" not in body for body in server.requests[1:])
 
 
+def test_a_reply_without_choices_is_an_error_not_a_paid_loop() -> None:
+    # Some proxies answer 200 with no choices (a content filter): asking again pays for nothing.
+    with FakeOpenAIServer(["never sent"], n_mode="empty") as server:
+        c = client(server)
+        with pytest.raises(LLMError, match="returned no choices"):
+            c.complete(MESSAGES, purpose="reward")
+    assert len(server.requests) == 1
+
+
 @pytest.mark.parametrize("status", [429, 500, 503])
 def test_retries_rate_limits_and_server_errors_then_succeeds(status: int) -> None:
     with FakeOpenAIServer([Status(status), Status(status), "finally"]) as server:

@@ -104,17 +104,19 @@ def _openai(server: FakeOpenAIServer) -> OpenAIClient:
 
 def test_invalid_replies_are_sent_back_with_the_problem() -> None:
     wrong_actions = VALID.replace('"lift"]', '"raise"]')
+    cut_off = VALID[: len(VALID) // 2]  # a reply stopped by the token limit
     with FakeOpenAIServer(
-        ["Sure! Here is the plan.", wrong_actions, f"```json\n{VALID}\n```"]
+        ["Sure! Here is the plan.", cut_off, wrong_actions, f"```json\n{VALID}\n```"]
     ) as server:
-        plan = plan_command("pick up the nut", _openai(server))
+        plan = plan_command("pick up the nut", _openai(server), attempts=4)
         requests = server.requests
     assert plan.task == "pick_nut_m12" and plan.command == "pick up the nut"
-    assert len(requests) == 3
-    second, third = requests[1]["messages"], requests[2]["messages"]
+    assert len(requests) == 4
+    second, third, fourth = (r["messages"] for r in requests[1:])
     assert second[-2] == {"role": "assistant", "content": "Sure! Here is the plan."}
     assert "no valid JSON object" in second[-1]["content"]
-    assert "action sequence ['approach', 'grasp', 'lift']" in third[-1]["content"]
+    assert "not closed" in third[-1]["content"]
+    assert "action sequence ['approach', 'grasp', 'lift']" in fourth[-1]["content"]
 
 
 def test_a_model_that_never_gives_a_valid_plan() -> None:

@@ -154,6 +154,18 @@ ESCAPES = {
     "np_ones_bomb": ("x = np.ones(10**12)", "too large"),
     "np_zeros_tuple_bomb": ("x = np.zeros((10**6, 10**6))", "too large"),
     "range_bomb": ("x = list(range(10**12))", "too large"),
+    # Patching numpy or math would change them for the whole process: the host's success checks
+    # use np.linalg.norm too, so a reward could make its own success read 100%.
+    "patch_numpy_function": ("np.linalg.norm = np.add", "assigning to or deleting an attribute"),
+    "patch_math_constant": ("math.pi = 3.0", "assigning to or deleting an attribute"),
+    "augmented_patch": ("np.pi += 1", "assigning to or deleting an attribute"),
+    "np_eye_bomb": ("x = np.eye(10**5)", "too large"),
+    "np_tile_bomb": ("x = np.tile(np.ones(10**8), 10**3)", "too large"),
+    "np_repeat_bomb": ("x = np.repeat(np.ones(10**8), 100)", "too large"),
+    "np_like_bomb": ("x = np.full_like(np.eye(10**5), 1.0)", "too large"),
+    "chained_repeat_bomb": ("x = 'a' * 10**6 * 10**6", "too large"),
+    "float_size_bomb": ("x = np.arange(1e12)", "too large"),
+    "keyword_size_bomb": ("x = np.zeros(shape=(10**5, 10**5))", "too large"),
 }
 
 
@@ -174,6 +186,9 @@ def test_module_level_code_is_checked_too() -> None:
 def test_syntax_errors_and_oversized_code_are_refused() -> None:
     with pytest.raises(SandboxViolation, match="line 1: syntax error"):
         check_source("def compute_reward(ctx) return")
+    # Parsed, but refused by the compiler: fed back to the model, not raised.
+    with pytest.raises(SandboxViolation, match="line 2: syntax error: 'continue' not properly"):
+        compile_reward("import numpy as np\ncontinue\n")
     with pytest.raises(SandboxViolation, match="limit is 100"):
         check_source("x = 1\n" * 50, SandboxConfig(max_source_chars=100))
     with pytest.raises(SandboxViolation, match="empty"):

@@ -133,6 +133,23 @@ def test_unreachable_model_and_unusable_run_dirs(tmp_path: Path, quiet) -> None:
         load_search(run)
 
 
+def test_tokens_paid_for_before_an_outage_are_on_record(tmp_path: Path, quiet) -> None:
+    # The first sample request is answered, the regeneration after its syntax error is not: the
+    # answered request's tokens must be in usage.json (a resume replays it from the cache free).
+    from fake_openai import Status
+
+    run = tmp_path / "run"
+    with FakeOpenAIServer([GOOD, SYNTAX_ERROR, *[Status(503)] * 5]) as server:
+        client = search_client(run, "openai:fake-model", server.base_url)
+        client.retry = RetryConfig(max_retries=1, backoff_initial_s=0.01, timeout_s=2.0)
+        with pytest.raises(LLMUnavailableError):
+            generate_reward(
+                "pick_nut_m12", client, run, tiny_config(), compare_expert=False, console=quiet
+            )
+    usage = json.loads((run / "usage.json").read_text())["total"]
+    assert usage["requests"] == 1 and usage["completion_tokens"] > 0
+
+
 def test_unknown_task_and_ungroundable_command(tmp_path: Path, quiet) -> None:
     client = search_client(tmp_path / "a", "offline")
     with pytest.raises(UnknownTaskError, match="pick_nut_m21"):

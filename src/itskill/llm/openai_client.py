@@ -127,11 +127,15 @@ class OpenAIClient(BaseClient):
                 self.n_supported = len(replies) >= n
         while len(replies) < n:
             try:
-                replies += self._request(messages, 1, temperature)[:1]
+                reply = self._request(messages, 1, temperature)[:1]
             except (openai.BadRequestError, openai.UnprocessableEntityError) as err:
                 raise LLMError(
                     f"{self.name} at {self.base_url} rejected the request: {_detail(err)}"
                 ) from err
+            if not reply:
+                # Asking again would pay for the same empty answer forever.
+                raise LLMError(f"{self.name} at {self.base_url} returned no choices")
+            replies += reply
         return replies[:n]
 
     def _request(self, messages: list[Message], n: int, temperature: float) -> list[str]:

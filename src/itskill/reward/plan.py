@@ -214,7 +214,10 @@ def parse_json_reply(reply: str) -> dict[str, Any]:
     match = _FENCE.search(reply)
     text = match.group(1) if match else reply
     if not match and "{" in text:
-        text = text[text.index("{") : text.rindex("}") + 1]
+        start, end = text.index("{"), text.rfind("}")
+        if end < start:
+            raise _InvalidPlan("the reply's JSON object is not closed (cut off?)")
+        text = text[start : end + 1]
     try:
         data = json.loads(text)
     except json.JSONDecodeError as err:

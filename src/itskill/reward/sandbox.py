@@ -166,17 +166,11 @@ MAX_CONSTANT_ELEMENTS = 10**8
 """Largest constant size for a repeated sequence, a range or an array constructor."""
 MAX_INT_BITS = 4096
 """Largest integer a constant power may produce."""
-_SIZED_NUMPY = {
-    "zeros",
-    "ones",
-    "full",
-    "empty_like",
-    "arange",
-    "linspace",
-    "eye",
-    "tile",
-    "repeat",
-}
+_SIZED_NUMPY = {"zeros", "ones", "full", "empty"}
+"""Constructors whose first argument is the shape."""
+_REPEATING_NUMPY = {"tile", "repeat"}
+"""Functions whose first argument is repeated by the others."""
+_LIKE_NUMPY = {"empty_like", "zeros_like", "ones_like", "full_like"}
 
 
 def _violation(node: ast.AST, what: str) -> SandboxViolation:
@@ -210,12 +204,56 @@ def _const_int(node: ast.AST) -> int | None:
 
 
 def _const_size(node: ast.AST) -> int | None:
-    """Number of elements a constant size argument asks for (an int or a tuple of ints)."""
+    """Number of elements a constant size argument asks for (a number or a tuple of ints)."""
     if isinstance(node, (ast.Tuple, ast.List)):
         sizes = [_const_int(e) for e in node.elts]
         return math.prod(abs(s) for s in sizes) if all(s is not None for s in sizes) else None
+    if (
+        isinstance(node, ast.Constant)
+        and isinstance(node.value, float)
+        and math.isfinite(node.value)
+    ):
+        return abs(int(node.value))  # np.arange(1e12)
     value = _const_int(node)
     return abs(value) if value is not None else None
+
+
+def _elements(node: ast.AST) -> int | None:
+    """How many elements an expression is known to hold before it runs: a literal sequence or
+    string, a sequence repeated a constant number of times, or a numpy constructor, repetition or
+    ``*_like`` of constant size. None when it depends on the data."""
+    if isinstance(node, (ast.List, ast.Tuple)):
+        return len(node.elts)
+    if isinstance(node, ast.Constant) and isinstance(node.value, (str, bytes)):
+        return len(node.value)
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mult):
+        for seq, count in ((node.left, node.right), (node.right, node.left)):
+            size, times = _elements(seq), _const_int(count)
+            if size is not None and times is not None:
+                return size * abs(times)
+        return None
+    if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)):
+        return None
+    if not _is_np(node.func.value):
+        return None
+    name, args = node.func.attr, list(node.args)
+    if name == "eye" and args:
+        rows = _const_size(args[0])
+        cols = _const_size(args[1]) if len(args) > 1 else rows
+        return None if rows is None or cols is None else rows * cols
+    if name in _SIZED_NUMPY and args:
+        return _const_size(args[0])
+    if name == "arange" and args:
+        bounds = [_const_size(arg) for arg in args[:2]]  # (stop) or (start, stop)
+        return None if None in bounds else max(bounds)  # type: ignore[type-var]
+    if name == "linspace" and len(args) > 2:
+        return _const_size(args[2])
+    if name in _REPEATING_NUMPY and len(args) > 1:
+        inner, times = _elements(args[0]), _const_size(args[1])
+        return None if inner is None or times is None else inner * times
+    if name in _LIKE_NUMPY and args:
+        return _elements(args[0])
+    return None
 
 
 class _Checker(ast.NodeVisitor):
@@ -280,6 +318,10 @@ class _Checker(ast.NodeVisitor):
             raise _violation(node, f"name {node.id!r} is not allowed (not a safe builtin)")
 
     def visit_Attribute(self, node: ast.Attribute) -> None:
+        if not isinstance(node.ctx, ast.Load):
+            # np.linalg.norm = ... would change numpy for the whole process: the host's own
+            # success checks included.
+            raise _violation(node, "assigning to or deleting an attribute is not allowed")
         self.generic_visit(node)  # inner first: np.lib.format.open_memmap is refused at np.lib
         attr = node.attr
         if attr.startswith("_"):
@@ -300,25 +342,25 @@ class _Checker(ast.NodeVisitor):
     def visit_BinOp(self, node: ast.BinOp) -> None:
         _const_int(node)  # refuses huge constant powers
         if isinstance(node.op, ast.Mult):
-            for seq, count in ((node.left, node.right), (node.right, node.left)):
-                if isinstance(seq, (ast.List, ast.Tuple, ast.Constant)) and not (
-                    isinstance(seq, ast.Constant) and isinstance(seq.value, (int, float))
-                ):
-                    size = _const_int(count)
-                    if size is not None and size > MAX_CONSTANT_ELEMENTS:
-                        raise _violation(node, f"sequence repeated {size} times is too large")
+            size = _elements(node)
+            if size is not None and size > MAX_CONSTANT_ELEMENTS:
+                raise _violation(node, f"sequence repeated to {size} elements is too large")
         self.generic_visit(node)
 
     def visit_Call(self, node: ast.Call) -> None:
         func = node.func
-        sized = (isinstance(func, ast.Name) and func.id == "range") or (
-            isinstance(func, ast.Attribute) and _is_np(func.value) and func.attr in _SIZED_NUMPY
-        )
-        if sized:
-            for arg in list(node.args) + [k.value for k in node.keywords]:
-                size = _const_size(arg)
-                if size is not None and size > MAX_CONSTANT_ELEMENTS:
-                    raise _violation(node, f"constant size {size} is too large")
+        if isinstance(func, ast.Name) and func.id == "range":
+            sizes = [_const_size(arg) for arg in node.args]
+        else:
+            sizes = [_elements(node)]
+            if isinstance(func, ast.Attribute) and _is_np(func.value):
+                # a size given by keyword: np.zeros(shape=...), np.linspace(0, 1, num=...)
+                sizes += [
+                    _const_size(k.value) for k in node.keywords if k.arg in ("shape", "num", "stop")
+                ]
+        for size in sizes:
+            if size is not None and size > MAX_CONSTANT_ELEMENTS:
+                raise _violation(node, f"constant size {size} is too large")
         self.generic_visit(node)
 
 
@@ -523,7 +565,12 @@ def compile_reward(source: str, config: SandboxConfig | None = None) -> Sandboxe
     """Check ``source``, run its module body in the sandbox and return its ``compute_reward``."""
     config = config or SandboxConfig()
     tree = check_source(source, config)
-    code = compile(tree, FILENAME, "exec")
+    try:
+        code = compile(tree, FILENAME, "exec")
+    except SyntaxError as err:  # what parses may still not compile: `continue` outside a loop
+        raise SandboxViolation(f"line {err.lineno}: syntax error: {err.msg}") from err
+    except (ValueError, RecursionError, MemoryError) as err:
+        raise SandboxViolation(f"the code cannot be compiled: {err}") from err
     namespace = _namespace()
     _run(exec, code, namespace, timeout=config.call_timeout_s)
     fn = namespace.get("compute_reward")

@@ -144,6 +144,14 @@ class _Run:
             self.sessions = read_json(path).get("sessions", [])
         self.session = {"started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
 
+    def __enter__(self) -> _Run:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        # Ctrl-C or an error mid-iteration: the tokens already paid for are on record (a resumed
+        # run replays those replies from the cache, where they count as free).
+        self.save_usage()
+
     def save_usage(self) -> dict[str, Any]:
         self.session.update(
             wall_s=round(time.monotonic() - self.started, 1), **self.client.usage.to_dict()
@@ -427,152 +435,155 @@ def generate_reward(
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             },
         )
-    run = _Run(out, client, console)
-    backend = f"{client.name}: {OFFLINE_NOTE}" if client.offline else client.name
-    console.print(f"reward search in {out} with {backend}", highlight=False)
-    if network is not None:
-        console.print(f"candidates train {network.label}", highlight=False)
-    plan = _plan(target, client, out)
-    run.save_usage()
-    console.print(f"plan: task {plan.task}; " + " ".join(plan.subtasks), highlight=False)
-
-    contexts = probe_contexts(plan.task, config.probe_envs, config.probe_steps)
-    base = reward_messages(plan.describe())
-    history: list[dict[str, Any]] = []
-    candidates: list[dict[str, Any]] = []  # every trained sample, with its code and _code_key
-    results_of: dict[str, Path] = {}  # _code_key -> the result of its training in this search
-    best: dict[str, Any] | None = None
-    failure: tuple[str, str] | None = None
-    for i in range(config.iterations):
-        label = f"iteration {i + 1}/{config.iterations}"
-        samples = generate_samples(
-            base + _feedback(best, failure, i + 1),
-            client,
-            config.samples,
-            contexts,
-            config.sandbox,
-            config.max_regenerations,
-            config.temperature,
-        )
+    with _Run(out, client, console) as run:  # its usage is saved however the search ends
+        backend = f"{client.name}: {OFFLINE_NOTE}" if client.offline else client.name
+        console.print(f"reward search in {out} with {backend}", highlight=False)
+        if network is not None:
+            console.print(f"candidates train {network.label}", highlight=False)
+        plan = _plan(target, client, out)
         run.save_usage()
-        it_dir = out / f"iter_{i}"
-        for sample in samples:
-            _write_sample(it_dir / f"sample_{sample.index}", sample)
-        accepted = [s for s in samples if s.accepted]
-        console.print(
-            f"{label}: {len(accepted)}/{len(samples)} samples pass the sandbox and the probe",
-            highlight=False,
-        )
-        jobs = [
-            _job(config, plan.task, it_dir / f"sample_{s.index}", s.code, config.seeds, network)
-            for s in accepted
-        ]
-        keys = [_code_key(s.code) for s in accepted]
-        reused = _reuse_results(jobs, keys, results_of, out)
-        if reused:
+        console.print(f"plan: task {plan.task}; " + " ".join(plan.subtasks), highlight=False)
+
+        contexts = probe_contexts(plan.task, config.probe_envs, config.probe_steps)
+        base = reward_messages(plan.describe())
+        history: list[dict[str, Any]] = []
+        candidates: list[dict[str, Any]] = []  # every trained sample, with its code and _code_key
+        results_of: dict[str, Path] = {}  # _code_key -> the result of its training in this search
+        best: dict[str, Any] | None = None
+        failure: tuple[str, str] | None = None
+        for i in range(config.iterations):
+            label = f"iteration {i + 1}/{config.iterations}"
+            samples = generate_samples(
+                base + _feedback(best, failure, i + 1),
+                client,
+                config.samples,
+                contexts,
+                config.sandbox,
+                config.max_regenerations,
+                config.temperature,
+            )
+            run.save_usage()
+            it_dir = out / f"iter_{i}"
+            for sample in samples:
+                _write_sample(it_dir / f"sample_{sample.index}", sample)
+            accepted = [s for s in samples if s.accepted]
             console.print(
-                f"{label}: {reused} sample(s) repeat a reward already trained: result reused",
+                f"{label}: {len(accepted)}/{len(samples)} samples pass the sandbox and the probe",
                 highlight=False,
             )
-        results = run.run_jobs(jobs, config, f"{label}: training")
-        for job, key in zip(jobs, keys, strict=True):
-            if (Path(job.out) / RESULT_FILE).is_file():
-                results_of.setdefault(key, Path(job.out) / RESULT_FILE)
-        by_sample = {s.index: results[j] for j, s in enumerate(accepted)}
-        entries = [_entry(s, by_sample.get(s.index)) for s in samples]
-        trained = [e for e in entries if e["status"] == "ok"]
-        key_of = {s.index: key for s, key in zip(accepted, keys, strict=True)}
-        candidates += [
-            {**e, "iteration": i, "code": samples[e["sample"]].code, "key": key_of[e["sample"]]}
-            for e in trained
+            jobs = [
+                _job(config, plan.task, it_dir / f"sample_{s.index}", s.code, config.seeds, network)
+                for s in accepted
+            ]
+            keys = [_code_key(s.code) for s in accepted]
+            reused = _reuse_results(jobs, keys, results_of, out)
+            if reused:
+                console.print(
+                    f"{label}: {reused} sample(s) repeat a reward already trained: result reused",
+                    highlight=False,
+                )
+            results = run.run_jobs(jobs, config, f"{label}: training")
+            for job, key in zip(jobs, keys, strict=True):
+                if (Path(job.out) / RESULT_FILE).is_file():
+                    results_of.setdefault(key, Path(job.out) / RESULT_FILE)
+            by_sample = {s.index: results[j] for j, s in enumerate(accepted)}
+            entries = [_entry(s, by_sample.get(s.index)) for s in samples]
+            trained = [e for e in entries if e["status"] == "ok"]
+            key_of = {s.index: key for s, key in zip(accepted, keys, strict=True)}
+            candidates += [
+                {**e, "iteration": i, "code": samples[e["sample"]].code, "key": key_of[e["sample"]]}
+                for e in trained
+            ]
+            it_best = max(trained, key=_rank) if trained else None
+            if it_best is not None and (best is None or _rank(it_best) > _rank(best)):
+                code = samples[it_best["sample"]].code
+                stats = by_sample[it_best["sample"]]["stats"]
+                best = {**it_best, "iteration": i, "code": code, "stats": stats}
+                write_text(out / BEST_FILE, code + "\n")
+            if not trained:  # every sample was rejected or failed: feed the last error back
+                last = samples[-1]
+                error = by_sample[last.index].get("error") if last.accepted else last.error
+                failure = (last.code, str(error))
+            summary = {
+                "iteration": i,
+                "samples": entries,
+                "accepted": len(accepted),
+                "trained": len(trained),
+                "best_sample": it_best["sample"] if it_best else None,
+                "best_success": it_best["success"] if it_best else None,
+                "best_correlation": it_best.get("correlation") if it_best else None,
+                "best_so_far": best["success"] if best else None,
+            }
+            write_json(it_dir / SUMMARY_FILE, summary)
+            history.append(summary)
+            console.print(
+                f"{label}: best success {format_rate(summary['best_success'])}, "
+                f"best so far {format_rate(summary['best_so_far'])}",
+                highlight=False,
+            )
+
+        if best is None:
+            run.save_usage()
+            raise RewardSearchError(
+                f"no candidate reward trained in {config.iterations} iteration(s): every sample "
+                f"was rejected or failed; see {out}/iter_*/sample_*/status.json and result.json"
+            )
+        selection = None
+        if config.select_top:
+            selection, chosen = _select(run, config, plan.task, out, candidates, network)
+            best = {
+                **chosen,
+                "selected_success": selection["candidates"][selection["chosen"]]["mean"],
+            }
+            write_text(out / BEST_FILE, best["code"] + "\n")
+        final_seeds = config.final_seed_list
+        kinds = [("generated", best["code"])] + ([("expert", None)] if compare_expert else [])
+        jobs = [
+            _job(config, plan.task, out / "final" / f"{kind}_seed{s}", code, (s,), network)
+            for kind, code in kinds
+            for s in final_seeds
         ]
-        it_best = max(trained, key=_rank) if trained else None
-        if it_best is not None and (best is None or _rank(it_best) > _rank(best)):
-            code = samples[it_best["sample"]].code
-            stats = by_sample[it_best["sample"]]["stats"]
-            best = {**it_best, "iteration": i, "code": code, "stats": stats}
-            write_text(out / BEST_FILE, code + "\n")
-        if not trained:  # every sample was rejected or failed: feed the last error back
-            last = samples[-1]
-            error = by_sample[last.index].get("error") if last.accepted else last.error
-            failure = (last.code, str(error))
-        summary = {
-            "iteration": i,
-            "samples": entries,
-            "accepted": len(accepted),
-            "trained": len(trained),
-            "best_sample": it_best["sample"] if it_best else None,
-            "best_success": it_best["success"] if it_best else None,
-            "best_correlation": it_best.get("correlation") if it_best else None,
-            "best_so_far": best["success"] if best else None,
+        results = run.run_jobs(jobs, config, "final: retraining best and expert rewards")
+        n = len(final_seeds)
+        final = {
+            "seeds": final_seeds,
+            "steps": config.steps,
+            "generated": _summarise_final([results[j] for j in range(n)], final_seeds),
+            "expert": _summarise_final([results[j] for j in range(n, 2 * n)], final_seeds)
+            if compare_expert
+            else None,
         }
-        write_json(it_dir / SUMMARY_FILE, summary)
-        history.append(summary)
+        usage = run.save_usage()
+        best_info = {k: v for k, v in best.items() if k not in ("code", "key", "stats")}
+        best_info["path"] = BEST_FILE
+        summary = {
+            "status": "complete",
+            "task": plan.task,
+            "command": plan.command,
+            "llm": client.name,
+            "offline": client.offline,
+            "plan": plan.to_dict(),
+            "network": header["network"],
+            "iterations": history,
+            "best": best_info,
+            "selection": selection,
+            "final": final,
+            "best_success": final["generated"]["mean"],
+            "expert_success": final["expert"]["mean"] if final["expert"] else None,
+            "usage": usage["total"],
+        }
+        from itskill.reward.figure import plot_fig6
+
+        plot_fig6(summary, out / FIGURE_FILE)
+        write_json(out / SUMMARY_FILE, summary)
         console.print(
-            f"{label}: best success {format_rate(summary['best_success'])}, "
-            f"best so far {format_rate(summary['best_so_far'])}",
+            f"best reward: iteration {best['iteration'] + 1}, sample {best['sample']}, in "
+            f"{out / BEST_FILE}; over seeds {final_seeds}: "
+            f"generated {format_rate(summary['best_success'])}"
+            + (f", expert {format_rate(summary['expert_success'])}" if compare_expert else ""),
             highlight=False,
         )
-
-    if best is None:
-        run.save_usage()
-        raise RewardSearchError(
-            f"no candidate reward trained in {config.iterations} iteration(s): every sample was "
-            f"rejected or failed; see {out}/iter_*/sample_*/status.json and result.json"
-        )
-    selection = None
-    if config.select_top:
-        selection, chosen = _select(run, config, plan.task, out, candidates, network)
-        best = {**chosen, "selected_success": selection["candidates"][selection["chosen"]]["mean"]}
-        write_text(out / BEST_FILE, best["code"] + "\n")
-    final_seeds = config.final_seed_list
-    kinds = [("generated", best["code"])] + ([("expert", None)] if compare_expert else [])
-    jobs = [
-        _job(config, plan.task, out / "final" / f"{kind}_seed{s}", code, (s,), network)
-        for kind, code in kinds
-        for s in final_seeds
-    ]
-    results = run.run_jobs(jobs, config, "final: retraining best and expert rewards")
-    n = len(final_seeds)
-    final = {
-        "seeds": final_seeds,
-        "steps": config.steps,
-        "generated": _summarise_final([results[j] for j in range(n)], final_seeds),
-        "expert": _summarise_final([results[j] for j in range(n, 2 * n)], final_seeds)
-        if compare_expert
-        else None,
-    }
-    usage = run.save_usage()
-    best_info = {k: v for k, v in best.items() if k not in ("code", "key", "stats")}
-    best_info["path"] = BEST_FILE
-    summary = {
-        "status": "complete",
-        "task": plan.task,
-        "command": plan.command,
-        "llm": client.name,
-        "offline": client.offline,
-        "plan": plan.to_dict(),
-        "network": header["network"],
-        "iterations": history,
-        "best": best_info,
-        "selection": selection,
-        "final": final,
-        "best_success": final["generated"]["mean"],
-        "expert_success": final["expert"]["mean"] if final["expert"] else None,
-        "usage": usage["total"],
-    }
-    from itskill.reward.figure import plot_fig6
-
-    plot_fig6(summary, out / FIGURE_FILE)
-    write_json(out / SUMMARY_FILE, summary)
-    console.print(
-        f"best reward: iteration {best['iteration'] + 1}, sample {best['sample']}, in "
-        f"{out / BEST_FILE}; over seeds {final_seeds}: "
-        f"generated {format_rate(summary['best_success'])}"
-        + (f", expert {format_rate(summary['expert_success'])}" if compare_expert else ""),
-        highlight=False,
-    )
-    return load_search(out)
+        return load_search(out)
 
 
 def _select(
