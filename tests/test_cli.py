@@ -94,6 +94,22 @@ def test_malformed_task_file_names_file_and_field(tmp_path, monkeypatch):
     assert "Traceback" not in text
 
 
+def test_scripted_eval_of_a_task_without_a_script_is_a_clear_error(tmp_path, monkeypatch):
+    (tmp_path / "mine.toml").write_text(
+        '[[task]]\nid = "my_pick"\nfamily = "nutbolt"\nkind = "basic"\n'
+        'command = "Pick up the M12 nut"\nskills = ["Pick"]\nactions = ["approach", "grasp"]\n'
+        'objects = ["nut_m12"]\nfixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]\n'
+        'max_steps = 60\nsuccess = "grasped(0)"\n'
+        'stages = [{ name = "approach", done = "near(0, 0.02)" }]\n'
+        "[task.init]\nee = { x = [0.4, 0.5], y = [-0.08, 0.08], z = [0.15, 0.22] }\n"
+        'objects = [{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }]\n'
+    )
+    monkeypatch.setenv(TASKS_DIR_ENV, str(tmp_path))
+    result = runner.invoke(app, ["eval", "my_pick", "--episodes", "2"])
+    assert result.exit_code == 2
+    assert "task 'my_pick' has no script" in flat(result.output)
+
+
 def test_eval_missing_checkpoint_is_a_clear_error(tmp_path):
     missing = tmp_path / "nothing_here.zip"
     result = runner.invoke(app, ["eval", "pick_nut_m12", "--policy", str(missing)])

@@ -11,7 +11,9 @@ from itskill.rl.logger import LoggerConfig, MetricsCallback, read_metrics
 
 
 def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_path: Path) -> None:
-    env = SimpleNamespace(num_envs=3, last_components={"reach": np.ones(3)})
+    env = SimpleNamespace(
+        num_envs=3, last_reward=np.array([1.0, 3.0, 9.0]), last_components={"reach": np.ones(3)}
+    )
     callback = MetricsCallback(
         env, tmp_path, total_steps=10, config=LoggerConfig(progress=False, tensorboard=False)
     )
@@ -19,7 +21,7 @@ def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_pat
     # Env 0 ends a failed episode from the task's own start; env 1 a successful one; env 2 a
     # successful episode that began with the part already in the fingers (a training start).
     callback.locals = {
-        "rewards": np.array([1.0, 3.0, 9.0]),
+        "rewards": np.array([10.0, 30.0, 90.0]),  # what the learner sees: rescaled
         "dones": np.array([True, True, True]),
         "infos": [
             {"is_success": False},
@@ -33,6 +35,6 @@ def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_pat
     callback.close()
     assert row["episodes"] == 2
     assert row["success_rate"] == 0.5
-    assert row["ep_return"] == 2.0
+    assert row["ep_return"] == 2.0  # the reward function's own scale
     assert row["reach"] == 1.0  # reward components still average over every step
     assert read_metrics(tmp_path)[-1]["success_rate"] == 0.5

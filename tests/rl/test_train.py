@@ -93,7 +93,7 @@ def test_the_best_evaluated_policy_is_kept_across_a_resume(
         success, stages = next(scores)
         evaluated.append(actor.policy.action_net.weight.detach().clone())
         return EvalResult(
-            spec.id, episodes, 0, success, 0.0, 1.0, 0.0, 10.0, 0.0, "live",
+            spec.id, episodes, 0, success, 0.0, 1.0, 10.0, 0.0, "live",
             stages * len(spec.stages), len(spec.stages), [10.0] + [0.0] * (len(spec.stages) - 1),
         )  # fmt: skip
 
@@ -119,7 +119,7 @@ def test_the_learning_curves_clock_goes_on_across_a_resume_without_the_evaluatio
     def slow_evaluate(spec, actor, episodes, seed, num_envs):
         time.sleep(0.5)
         return EvalResult(
-            spec.id, episodes, 0, 0.5, 0.0, 1.0, 0.0, 10.0, 0.0, "live",
+            spec.id, episodes, 0, 0.5, 0.0, 1.0, 10.0, 0.0, "live",
             0.0, len(spec.stages), [10.0] + [0.0] * (len(spec.stages) - 1),
         )  # fmt: skip
 
@@ -148,6 +148,41 @@ def test_resume_refuses_other_settings(tmp_path: Path, reach_reward: Path) -> No
     _train(out, reach_reward, 64, algo="a2c")
     with pytest.raises(ResumeMismatchError, match="algo"):
         _train(out, reach_reward, 128, algo="ppo")
+    # Loading the model kept the old rate and rollout length while the checkpoint recorded the
+    # new ones; now the run says so.
+    with pytest.raises(ResumeMismatchError, match=r"a2c\.n_steps: 4 -> 8"):
+        train(
+            TASK, "a2c", 128, seed=1, reward=reach_reward, out=out, num_envs=4,
+            overrides={"n_steps": 8}, logger=QUIET,
+        )  # fmt: skip
+    with pytest.raises(ResumeMismatchError, match="num_envs: 4 -> 2"):
+        train(
+            TASK, "a2c", 128, seed=1, reward=reach_reward, out=out, num_envs=2,
+            overrides={"n_steps": 4}, logger=QUIET,
+        )  # fmt: skip
+
+
+def test_a_resumed_run_draws_fresh_initial_states(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # Stable-Baselines3 seeds the environments with the run's seed when it builds or loads the
+    # model: each session must then reseed them with its own.
+    from itskill.sim.vec_env import BatchEnv
+
+    seeds: list[int | None] = []
+    original = BatchEnv.seed
+
+    def record(self, seed=None):
+        seeds.append(seed)
+        return original(self, seed)
+
+    monkeypatch.setattr(BatchEnv, "seed", record)
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64)
+    fresh = seeds[-1]
+    _train(out, reach_reward, 128)
+    resumed = seeds[-1]
+    assert len({fresh, resumed, 1}) == 3  # neither the run's seed nor each other's
 
 
 def test_callable_reward_is_recorded_and_guards_resume(tmp_path: Path, reach_reward: Path) -> None:

@@ -86,6 +86,11 @@ BROKEN = {
         "11.4 mm",
     ),
     "object_slot": (('success = "lifted(0, 3)', 'success = "lifted(1, 3)'), "success", "slot 1"),
+    "predicate_arguments": (
+        ('success = "lifted(0, 3)', 'success = "lifted(0, 3, 4, 5)'),
+        "success",
+        "lifted takes (i, heights=3.0), got 4",
+    ),
     "start_share": (
         (
             "max_steps = 60",
@@ -109,6 +114,18 @@ def test_malformed_task_file_names_the_file_and_the_field(tmp_path, parts, case)
     assert field in message and field in err.value.where
     assert problem in message
     assert err.value.path == str(path)
+
+
+@pytest.mark.parametrize(
+    ("nut", "problem"), [("nut_m16", "does not screw onto bolt_m12"), ("peg_round_4mm", "")]
+)
+def test_a_part_started_on_a_bolt_must_screw_onto_it(tmp_path, parts, nut, problem):
+    # It loaded, then failed at the first reset with a bare StopIteration or AttributeError.
+    text = VALID.replace('objects = ["nut_m12"]', f'objects = ["{nut}"]').replace(
+        '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }', '{ mode = "bolt" }'
+    )
+    with pytest.raises(TaskFileError, match=f"init.objects\\[0\\].mode.*{nut} {problem}"):
+        load_task_file(write(tmp_path, text), parts)
 
 
 def _user_registry(monkeypatch, tmp_path, starts: str) -> dict:
@@ -240,7 +257,9 @@ def test_unknown_predicate_lists_known_ones():
         assert name in message
 
 
-@pytest.mark.parametrize("text", ["grasped", "grasped()", "grasped(x)", "engaged(0) or near(0)"])
+@pytest.mark.parametrize(
+    "text", ["grasped", "grasped()", "grasped(x)", "engaged(0) or near(0)", "seated(0)"]
+)
 def test_malformed_expression_is_a_predicate_error(text):
     with pytest.raises(PredicateError):
         parse(text)

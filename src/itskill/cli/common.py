@@ -13,6 +13,7 @@ from rich.console import Console
 
 from itskill.tasks import TaskFileError, UnknownTaskError, render
 from itskill.tasks.evaluate import CheckpointError
+from itskill.tasks.scripted import ScriptError
 
 console = Console()
 
@@ -82,7 +83,13 @@ def user_errors() -> Iterator[None]:
     """Turn errors caused by the user's input into a red message and exit code 2."""
     try:
         yield
-    except (UnknownTaskError, TaskFileError, CheckpointError, render.RenderError) as err:
+    except (
+        UnknownTaskError,
+        TaskFileError,
+        CheckpointError,
+        ScriptError,
+        render.RenderError,
+    ) as err:
         err_console.print(f"[red]error:[/red] {err}", highlight=False, markup=True)
         raise typer.Exit(USAGE_ERROR) from err
 

@@ -122,9 +122,9 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
 class MetricsCallback(BaseCallback):
     """Collects episode outcomes and reward components each step; writes a row per update.
 
-    ``env`` is the unwrapped :class:`BatchEnv` being trained on (its ``last_components`` attribute
-    holds the reward components of the step just taken). ``total_steps`` is the run's target
-    step count, for the progress bar.
+    ``env`` is the unwrapped :class:`BatchEnv` being trained on (its ``last_reward`` and
+    ``last_components`` hold the raw reward and its components of the step just taken).
+    ``total_steps`` is the run's target step count, for the progress bar.
     """
 
     def __init__(
@@ -187,10 +187,10 @@ class MetricsCallback(BaseCallback):
             )
 
     def _on_step(self) -> bool:
-        rewards = self.locals["rewards"]
         dones = self.locals["dones"]
         infos = self.locals["infos"]
-        self._ret += rewards
+        # Not self.locals["rewards"]: with reward normalisation those are rescaled.
+        self._ret += self.env.last_reward
         self._len += 1
         for key, value in self.env.last_components.items():
             self._comp_sums[key] = self._comp_sums.get(key, 0.0) + float(np.sum(value))

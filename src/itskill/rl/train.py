@@ -9,6 +9,7 @@ the last checkpoint: the model (optimiser included) is reloaded and the step cou
 from __future__ import annotations
 
 import hashlib
+import json
 import runpy
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -192,6 +193,33 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
         raise ResumeMismatchError(
             f"{run_dir}: holds a run trained with reward {have!r}, this call gives {new!r}"
         )
+    # As the checkpoint stores them: through JSON, tuples become lists.
+    changed = _changed(meta.get("hyperparams", {}), json.loads(json.dumps(want["hyperparams"])))
+    if changed:
+        raise ResumeMismatchError(
+            f"{run_dir}: holds a run trained with other hyper-parameters ({'; '.join(changed)}); "
+            "resume with the same --num-envs and hyper-parameter file, or use another --out"
+        )
+
+
+_RESUMABLE_CHANGES = ("checkpoint_every",)
+"""Hyper-parameters a resumed run may change: they do not touch what it learns."""
+
+
+def _changed(have: Mapping[str, Any], want: Mapping[str, Any], prefix: str = "") -> list[str]:
+    """``key: old -> new`` for each setting in both that differs (a setting a later release added
+    is not in an older checkpoint, and is not a change)."""
+    out = []
+    for key in have.keys() & want.keys():
+        name = f"{prefix}{key}"
+        if name in _RESUMABLE_CHANGES:
+            continue
+        old, new = have[key], want[key]
+        if isinstance(old, Mapping) and isinstance(new, Mapping):
+            out += _changed(old, new, f"{name}.")
+        elif old != new:
+            out.append(f"{name}: {old!r} -> {new!r}")
+    return sorted(out)
 
 
 def train(
@@ -362,6 +390,9 @@ def train(
                     f"critic fitted in {summary['wall_s']:.0f} s ({summary['successes']} of "
                     f"{summary['episodes_run']} episodes succeeded with the run's action noise)"
                 )
+        # Building or loading the model seeds the environments with the run's seed: the fresh
+        # initial states of a resumed run are drawn from env_seed only from here on.
+        train_env.seed(env_seed)
         if keep_obs_stats:
             # The normaliser keeps the statistics the starting policy was fitted to (the
             # demonstrations', or the trained policy's): statistics that moved with the RL

@@ -150,7 +150,6 @@ class EvalResult:
     success_rate: float
     ci_low: float
     ci_high: float
-    mean_return: float
     mean_length: float
     wall_s: float
     policy: str
@@ -202,27 +201,23 @@ def evaluate(
         env.reset()
         actor.reset()
         done_count = np.zeros(num_envs, dtype=np.int64)
-        running_return = np.zeros(num_envs)
         running_length = np.zeros(num_envs, dtype=np.int64)
         running_stage_steps = np.zeros((num_envs, len(spec.stages)))
         outcomes = np.zeros(episodes, dtype=bool)
-        returns, lengths, stages, stage_steps = [], [], [], []
+        lengths, stages, stage_steps = [], [], []
         while (done_count < quotas).any():
             ctx = env.context()
             running_stage_steps[np.arange(num_envs), ctx["stage"]] += 1
-            _, rewards, dones, infos = env.step(actor(ctx))
-            running_return += rewards
+            _, _, dones, infos = env.step(actor(ctx))
             running_length += 1
             for e in np.flatnonzero(dones):
                 if done_count[e] < quotas[e]:
                     outcomes[first_index[e] + done_count[e]] = bool(infos[e]["is_success"])
                     stages.append(infos[e]["stages_done"])
-                    returns.append(running_return[e])
                     lengths.append(running_length[e])
                     stage_steps.append(running_stage_steps[e].copy())
                 done_count[e] += 1
             if dones.any():
-                running_return[dones] = 0.0
                 running_length[dones] = 0
                 running_stage_steps[dones] = 0.0
                 actor.reset(np.flatnonzero(dones))
@@ -237,7 +232,6 @@ def evaluate(
         success_rate=successes / episodes,
         ci_low=low,
         ci_high=high,
-        mean_return=float(np.mean(returns)),
         mean_length=float(np.mean(lengths)),
         wall_s=time.perf_counter() - start,
         policy=describe_policy(policy),

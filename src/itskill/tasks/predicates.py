@@ -12,6 +12,7 @@ Each predicate returns a boolean array over the batch.
 
 from __future__ import annotations
 
+import inspect
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -143,6 +144,18 @@ class Expression:
         return {int(args[0]) for _, _, args in self.terms}
 
 
+def _check_arity(term: str, name: str, given: int) -> None:
+    """Refuse on load what would fail at the first step: too few or too many arguments."""
+    params = list(inspect.signature(PREDICATES[name]).parameters.values())[1:]  # after ctx
+    least = sum(p.default is inspect.Parameter.empty for p in params)
+    if not least <= given <= len(params):
+        names = ", ".join(
+            p.name if p.default is inspect.Parameter.empty else f"{p.name}={p.default}"
+            for p in params
+        )
+        raise PredicateError(f"{term!r}: {name} takes ({names}), got {given} argument(s)")
+
+
 def parse(source: str) -> Expression:
     """Parse ``source``; raise :class:`PredicateError` saying what is wrong."""
     terms = []
@@ -162,5 +175,6 @@ def parse(source: str) -> Expression:
             raise PredicateError(f"{raw.strip()!r}: arguments must be numbers") from err
         if not args:
             raise PredicateError(f"{raw.strip()!r}: the first argument is the object slot")
+        _check_arity(raw.strip(), name, len(args))
         terms.append((negate, name, args))
     return Expression(source, tuple(terms))

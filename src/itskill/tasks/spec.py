@@ -363,6 +363,20 @@ def _parse_init(
                 raise TaskFileError(
                     path, orr.where + ".fixture", f"mode {mode!r} needs a {want.__name__} fixture"
                 )
+            part, seat = objects[k], fixtures[fixture].part
+            if mode == "hole" and not isinstance(part, PegSpec):
+                raise TaskFileError(path, orr.where + ".mode", f"{part.name} is not a peg")
+            if mode == "bolt" and not (
+                isinstance(part, NutSpec)
+                and (part.thread_diameter, part.pitch) == (seat.thread_diameter, seat.pitch)
+            ):
+                raise TaskFileError(
+                    path,
+                    orr.where + ".mode",
+                    f"{part.name} does not screw onto {seat.name}: mode 'bolt' needs a nut of "
+                    f"its thread ({seat.thread_diameter * 1000:g} mm, pitch "
+                    f"{seat.pitch * 1000:g} mm)",
+                )
         obj_inits.append(
             ObjectInit(
                 mode=mode,
