@@ -71,6 +71,7 @@ def run_one(
     curve = read_curve(run_dir, steps)
     return {
         "seed": seed,
+        "budget": steps,
         "steps": [int(x) for x in curve.steps],
         "wall_s": [float(x) for x in curve.wall_s],
         "success": [float(x) for x in curve.success],
@@ -81,16 +82,22 @@ def summarise(curves: list[dict]) -> dict:
     """Steps and minutes to each threshold (over the seeds that reached it) and final success."""
     out: dict = {"seeds": len(curves)}
     for thr in THRESHOLDS:
-        steps = [steps_to_threshold(c["steps"], c["success"], thr) for c in curves]
-        walls = [steps_to_threshold(c["wall_s"], c["success"], thr) for c in curves]
-        reached = [s for s in steps if s is not None]
+        hits = [
+            (
+                steps_to_threshold(c["steps"], c["success"], thr),
+                steps_to_threshold(c["wall_s"], c["success"], thr),
+                c["budget"],
+            )
+            for c in curves
+        ]
+        # Training ends one rollout past its budget: a crossing at that last evaluation is not
+        # within the budget.
+        reached = [(s, w) for s, w, budget in hits if s is not None and s <= budget]
         key = f"to_{round(thr * 100)}"
         out[key] = {
             "reached": len(reached),
-            "env_steps_mean": mean_interval(reached)[0] if reached else None,
-            "wall_min_mean": (
-                mean_interval([w for w in walls if w is not None])[0] / 60 if reached else None
-            ),
+            "env_steps_mean": mean_interval([s for s, _ in reached])[0] if reached else None,
+            "wall_min_mean": mean_interval([w for _, w in reached])[0] / 60 if reached else None,
         }
     curves = sorted(curves, key=lambda c: c["seed"])
     finals = [c["success"][-1] for c in curves]

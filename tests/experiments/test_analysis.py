@@ -98,6 +98,18 @@ def test_threshold_interval_is_cut_to_zero_and_the_budget():
     assert th.format_minutes().startswith("0.8 [0.0, ")
 
 
+def test_a_crossing_after_the_budget_is_not_reached_within_it():
+    # Training ends one rollout past its budget; the last evaluation there must not make a late
+    # seed count as slower than one that never got there (a negative gain over a baseline that
+    # never reached the threshold).
+    late = curve([500, 1000, 1024], [0.5, 0.7, 0.8], budget=1000)
+    never = curve([500, 1000, 1024], [0.5, 0.7, 0.7], budget=1000)
+    th = time_to_threshold([late], 0.8)
+    assert list(th.steps) == [1000] and not th.reached[0]
+    gain = threshold_gain(th, time_to_threshold([never], 0.8))
+    assert "-" not in gain.format()
+
+
 def test_threshold_is_reached_at_equality():
     th = time_to_threshold([curve([100, 200], [0.8, 0.9])], 0.8)
     assert th.steps[0] == 100 and th.reached[0]

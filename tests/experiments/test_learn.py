@@ -102,6 +102,7 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(tmp_path, budg
     chosen = summary["transfer"]["selection"]
     assert summary["transfer"]["policy_dir"] == str(out / "transfer" / "best")
     assert chosen["env_steps"] in (128, 256) and skill.train_steps == chosen["env_steps"]
+    assert skill.train_wall_s == round(chosen["wall_s"], 1)  # the kept policy's, not the run's
     stored, best = load_policy(checkpoint.parent), load_policy(out / "transfer" / "best")
     assert stored.state_dict().keys() == best.state_dict().keys()
     assert all(torch.equal(v, best.state_dict()[k]) for k, v in stored.state_dict().items())
@@ -126,6 +127,17 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(tmp_path, budg
     assert model.stat().st_mtime_ns == stamp
     with open_skill_space() as space:
         assert [s.name for s in space.list(task_id="pickplace_nut_m12")] == [skill.name]
+
+    # Interrupted after the skill went into the space but before the run recorded it: the resume
+    # finds it under the same name instead of adding a second copy.
+    (out / "skill.json").unlink()
+    (out / "skill.pending.json").write_text(json.dumps({"name": skill.name}))
+    resumed = learn(*args, "--no-video", "--resume")
+    assert resumed.exit_code == 0, resumed.output
+    with open_skill_space() as space:
+        assert [s.name for s in space.list(task_id="pickplace_nut_m12")] == [skill.name]
+    assert json.loads((out / "skill.json").read_text())["name"] == skill.name
+    assert not (out / "skill.pending.json").exists()
 
 
 def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budgets, home):

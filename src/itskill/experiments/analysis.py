@@ -239,12 +239,13 @@ def time_to_threshold(curves: Sequence[Curve], threshold: float) -> Threshold:
     """First evaluated env-step (and training wall time) at which success ≥ ``threshold``.
 
     Censored at the budget, and at the training wall time of the last evaluation, for a seed that
-    never reaches it.
+    does not reach it within the budget (training ends one rollout past it, and a crossing at that
+    last evaluation would otherwise count as reached later than a seed censored at the budget).
     """
     steps, walls, reached = [], [], []
     for c in curves:
         hit = steps_to_threshold(c.steps, c.success, threshold)
-        if hit is None:
+        if hit is None or hit > c.budget:
             steps.append(c.budget)
             walls.append(float(c.wall_s[-1]) if len(c.wall_s) else math.nan)
             reached.append(False)

@@ -598,6 +598,14 @@ def _evaluate(task: str, policy_dir: Path, episodes: int, steps: _Steps) -> dict
     return cached
 
 
+def _free_name(base: str, taken: set[str]) -> str:
+    """``base``, or ``base-2``, ``base-3``, ... : the first not in ``taken``."""
+    name, i = base, 2
+    while name in taken:
+        name, i = f"{base}-{i}", i + 1
+    return name
+
+
 def _add_skill(
     command: str,
     plan: dict[str, Any],
@@ -616,14 +624,15 @@ def _add_skill(
     if cached is None and evaluation["success_rate"] < b.min_success:
         cached = {"added": False, "min_success": b.min_success, "policy": transfer["policy_dir"]}
     elif cached is None:
+        pending = steps.run_dir / "skill.pending.json"
         with open_skill_space() as space:
-            taken = {s.name for s in space.list()}
-            base = f"learned-{slugify(command)}"
-            name = base
-            for i in range(2, 10_000):
-                if name not in taken:
-                    break
-                name = f"{base}-{i}"
+            if pending.is_file():
+                # Interrupted between adding the skill and recording it: the same name again,
+                # and no second copy if the add went through.
+                name = read_json(pending)["name"]
+            else:
+                name = _free_name(f"learned-{slugify(command)}", {s.name for s in space.list()})
+                write_json(pending, {"name": name})
             store = itskill_home() / "learned" / name
             store.mkdir(parents=True, exist_ok=True)
             # The kept policy's directory describes itself (transfer.json included).
@@ -631,23 +640,22 @@ def _add_skill(
             for file in (POLICY_FILE, META_FILE, "transfer.json"):
                 if (src / file).is_file():
                     shutil.copyfile(src / file, store / file)
-            skill = space.add(
-                Skill(
-                    name=name,
-                    task_id=plan["task"],
-                    description=command,
-                    actions=tuple(plan["actions"]),
-                    checkpoint=str(store / POLICY_FILE),
-                    success_rate=evaluation["success_rate"],
-                    success_ci=(evaluation["ci_low"], evaluation["ci_high"]),
-                    train_steps=int(
-                        (transfer["selection"] or {}).get("env_steps", transfer["steps"])
-                    ),
-                    train_wall_s=round(transfer["wall_s"], 1),
-                    algo=b.transfer.algo,
-                    seed=seed,
-                )
+            selection = transfer["selection"] or {}
+            skill = Skill(
+                name=name,
+                task_id=plan["task"],
+                description=command,
+                actions=tuple(plan["actions"]),
+                checkpoint=str(store / POLICY_FILE),
+                success_rate=evaluation["success_rate"],
+                success_ci=(evaluation["ci_low"], evaluation["ci_high"]),
+                # The kept policy's budget: its env-steps and the training time up to them.
+                train_steps=int(selection.get("env_steps", transfer["steps"])),
+                train_wall_s=round(selection.get("wall_s", transfer["wall_s"]), 1),
+                algo=b.transfer.algo,
+                seed=seed,
             )
+            skill = space.add_many([skill], on_conflict="replace")[0]
             cached = {
                 "added": True,
                 "id": skill.id,
@@ -659,6 +667,7 @@ def _add_skill(
             }
     if not was_cached:
         write_json(steps.run_dir / "skill.json", cached)
+        (steps.run_dir / "skill.pending.json").unlink(missing_ok=True)
     cached.setdefault("added", True)  # a skill.json from before the threshold: it was added
     if cached["added"]:
         done = f"skill {cached['id']} {cached['name']!r} in {cached['skill_space']}"
