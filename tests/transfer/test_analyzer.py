@@ -59,6 +59,7 @@ BAD_REPLIES = {
     "not-json": ("The pick skill matters most for grasping.", "not a JSON object"),
     "no-matrix": (fenced([[1, 0], [0, 1]]).replace("matrix", "weights"), 'no "matrix"'),
     "text-entry": (fenced([["high", 0], [0, 1]]), "not a number"),
+    "integer-beyond-float": (fenced([[10**400, 1], [0, 1]]), "not a rectangular table"),
 }
 
 
@@ -75,6 +76,12 @@ def test_bad_replies_are_reasked_then_refused(reply: str, problem: str) -> None:
     assert follow_up[-1]["role"] == "user"
     assert "cannot be used" in follow_up[-1]["content"]
     assert "2 rows" in follow_up[-1]["content"] and "2 non-negative" in follow_up[-1]["content"]
+
+
+def test_entries_near_the_float_limit_normalise_to_their_shares() -> None:
+    # Their row sum overflows to inf: divided by it, the row read as all zeros and crashed.
+    result = analyze(TARGET, SOURCES, ScriptedClient([fenced([[1e308, 1e308], [1, 3]])]))
+    np.testing.assert_allclose(result.matrix, [[0.5, 0.5], [0.25, 0.75]])
 
 
 def test_a_corrected_reply_is_accepted() -> None:

@@ -60,3 +60,16 @@ def test_errors_are_one_line_and_exit_2(home: Path, tmp_path: Path) -> None:
                         "a2c", "--out", str(not_transfer)])  # fmt: skip
     trace = runner.invoke(app, ["transfer", "trace", str(not_transfer)])
     assert trace.exit_code == 2 and "no contribution weights" in trace.output
+
+
+def test_settings_that_cannot_train_are_one_line_errors(home: Path, tmp_path: Path) -> None:
+    train = ["transfer", "train", "pickplace_nut_m12", "--steps", "16", "--num-envs", "2"]
+    bad_llm = runner.invoke(app, [*train, "--llm", "gpt-4o", "--out", str(tmp_path / "a")])
+    assert bad_llm.exit_code == 2
+    assert "unknown language model 'gpt-4o'" in " ".join(bad_llm.output.split())
+    # PST over every source it was given would be ITN under another name.
+    pst = runner.invoke(app, [*train, "--method", "pst", "--sources", "pick_nut_m12",
+                              "--out", str(tmp_path / "b")])  # fmt: skip
+    assert pst.exit_code == 2 and "that is ITN itself" in " ".join(pst.output.split())
+    for result in (bad_llm, pst):
+        assert "Traceback" not in result.output

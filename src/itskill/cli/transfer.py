@@ -62,10 +62,12 @@ def transfer_errors() -> Iterator[None]:
     from itskill.rl.train import ResumeMismatchError, RewardLoadError
     from itskill.skills import SkillSpaceError
     from itskill.transfer import AnalyzerError, SourceError, TransferConfigError
+    from itskill.transfer.fusion import IncompatibleSourceError
 
     errors = (
         AnalyzerError,
         SourceError,
+        IncompatibleSourceError,
         TransferConfigError,
         SkillSpaceError,
         LLMError,

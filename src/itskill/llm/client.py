@@ -60,6 +60,10 @@ class LLMUnavailableError(LLMError):
     """The endpoint cannot be reached, refuses the key, or no key is configured."""
 
 
+class UnknownModelError(LLMError, ValueError):
+    """A model spec that is neither ``offline`` nor ``openai:MODEL``."""
+
+
 @runtime_checkable
 class LLMClient(Protocol):
     """What the planner, the reward generator and the transfer analyzer need from a model."""
@@ -169,7 +173,7 @@ def make_client(
             cache_dir=cache_dir,
             price=price,
         )
-    raise ValueError(
+    raise UnknownModelError(
         f"unknown language model {spec!r}: expected 'offline' or 'openai:MODEL' "
         "(e.g. openai:gpt-4o, or openai:llama3.1 with OPENAI_BASE_URL=http://localhost:11434/v1)"
     )

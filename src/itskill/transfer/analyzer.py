@@ -76,7 +76,7 @@ def validate_matrix(matrix: Any, m: int, n: int) -> np.ndarray:
     """``matrix`` as an ``(m, n)`` array with rows summing to 1; ``ValueError`` names a flaw."""
     try:
         arr = np.asarray(matrix, dtype=np.float64)
-    except (TypeError, ValueError) as err:
+    except (TypeError, ValueError, OverflowError) as err:
         raise ValueError(f"the matrix is not a rectangular table of numbers ({err})") from err
     if arr.shape != (m, n):
         raise ValueError(
@@ -91,13 +91,16 @@ def validate_matrix(matrix: Any, m: int, n: int) -> np.ndarray:
     if neg.size:
         i, j = neg[0]
         raise ValueError(f"entry [{i}][{j}] is {arr[i, j]}, every entry must be non-negative")
-    sums = arr.sum(axis=1)
-    zero = np.flatnonzero(sums <= 0)
+    # Scaled by each row's largest entry first: a row of finite entries near the float limit
+    # would sum to inf and normalise to zeros.
+    peak = arr.max(axis=1, keepdims=True)
+    zero = np.flatnonzero(peak[:, 0] <= 0)
     if zero.size:
         raise ValueError(
             f"row {zero[0]} is all zeros: every target segment needs some contribution"
         )
-    return arr / sums[:, None]
+    scaled = arr / peak
+    return scaled / scaled.sum(axis=1, keepdims=True)
 
 
 def parse_reply(

@@ -18,6 +18,10 @@ import torch
 from torch import nn
 
 
+class IncompatibleSourceError(ValueError):
+    """A source network the target cannot join: its stages differ from the target's."""
+
+
 class FeatureFusion(nn.Module):
     """One MLP per target stage over ``[w_i * SO_i^j ..., SO_t^j]``."""
 
@@ -61,7 +65,7 @@ class FeatureSum(nn.Module):
         super().__init__()
         for i, widths in enumerate(source_widths):
             if tuple(widths) != tuple(target_widths):
-                raise ValueError(
+                raise IncompatibleSourceError(
                     f"direct feature summation needs every source stage as wide as the target's: "
                     f"source {i} has stages {list(widths)}, the target {list(target_widths)}"
                 )

@@ -65,6 +65,7 @@ from itskill.sim.layout import MAX_STAGES
 from itskill.sim.vec_env import action_space, observation_space
 from itskill.transfer.analyzer import validate_matrix
 from itskill.transfer.attention import STAGE_SLICE
+from itskill.transfer.fusion import IncompatibleSourceError
 from itskill.transfer.sources import freeze, load_source
 
 NOT_READY = (
@@ -330,7 +331,7 @@ class TransferPolicy(ActorCriticPolicy):
         self._new_sources = [_build_source(s) for s in self.config.sources]
         for spec, (src, _) in zip(self.config.sources, self._new_sources, strict=True):
             if len(stage_widths(src)) != len(target.stages):
-                raise ValueError(
+                raise IncompatibleSourceError(
                     f"source {spec['name']!r} has {len(stage_widths(src))} stages, the target "
                     f"{len(target.stages)}: lateral connections join stage j to stage j"
                 )

@@ -9,9 +9,17 @@ is then asked about those sources only.
 from __future__ import annotations
 
 from itskill.transfer.config import TransferConfig
-from itskill.transfer.sources import SourceSkill
+from itskill.transfer.sources import SourceError, SourceSkill
 
 
 def select_sources(sources: list[SourceSkill], config: TransferConfig) -> list[SourceSkill]:
-    """The sources PST transfers from: the first ``config.pst_keep``."""
+    """The sources PST transfers from: the first ``config.pst_keep``.
+
+    Keeping every source would train ITN itself under another name: :class:`SourceError`.
+    """
+    if len(sources) <= config.pst_keep:
+        raise SourceError(
+            f"PST keeps {config.pst_keep} of the {len(sources)} source(s): that is ITN itself; "
+            "give more sources (-k, --sources) or a smaller [pst] keep"
+        )
     return sources[: config.pst_keep]

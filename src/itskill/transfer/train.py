@@ -23,7 +23,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from itskill.files import write_json
 from itskill.llm.client import LLMClient
 from itskill.reward.candidate import CandidateNetwork
-from itskill.rl.checkpoint import BEST_DIR, class_path
+from itskill.rl.checkpoint import BEST_DIR, CheckpointError, class_path
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import EXPERT, ResumeMismatchError, RewardSource, TrainResult, train
 from itskill.skills import SkillSpace
@@ -44,7 +44,7 @@ def target_entry(spec: TaskSpec) -> dict[str, Any]:
 
     The stage names, not the task's action list, are the segments: the attention reads the
     current stage from the observation, and a few tasks list more actions than they have stages
-    (``pickplaceinsert_peg_round`` places and inserts in one stage).
+    (``removenut_m12`` lists unscrew, grasp, lift and has two stages, unscrew and lift).
     """
     return {
         "id": spec.id,
@@ -74,7 +74,7 @@ def read_transfer(run_dir: str | Path) -> dict[str, Any]:
     try:
         return json.loads(path.read_text())
     except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: not valid JSON: {err}") from err
+        raise CheckpointError(path, f"not valid JSON ({err})") from err
 
 
 # Settings a run directory written before they existed was trained with: its network had no
