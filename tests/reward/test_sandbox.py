@@ -162,6 +162,7 @@ ESCAPES = {
     "np_eye_bomb": ("x = np.eye(10**5)", "too large"),
     "np_tile_bomb": ("x = np.tile(np.ones(10**8), 10**3)", "too large"),
     "np_repeat_bomb": ("x = np.repeat(np.ones(10**8), 100)", "too large"),
+    "np_tile_data_bomb": ("x = np.tile(ctx['ee_pos'], 10**9)", "too large"),
     "np_like_bomb": ("x = np.full_like(np.eye(10**5), 1.0)", "too large"),
     "chained_repeat_bomb": ("x = 'a' * 10**6 * 10**6", "too large"),
     "float_size_bomb": ("x = np.arange(1e12)", "too large"),

@@ -249,8 +249,9 @@ def _elements(node: ast.AST) -> int | None:
     if name == "linspace" and len(args) > 2:
         return _const_size(args[2])
     if name in _REPEATING_NUMPY and len(args) > 1:
+        # At least ``times`` elements whatever is repeated (it may be the data's).
         inner, times = _elements(args[0]), _const_size(args[1])
-        return None if inner is None or times is None else inner * times
+        return None if times is None else (inner or 1) * times
     if name in _LIKE_NUMPY and args:
         return _elements(args[0])
     return None
