@@ -179,6 +179,11 @@ def test_escape_attempt_is_refused_before_running(body: str, expected: str) -> N
     assert expected in message, message
 
 
+def test_arithmetic_with_large_numbers_is_not_mistaken_for_a_bomb() -> None:
+    # Only literal sequences are repeated by `*`; an array times a number keeps its size.
+    compile_reward(wrap("x = np.ones(10**7) * 100\ny = np.zeros(5) * 10**9"))
+
+
 def test_module_level_code_is_checked_too() -> None:
     with pytest.raises(SandboxViolation, match="line 1: import 'os'"):
         check_source("import os\ndef compute_reward(ctx):\n    return 0")

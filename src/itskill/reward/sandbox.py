@@ -227,10 +227,12 @@ def _elements(node: ast.AST) -> int | None:
     if isinstance(node, ast.Constant) and isinstance(node.value, (str, bytes)):
         return len(node.value)
     if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mult):
+        # Repetition of a literal sequence only: an array times a number keeps its size.
         for seq, count in ((node.left, node.right), (node.right, node.left)):
-            size, times = _elements(seq), _const_int(count)
-            if size is not None and times is not None:
-                return size * abs(times)
+            if isinstance(seq, (ast.List, ast.Tuple, ast.Constant, ast.BinOp)):
+                size, times = _elements(seq), _const_int(count)
+                if size is not None and times is not None:
+                    return size * abs(times)
         return None
     if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)):
         return None
