@@ -118,7 +118,13 @@ def test_ctrl_c_stops_the_jobs_in_flight_and_starts_no_more(tmp_path, target: st
     # A terminal's Ctrl-C reaches the parent and its workers; `kill -INT` the parent alone.
     script = tmp_path / "parent.py"
     script.write_text(INTERRUPT_SCRIPT)
-    parent = subprocess.Popen([sys.executable, str(script), str(tmp_path)], start_new_session=True)
+    parent = subprocess.Popen(
+        [sys.executable, str(script), str(tmp_path)],
+        start_new_session=True,
+        # A process started in the background by a script (a CI job, say) ignores SIGINT, and
+        # its children inherit that; a terminal's command does not.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     try:
         deadline = time.monotonic() + 60
         while len(list(tmp_path.glob("*.started"))) < 2:
