@@ -11,9 +11,7 @@ from itskill.rl.logger import LoggerConfig, MetricsCallback, read_metrics
 
 
 def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_path: Path) -> None:
-    env = SimpleNamespace(
-        num_envs=3, last_reward=np.array([1.0, 3.0, 9.0]), last_components={"reach": np.ones(3)}
-    )
+    env = SimpleNamespace(num_envs=3, last_components={"reach": np.ones(3)})
     callback = MetricsCallback(
         env, tmp_path, total_steps=10, config=LoggerConfig(progress=False, tensorboard=False)
     )
@@ -23,10 +21,10 @@ def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_pat
     callback.locals = {
         "rewards": np.array([10.0, 30.0, 90.0]),  # what the learner sees: rescaled
         "dones": np.array([True, True, True]),
-        "infos": [
-            {"is_success": False},
-            {"is_success": True},
-            {"is_success": True, "training_start": True},
+        "infos": [  # each ending episode's return as the reward function summed it
+            {"is_success": False, "episode_return": 1.0},
+            {"is_success": True, "episode_return": 3.0},
+            {"is_success": True, "training_start": True, "episode_return": 9.0},
         ],
     }
     callback._on_step()

@@ -99,6 +99,27 @@ def test_single_env_matches_first_env_of_a_batch_with_the_same_seed():
 
 
 # ---------------------------------------------------------------------- episodes
+def test_an_ending_episode_reports_the_reward_functions_sum():
+    # Metrics read it there: what a wrapper (reward normalisation) hands the learner is rescaled.
+    name = "reach_nut_m12"
+    n = 2
+
+    def half(ctx):
+        r = np.full(n, 0.5)
+        return r, {"half": r}
+
+    env = make_batch_env(name, num_envs=n, seed=3, reward_fn=half)
+    env.reset()
+    still = np.tile(FREE, (n, 1))
+    total, dones = np.zeros(n), np.zeros(n, dtype=bool)
+    while not dones.any():
+        _, rewards, dones, infos = env.step(still)
+        total += rewards
+    for e in np.flatnonzero(dones):
+        assert infos[e]["episode_return"] == pytest.approx(total[e])
+        assert infos[e]["episode_return"] == pytest.approx(0.5 * get_task(name).max_steps)
+
+
 def test_batch_env_truncates_at_max_steps_and_resets():
     name = "reach_nut_m12"
     max_steps = get_task(name).max_steps

@@ -122,9 +122,9 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
 class MetricsCallback(BaseCallback):
     """Collects episode outcomes and reward components each step; writes a row per update.
 
-    ``env`` is the unwrapped :class:`BatchEnv` being trained on (its ``last_reward`` and
-    ``last_components`` hold the raw reward and its components of the step just taken).
-    ``total_steps`` is the run's target step count, for the progress bar.
+    ``env`` is the unwrapped :class:`BatchEnv` being trained on (its ``last_components`` attribute
+    holds the reward components of the step just taken; an ending episode's info its raw
+    ``episode_return``). ``total_steps`` is the run's target step count, for the progress bar.
     """
 
     def __init__(
@@ -146,9 +146,7 @@ class MetricsCallback(BaseCallback):
         self._progress: Progress | None = None
         self._task_id: Any = None
         self.last_row: dict[str, Any] | None = None
-        n = env.num_envs
-        self._ret = np.zeros(n)
-        self._len = np.zeros(n, dtype=np.int64)
+        self._len = np.zeros(env.num_envs, dtype=np.int64)
         self._reset_window(None)
 
     def _reset_window(self, step0: int | None) -> None:
@@ -189,8 +187,6 @@ class MetricsCallback(BaseCallback):
     def _on_step(self) -> bool:
         dones = self.locals["dones"]
         infos = self.locals["infos"]
-        # Not self.locals["rewards"]: with reward normalisation those are rescaled.
-        self._ret += self.env.last_reward
         self._len += 1
         for key, value in self.env.last_components.items():
             self._comp_sums[key] = self._comp_sums.get(key, 0.0) + float(np.sum(value))
@@ -200,9 +196,9 @@ class MetricsCallback(BaseCallback):
             # the task's success rate, return and length: only the task's own starts count.
             if not infos[e].get("training_start", False):
                 self._successes.append(bool(infos[e].get("is_success", False)))
-                self._returns.append(float(self._ret[e]))
+                # Not a sum of self.locals["rewards"]: reward normalisation rescales those.
+                self._returns.append(float(infos[e]["episode_return"]))
                 self._lengths.append(int(self._len[e]))
-            self._ret[e] = 0.0
             self._len[e] = 0
         return True
 

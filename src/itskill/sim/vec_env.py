@@ -75,9 +75,6 @@ class BatchEnv(VecEnv):
         self._actions = np.zeros((num_envs, 5))
         self.last_components: dict[str, np.ndarray] = {}
         """The reward components of the last step (``advance``/``step_wait``), for metrics."""
-        self.last_reward = np.zeros(num_envs)
-        """The last step's reward as the reward function gave it (a wrapper may rescale what
-        the learner sees), for metrics."""
         self._rngs = self._make_rngs(seed)
         self.render_mode = None
         super().__init__(num_envs, observation_space(), action_space())
@@ -137,6 +134,8 @@ class BatchEnv(VecEnv):
                 info["TimeLimit.truncated"] = bool(res.truncated[e] and not res.terminated[e])
                 info["is_success"] = bool(res.success[e])
                 info["episode_success"] = bool(res.success[e])
+                # The reward function's own sum: a wrapper may rescale what the learner sees.
+                info["episode_return"] = float(self.episode_return[e])
                 # Subtasks finished when the episode ended: all of them on success, else the
                 # index of the stage it was in (progress where success is still 0).
                 info["stages_done"] = (
@@ -164,7 +163,7 @@ class BatchEnv(VecEnv):
         else:
             reward, components = np.zeros(self.num_envs), {}
         self.episode_return += reward
-        self.last_reward, self.last_components = reward, components
+        self.last_components = components
         terminated = success if self.task.terminate_on_success else np.zeros_like(success)
         # A diverged environment (see BatchSim.unstable) ends its episode as if timed out.
         truncated = (self.steps >= self.task.max_steps) | self.sim.unstable
