@@ -38,8 +38,20 @@ def test_unknown_executor_is_a_clear_error() -> None:
 
 
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="ray is not installed")
-def test_ray_executor_on_a_local_instance() -> None:
-    _check(run_jobs(math.sqrt, JOBS, "ray"))
+@pytest.mark.parametrize("workers", [None, 2])
+def test_ray_executor_on_a_local_instance(workers: int | None) -> None:
+    # workers=2 keeps two of the four jobs in flight and submits the others as they finish.
+    _check(run_jobs(math.sqrt, JOBS, "ray", workers))
+
+
+def test_a_ray_address_with_the_local_executor_is_refused() -> None:
+    with pytest.raises(ExecutorError, match="needs the Ray executor"):
+        list(run_jobs(math.sqrt, JOBS, "local", 2, "ray://head:10001"))
+
+
+def test_zero_workers_is_refused() -> None:
+    with pytest.raises(ExecutorError, match="at least 1"):
+        list(run_jobs(math.sqrt, JOBS, "local", 0))
 
 
 PARENT_SCRIPT = """

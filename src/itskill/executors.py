@@ -61,12 +61,20 @@ def run_jobs(
 
     ``local`` runs ``workers`` spawned processes (one job per core by default; spawned, not
     forked, so no thread pool or MuJoCo state is inherited). ``ray`` submits ``ray.remote`` tasks
-    to the cluster at ``ray_address``, or to a local Ray instance when it is None.
+    to the cluster at ``ray_address``, or to a local Ray instance when it is None, keeping at most
+    ``workers`` of them in flight (all of them when None: Ray then schedules them by free CPUs).
     """
+    if workers is not None and workers < 1:
+        raise ExecutorError(f"workers must be at least 1, got {workers}")
     if executor == "local":
+        if ray_address is not None:
+            # Silently training on this machine when the user named a cluster would waste hours.
+            raise ExecutorError(
+                f"a Ray address ({ray_address}) needs the Ray executor (--executor ray)"
+            )
         yield from _run_local(fn, jobs, workers or default_workers())
     elif executor == "ray":
-        yield from _run_ray(fn, jobs, ray_address)
+        yield from _run_ray(fn, jobs, ray_address, workers)
     else:
         raise ExecutorError(f"unknown executor {executor!r}; expected one of {EXECUTORS}")
 
@@ -160,7 +168,7 @@ def _call(fn: Callable[..., Any], *args: Any) -> Any:
     return fn(*args)
 
 
-def _run_ray(fn, jobs, address: str | None) -> Iterator[JobResult]:
+def _run_ray(fn, jobs, address: str | None, workers: int | None) -> Iterator[JobResult]:
     try:
         import ray
     except ImportError as err:
@@ -176,8 +184,13 @@ def _run_ray(fn, jobs, address: str | None) -> Iterator[JobResult]:
             raise ExecutorError(f"could not start or reach Ray at {where}: {err}") from err
     try:
         remote = ray.remote(_call)
-        pending = {remote.remote(fn, *args): i for i, args in enumerate(jobs)}
-        while pending:
+        queue = list(enumerate(jobs))
+        in_flight = len(queue) if workers is None else workers
+        pending: dict = {}
+        while queue or pending:
+            while queue and len(pending) < in_flight:
+                index, args = queue.pop(0)
+                pending[remote.remote(fn, *args)] = index
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
                 index = pending.pop(ref)

@@ -126,7 +126,11 @@ def generate_cmd(
         str | None, typer.Option(help="local (process pool) or ray (default local).")
     ] = None,
     workers: Annotated[
-        int | None, typer.Option(min=1, help="Parallel candidates (local; default: one per core).")
+        int | None,
+        typer.Option(
+            min=1,
+            help="Parallel candidates (default: one per core; with Ray, as many as it takes).",
+        ),
     ] = None,
     ray_address: Annotated[
         str | None, typer.Option(help="Ray cluster address (default: a local Ray instance).")

@@ -301,7 +301,12 @@ def skills_pretrain(
         float, typer.Option(help="Success a skill needs to be added to the library.")
     ] = 0.5,
     executor: Annotated[str, typer.Option(help="local (one job per core) or ray.")] = "local",
-    workers: Annotated[int | None, typer.Option(help="Parallel jobs (local executor).")] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            help="Parallel jobs (default: one per core; with Ray, as many as the cluster takes)."
+        ),
+    ] = None,
     ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,
     runs: Annotated[Path, typer.Option(help="Training run directories (resumable).")] = Path(
         "runs/pretrain"

@@ -185,7 +185,13 @@ class _Run:
                 todo.append(i)
         if not todo:
             return results
-        workers = min(config.workers or default_workers(), len(todo))
+        # Ray schedules by the cluster's free CPUs unless told a limit; this machine's core
+        # count says nothing about a cluster.
+        workers = (
+            config.workers
+            if config.executor == "ray"
+            else min(config.workers or default_workers(), len(todo))
+        )
         progress = Progress(
             TextColumn(f"[bold]{label}"),
             BarColumn(),
