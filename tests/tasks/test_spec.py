@@ -99,6 +99,17 @@ BROKEN = {
         "training_starts[0].share",
         "0 < share < 1",
     ),
+    # A bad script step failed only when the scripted controller first ran.
+    "unknown script primitive": (
+        ("max_steps = 60", 'max_steps = 60\nscript = ["pick 0", "juggle 0"]'),
+        "script[1]",
+        "unknown primitive 'juggle'",
+    ),
+    "script object slot": (
+        ("max_steps = 60", 'max_steps = 60\nscript = ["pick 3"]'),
+        "script[0]",
+        "object slot",
+    ),
 }
 
 

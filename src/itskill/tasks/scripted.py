@@ -80,7 +80,15 @@ PUSH_STOP = 0.01
 
 
 class ScriptError(ValueError):
-    """A task script that names an unknown primitive or has wrong arguments."""
+    """A task script that names an unknown primitive or has wrong arguments.
+
+    ``index`` is the bad step's position in the script and ``problem`` what is wrong with it, so a
+    task-file loader can name the field; the message names the task and the step too.
+    """
+
+    def __init__(self, message: str, index: int | None = None, problem: str = "") -> None:
+        super().__init__(message)
+        self.index, self.problem = index, problem or message
 
 
 @dataclass
@@ -468,17 +476,18 @@ def compile_script(spec: TaskSpec) -> list[Phase]:
     """Expand ``spec.script`` into phases; :class:`ScriptError` names any bad step."""
     phases: list[Phase] = []
     for k, step in enumerate(spec.script):
-        where = f"task {spec.id!r} script[{k}] {step!r}"
-        name, *args = step.split()
+
+        def bad(problem: str, k: int = k, step: str = step) -> ScriptError:
+            return ScriptError(f"task {spec.id!r} script[{k}] {step!r}: {problem}", k, problem)
+
+        name, *args = step.split() or [""]
         if name not in _PRIMITIVES:
-            raise ScriptError(
-                f"{where}: unknown primitive {name!r}; known: {', '.join(_PRIMITIVES)}"
-            )
+            raise bad(f"unknown primitive {name!r}; known: {', '.join(_PRIMITIVES)}")
         builder, needs_object, extra = _PRIMITIVES[name]
         try:
             numbers = [float(a) for a in args]
         except ValueError as err:
-            raise ScriptError(f"{where}: arguments must be numbers") from err
+            raise bad("arguments must be numbers") from err
         call_args: list = []
         if needs_object:
             if (
@@ -486,11 +495,11 @@ def compile_script(spec: TaskSpec) -> list[Phase]:
                 or not numbers[0].is_integer()
                 or not 0 <= numbers[0] < len(spec.objects)
             ):
-                raise ScriptError(f"{where}: the first argument must be an object slot")
+                raise bad("the first argument must be an object slot")
             slot = int(numbers.pop(0))
             call_args.append(_Part(slot, spec.objects[slot]))
         if len(numbers) > extra or (name in ("lift", "push") and len(numbers) != extra):
-            raise ScriptError(f"{where}: wrong number of arguments")
+            raise bad("wrong number of arguments")
         phases.extend(builder(*call_args, *numbers))
     return phases
 

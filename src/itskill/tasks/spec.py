@@ -294,7 +294,7 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         check_start_shares(tuple(starts))
     except ValueError as err:
         raise TaskFileError(path, f"task {task_id!r}.training_starts", str(err)) from err
-    return TaskSpec(
+    spec = TaskSpec(
         id=task_id,
         family=r.get("family", str),
         kind=r.get("kind", str, "basic"),
@@ -316,6 +316,19 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         source=str(path),
         training_starts=tuple(starts),
     )
+    _check_script(path, spec)
+    return spec
+
+
+def _check_script(path: Path, spec: TaskSpec) -> None:
+    """A bad script step fails at load, naming the file and the step, not at its first run."""
+    # scripted.py builds its phases from a TaskSpec, so it imports this module.
+    from itskill.tasks.scripted import ScriptError, compile_script
+
+    try:
+        compile_script(spec)
+    except ScriptError as err:
+        raise TaskFileError(path, f"task {spec.id!r}.script[{err.index}]", err.problem) from err
 
 
 def _parse_init(
