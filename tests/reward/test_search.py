@@ -31,7 +31,7 @@ from itskill.reward import (
 from itskill.reward.generator import extract_code
 from itskill.reward.plan import PlanError
 from itskill.reward.sandbox import compile_reward
-from itskill.reward.search import _feedback, _rank
+from itskill.reward.search import _feedback, _rank, plan_target
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.tasks import UnknownTaskError
 
@@ -184,6 +184,22 @@ def test_a_reward_repeated_in_a_later_iteration_is_not_trained_again(tmp_path: P
         assert again.pop("reused_from") == f"iter_0/sample_{k}"
         assert again == first
     assert [e["status"] for e in result.history[1]["samples"]] == ["ok", "ok"]
+
+
+def test_a_plan_made_by_the_caller_is_used_not_asked_for_again(tmp_path: Path, quiet) -> None:
+    # `reward generate --transfer` plans the command to retrieve the network's sources; the
+    # search asked the model for the same plan a second time.
+    command = "Pick up the M12 nut"
+    plan = plan_target(command, search_client(tmp_path / "planner", "offline"))
+    run = tmp_path / "run"
+    with FakeOpenAIServer([GOOD, CONSTANT]) as server:
+        client = search_client(run, "openai:fake-model", server.base_url)
+        generate_reward(
+            command, client, run, tiny_config(), compare_expert=False, console=quiet, plan=plan
+        )
+        requests = server.requests
+    assert len(requests) == 1 and requests[0]["n"] == 2  # the two samples, no plan request
+    assert json.loads((run / "plan.json").read_text()) == plan.to_dict()
 
 
 def _fake_result(success: float, correlation: float) -> dict:

@@ -220,9 +220,9 @@ def generate_cmd(
             config = load_search_config(config_file, overrides)
             run_dir = out or Path("runs/reward") / _slug(target)
         client = search_client(run_dir, llm, base_url)
-        network = None
+        network = plan = None
         if transfer is not None:
-            network = _network(target, transfer, run_dir / NETWORK_DIR, client, config.algo)
+            plan, network = _network(target, transfer, run_dir / NETWORK_DIR, client, config.algo)
         try:
             result = generate_reward(
                 target,
@@ -233,6 +233,7 @@ def generate_cmd(
                 compare_expert=expert is not False,
                 console=console,
                 network=network,
+                plan=plan,
             )
         except KeyboardInterrupt:
             err_console.print(
@@ -249,24 +250,23 @@ def _network_method(record_dir: Path) -> str:
     return read_transfer(record_dir)["method"]
 
 
-def _network(target: str, method: str, out: Path, client: Any, algo: str) -> Any:
-    """The transfer network the candidates train, over the skills retrieved for the target's
-    task (a command is planned first, through the search's cached client)."""
+def _network(target: str, method: str, out: Path, client: Any, algo: str) -> tuple[Any, Any]:
+    """The target's plan, and the transfer network the candidates train over the skills
+    retrieved for the planned task. The search is given that plan, so the model is asked once."""
     from itskill.cli.transfer import transfer_errors
-    from itskill.reward.plan import plan_command
-    from itskill.reward.search import resolve_target
+    from itskill.reward.search import plan_target
     from itskill.transfer import get_method, search_network
 
     try:
         get_method(method)
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--transfer") from err
-    task = resolve_target(target) or plan_command(target, client).task
+    plan = plan_target(target, client)
     with transfer_errors():
-        network = search_network(task, method, out, algo=algo, client=client)
+        network = search_network(plan.task, method, out, algo=algo, client=client)
     if network is None:
         raise typer.BadParameter(f"{method} trains no source skills", param_hint="--transfer")
-    return network
+    return plan, network
 
 
 @reward_app.command("show")

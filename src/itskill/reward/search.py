@@ -269,12 +269,17 @@ def _check_resume(out: Path, header: dict[str, Any]) -> dict[str, Any]:
     return stored
 
 
-def _plan(target: str, client: LLMClient, out: Path) -> TaskPlan:
+def plan_target(target: str, client: LLMClient) -> TaskPlan:
+    """The plan of ``target``: from its task file for a task id, by ``client`` for a command."""
+    task = resolve_target(target)
+    return plan_for_task(task) if task is not None else plan_command(target, client)
+
+
+def _plan(target: str, client: LLMClient, out: Path, plan: TaskPlan | None) -> TaskPlan:
     path = out / PLAN_FILE
     if path.is_file():
         return TaskPlan.from_dict(read_json(path), where=str(path))
-    task = resolve_target(target)
-    plan = plan_for_task(task) if task is not None else plan_command(target, client)
+    plan = plan or plan_target(target, client)
     write_json(path, plan.to_dict())
     return plan
 
@@ -397,6 +402,7 @@ def generate_reward(
     compare_expert: bool = True,
     console: Console | None = None,
     network: CandidateNetwork | None = None,
+    plan: TaskPlan | None = None,
 ) -> RewardSearchResult:
     """Search a reward for ``target`` (a task id or a command) with ``client``, in run dir ``out``.
 
@@ -408,7 +414,9 @@ def generate_reward(
     client's :class:`~itskill.llm.client.LLMError` when the model cannot be reached.
 
     ``network`` is what every candidate, the selection and the final retraining (the expert
-    reward's too) train; None trains the family's own network from scratch.
+    reward's too) train; None trains the family's own network from scratch. ``plan`` is
+    :func:`plan_target`'s plan of ``target`` when the caller already made one (to retrieve the
+    network's sources), so the model is not asked twice; a resumed run keeps its stored plan.
     """
     config = config or RewardSearchConfig()
     console = console or Console(stderr=True)
@@ -446,7 +454,7 @@ def generate_reward(
         console.print(f"reward search in {out} with {backend}", highlight=False)
         if network is not None:
             console.print(f"candidates train {network.label}", highlight=False)
-        plan = _plan(target, client, out)
+        plan = _plan(target, client, out, plan)
         run.save_usage()
         console.print(f"plan: task {plan.task}; " + " ".join(plan.subtasks), highlight=False)
 
