@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pickle
+import signal
 import subprocess
 import sys
 import textwrap
@@ -20,6 +21,7 @@ from itskill.reward.sandbox import (
     apply_process_limits,
     check_source,
     compile_reward,
+    death_cause,
 )
 
 N = 3
@@ -348,3 +350,12 @@ def test_process_limits_only_go_down() -> None:
 
 def test_apply_process_limits_is_callable_without_limits() -> None:
     apply_process_limits(SandboxConfig())  # no limits configured: nothing changes
+
+
+def test_the_cause_of_a_dead_worker_process_is_named() -> None:
+    limits = SandboxConfig(cpu_limit_s=60)
+    process = "the candidate's process"
+    assert "CPU time limit of 60 s" in death_cause(-int(signal.SIGXCPU), limits, process)
+    assert "out of memory" in death_cause(-int(signal.SIGKILL), limits, process)
+    assert f"{process} was killed by SIGSEGV" == death_cause(-int(signal.SIGSEGV), limits, process)
+    assert f"{process} exited with code 1" in death_cause(1, limits, process)

@@ -2,7 +2,8 @@
 model, train candidates in parallel, feed their statistics back, keep the best.
 
 - :mod:`itskill.reward.plan`: command -> validated :class:`TaskPlan`;
-- :mod:`itskill.reward.generator`: K samples per iteration, code extraction, probe, regeneration;
+- :mod:`itskill.reward.generator`: K samples per iteration, code extraction, regeneration;
+- :mod:`itskill.reward.probe`: each sample run on real contexts, in a limited child process;
 - :mod:`itskill.reward.sandbox`: the only way generated code runs;
 - :mod:`itskill.reward.candidate`: train and measure one candidate in its own process;
 - :mod:`itskill.reward.feedback`: statistics of a candidate's training for the next prompt;

@@ -38,7 +38,7 @@ import numpy as np
 
 from itskill.executors import stop_on_first_interrupt
 from itskill.files import read_json, write_json
-from itskill.reward.sandbox import SandboxConfig, apply_process_limits, compile_reward
+from itskill.reward.sandbox import SandboxConfig, apply_process_limits, compile_reward, death_cause
 
 RESULT_FILE = "result.json"
 TRAIN_DIR = "train"
@@ -123,7 +123,7 @@ def run_candidate(job: CandidateJob) -> dict[str, Any]:
     if child.exitcode == _INTERRUPTED:
         raise KeyboardInterrupt
     if not path.is_file():
-        problem = problem or _death_cause(child.exitcode, job.sandbox)
+        problem = problem or death_cause(child.exitcode, job.sandbox, "the candidate's process")
         write_json(path, {"status": "failed", "error": problem, "wall_s": time.monotonic() - start})
     return read_json(path)
 
@@ -142,17 +142,6 @@ def _supervise(child: Any, job: CandidateJob, start: float, parent: int) -> str 
             child.join()
             problem = f"timed out: training took longer than {job.timeout_s:g} s (wall clock)"
     return problem
-
-
-def _death_cause(exitcode: int | None, sandbox: SandboxConfig) -> str:
-    if exitcode is not None and exitcode < 0:
-        sig = signal.Signals(-exitcode)
-        if sig == signal.SIGXCPU:
-            return f"CPU time limit of {sandbox.cpu_limit_s} s exceeded (killed by SIGXCPU)"
-        if sig == signal.SIGKILL:
-            return "killed by SIGKILL (out of memory?)"
-        return f"the candidate's process was killed by {sig.name}"
-    return f"the candidate's process exited with code {exitcode} without a result"
 
 
 def _watch_parent(parent_pid: int) -> None:

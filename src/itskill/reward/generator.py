@@ -7,8 +7,8 @@ sandbox's time limit. Otherwise the model gets the error back (``execution_error
 writes the sample again, up to ``max_regenerations`` times; a sample still broken then is recorded
 as failed with every reply and the reason each was rejected. Nothing here raises for a bad reply.
 
-The probe is the only place generated code runs in the main process, and it runs through
-:func:`itskill.reward.sandbox.compile_reward` like everywhere else.
+The probe runs the code in a child process under the sandbox's limits
+(:class:`itskill.reward.probe.Probe`), never in the search's own process.
 """
 
 from __future__ import annotations
@@ -21,13 +21,8 @@ import numpy as np
 
 from itskill.llm.client import LLMClient, Message
 from itskill.llm.prompts import execution_error_feedback
-from itskill.reward.sandbox import (
-    SandboxConfig,
-    SandboxError,
-    SandboxTimeout,
-    SandboxViolation,
-    compile_reward,
-)
+from itskill.reward.probe import Probe
+from itskill.reward.sandbox import SandboxConfig
 from itskill.sim.task import Context
 from itskill.tasks import make_batch_env
 
@@ -66,23 +61,6 @@ def probe_contexts(task: str, num_envs: int, steps: int, seed: int = 0) -> list[
     finally:
         env.close()
     return contexts
-
-
-def check_code(code: str, contexts: list[Context], sandbox: SandboxConfig) -> str | None:
-    """Why ``code`` cannot be used (a message for the model), or None if it passes the probe."""
-    if not code.strip():
-        return "the reply contains no code: write compute_reward(ctx) in a ```python fence"
-    try:
-        reward = compile_reward(code, sandbox)
-        for ctx in contexts:
-            reward(ctx)  # the sandbox hands the code read-only views: ctx stays intact
-    except SandboxViolation as err:
-        return f"rejected by the sandbox: {err}"
-    except SandboxTimeout as err:
-        return f"timed out on the probe batch: {err}"
-    except SandboxError as err:
-        return f"failed on the probe batch: {err}"
-    return None
 
 
 @dataclass
@@ -147,21 +125,22 @@ def generate_samples(
     """``k`` samples for ``messages``, each regenerated with its error up to ``max_regenerations``
     times. The requests are made in a fixed order, so a rerun replays them from the reply cache."""
     samples = []
-    for index, reply in enumerate(
-        client.complete(messages, n=k, purpose="reward", temperature=temperature)
-    ):
-        sample = Sample(index)
-        while True:
-            code = extract_code(reply)
-            error = check_code(code, contexts, sandbox)
-            sample.attempts.append(Attempt(reply, code, error))
-            if error is None or len(sample.attempts) > max_regenerations:
-                break
-            retry = [
-                *messages,
-                {"role": "assistant", "content": reply},
-                {"role": "user", "content": execution_error_feedback(code, error)},
-            ]
-            reply = client.complete(retry, n=1, purpose="reward", temperature=temperature)[0]
-        samples.append(sample)
+    with Probe(contexts, sandbox) as probe:
+        for index, reply in enumerate(
+            client.complete(messages, n=k, purpose="reward", temperature=temperature)
+        ):
+            sample = Sample(index)
+            while True:
+                code = extract_code(reply)
+                error = probe.check(code)
+                sample.attempts.append(Attempt(reply, code, error))
+                if error is None or len(sample.attempts) > max_regenerations:
+                    break
+                retry = [
+                    *messages,
+                    {"role": "assistant", "content": reply},
+                    {"role": "user", "content": execution_error_feedback(code, error)},
+                ]
+                reply = client.complete(retry, n=1, purpose="reward", temperature=temperature)[0]
+            samples.append(sample)
     return samples

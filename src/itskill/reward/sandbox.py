@@ -605,3 +605,15 @@ def apply_process_limits(config: SandboxConfig) -> None:
         lower(resource.RLIMIT_CPU, int(config.cpu_limit_s))
     if config.memory_limit_mb is not None:
         lower(resource.RLIMIT_AS, int(config.memory_limit_mb) * 1024 * 1024)
+
+
+def death_cause(exitcode: int | None, config: SandboxConfig, process: str) -> str:
+    """Why ``process`` (a worker under :func:`apply_process_limits`) ended with ``exitcode``."""
+    if exitcode is not None and exitcode < 0:
+        sig = signal.Signals(-exitcode)
+        if sig == signal.SIGXCPU:
+            return f"CPU time limit of {config.cpu_limit_s} s exceeded (killed by SIGXCPU)"
+        if sig == signal.SIGKILL:
+            return "killed by SIGKILL (out of memory?)"
+        return f"{process} was killed by {sig.name}"
+    return f"{process} exited with code {exitcode} without a result"
