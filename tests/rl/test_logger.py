@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from itskill.rl.logger import LoggerConfig, MetricsCallback, read_metrics
+from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter, read_metrics
 
 
 def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_path: Path) -> None:
@@ -36,3 +36,19 @@ def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_pat
     assert row["ep_return"] == 2.0  # the reward function's own scale
     assert row["reach"] == 1.0  # reward components still average over every step
     assert read_metrics(tmp_path)[-1]["success_rate"] == 0.5
+
+
+def test_resume_truncation_drops_a_row_cut_short_by_a_crash(tmp_path: Path) -> None:
+    # A line half-written when the disk filled made every later resume fail to parse it.
+    writer = MetricsWriter(tmp_path)
+    for step in (64, 128, 192):
+        writer.write({"step": step, "wall_s": 0.1 * step, "success_rate": 0.5})
+    with open(writer.jsonl_path, "a") as fh:
+        fh.write('{"step": 256, "wall')
+    with open(writer.csv_path, "a") as fh:
+        fh.write("256,2")
+    MetricsWriter(tmp_path).truncate_after(128)
+    assert [r["step"] for r in read_metrics(tmp_path)] == [64, 128]
+    lines = writer.csv_path.read_text().splitlines()
+    assert [line.split(",")[0] for line in lines[1:]] == ["64", "128"]
+    assert not list(tmp_path.glob(".*.tmp"))  # rewritten through a temporary file

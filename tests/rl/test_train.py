@@ -329,3 +329,85 @@ def test_a_task_table_of_the_hyperparameter_file_reaches_its_training(
     meta = json.loads((out / "checkpoint.json").read_text())
     assert meta["hyperparams"]["policy"]["log_std_init"] == -1.5
     np.testing.assert_allclose(load_policy(out).log_std.detach().numpy(), -1.5, atol=0.05)
+
+
+def _scripted_evaluate(scores, interrupt_at=()):
+    """An ``evaluate`` stand-in: each call takes the next success from ``scores``, and the calls
+    numbered in ``interrupt_at`` (from 1) raise KeyboardInterrupt as a Ctrl-C during it would."""
+    calls = {"n": 0}
+
+    def fake(spec, actor, episodes, seed, num_envs):
+        calls["n"] += 1
+        if calls["n"] in interrupt_at:
+            raise KeyboardInterrupt
+        n = len(spec.stages)
+        return EvalResult(
+            spec.id, episodes, 0, next(scores), 0.0, 1.0, 10.0, 0.0, "live",
+            0.0, n, [10.0] + [0.0] * (n - 1),
+        )  # fmt: skip
+
+    return fake, calls
+
+
+def _eval_steps(out: Path) -> list[int]:
+    with open(out / "eval.csv", newline="") as fh:
+        return [int(r["env_steps"]) for r in csv.DictReader(fh)]
+
+
+def test_an_evaluation_cut_short_by_ctrl_c_is_made_up_on_resume(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # The checkpoint saved on Ctrl-C is past the evaluation's step, so it never came round again;
+    # cut short at the end, the finished run never evaluated its final policy at all.
+    fake, calls = _scripted_evaluate(iter([0.5] * 10), interrupt_at=(2, 4, 6))
+    monkeypatch.setattr(eval_callback, "evaluate", fake)
+    out = tmp_path / "run"
+    for _ in range(3):  # interrupted at 128, then at 192, then at 256 (the last one)
+        with pytest.raises(KeyboardInterrupt):
+            _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    assert _eval_steps(out) == [64, 128, 192]
+    done = _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    assert done.num_timesteps == 256 and _eval_steps(out) == [64, 128, 192, 256]
+    assert done.best is not None and done.best["env_steps"] == 256
+    assert calls["n"] == 7
+    _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)  # finished: nothing to do
+    assert calls["n"] == 7
+
+
+def test_evaluations_after_the_checkpoint_a_crash_went_back_to_are_forgotten(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # Killed after evaluating at 192 and 256 but before checkpointing past 128: the resumed run
+    # trains 128..256 again, differently; the old rows doubled the curve (and a reward
+    # candidate's peak success was taken over both), and best/ came from the lost trajectory.
+    scores = iter([0.25, 0.25, 0.5, 1.0, 0.0, 0.0])
+    fake, _ = _scripted_evaluate(scores)
+    monkeypatch.setattr(eval_callback, "evaluate", fake)
+    out = tmp_path / "run"
+    _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
+    saved = {
+        f: (out / f).read_bytes() for f in ("model.zip", "checkpoint.json", "reward_norm.json")
+    }
+    lost = _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    assert lost.best is not None and lost.best["success"] == 1.0
+    for name, data in saved.items():  # the state kill -9 leaves: the 128 checkpoint
+        (out / name).write_bytes(data)
+    resumed = _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    assert resumed.resumed_from == 128 and _eval_steps(out) == [64, 128, 192, 256]
+    assert resumed.best is not None and resumed.best["success"] == 0.0
+
+
+def test_a_checkpoint_torn_between_its_files_resumes_from_the_model(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    # Killed after model.zip was replaced and before checkpoint.json was: the model holds 128
+    # env-steps, the record 64. The model is the truth, and the record is repaired.
+    out = tmp_path / "run"
+    _train(out, reach_reward, 128)
+    meta = json.loads((out / "checkpoint.json").read_text())
+    (out / "checkpoint.json").write_text(json.dumps({**meta, "num_timesteps": 64}))
+    done = _train(out, reach_reward, 256)
+    assert done.resumed_from == 128 and done.num_timesteps == 256
+    steps = [row["step"] for row in read_metrics(out)]
+    assert 128 in steps and steps == sorted(set(steps))
+    assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 256

@@ -7,7 +7,9 @@ A run directory holds, after every checkpoint:
   frozen transfer source or an evaluation needs;
 - ``checkpoint.json``: metadata (task, algorithm, seed, env-steps done, observation size, policy
   shape, hyper-parameters, reward, versions). It is written last, so its presence means the two
-  files beside it are complete.
+  files beside it are complete. Ctrl-C waits for a checkpoint being written to be finished; a run
+  killed between ``model.zip`` and ``checkpoint.json`` is found out on resume (``model.zip``'s
+  own step count is the truth) and its record repaired.
 
 A run evaluated while it trained also holds ``best/``: ``policy.safetensors`` and
 ``checkpoint.json`` of the policy that scored best in those evaluations, the latter with a
@@ -20,12 +22,15 @@ both) calls ``as_policy`` before handing a policy reference down.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
 import os
 import platform
 import shutil
-from collections.abc import Mapping
+import signal
+import threading
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +86,37 @@ def save_checkpoint(
     enough to evaluate it or use it as a skill, not to continue its training. Returns the metadata
     written.
     """
+    with interrupts_deferred():
+        return _save_checkpoint(model, run_dir, meta, resumable)
+
+
+@contextlib.contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Hold Ctrl-C (SIGINT) until the block has run, then act on it as the handler would have.
+
+    A checkpoint cut short between its files would pair new weights with an old record. Only the
+    main thread can change signal handlers; elsewhere the block runs as it is.
+    """
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous is None:
+        yield  # (None: a handler installed outside Python, which could not be put back)
+        return
+    received: list[tuple[int, Any]] = []
+    signal.signal(signal.SIGINT, lambda signum, frame: received.append((signum, frame)))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if received:
+            if callable(previous):
+                previous(*received[0])
+            elif previous == signal.SIG_DFL:
+                raise KeyboardInterrupt
+
+
+def _save_checkpoint(
+    model: Any, run_dir: Path, meta: Mapping[str, Any], resumable: bool
+) -> dict[str, Any]:
     run_dir.mkdir(parents=True, exist_ok=True)
     if resumable:
         tmp_zip = run_dir / "model.tmp.zip"

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -26,6 +27,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from itskill.rl.checkpoint import BEST_DIR, META_FILE, save_checkpoint
 from itskill.rl.clock import WallClock
+from itskill.rl.logger import drop_rows_after
 from itskill.tasks.evaluate import PolicyActor, evaluate
 from itskill.tasks.spec import TaskSpec
 
@@ -38,6 +40,29 @@ EVAL_COLUMNS = (
 
 SELECTION_KEY = "selection"
 """``best/checkpoint.json`` field: the evaluation row that chose the policy, with its episodes."""
+
+
+def last_evaluated(run_dir: str | Path) -> int | None:
+    """The env-steps of the last row of ``run_dir/eval.csv``, or None if there is none."""
+    path = Path(run_dir) / EVAL_FILE
+    if not path.is_file():
+        return None
+    with open(path, newline="") as fh:
+        steps = [row[0] for row in list(csv.reader(fh))[1:] if row]
+    try:
+        return int(float(steps[-1])) if steps else None
+    except ValueError:
+        return None
+
+
+def truncate_evaluations(run_dir: str | Path, step: int) -> None:
+    """Forget the evaluations after env-step ``step`` (a resumed run's checkpoint): their rows,
+    and the best policy if one of them chose it. They belong to a trajectory the crash threw
+    away, which the resumed run trains again differently."""
+    drop_rows_after(Path(run_dir) / EVAL_FILE, step)
+    kept = read_selection(run_dir)
+    if kept is not None and int(kept.get("env_steps", 0)) > step:
+        shutil.rmtree(Path(run_dir) / BEST_DIR)
 
 
 def read_selection(run_dir: str | Path) -> dict[str, Any] | None:
@@ -60,7 +85,8 @@ class DeterministicEvalCallback(BaseCallback):
     starts from step 0 is evaluated before its first update too (a warm-started policy, which
     reinforcement learning may make worse before it makes it better). A row's ``wall_s`` is the
     training time of ``clock`` (the run's, counted across the sessions of a resumed run), the
-    evaluations left out.
+    evaluations left out. A resumed run first makes up an evaluation that was due and never
+    written (interrupted mid-evaluation), and one at the end.
     """
 
     def __init__(
@@ -95,7 +121,12 @@ class DeterministicEvalCallback(BaseCallback):
         with open(self.path, newline="") as fh:
             # A run resumed from an older release keeps its file's columns.
             self._columns = next(csv.reader(fh))
-        if self.at_start and self.num_timesteps == 0:
+        due = self.num_timesteps // self.every * self.every
+        if (self.at_start and self.num_timesteps == 0) or (
+            due > 0 and (last_evaluated(self.run_dir) or -1) < due
+        ):
+            # At the start of a warm-started run; or an evaluation a Ctrl-C or crash cut short
+            # (the checkpoint was saved past its step, so it would not come round again).
             self.evaluate()
 
     def _on_step(self) -> bool:

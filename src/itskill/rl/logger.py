@@ -16,6 +16,7 @@ after the checkpoint the run resumes from, so the step column stays increasing a
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import time
@@ -29,6 +30,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
 
+from itskill.files import write_text
 from itskill.sim.vec_env import BatchEnv
 
 FIXED_COLUMNS = (
@@ -71,17 +73,15 @@ class MetricsWriter:
     def truncate_after(self, step: int) -> None:
         """Drop rows with ``step`` greater than ``step`` (logged after the last checkpoint)."""
         if self.jsonl_path.exists():
-            lines = self.jsonl_path.read_text().splitlines()
-            kept = [ln for ln in lines if ln.strip() and json.loads(ln)["step"] <= step]
-            self.jsonl_path.write_text("".join(ln + "\n" for ln in kept))
-        if self.csv_path.exists():
-            with open(self.csv_path, newline="") as fh:
-                rows = list(csv.reader(fh))
-            if rows:
-                header, body = rows[0], rows[1:]
-                body = [r for r in body if r and int(float(r[0])) <= step]
-                with open(self.csv_path, "w", newline="") as fh:
-                    csv.writer(fh).writerows([header, *body])
+            kept = []
+            for line in self.jsonl_path.read_text().splitlines():
+                try:
+                    if json.loads(line)["step"] <= step:
+                        kept.append(line)
+                except (json.JSONDecodeError, KeyError, TypeError):
+                    continue  # a line cut short by a crash
+            write_text(self.jsonl_path, "".join(ln + "\n" for ln in kept))
+        drop_rows_after(self.csv_path, step)
 
     def write(self, row: dict[str, Any]) -> None:
         with open(self.jsonl_path, "a") as fh:
@@ -95,6 +95,31 @@ class MetricsWriter:
             if new_file:
                 writer.writerow(self._columns)
             writer.writerow([_csv_value(row.get(c)) for c in self._columns])  # type: ignore[union-attr]
+
+
+def drop_rows_after(path: Path, step: int) -> None:
+    """Rewrite the CSV file at ``path`` (env-steps in its first column) without the rows past
+    ``step``, atomically. A row cut short by a crash goes too."""
+    if not path.exists():
+        return
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        return
+    header, body = rows[0], rows[1:]
+    kept = [r for r in body if len(r) == len(header) and _row_step(r[0]) <= step]
+    if len(kept) == len(body):
+        return
+    text = io.StringIO()
+    csv.writer(text).writerows([header, *kept])
+    write_text(path, text.getvalue())
+
+
+def _row_step(value: str) -> float:
+    try:
+        return float(value)
+    except ValueError:
+        return math.inf
 
 
 def _json_value(v: Any) -> Any:

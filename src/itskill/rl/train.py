@@ -38,7 +38,12 @@ from itskill.rl.checkpoint import (
 from itskill.rl.clock import TRAIN_WALL_KEY, WallClock
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
 from itskill.rl.demos import DEMOS_FILE, warm_start
-from itskill.rl.eval_callback import DeterministicEvalCallback, read_selection
+from itskill.rl.eval_callback import (
+    DeterministicEvalCallback,
+    last_evaluated,
+    read_selection,
+    truncate_evaluations,
+)
 from itskill.rl.init_policy import (
     CRITIC_WARM_UP_FILE,
     describe_init,
@@ -354,6 +359,14 @@ def train(
                     model_path, f"cannot resume: {type(err).__name__}: {err}"
                 ) from err
             model._last_obs = None  # the saved observation belongs to the old process's envs
+            if model.num_timesteps != resumed_from:
+                # Killed between model.zip and checkpoint.json: the model is the newer; record it.
+                note(
+                    f"{run_dir}: checkpoint.json records {resumed_from} env-steps, model.zip "
+                    f"holds {model.num_timesteps}: resuming from model.zip"
+                )
+                resumed_from = int(model.num_timesteps)
+                _save(model, run_dir, meta, clock)
             set_random_seed(seed + resumed_from)
         else:
             set_random_seed(seed)
@@ -399,7 +412,8 @@ def train(
             # rollouts would shift every input it learned on (a policy object forgets this flag,
             # so a resumed run sets it again).
             model.policy.update_obs_stats = False
-        if model.num_timesteps >= steps:
+        finished = model.num_timesteps >= steps
+        if finished and not (eval_every and (last_evaluated(run_dir) or -1) < model.num_timesteps):
             return TrainResult(
                 run_dir,
                 model.num_timesteps,
@@ -413,6 +427,7 @@ def train(
         run_dir.mkdir(parents=True, exist_ok=True)
         if resuming:
             MetricsWriter(run_dir).truncate_after(resumed_from)
+            truncate_evaluations(run_dir, resumed_from)
         metrics = MetricsCallback(env, run_dir, steps, logger, console)
         callbacks: list[BaseCallback] = [
             metrics,
@@ -432,7 +447,8 @@ def train(
             )
         try:
             model.learn(
-                total_timesteps=steps - model.num_timesteps,
+                # 0 for a finished run whose final evaluation was cut short: it runs only that.
+                total_timesteps=max(0, steps - model.num_timesteps),
                 callback=CallbackList(callbacks),
                 log_interval=None,  # type: ignore[arg-type]
                 reset_num_timesteps=False,
