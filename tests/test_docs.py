@@ -1,5 +1,6 @@
-"""The tables in docs/ that are a command's output stay that output: a task or a shipped skill
-changed without regenerating them would otherwise show users stale stages or success rates."""
+"""The tables and blocks in docs/ that are a command's or the code's output stay that output: a
+task, a shipped skill or the reward context changed without regenerating them would otherwise show
+users stale stages, success rates or context keys."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 
 from itskill.cli.skills import skills_markdown
 from itskill.cli.tasks import tasks_markdown
+from itskill.sim.context import CONTEXT_DOC
 from itskill.skills.manifest import read_manifest
 from itskill.skills.store import SHIPPED_LIBRARY
 
@@ -41,3 +43,12 @@ def test_the_library_table_shows_each_skills_measured_success() -> None:
     pick = next(s for s in skills if s.name == "pick_nut_m12")
     assert f"{pick.success_rate:.1%} [{pick.success_ci[0]:.1%}, {pick.success_ci[1]:.1%}]" in row
     assert f"{pick.train_steps:,}" in row
+
+
+def test_the_reward_context_block_is_context_doc() -> None:
+    text = (DOCS / "simulation.md").read_text()
+    start = text.index("```text\nReward context `ctx`") + len("```text\n")
+    block = text[start : text.index("```", start)]
+    assert block == CONTEXT_DOC, (
+        "docs/simulation.md: paste itskill.sim.context.CONTEXT_DOC into its reward context block"
+    )

@@ -196,6 +196,26 @@ def test_packaged_budgets_load_and_tiny_is_smallest():
     assert budgets["default"].min_success == 0.5 and budgets["tiny"].min_success == 0.0
 
 
+def test_a_budget_without_algo_trains_ppo(tmp_path):
+    path = tmp_path / "b.toml"
+    path.write_text(TEST_BUDGETS.replace('algo = "a2c"\n', ""))
+    assert load_budgets(path)["test"].transfer.algo == "ppo"
+
+
+@pytest.mark.parametrize(
+    ("field", "edit"),
+    [
+        ("steps", ("steps = 256\nnum_envs = 2\neval_every", "num_envs = 2\neval_every")),
+        ("eval_every", ("eval_every = 128\n", "")),
+    ],
+)
+def test_transfer_steps_and_eval_every_are_required(tmp_path, field, edit):
+    path = tmp_path / "b.toml"
+    path.write_text(TEST_BUDGETS.replace(*edit))
+    with pytest.raises(BudgetError, match=rf"test\.transfer\.{field}: missing \(required\)"):
+        load_budgets(path)
+
+
 def test_budget_threshold_outside_zero_to_one_is_rejected(tmp_path):
     path = tmp_path / "b.toml"
     path.write_text(TEST_BUDGETS.replace("min_success = 0.0", "min_success = 50"))

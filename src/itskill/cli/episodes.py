@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from itskill.cli.common import (
@@ -53,8 +54,10 @@ def eval_cmd(
     starts: Annotated[
         Path | None,
         typer.Option(
-            help="A starts file (TOML, [[start]] tables; docs/tasks.md): evaluate from the "
-            "task's own start and from each of these.",
+            help=escape(
+                "A starts file (TOML, [[start]] tables; docs/tasks.md): evaluate from the "
+                "task's own start and from each of these."
+            ),
         ),
     ] = None,
     as_json: JsonOpt = False,

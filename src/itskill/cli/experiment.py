@@ -28,10 +28,16 @@ def experiment_run(
         Path | None, typer.Option(help="Run directory (default: runs/experiments/<name>).")
     ] = None,
     executor: Annotated[
-        str | None, typer.Option(help="local or ray (default: the file's [execution]).")
+        str | None, typer.Option(help=escape("local or ray (default: the file's [execution])."))
     ] = None,
     workers: Annotated[
-        int | None, typer.Option(min=1, help="Cells run at once (default: one per core).")
+        int | None,
+        typer.Option(
+            min=1,
+            help=escape(
+                "Cells run at once (default: the file's [execution] workers, else one per core)."
+            ),
+        ),
     ] = None,
     ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,
     resume: Annotated[

@@ -19,7 +19,7 @@ def learn_cmd(
         ),
     ],
     budget: Annotated[
-        str, typer.Option(help="tiny (a few minutes), default, or full (the paper's settings).")
+        str, typer.Option(help="tiny (about a minute), default, or full (the paper's settings).")
     ] = "default",
     steps: Annotated[
         int | None,
@@ -28,8 +28,9 @@ def learn_cmd(
     llm: Annotated[
         str | None,
         typer.Option(
-            help="offline (default: rule-based, no network) or openai:MODEL "
-            "(OPENAI_BASE_URL/OPENAI_API_KEY; any OpenAI-compatible server)."
+            help="offline (rule-based, no network) or openai:MODEL "
+            "(OPENAI_BASE_URL/OPENAI_API_KEY; any OpenAI-compatible server); "
+            "default $ITSKILL_LLM_MODEL, else offline."
         ),
     ] = None,
     out: Annotated[

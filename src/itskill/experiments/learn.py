@@ -58,12 +58,13 @@ class BudgetError(DataFileError):
 
 @dataclass(frozen=True)
 class TransferBudget:
-    """The transfer training of ``itskill learn``."""
+    """The transfer training of ``itskill learn``: ``steps`` and ``eval_every`` are required, the
+    rest have defaults (PPO, as ``itskill transfer train``; ``a2c`` is the paper's)."""
 
     steps: int
     eval_every: int
     method: str = "itn"
-    algo: str = "a2c"
+    algo: str = "ppo"
     num_envs: int | None = None
     eval_episodes: int = 50
     k: int = 3
@@ -135,7 +136,7 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
         steps=_field(path, where, tr, "steps", int),
         eval_every=_field(path, where, tr, "eval_every", int),
         method=_field(path, where, tr, "method", str, "itn"),
-        algo=_field(path, where, tr, "algo", str, "a2c"),
+        algo=_field(path, where, tr, "algo", str, TransferBudget.algo),
         num_envs=_field(path, where, tr, "num_envs", int, None),
         eval_episodes=_field(path, where, tr, "eval_episodes", int, 50),
         k=_field(path, where, tr, "k", int, 3),
