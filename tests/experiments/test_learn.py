@@ -58,14 +58,30 @@ def learn(*args: str):
     return runner.invoke(app, ["learn", *args])
 
 
-def test_learn_completes_adds_a_skill_and_resumes_without_redoing(tmp_path, budgets, home):
+def test_learn_completes_adds_a_skill_and_resumes_without_redoing(
+    tmp_path, budgets, home, monkeypatch
+):
+    from itskill.reward import plan as plan_module
+    from itskill.reward import search
     from itskill.rl.checkpoint import load_policy
     from itskill.skills import open_skill_space
+
+    planned, original = [], plan_module.plan_command
+
+    def counted(command, client):
+        planned.append(command)
+        return original(command, client)
+
+    for module in (plan_module, search):  # learn's own step, and the reward search's
+        monkeypatch.setattr(module, "plan_command", counted)
 
     out = tmp_path / "run"
     args = [COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out)]
     result = learn(*args, "--no-video")
     assert result.exit_code == 0, result.output
+    # One plan for the whole run: asked again, a model could ground the command in another task
+    # than the one the sources were retrieved for.
+    assert planned == [COMMAND]
     text = flat(result.output)
     for i, step in enumerate(("plan", "sources", "analyze", "reward", "train", "evaluate"), 1):
         assert f"[{i}/8] {step}" in text

@@ -321,7 +321,7 @@ def _pipeline(
     _analyze(plan["task"], b, seed, sources, client, steps)
 
     steps.begin("reward", "generating the reward (generate, train candidates, reflect)")
-    reward = _reward(command, plan["task"], b, seed, sources, client, run_dir, steps, console)
+    reward = _reward(command, plan, b, seed, sources, client, run_dir, steps, console)
 
     steps.begin(
         "train",
@@ -375,7 +375,7 @@ def _plan(command: str, client: Any, steps: _Steps) -> dict[str, Any]:
 
 def _reward(
     command: str,
-    task: str,
+    plan: dict[str, Any],
     b: LearnBudget,
     seed: int,
     sources: dict[str, list[dict[str, Any]]],
@@ -385,9 +385,13 @@ def _reward(
     console,
 ) -> dict[str, Any]:
     """The reward search; its candidates train the network the transfer step will train (its
-    record written to ``transfer/`` now, so both see the same sources and prior)."""
-    from itskill.reward import generate_reward
+    record written to ``transfer/`` now, so both see the same sources and prior). The search is
+    given the run's plan: asked again, a model could ground the command in another task."""
+    from itskill.reward import TaskPlan, generate_reward
+    from itskill.reward.search import CONFIG_FILE
     from itskill.transfer import search_network
+
+    task = plan["task"]
 
     cached = steps.cached("reward.json")
     was_cached = cached is not None
@@ -408,10 +412,13 @@ def _reward(
             client,
             out,
             config,
-            resume=out.is_dir() and any(out.iterdir()),
+            # Not "the directory is not empty": a search killed before its first file was
+            # complete left only a temporary, and is started again.
+            resume=(out / CONFIG_FILE).is_file(),
             compare_expert=b.compare_expert,
             console=console,
             network=network,
+            plan=TaskPlan.from_dict(plan),
         )
         cached = {
             "run_dir": str(res.run_dir),
