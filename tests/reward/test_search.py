@@ -28,10 +28,10 @@ from itskill.reward import (
     load_search,
     search_client,
 )
-from itskill.reward.generator import extract_code
+from itskill.reward.generator import Attempt, Sample, extract_code, fenced
 from itskill.reward.plan import PlanError
 from itskill.reward.sandbox import compile_reward
-from itskill.reward.search import _feedback, _rank, plan_target
+from itskill.reward.search import _feedback, _rank, _write_sample, plan_target
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.tasks import UnknownTaskError
 
@@ -200,6 +200,27 @@ def test_a_plan_made_by_the_caller_is_used_not_asked_for_again(tmp_path: Path, q
         requests = server.requests
     assert len(requests) == 1 and requests[0]["n"] == 2  # the two samples, no plan request
     assert json.loads((run / "plan.json").read_text()) == plan.to_dict()
+
+
+def test_a_sample_replayed_differently_on_resume_loses_the_old_codes_training(
+    tmp_path: Path,
+) -> None:
+    # A probe that timed out only this time sends the model the error and gets new code; the
+    # result of training the old code was read back as the new code's.
+    def sample(code: str, error: str | None = None) -> Sample:
+        return Sample(0, [Attempt(fenced(code), code, error)])
+
+    good, other = extract_code(GOOD), extract_code(CONSTANT)
+    sample_dir = tmp_path / "iter_0" / "sample_0"
+    _write_sample(sample_dir, sample(good))
+    (sample_dir / "result.json").write_text(json.dumps(_fake_result(0.9, 0.5)))
+    (sample_dir / "train" / "seed_0").mkdir(parents=True)
+
+    _write_sample(sample_dir, sample(good))  # replayed the same: the training stands
+    assert (sample_dir / "result.json").is_file() and (sample_dir / "train").is_dir()
+    _write_sample(sample_dir, sample(other))
+    assert (sample_dir / "reward.py").read_text() == other + "\n"
+    assert not (sample_dir / "result.json").exists() and not (sample_dir / "train").exists()
 
 
 def _fake_result(success: float, correlation: float) -> dict:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import ast
 import json
 import math
+import shutil
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -44,7 +45,13 @@ from itskill.executors import JobResult, default_workers, run_jobs
 from itskill.files import read_json, write_json, write_text
 from itskill.llm.client import LLMClient, Message, make_client
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
-from itskill.reward.candidate import RESULT_FILE, CandidateJob, CandidateNetwork, run_candidate
+from itskill.reward.candidate import (
+    RESULT_FILE,
+    TRAIN_DIR,
+    CandidateJob,
+    CandidateNetwork,
+    run_candidate,
+)
 from itskill.reward.config import RewardSearchConfig, load_search_config
 from itskill.reward.generator import Sample, fenced, generate_samples, probe_contexts
 from itskill.reward.plan import TaskPlan, plan_command, plan_for_task
@@ -289,8 +296,14 @@ def _write_sample(sample_dir: Path, sample: Sample) -> None:
     path = sample_dir / "status.json"
     if path.is_file() and read_json(path) == json.loads(json.dumps(status)):
         return  # a resumed run regenerated the same sample: leave the files as they are
+    code = sample_dir / "reward.py"
+    if code.is_file() and code.read_text() != sample.code + "\n":
+        # Replayed differently (a probe timed out this time, the model was asked again): the
+        # training of the old code must not be credited to the new.
+        (sample_dir / RESULT_FILE).unlink(missing_ok=True)
+        shutil.rmtree(sample_dir / TRAIN_DIR, ignore_errors=True)
     write_text(sample_dir / "reply.txt", sample.reply)
-    write_text(sample_dir / "reward.py", sample.code + "\n")
+    write_text(code, sample.code + "\n")
     write_json(path, status)
 
 
