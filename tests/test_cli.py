@@ -198,3 +198,35 @@ def test_reward_search_on_a_network_without_sources_is_refused(tmp_path, method,
     result = runner.invoke(app, args)
     assert result.exit_code == 2 and message in " ".join(result.output.split())
     assert not (out / "config.json").exists()
+
+
+def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
+    # A batch scheduler or `kill` sends SIGTERM: it ended the process on the spot and lost the
+    # training since the last checkpoint (50k env-steps apart by default).
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    itskill = str(Path(sys.executable).with_name("itskill"))
+    proc = subprocess.Popen(
+        [itskill, "train", "reach_nut_m12", "--steps", "1000000", "--num-envs", "2",
+         "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "tb").is_dir():  # made as the first update starts
+            assert proc.poll() is None and time.monotonic() < deadline, "training did not start"
+            time.sleep(0.2)
+        time.sleep(2.0)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 130
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    meta = json.loads((out / "checkpoint.json").read_text())
+    assert 0 < meta["num_timesteps"] < 50_000  # before the first periodic checkpoint: the stop's

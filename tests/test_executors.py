@@ -111,13 +111,19 @@ def work(directory, i):
     with open(os.path.join(directory, f"{i}.started"), "w") as fh:
         fh.write(str(os.getpid()))
     try:
-        time.sleep(120)
+        # Short steps, as a trainer's: a signal the kernel hands to another of the worker's
+        # threads runs its handler when the main thread next runs Python, which one long
+        # sleep would put off for its whole length.
+        for _ in range(1200):
+            time.sleep(0.1)
     except KeyboardInterrupt:
         time.sleep(1.0)  # a trainer saving its checkpoint; a second Ctrl-C must not cut it short
         open(os.path.join(directory, f"{i}.saved"), "w").close()
         raise
 
 if __name__ == "__main__":
+    import signal
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # as the itskill command does
     try:
         list(run_jobs(work, [(sys.argv[1], i) for i in range(6)], "local", 2))
     except KeyboardInterrupt:
@@ -125,9 +131,17 @@ if __name__ == "__main__":
 """
 
 
-@pytest.mark.parametrize("target", ["process group", "parent only"])
-def test_ctrl_c_stops_the_jobs_in_flight_and_starts_no_more(tmp_path, target: str) -> None:
-    # A terminal's Ctrl-C reaches the parent and its workers; `kill -INT` the parent alone.
+@pytest.mark.parametrize(
+    ("target", "sig"),
+    [
+        ("process group", signal.SIGINT),
+        ("parent only", signal.SIGINT),
+        ("process group", signal.SIGTERM),
+    ],
+)
+def test_ctrl_c_stops_the_jobs_in_flight_and_starts_no_more(tmp_path, target, sig) -> None:
+    # A terminal's Ctrl-C reaches the parent and its workers; `kill -INT` the parent alone; a
+    # batch scheduler's SIGTERM the whole group, which then saves as it does on Ctrl-C.
     script = tmp_path / "parent.py"
     script.write_text(INTERRUPT_SCRIPT)
     parent = subprocess.Popen(
@@ -144,9 +158,9 @@ def test_ctrl_c_stops_the_jobs_in_flight_and_starts_no_more(tmp_path, target: st
             time.sleep(0.1)
         time.sleep(0.5)
         if target == "process group":
-            os.killpg(parent.pid, signal.SIGINT)
+            os.killpg(parent.pid, sig)
         else:
-            parent.send_signal(signal.SIGINT)
+            parent.send_signal(sig)
         assert parent.wait(timeout=30) == 130
         assert len(list(tmp_path.glob("*.started"))) == 2
         assert len(list(tmp_path.glob("*.saved"))) == 2

@@ -26,6 +26,8 @@ EXECUTORS: tuple[str, ...] = ("local", "ray")
 
 
 _interrupted = False
+_RAY_STOP_S = 120.0
+"""How long Ray tasks get to save a checkpoint after Ctrl-C before the shutdown ends them."""
 
 
 class ExecutorError(RuntimeError):
@@ -119,14 +121,18 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
 
 
 def stop_on_first_interrupt() -> None:
-    """Make SIGINT raise ``KeyboardInterrupt`` once in this process and be ignored after that.
+    """Make SIGINT and SIGTERM raise ``KeyboardInterrupt`` once in this process and be ignored
+    after that.
 
     A worker may get Ctrl-C twice (from the terminal, and forwarded by its parent); the second
-    must not cut short the checkpoint the first one made it save. A process started with SIGINT
-    ignored (a background job of a script) keeps ignoring it.
+    must not cut short the checkpoint the first one made it save. SIGTERM (a scheduler stopping
+    the whole process group, `kill`) stops it the same way instead of ending it unsaved. A
+    process started with a signal ignored (SIGINT in a background job of a script) keeps
+    ignoring it.
     """
-    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
-        signal.signal(signal.SIGINT, _interrupt_once)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            signal.signal(sig, _interrupt_once)
 
 
 def _interrupt_once(signum: int, frame: Any) -> None:
@@ -182,11 +188,11 @@ def _run_ray(fn, jobs, address: str | None, workers: int | None) -> Iterator[Job
         except (ConnectionError, RuntimeError, ValueError) as err:
             where = address or "a local instance"
             raise ExecutorError(f"could not start or reach Ray at {where}: {err}") from err
+    pending: dict = {}
     try:
         remote = ray.remote(_call)
         queue = list(enumerate(jobs))
         in_flight = len(queue) if workers is None else workers
-        pending: dict = {}
         while queue or pending:
             while queue and len(pending) < in_flight:
                 index, args = queue.pop(0)
@@ -198,6 +204,15 @@ def _run_ray(fn, jobs, address: str | None, workers: int | None) -> Iterator[Job
                     yield JobResult(index, value=ray.get(ref))
                 except ray.exceptions.RayTaskError as err:
                     yield JobResult(index, error=err.as_instanceof_cause())
+    except BaseException:
+        # Ctrl-C (or a caller that stopped reading): a non-forced cancel raises
+        # KeyboardInterrupt in each running task, so a trainer saves its checkpoint before the
+        # shutdown below ends its worker.
+        for ref in pending:
+            ray.cancel(ref)
+        if pending:
+            ray.wait(list(pending), num_returns=len(pending), timeout=_RAY_STOP_S)
+        raise
     finally:
         if started_here:
             ray.shutdown()

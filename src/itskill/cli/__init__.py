@@ -5,6 +5,8 @@ Thin by design: each command parses its options, calls one library function and 
 
 from __future__ import annotations
 
+import signal
+
 import typer
 
 from itskill.cli.episodes import demo, eval_cmd, render_cmd
@@ -21,6 +23,19 @@ app = typer.Typer(
     add_completion=False,
     help="Robot manipulation skills on MuJoCo Franka tasks (hex nuts on bolts, pegs in holes).",
 )
+
+
+@app.callback()
+def _stop_like_ctrl_c() -> None:
+    """Robot manipulation skills on MuJoCo Franka tasks (hex nuts on bolts, pegs in holes)."""
+    # A batch scheduler's or `kill`'s SIGTERM, and a closed terminal's SIGHUP, stop a command as
+    # Ctrl-C does: the training in progress saves its checkpoint and the run can be resumed.
+    # Left at their defaults they ended the process there and then, losing everything since the
+    # last checkpoint.
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.default_int_handler)
+
+
 app.add_typer(tasks_app, name="tasks")
 app.add_typer(skills_app, name="skills")
 app.command("eval")(eval_cmd)
