@@ -41,3 +41,27 @@ def test_a_process_ignoring_ctrl_c_still_ignores_it_after_a_checkpoint() -> None
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_an_export_cut_short_leaves_the_old_policy_whole(tmp_path, monkeypatch) -> None:
+    # Pretraining exports over the library's skill in place: a copy cut short (disk full,
+    # kill) left truncated weights that every transfer retrieving the skill then failed on.
+    import shutil
+
+    from itskill.rl import checkpoint
+    from itskill.skills.store import SHIPPED_LIBRARY
+
+    target = tmp_path / "pick_nut_m12"
+    checkpoint.export_policy(SHIPPED_LIBRARY / "pick_nut_m12", target)
+    before = {p.name: p.read_bytes() for p in target.iterdir()}
+
+    def cut_short(src, dst):
+        with open(src, "rb") as fh, open(dst, "wb") as out:
+            out.write(fh.read(100))
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(shutil, "copyfile", cut_short)
+    with pytest.raises(OSError, match="No space"):
+        checkpoint.export_policy(SHIPPED_LIBRARY / "place_nut_m12", target)
+    assert {p.name: p.read_bytes() for p in target.iterdir()} == before
+    checkpoint.load_policy(target)  # still loads

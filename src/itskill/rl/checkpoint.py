@@ -213,7 +213,8 @@ def best_policy_dir(run_dir: str | Path) -> Path:
 
 def export_policy(run_dir: str | Path, target: str | Path) -> Path:
     """Copy the policy to use from a training run (:func:`best_policy_dir`) or a skill directory
-    into ``target``, as a skill directory that another machine can load.
+    into ``target``, as a skill directory that another machine can load. A stop part-way leaves
+    the old policy there or the new one, never a truncated file.
 
     The path of a policy the run started from stays behind (it names a directory on this
     machine); its task, env-steps and weight hash still say which policy that was.
@@ -224,8 +225,16 @@ def export_policy(run_dir: str | Path, target: str | Path) -> Path:
         meta["init"] = {k: v for k, v in meta["init"].items() if k != "path"}
     target = Path(target)
     target.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(source / POLICY_FILE, target / POLICY_FILE)
-    write_text(target / META_FILE, json.dumps(meta, indent=2) + "\n")
+    # Often over a skill in use (pretraining into the library): each file is replaced whole, and
+    # Ctrl-C waits for the pair, so no reader finds truncated weights or a record of others.
+    with interrupts_deferred():
+        tmp = target / f".{POLICY_FILE}.{os.getpid()}.tmp"
+        try:
+            shutil.copyfile(source / POLICY_FILE, tmp)
+            os.replace(tmp, target / POLICY_FILE)
+        finally:
+            tmp.unlink(missing_ok=True)
+        write_text(target / META_FILE, json.dumps(meta, indent=2) + "\n")
     return target
 
 
