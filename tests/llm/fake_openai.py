@@ -8,7 +8,9 @@ Each choice of a request takes the next scripted item: a string is a reply text;
 body (a dict) and returns either. When the script runs out, the last string is repeated.
 ``n_mode`` says what the server does with ``n``: ``"support"`` (n choices), ``"reject"`` (400 for
 n > 1, like some local servers), ``"ignore"`` (one choice, like Ollama and llama.cpp) or
-``"empty"`` (no choices at all, as some proxies answer a filtered request).
+``"empty"`` (no choices at all, as some proxies answer a filtered request). ``answer`` other than
+``"chat"`` makes it a server that is not OpenAI-compatible: ``"html"`` (a web page) or
+``"empty-object"`` (``{}``), both with status 200.
 Usage is counted as words: prompt tokens = words in the messages, completion tokens = words in
 the replies. ``requests`` records every request body, failed ones included.
 
@@ -50,9 +52,11 @@ class FakeOpenAIServer:
         *,
         n_mode: Literal["support", "reject", "ignore", "empty"] = "support",
         model: str = "fake-model",
+        answer: Literal["chat", "html", "empty-object"] = "chat",
     ) -> None:
         self.script = list(replies)
         self.n_mode = n_mode
+        self.answer = answer
         self.model = model
         self.requests: list[dict[str, Any]] = []
         self._last = "ok"
@@ -134,9 +138,15 @@ class FakeOpenAIServer:
                     status, payload, headers = 404, {"error": {"message": "not found"}}, {}
                 else:
                     status, payload, headers = server.respond(body)
-                data = json.dumps(payload).encode()
+                content_type = "application/json"
+                if server.answer == "html":
+                    data, content_type = b"<html><body>It works!</body></html>", "text/html"
+                elif server.answer == "empty-object":
+                    data = b"{}"
+                else:
+                    data = json.dumps(payload).encode()
                 self.send_response(status)
-                self.send_header("content-type", "application/json")
+                self.send_header("content-type", content_type)
                 self.send_header("content-length", str(len(data)))
                 for key, value in headers.items():
                     self.send_header(key, value)

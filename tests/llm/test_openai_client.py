@@ -68,6 +68,19 @@ def test_a_reply_without_choices_is_an_error_not_a_paid_loop() -> None:
     assert len(server.requests) == 1
 
 
+@pytest.mark.parametrize(
+    ("answer", "got"), [("html", "a text reply starting '<html>"), ("empty-object", "without")]
+)
+def test_a_server_that_is_not_openai_compatible_is_a_clear_error(answer: str, got: str) -> None:
+    # A --base-url pointing at a web server: it ended in AttributeError or TypeError.
+    with (
+        FakeOpenAIServer(["never sent"], answer=answer) as server,  # type: ignore[arg-type]
+        pytest.raises(LLMError, match=f"not answer like an OpenAI-compatible.*{got}"),
+    ):
+        client(server).complete(MESSAGES, purpose="plan")
+    assert len(server.requests) == 1  # not asked again
+
+
 @pytest.mark.parametrize("status", [429, 500, 503])
 def test_retries_rate_limits_and_server_errors_then_succeeds(status: int) -> None:
     with FakeOpenAIServer([Status(status), Status(status), "finally"]) as server:

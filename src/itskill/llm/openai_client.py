@@ -181,8 +181,24 @@ class OpenAIClient(BaseClient):
                 time.sleep(self._backoff(attempt, err))
                 continue
             self._account(response)
-            return [(choice.message.content or "") for choice in response.choices]
+            return self._texts(response)
         raise AssertionError("unreachable")  # pragma: no cover
+
+    def _texts(self, response: Any) -> list[str]:
+        """The choices' texts; a clear error for a server that is not OpenAI-compatible (the
+        SDK hands back whatever came: an HTML page as a string, ``{}`` without choices)."""
+        choices = getattr(response, "choices", None)
+        if not isinstance(choices, list):
+            got = (
+                f"a text reply starting {response[:60]!r}"
+                if isinstance(response, str)
+                else "a reply without 'choices'"
+            )
+            raise LLMError(
+                f"{self.base_url} did not answer like an OpenAI-compatible endpoint ({got}); "
+                "check --base-url (or OPENAI_BASE_URL): it should end in /v1"
+            )
+        return [(getattr(c.message, "content", None) or "") for c in choices]
 
     def _backoff(self, attempt: int, err: Exception) -> float:
         wait = min(self.retry.backoff_max_s, self.retry.backoff_initial_s * 2**attempt)
