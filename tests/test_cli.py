@@ -230,3 +230,28 @@ def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
             proc.kill()
     meta = json.loads((out / "checkpoint.json").read_text())
     assert 0 < meta["num_timesteps"] < 50_000  # before the first periodic checkpoint: the stop's
+
+
+def test_unusable_paths_and_damaged_run_files_are_one_line_errors(tmp_path, monkeypatch):
+    # Each ended in a traceback: FileExistsError, or the ValueError of a damaged JSON file.
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    a_file = tmp_path / "afile"
+    a_file.write_text("not a directory")
+    damaged = tmp_path / "learn_run"
+    damaged.mkdir()
+    (damaged / "learn.json").write_text('{"command": "pick up the nut", ')
+    cases = [
+        (["train", "reach_nut_m12", "--steps", "64", "--num-envs", "2", "--out", str(a_file)],
+         f"cannot use {a_file}"),
+        (["learn", "pick up the nut", "--out", str(damaged), "--resume"], "not valid JSON"),
+        (["render", "pick_nut_m12", "--policy", "scripted", "--out", str(tmp_path / "v.txt")],
+         "must be a .mp4 file"),
+    ]  # fmt: skip
+    for args, message in cases:
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, result.output
+        assert message in " ".join(result.output.split()), result.output
+        assert "Traceback" not in result.output
+    monkeypatch.setenv("ITSKILL_HOME", str(a_file))
+    result = runner.invoke(app, ["skills", "list"])
+    assert result.exit_code == 2 and f"cannot use {a_file}" in " ".join(result.output.split())

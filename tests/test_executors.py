@@ -7,13 +7,14 @@ import importlib.util
 import math
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
 
 import pytest
 
-from itskill.executors import ExecutorError, run_jobs
+from itskill.executors import ExecutorError, check_executor, run_jobs
 
 # A library function, so that Ray's workers can import it (a test module is not importable there).
 JOBS = [(4.0,), (9.0,), (-1.0,), (16.0,)]
@@ -47,6 +48,19 @@ def test_ray_executor_on_a_local_instance(workers: int | None) -> None:
 def test_a_ray_address_with_the_local_executor_is_refused() -> None:
     with pytest.raises(ExecutorError, match="needs the Ray executor"):
         list(run_jobs(math.sqrt, JOBS, "local", 2, "ray://head:10001"))
+
+
+def test_an_address_where_no_ray_listens_is_refused_in_seconds() -> None:
+    # Ray retried such an address for minutes, silently, after the run had been recorded.
+    with socket.socket() as probe:  # a port nothing listens on: bound, then closed
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    start = time.monotonic()
+    for address in (f"127.0.0.1:{port}", f"ray://127.0.0.1:{port}"):
+        with pytest.raises(ExecutorError, match=f"could not reach Ray at {address}"):
+            check_executor("ray", None, address)
+    assert time.monotonic() - start < 10
+    check_executor("ray", None, "auto")  # resolved by Ray itself: not probed
 
 
 def test_zero_workers_is_refused() -> None:

@@ -14,6 +14,7 @@ import contextlib
 import multiprocessing
 import os
 import signal
+import socket
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -28,6 +29,8 @@ EXECUTORS: tuple[str, ...] = ("local", "ray")
 _interrupted = False
 _RAY_STOP_S = 120.0
 """How long Ray tasks get to save a checkpoint after Ctrl-C before the shutdown ends them."""
+_RAY_CONNECT_S = 10.0
+"""How long :func:`check_executor` waits for a Ray address to accept a connection."""
 
 
 class ExecutorError(RuntimeError):
@@ -66,19 +69,40 @@ def run_jobs(
     to the cluster at ``ray_address``, or to a local Ray instance when it is None, keeping at most
     ``workers`` of them in flight (all of them when None: Ray then schedules them by free CPUs).
     """
+    check_executor(executor, workers, ray_address)
+    if executor == "local":
+        yield from _run_local(fn, jobs, workers or default_workers())
+    else:
+        yield from _run_ray(fn, jobs, ray_address, workers)
+
+
+def check_executor(
+    executor: str, workers: int | None = None, ray_address: str | None = None
+) -> None:
+    """Raise :class:`ExecutorError` now for settings :func:`run_jobs` would fail on later: an
+    unknown executor, fewer than one worker, a Ray address with the local executor, or one where
+    nothing listens (Ray itself retries such an address for minutes before giving up)."""
+    if executor not in EXECUTORS:
+        raise ExecutorError(f"unknown executor {executor!r}; expected one of {EXECUTORS}")
     if workers is not None and workers < 1:
         raise ExecutorError(f"workers must be at least 1, got {workers}")
+    if ray_address is None:
+        return
     if executor == "local":
-        if ray_address is not None:
-            # Silently training on this machine when the user named a cluster would waste hours.
-            raise ExecutorError(
-                f"a Ray address ({ray_address}) needs the Ray executor (--executor ray)"
-            )
-        yield from _run_local(fn, jobs, workers or default_workers())
-    elif executor == "ray":
-        yield from _run_ray(fn, jobs, ray_address, workers)
-    else:
-        raise ExecutorError(f"unknown executor {executor!r}; expected one of {EXECUTORS}")
+        # Silently training on this machine when the user named a cluster would waste hours.
+        raise ExecutorError(
+            f"a Ray address ({ray_address}) needs the Ray executor (--executor ray)"
+        )
+    host, _, port = ray_address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        return  # "auto" and the like: Ray resolves them itself
+    try:
+        socket.create_connection((host, int(port)), timeout=_RAY_CONNECT_S).close()
+    except OSError as err:
+        raise ExecutorError(
+            f"could not reach Ray at {ray_address}: {err.strerror or err}; is the cluster's head "
+            "node running (`ray start --head`) and the address right?"
+        ) from err
 
 
 def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:

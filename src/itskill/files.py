@@ -36,12 +36,32 @@ def write_json(path: Path, data: Any) -> None:
     write_text(path, json.dumps(_finite(data), indent=2) + "\n")
 
 
+class CorruptFileError(ValueError):
+    """A run's or library's file that exists but cannot be read back (edited or damaged)."""
+
+
+UNUSABLE_PATH_ERRORS: tuple[type[OSError], ...] = (
+    FileExistsError,
+    IsADirectoryError,
+    NotADirectoryError,
+    PermissionError,
+)
+"""What a user-given path that cannot be written or read raises (a file where a directory should
+be, a read-only place, ...): the commands report it as one line naming the path."""
+
+
 def read_json(path: Path) -> Any:
-    """The JSON in ``path``; a clear ``ValueError`` naming the file if it is not valid JSON."""
+    """The JSON in ``path``; :class:`CorruptFileError` naming the file if it is not valid JSON."""
     try:
         return json.loads(Path(path).read_text())
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: not valid JSON ({err})") from err
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise CorruptFileError(f"{path}: not valid JSON ({err})") from err
+
+
+def path_error_message(err: OSError) -> str:
+    """``err`` (one of :data:`UNUSABLE_PATH_ERRORS`) as a line naming the path and the problem."""
+    where = err.filename if err.filename is not None else "a path"
+    return f"cannot use {where}: {err.strerror or err}"
 
 
 def _finite(data: Any) -> Any:

@@ -143,3 +143,41 @@ def test_resume_needs_a_run_and_records_every_sessions_cells(toy, tmp_path):
     recorded = json.loads((run / "config.json").read_text())
     assert recorded["seeds"] == [0, 1]  # the report covers both sessions' cells
     assert len(load_cell_results(run)) == 2
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [
+        # A reward search's run directory also has a config.json: it was taken for an
+        # experiment's and failed with KeyError: 'eval', or asked for a --resume that then did.
+        ('{"kind": "itskill-reward-search", "target": "pick_nut_m12"}', "another kind of run"),
+        ('{"name": "toy", "tasks": ', "not valid JSON"),  # cut short, or edited
+        ('{"name": "toy"}', "not an experiment run's configuration"),
+    ],
+)
+def test_a_directory_that_is_not_an_experiment_run_is_named_as_such(
+    toy, tmp_path, content, problem
+):
+    from itskill.experiments.report import ReportError, experiment_report
+    from itskill.files import CorruptFileError
+
+    config, _ = toy
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(content)
+    errors = (ExperimentRunError, CorruptFileError)
+    for resume in (False, True):
+        with pytest.raises(errors, match=problem):
+            run_experiment(config, run, "local", 1, resume=resume, console=quiet())
+    with pytest.raises((ReportError, CorruptFileError), match=problem):
+        experiment_report(run, video=False)
+
+
+def test_an_executor_that_cannot_run_leaves_no_run_to_resume(toy, tmp_path):
+    from itskill.executors import ExecutorError
+
+    config, _ = toy
+    run = tmp_path / "run"
+    with pytest.raises(ExecutorError, match="needs the Ray executor"):
+        run_experiment(config, run, "local", 1, "127.0.0.1:6379", console=quiet())
+    assert not (run / "config.json").exists()  # a plain rerun with the fix is not refused

@@ -10,7 +10,9 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
+from itskill.files import UNUSABLE_PATH_ERRORS, CorruptFileError, path_error_message
 from itskill.tasks import TaskFileError, UnknownTaskError, render
 from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.scripted import ScriptError
@@ -89,8 +91,13 @@ def user_errors() -> Iterator[None]:
         CheckpointError,
         ScriptError,
         render.RenderError,
+        CorruptFileError,
     ) as err:
-        err_console.print(f"[red]error:[/red] {err}", highlight=False, markup=True)
+        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False, markup=True)
+        raise typer.Exit(USAGE_ERROR) from err
+    except UNUSABLE_PATH_ERRORS as err:
+        message = escape(path_error_message(err))
+        err_console.print(f"[red]error:[/red] {message}", highlight=False, markup=True)
         raise typer.Exit(USAGE_ERROR) from err
 
 

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from itskill.cli.common import USAGE_ERROR, console, err_console
+from itskill.cli.common import USAGE_ERROR, console, err_console, user_errors
 
 
 def learn_cmd(
@@ -56,11 +56,16 @@ def learn_cmd(
     ] = None,
 ) -> None:
     """Learn a new task from a command, end to end, and add it to the skill space."""  # fmt: skip
-    from itskill.experiments.learn import learn, user_errors
+    from itskill.experiments.learn import learn
+    from itskill.experiments.learn import user_errors as learn_errors
 
     try:
-        learn(command, budget, steps, llm, out, seed, resume, budgets, video, console, min_success)
-    except user_errors() as err:
+        with user_errors():  # a damaged run file, an unusable --out, ...
+            learn(
+                command, budget, steps, llm, out, seed, resume, budgets, video, console,
+                min_success,
+            )  # fmt: skip
+    except learn_errors() as err:
         err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
         raise typer.Exit(USAGE_ERROR) from None
     except KeyboardInterrupt:

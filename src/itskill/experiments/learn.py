@@ -40,7 +40,7 @@ from itskill.datafile import DataFileError, read_toml
 from itskill.experiments.analysis import read_curve
 from itskill.experiments.provenance import Sessions
 from itskill.experiments.report import PROVENANCE_FILE, ReportFiles, learn_report
-from itskill.files import read_json, write_json
+from itskill.files import CorruptFileError, read_json, write_json
 
 LEARN_FILE = "learn.json"
 EVAL_SEED = 10_000
@@ -703,5 +703,5 @@ def user_errors() -> tuple[type[BaseException], ...]:
     return (
         LearnError, BudgetError, LLMError, PlanError, RewardSearchError, ResumeMismatchError,
         SkillSpaceError, TaskFileError, UnknownTaskError, CheckpointError, AnalyzerError,
-        TransferConfigError, SourceError,
+        TransferConfigError, SourceError, CorruptFileError,
     )  # fmt: skip

@@ -54,7 +54,9 @@ from itskill.experiments.runner import (
     RESULT_FILE,
     SOURCES_FILE,
     Cell,
+    ExperimentRunError,
     cells,
+    read_run_config,
 )
 from itskill.files import read_json
 
@@ -212,7 +214,10 @@ def experiment_report(
         )
     out = Path(out) if out else run_dir
     figures, videos = out / FIGURES_DIR, out / VIDEOS_DIR
-    config = ExperimentConfig.from_dict(read_json(run_dir / CONFIG_FILE))
+    try:
+        config = read_run_config(run_dir)
+    except ExperimentRunError as err:
+        raise ReportError(str(err)) from err
     curves, pending, broken = _curves(config, run_dir)
     notes: list[str] = list(broken)
     sources = read_json(run_dir / SOURCES_FILE) if (run_dir / SOURCES_FILE).is_file() else {}

@@ -26,7 +26,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from itskill.executors import run_jobs
+from itskill.executors import check_executor, run_jobs
 from itskill.experiments.analysis import read_curve, time_to_threshold
 from itskill.experiments.config import AUTO, ExperimentConfig
 from itskill.experiments.provenance import Sessions
@@ -151,12 +151,12 @@ def _run_record(config: ExperimentConfig, run_dir: Path, resume: bool) -> Experi
     config_path = run_dir / CONFIG_FILE
     record = config
     if config_path.is_file():
+        old = read_run_config(run_dir)  # another kind of run is named as such, first
         if not resume:
             raise ExperimentRunError(
                 f"{run_dir} already holds an experiment run; pass --resume to continue it, "
                 "or choose another --out"
             )
-        old = ExperimentConfig.from_dict(read_json(config_path))
         _check_same_training(old, config, run_dir)
         record = _union(old, config)
     elif resume:
@@ -166,6 +166,25 @@ def _run_record(config: ExperimentConfig, run_dir: Path, resume: bool) -> Experi
             "or leave out --resume to start a new run"
         )
     return record
+
+
+def read_run_config(run_dir: Path) -> ExperimentConfig:
+    """The configuration recorded in an experiment run directory; :class:`ExperimentRunError`
+    if ``run_dir/config.json`` is another kind of run's (a reward search's) or damaged."""
+    path = run_dir / CONFIG_FILE
+    data = read_json(path)
+    kind = data.get("kind") if isinstance(data, dict) else None
+    if kind is not None:
+        raise ExperimentRunError(
+            f"{run_dir} holds another kind of run ({kind!r}), not an experiment run"
+        )
+    try:
+        return ExperimentConfig.from_dict(data)
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise ExperimentRunError(
+            f"{path}: not an experiment run's configuration "
+            f"({type(err).__name__}: {err}); was it edited?"
+        ) from err
 
 
 def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: Path) -> None:
@@ -232,6 +251,12 @@ def run_experiment(
     """
     console = console or Console(stderr=True)
     run_dir = Path(run_dir)
+    # Before the run is recorded: settings that cannot run leave no run to --resume.
+    check_executor(
+        executor or config.execution.executor,
+        workers or config.execution.workers,
+        ray_address or config.execution.ray_address,
+    )
     record = _run_record(config, run_dir, resume)
     # Before the run is recorded: a source that cannot be found leaves no run to --resume.
     sources = resolve_all_sources(config, run_dir)

@@ -41,7 +41,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 import itskill
-from itskill.executors import JobResult, default_workers, run_jobs
+from itskill.executors import JobResult, check_executor, default_workers, run_jobs
 from itskill.files import read_json, write_json, write_text
 from itskill.llm.client import LLMClient, Message, make_client
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
@@ -435,6 +435,7 @@ def generate_reward(
     console = console or Console(stderr=True)
     out = Path(out)
     resolve_target(target)  # an unknown task id fails before anything is written
+    check_executor(config.executor, config.workers, config.ray_address)  # so does a bad executor
     header = {
         "kind": RUN_KIND,
         "format": RUN_FORMAT,

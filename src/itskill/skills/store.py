@@ -256,7 +256,13 @@ class SkillSpace:
         home = self.config.home or itskill_home()
         self.path = Path(path) if path is not None else home / self.config.db_name
         self.library_dir = self.path.parent / self.config.library_subdir
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise SkillSpaceError(
+                f"cannot use {self.path.parent} for the skill space ({err.strerror or err}); "
+                f"point {HOME_ENV} at a writable directory"
+            ) from err
         try:
             # isolation_level=None: no implicit transactions; every write below opens its own
             # BEGIN IMMEDIATE so that the write lock is taken up front, not upgraded mid-way

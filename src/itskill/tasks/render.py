@@ -25,7 +25,7 @@ HOLD_S = 0.5
 
 
 class RenderError(RuntimeError):
-    """No working OpenGL backend for offscreen rendering."""
+    """A video that cannot be made: no working OpenGL backend, or an unusable output path."""
 
 
 def _renderer(model: mujoco.MjModel, width: int, height: int) -> mujoco.Renderer:
@@ -67,6 +67,9 @@ def record(
     if camera not in CAMERAS:
         raise ValueError(f"unknown camera {camera!r}; expected one of {CAMERAS}")
     out = Path(out)
+    if out.suffix.lower() != ".mp4" or out.is_dir():
+        # Found out only after the rollout otherwise, as an encoder's cryptic error.
+        raise RenderError(f"{out}: the video must be a .mp4 file path")
     out.parent.mkdir(parents=True, exist_ok=True)
     env = make_batch_env(spec.id, num_envs=1, seed=seed, n_threads=1)
     fps = round(1 / env.sim.control_dt)
