@@ -138,12 +138,18 @@ def test_eval_takes_a_skill_of_the_skill_space_by_name(tmp_path, monkeypatch):
     assert unknown.exit_code == 2
     text = flat(unknown.output)
     assert "unknown skill 'reach_nut_m13'" in text and "reach_nut_m12" in text
-    # A skill added with a Stable-Baselines3 .zip is loaded as that file, not its directory.
+    # A skill whose Stable-Baselines3 .zip is loaded as that file, not its directory; damaged
+    # after it was added (`skills add` refuses a file that does not load).
+    from itskill.skills import open_skill_space
+    from itskill.skills.store import Skill
+
     corrupt = tmp_path / "my_reach.zip"
     corrupt.write_bytes(b"not a zip archive")
     add = ["skills", "add", "--task", "reach_nut_m12", "--name", "my_reach"]
-    added = runner.invoke(app, [*add, "--checkpoint", str(corrupt)])
-    assert added.exit_code == 0, added.output
+    refused = runner.invoke(app, [*add, "--checkpoint", str(corrupt)])
+    assert refused.exit_code == 2 and "not a Stable-Baselines3 checkpoint" in flat(refused.output)
+    with open_skill_space() as space:
+        space.add(Skill("my_reach", "reach_nut_m12", "reach", ("approach",), str(corrupt)))
     zipped = runner.invoke(app, ["eval", "reach_nut_m12", "--policy", "skill:my_reach"])
     assert zipped.exit_code == 2
     assert "not a Stable-Baselines3 checkpoint" in flat(zipped.output)

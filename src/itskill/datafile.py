@@ -26,12 +26,17 @@ class DataFileError(ValueError):
 
 
 def read_toml(path: str | Path, error: type[DataFileError] = DataFileError) -> dict[str, Any]:
-    """The parsed TOML file at ``path``; a missing file or bad syntax raises ``error``."""
+    """The parsed TOML file at ``path``; a file that is missing, unreadable (a directory, no
+    permission), not UTF-8 text or not valid TOML raises ``error``."""
     try:
         with open(path, "rb") as fh:
             return tomllib.load(fh)
     except FileNotFoundError as err:
         raise error(path, "file", "no such file") from err
+    except OSError as err:
+        raise error(path, "file", (err.strerror or str(err)).lower()) from err
+    except UnicodeDecodeError as err:
+        raise error(path, "file", f"not UTF-8 text (byte {err.start})") from err
     except tomllib.TOMLDecodeError as err:
         raise error(path, "TOML syntax", str(err)) from err
 

@@ -62,6 +62,21 @@ def test_user_file(tmp_path: Path) -> None:
         ("[search]\nselect_top = -1\n", "select_top: expected 0 or more"),
         ("[search]\nselect_seeds = 0\n", "select_seeds: expected a positive number"),
         ("[sandbox]\ntimeout = 1\n", "sandbox.timeout: unknown field"),
+        # These ran the generated code with no timeout and no memory limit.
+        (
+            "[sandbox]\ncall_timeout_s = -1\n",
+            "sandbox.call_timeout_s: expected a positive number, got -1.0",
+        ),
+        ("[sandbox]\ncpu_limit_s = 0\n", "sandbox.cpu_limit_s: expected a positive number"),
+        (
+            "[sandbox]\nmemory_limit_mb = -5\n",
+            "sandbox.memory_limit_mb: expected a positive number",
+        ),
+        (
+            "[sandbox]\nmax_source_chars = 0\n",
+            "sandbox.max_source_chars: expected a positive number",
+        ),
+        ("search = 5\n", "search: expected a table, got int"),
         ("[serach]\n", "serach: unknown table"),
         ("[search\n", "TOML syntax"),
     ],
@@ -79,3 +94,5 @@ def test_override_errors() -> None:
         load_search_config(overrides={"executor": "slurm"})
     with pytest.raises(SearchConfigError, match="overrides: iteratoins: unknown field"):
         load_search_config(overrides={"iteratoins": 2})
+    with pytest.raises(SearchConfigError, match=r"overrides: sandbox\.call_timeout_s: expected a"):
+        load_search_config(overrides={"sandbox": {"call_timeout_s": 0}})

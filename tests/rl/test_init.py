@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from itskill.cli import app
 from itskill.rl.checkpoint import as_policy, load_policy
-from itskill.rl.config import HyperparamError, load_hyperparams
+from itskill.rl.config import HyperparamError, default_path, load_hyperparams
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import ResumeMismatchError, train
 from itskill.skills.store import SHIPPED_LIBRARY
@@ -82,6 +82,19 @@ def test_a_policy_of_another_shape_is_refused_by_name(tmp_path: Path) -> None:
 def test_a_run_starts_from_demonstrations_or_a_policy_not_both(tmp_path: Path) -> None:
     with pytest.raises(HyperparamError, match="not both"):
         _train(tmp_path / "run", demos={"episodes": 4})
+    assert not (tmp_path / "run").exists()
+
+
+def test_demonstrations_a_packaged_task_table_asks_for_are_named_with_the_way_out(
+    tmp_path: Path,
+) -> None:
+    # The user asked for neither a hyper-parameter file nor demonstrations: the packaged
+    # pick_peg_round table did, and the error named neither it nor --demos 0.
+    with pytest.raises(HyperparamError) as info:
+        train("pick_peg_round", "ppo", 32, out=tmp_path / "run", init=SKILL, logger=QUIET)
+    assert info.value.path == str(default_path())
+    assert info.value.where == "peghole.tasks.pick_peg_round.demos.episodes"
+    assert "200 demonstrations" in info.value.problem and "--demos 0" in info.value.problem
     assert not (tmp_path / "run").exists()
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
@@ -26,3 +28,14 @@ def make_skill(name: str, checkpoint: Path, seed: int = 0, **kw) -> Skill:
         embedding_model=kw.pop("embedding_model", "sentence-transformers/all-MiniLM-L6-v2"),
         **kw,
     )
+
+
+def measured(learned: str, success: float) -> Any:
+    """A stand-in for ``measure_skill``: the held-out success of the run in directory ``learned``
+    (``seed1``), 0.1 for the others, so which run learns does not depend on a 512-step training."""
+
+    def measure(spec, policy_dir, config):
+        rate = success if learned in Path(policy_dir).parts else 0.1
+        return SimpleNamespace(success_rate=rate, ci_low=0.0, ci_high=1.0)
+
+    return measure

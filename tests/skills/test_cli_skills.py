@@ -1,13 +1,22 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import pytest
+from skill_helpers import measured
 from typer.testing import CliRunner
 
 from itskill.cli import app
 from itskill.skills.store import SHIPPED_LIBRARY
 
 runner = CliRunner()
+
+
+@pytest.fixture
+def checkpoint() -> Path:
+    """A trained policy: `skills add` loads the checkpoint it is given."""
+    return SHIPPED_LIBRARY / "reach_nut_m12" / "policy.safetensors"
 
 
 def add(checkpoint, task: str, *extra: str):
@@ -72,8 +81,40 @@ def test_add_takes_a_run_directory_and_refuses_weights_without_their_metadata(ho
     lone.write_bytes((run_dir / "policy.safetensors").read_bytes())
     result = add(lone, "reach_nut_m12", "--name", "lone")
     assert result.exit_code == 2
-    text = "".join(result.output.replace("│", "").split())  # the error box wraps anywhere
-    assert "--checkpoint" in text and "checkpoint.json" in text
+    assert "--checkpoint" in _flat(result.output) and "checkpoint.json" in _flat(result.output)
+
+
+def _flat(output: str) -> str:
+    """``output`` without the error box's borders and line breaks (it wraps anywhere)."""
+    return "".join(output.replace("│", "").split())
+
+
+def test_add_refuses_a_checkpoint_that_does_not_load(home, tmp_path, checkpoint):
+    # Both were added, and failed only at the skill's first use.
+    not_zip = tmp_path / "policy.zip"
+    not_zip.write_bytes(b"not a real policy")
+    result = add(not_zip, "reach_nut_m12")
+    assert result.exit_code == 2
+    assert "--checkpoint" in _flat(result.output) and "notaStable-Baselines3" in _flat(
+        result.output
+    )
+    truncated = tmp_path / "run" / "policy.safetensors"
+    truncated.parent.mkdir()
+    (truncated.parent / "checkpoint.json").write_bytes(
+        (checkpoint.parent / "checkpoint.json").read_bytes()
+    )
+    truncated.write_bytes(checkpoint.read_bytes()[:1000])
+    result = add(truncated, "reach_nut_m12")
+    assert result.exit_code == 2 and "corruptpolicyweights" in _flat(result.output)
+    assert json.loads(runner.invoke(app, ["skills", "list", "--json"]).stdout) == []
+
+
+def test_add_refuses_an_interval_whose_low_is_above_its_high(home, checkpoint):
+    result = add(
+        checkpoint, "reach_nut_m12", "--success", "0.5", "--ci-low", "0.9", "--ci-high", "0.1"
+    )
+    assert result.exit_code == 2 and "--ci-low" in _flat(result.output)
+    assert "0.9isabove--ci-high0.1" in _flat(result.output)
 
 
 def test_corrupt_database_names_path(home):
@@ -84,10 +125,12 @@ def test_corrupt_database_names_path(home):
     assert str(home / "skills.sqlite") in " ".join(result.output.split())
 
 
-def test_pretrain_reports_the_seeds_it_tried(home, tmp_path):
-    # No run can reach a success above 1: both seeds train, the better is reported, not added.
+def test_pretrain_reports_the_seeds_it_tried(home, tmp_path, monkeypatch):
+    # No run reaches --min-success (the held-out measure is stubbed): both seeds train, the
+    # better is reported, not added.
+    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", measured("seed1", 0.5))
     args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--steps", "512", "--seeds", "2"]
-    args += ["--eval-every", "256", "--episodes", "4", "--min-success", "1.01"]
+    args += ["--eval-every", "256", "--episodes", "4", "--min-success", "0.9", "--workers", "1"]
     args += ["--runs", str(tmp_path / "runs"), "--library", str(tmp_path / "library")]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -98,6 +141,15 @@ def test_pretrain_reports_the_seeds_it_tried(home, tmp_path):
         "seed0",
         "seed1",
     ]
+
+
+def test_pretrain_refuses_a_min_success_outside_0_to_1(home, tmp_path):
+    # 2 (or 50 for "50%") trained every seed of every skill and could never add one.
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--min-success", "2"]
+    result = runner.invoke(app, [*args, "--runs", str(tmp_path / "runs")])
+    assert result.exit_code == 2
+    assert "Invalidvaluefor'--min-success'" in _flat(result.output)
+    assert not (tmp_path / "runs").exists()
 
 
 def test_pretrain_takes_a_comma_separated_task_list(home, tmp_path):

@@ -84,6 +84,11 @@ def test_bad_manifest_names_file(tmp_path):
     (tmp_path / "manifest.json").write_text('{"skills": ["pick_nut_m12"]}')
     with pytest.raises(ManifestError, match=r"skills\[0\].*expected an object"):
         read_manifest(tmp_path)
+    # A budget that is not an object was an AttributeError traceback from `skills install`.
+    entry = {**entries()[0].to_json(), "budget": 5}
+    (tmp_path / "manifest.json").write_text(json.dumps({"skills": [entry]}))
+    with pytest.raises(ManifestError, match=r"manifest\.json: skills\[0\]\.budget: expected an"):
+        read_manifest(tmp_path)
     (tmp_path / "manifest.json").write_text('{"format": "1", "skills": []}')
     with pytest.raises(ManifestError, match="'format' must be a whole number"):
         read_manifest(tmp_path)

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 from unittest.mock import ANY
 
 import pytest
+from skill_helpers import measured
 
 from itskill.rl import config as config_module
 from itskill.rl.checkpoint import MODEL_FILE, load_policy
@@ -79,16 +80,18 @@ def test_runs_below_min_success_try_the_next_seeds_and_the_skill_is_not_added(
     tmp_path, monkeypatch
 ) -> None:
     monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
-    # No run can reach a success above 1, so all three seeds train and the best of them is
-    # reported, not exported.
+    # No run reaches the held-out success asked for (the measure is stubbed), so all three seeds
+    # train and the best of them (seed 1) is reported, not exported.
+    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", measured("seed1", 0.5))
     config = PretrainConfig(
-        steps=512, num_envs=8, eval_episodes=8, min_success=1.01, eval_every=256, seeds=3
+        steps=512, num_envs=8, eval_episodes=8, min_success=0.9, eval_every=256, seeds=3
     )
     runs, library = tmp_path / "runs", tmp_path / "library"
     with SkillSpace() as space:
         (reported,) = _pretrain_reports(config, runs, library, space)
         assert space.list() == []
     assert sorted(d.name for d in (runs / "reach_nut_m12").iterdir()) == ["seed0", "seed1", "seed2"]
+    assert (reported.seed, reported.success) == (1, 0.5)
     others = reported.extra[ABANDONED_KEY]
     assert sorted([reported.seed] + [r["seed"] for r in others]) == [0, 1, 2]
     for run in others:
@@ -123,13 +126,8 @@ def test_a_run_that_reaches_min_success_is_kept_without_trying_another_seed(tmp_
 def test_the_first_seed_to_learn_is_exported_with_the_runs_before_it_listed(
     tmp_path, monkeypatch
 ) -> None:
-    # Seed 0's run "fails" its held-out measure and seed 1's "learns" (the measure is stubbed,
-    # so which run learns does not depend on a 512-step training).
-    def measure(spec, policy_dir, config):
-        learned = "seed1" in str(policy_dir)
-        return SimpleNamespace(success_rate=0.9 if learned else 0.1, ci_low=0.0, ci_high=1.0)
-
-    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", measure)
+    # Seed 0's run "fails" its held-out measure and seed 1's "learns".
+    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", measured("seed1", 0.9))
     config = PretrainConfig(
         steps=512, num_envs=8, eval_episodes=4, min_success=0.5, eval_every=256, seeds=3
     )
@@ -158,6 +156,9 @@ def test_pretrain_config_refuses_no_seeds_and_no_selection_episodes() -> None:
         PretrainConfig(seeds=0)
     with pytest.raises(ValueError, match="select_episodes"):
         PretrainConfig(select_episodes=0)
+    # Above 1 every seed trained and none could be kept.
+    with pytest.raises(ValueError, match=r"min_success must be in \[0, 1\], got 2"):
+        PretrainConfig(min_success=2.0)
 
 
 def test_a_warm_started_skill_records_the_demonstrations_env_steps(tmp_path, monkeypatch) -> None:

@@ -139,6 +139,41 @@ def test_a_part_started_on_a_bolt_must_screw_onto_it(tmp_path, parts, nut, probl
         load_task_file(write(tmp_path, text), parts)
 
 
+def test_tasks_that_are_not_task_tables_name_the_file(tmp_path, parts):
+    # It was a bare TypeError ('int' object is not iterable) from `itskill tasks list`.
+    path = write(tmp_path, "task = 5\n")
+    with pytest.raises(TaskFileError, match=r"expected \[\[task\]\] tables, got int") as err:
+        load_task_file(path, parts)
+    assert (err.value.path, err.value.where) == (str(path), "task")
+
+
+NUT = "[nut.my_nut]\nacross_flats = 0.02\nheight = 0.01\nthread_diameter = 0.012\npitch = 0.00175\n"
+
+
+@pytest.mark.parametrize("rgba", ["1", "[1, 0, 0]", '[1, 0, 0, "opaque"]'])
+def test_a_part_colour_that_is_not_four_numbers_names_the_field(tmp_path, rgba):
+    path = tmp_path / "parts.toml"
+    path.write_text(f"{NUT}rgba = {rgba}\n")
+    with pytest.raises(TaskFileError) as err:
+        load_parts(path)
+    assert (err.value.path, err.value.where) == (str(path), "nut.my_nut.rgba")
+    path.write_text(f"{NUT}rgba = [1, 0, 0, 1]\n")
+    assert load_parts(path)["my_nut"].rgba == (1.0, 0.0, 0.0, 1.0)
+
+
+@pytest.mark.parametrize(("a_file", "problem"), [(False, "no such directory"), (True, "not a")])
+def test_a_user_tasks_directory_that_is_not_one_is_named(monkeypatch, tmp_path, a_file, problem):
+    # A mistyped ITSKILL_TASKS_DIR was ignored: its tasks were only "unknown".
+    user = tmp_path / "mytasks"
+    if a_file:
+        user.write_text("")
+    monkeypatch.setenv(spec_module.TASKS_DIR_ENV, str(user))
+    with pytest.raises(TaskFileError) as err:
+        all_tasks()
+    assert (err.value.path, err.value.where) == (str(user), spec_module.TASKS_DIR_ENV)
+    assert problem in err.value.problem
+
+
 def _user_registry(monkeypatch, tmp_path, starts: str) -> dict:
     """Every task, packaged and ``VALID`` with ``training_starts = starts`` in a user directory."""
     write(tmp_path, VALID.replace("max_steps = 60", f"max_steps = 60\ntraining_starts = {starts}"))

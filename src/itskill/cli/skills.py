@@ -176,28 +176,36 @@ def skills_add(
     seed: Annotated[int | None, typer.Option(help="Training seed.")] = None,
     as_json: JsonOpt = False,
 ) -> None:
-    """Add a learned skill (its checkpoint must exist)."""
+    """Add a learned skill (its checkpoint must exist and load as a policy)."""
     from itskill.rl.checkpoint import (
         POLICY_FILE,
         CheckpointError,
+        as_policy,
         best_policy_dir,
         policy_location,
-        read_meta,
     )
     from itskill.skills import Skill, open_skill_space
+    from itskill.tasks.evaluate import make_policy
 
     if (ci_low is None) != (ci_high is None):
         raise typer.BadParameter("give both --ci-low and --ci-high, or neither")
+    if ci_low is not None and ci_high is not None and ci_low > ci_high:
+        raise typer.BadParameter(
+            f"{ci_low} is above --ci-high {ci_high}; the interval is [low, high]",
+            param_hint="--ci-low",
+        )
     checkpoint = checkpoint.expanduser().resolve()
     if checkpoint.is_dir():
         checkpoint = best_policy_dir(checkpoint) / POLICY_FILE
-    if checkpoint.suffix == ".safetensors" and checkpoint.exists():
-        try:
-            read_meta(policy_location(checkpoint))  # what a transfer reads from a source skill
-        except CheckpointError as err:
-            raise typer.BadParameter(str(err), param_hint="--checkpoint") from err
     with _skill_errors():
         spec = get_task(task)
+        if checkpoint.exists():  # a missing one is the skill space's to name
+            try:
+                # Loaded as eval and a transfer load it: a truncated or foreign file, or weights
+                # without their checkpoint.json, fail now rather than at the skill's first use.
+                make_policy(as_policy(policy_location(checkpoint)), spec, num_envs=1)
+            except CheckpointError as err:
+                raise typer.BadParameter(str(err), param_hint="--checkpoint") from err
         acts = spec.actions if actions is None else tuple(a.strip() for a in actions.split(","))
         skill = Skill(
             name=name or spec.id,
@@ -298,7 +306,8 @@ def skills_pretrain(
         ),
     ] = None,
     min_success: Annotated[
-        float, typer.Option(help="Success a skill needs to be added to the library.")
+        float,
+        typer.Option(min=0.0, max=1.0, help="Success a skill needs to be added to the library."),
     ] = 0.5,
     executor: Annotated[str, typer.Option(help="local (one job per core) or ray.")] = "local",
     workers: Annotated[

@@ -7,7 +7,7 @@ every problem names the file, the field and what was expected (:class:`SearchCon
 from __future__ import annotations
 
 import typing
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -85,6 +85,8 @@ def _read(path: Path) -> dict[str, Any]:
     if unknown:
         raise SearchConfigError(path, unknown[0], "unknown table; expected [search] and [sandbox]")
     table = data.get("search", {})
+    if not isinstance(table, dict):
+        raise SearchConfigError(path, "search", f"expected a table, got {type(table).__name__}")
     values: dict[str, Any] = {}
     for key, value in table.items():
         if key not in _KINDS:
@@ -159,6 +161,14 @@ class RewardSearchConfig:
             raise SearchConfigError(where, "max_regenerations", "expected 0 or more")
         if not 0.0 <= self.temperature <= 2.0:
             raise SearchConfigError(where, "temperature", "expected a value in [0, 2]")
+        for limit in fields(SandboxConfig):
+            # A limit of 0 or less does not mean "none" (leaving it out does): the limit would be
+            # silently off (a negative timeout or memory limit) or refuse every reward.
+            value = getattr(self.sandbox, limit.name)
+            if value is not None and not value > 0:
+                raise SearchConfigError(
+                    where, f"sandbox.{limit.name}", f"expected a positive number, got {value!r}"
+                )
 
     @property
     def select_seed_list(self) -> list[int]:

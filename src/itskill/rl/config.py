@@ -7,6 +7,7 @@ and what was expected (:class:`HyperparamError`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
@@ -146,10 +147,25 @@ _FAMILY_KEYS = {"num_envs": int, "checkpoint_every": int, "normalize_reward": bo
 _SUB_TABLES = ("policy", "demos", "init")
 """Sub-tables besides the algorithms': :class:`PolicyConfig`, :class:`DemoConfig`,
 :class:`InitConfig`."""
-_POSITIVE = {
-    "num_envs", "checkpoint_every", "n_steps", "batch_size", "n_epochs", "learning_rate",
-    "critic_episodes",
+_POSITIVE = (lambda v: v > 0, "a positive value")
+_NON_NEGATIVE = (lambda v: v >= 0, "a value of 0 or more")
+_RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    **dict.fromkeys(
+        (
+            "num_envs", "checkpoint_every", "n_steps", "batch_size", "n_epochs", "epochs",
+            "learning_rate", "critic_episodes", "clip_range", "max_grad_norm", "rms_prop_eps",
+            "obs_clip",
+        ),
+        _POSITIVE,
+    ),
+    **dict.fromkeys(("ent_coef", "vf_coef", "target_kl", "episodes"), _NON_NEGATIVE),
+    "gamma": (lambda v: 0 < v <= 1, "a value in (0, 1]"),
+    "gae_lambda": (lambda v: 0 <= v <= 1, "a value in [0, 1]"),
 }  # fmt: skip
+"""The range of every numeric field, by name in any table. Outside it training does not fail at
+once: a discount of 90 or a negative clip range turns the losses into NaN after the first
+rollout, and a gradient-norm clip of 0 silently stops all learning. A NaN (valid TOML) is outside
+every range."""
 
 
 def default_path() -> Path:
@@ -157,10 +173,12 @@ def default_path() -> Path:
 
 
 def _check_value(path: Path, where: str, value: Any, default: Any) -> Any:
-    """``value`` as the type of ``default``, or a HyperparamError naming the expected type."""
+    """``value`` as the type of ``default`` and within its field's range (:data:`_RANGES`), or a
+    HyperparamError naming the expected type or range."""
     value = check_like(path, where, value, default, HyperparamError)
-    if where.rsplit(".", 1)[-1] in _POSITIVE and value <= 0:
-        raise HyperparamError(path, where, f"expected a positive value, got {value!r}")
+    rule = _RANGES.get(where.rsplit(".", 1)[-1])
+    if rule is not None and not rule[0](value):
+        raise HyperparamError(path, where, f"expected {rule[1]}, got {value!r}")
     return value
 
 

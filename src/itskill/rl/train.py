@@ -26,6 +26,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from itskill.datafile import read_toml
 from itskill.files import write_json
 from itskill.rl.checkpoint import (
     MODEL_FILE,
@@ -36,7 +37,7 @@ from itskill.rl.checkpoint import (
     save_checkpoint,
 )
 from itskill.rl.clock import TRAIN_WALL_KEY, WallClock
-from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, load_hyperparams
+from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, default_path, load_hyperparams
 from itskill.rl.demos import DEMOS_FILE, warm_start
 from itskill.rl.eval_callback import (
     DeterministicEvalCallback,
@@ -227,6 +228,16 @@ def _changed(have: Mapping[str, Any], want: Mapping[str, Any], prefix: str = "")
     return sorted(out)
 
 
+def _demos_origin(hyperparams: str | Path | None, spec: TaskSpec) -> tuple[Path, str]:
+    """The hyper-parameter file and field that set ``demos.episodes`` for ``spec``'s runs: its
+    task table's if that sets them, else its family's."""
+    path = Path(hyperparams) if hyperparams is not None else default_path()
+    family = read_toml(path, HyperparamError)[spec.family]
+    own = family.get("tasks", {}).get(spec.id, {}).get("demos", {})
+    table = f"{spec.family}.tasks.{spec.id}" if "episodes" in own else spec.family
+    return path, f"{table}.demos.episodes"
+
+
 def train(
     task: str,
     algo: str = "ppo",
@@ -286,10 +297,16 @@ def train(
     if init is not None:
         hp = hp.starting_from_policy()
     if hp.demos.episodes and init is not None:
+        # Mostly a packaged task table asks for them, not the user: name the file and table.
+        source, where = (
+            ("overrides", "demos.episodes") if "demos" in ov else _demos_origin(hyperparams, spec)
+        )
         raise HyperparamError(
-            hyperparams or "hyperparams",
-            "demos.episodes",
-            "a run starts from demonstrations or from a trained policy (init), not both",
+            source,
+            where,
+            f"{hp.demos.episodes} demonstrations to warm-start from, and a trained policy to "
+            "start from (init): a run starts from one, not both; add --demos 0 to start from "
+            "the policy",
         )
     if (hp.demos.episodes or init is not None) and not issubclass(
         policy_class, StagedActorCriticPolicy

@@ -80,8 +80,12 @@ class ManifestEntry:
     def from_json(cls, data: dict[str, Any], where: str) -> ManifestEntry:
         if not isinstance(data, dict):
             raise ManifestError(f"{where}: bad skill entry (expected an object, got {data!r})")
+        budget = data.get("budget") or {}
+        if not isinstance(budget, dict):
+            raise ManifestError(
+                f"{where}.budget: expected an object with steps and wall_s, got {budget!r}"
+            )
         try:
-            budget = data.get("budget") or {}
             ci = data.get("success_ci")
             known = {"name", "task", "description", "actions", "checkpoint", "success"}
             known |= {"success_ci", "budget", "algo", "seed"}

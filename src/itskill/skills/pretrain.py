@@ -106,6 +106,9 @@ class PretrainConfig:
             raise ValueError(f"seeds must be at least 1, got {self.seeds}")
         if self.select_episodes < 1:
             raise ValueError(f"select_episodes must be at least 1, got {self.select_episodes}")
+        if not 0.0 <= self.min_success <= 1.0:
+            # Above 1 no run can be kept: every seed would train for nothing.
+            raise ValueError(f"min_success must be in [0, 1], got {self.min_success}")
         if not 0.0 < self.replace_p <= 1.0:
             raise ValueError(f"replace_p must be above 0 and at most 1, got {self.replace_p}")
 

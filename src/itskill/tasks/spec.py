@@ -181,7 +181,16 @@ def load_parts(path: Path) -> dict[str, Any]:
             reader.check_keys(allowed)
             values = dict(fields)
             if "rgba" in values:
-                values["rgba"] = tuple(values["rgba"])
+                rgba = reader.get("rgba", list)
+                if len(rgba) != 4 or not all(
+                    isinstance(v, int | float) and not isinstance(v, bool) for v in rgba
+                ):
+                    raise TaskFileError(
+                        path,
+                        f"{kind}.{name}.rgba",
+                        f"expected [red, green, blue, alpha], got {rgba!r}",
+                    )
+                values["rgba"] = tuple(float(v) for v in rgba)
             try:
                 parts[name] = cls(name=name, **values)
             except (TypeError, ValueError) as err:
@@ -495,14 +504,24 @@ def load_task_file(path: Path, parts: dict[str, Any]) -> list[TaskSpec]:
         raise TaskFileError(
             path, sorted(unknown)[0], "unknown top-level key; tasks go in [[task]] tables"
         )
-    return [_parse_task(path, i, raw, parts) for i, raw in enumerate(data.get("task", []))]
+    raw_tasks = data.get("task", [])
+    if not isinstance(raw_tasks, list):
+        raise TaskFileError(
+            path, "task", f"expected [[task]] tables, got {type(raw_tasks).__name__}"
+        )
+    return [_parse_task(path, i, raw, parts) for i, raw in enumerate(raw_tasks)]
 
 
 def _task_dirs() -> list[Path]:
     dirs = [Path(str(resources.files("itskill.tasks") / "data"))]
     user = os.environ.get(TASKS_DIR_ENV)
     if user:
-        dirs.append(Path(user).expanduser())
+        # A mistyped directory would otherwise leave its tasks "unknown" without saying why.
+        path = Path(user).expanduser()
+        if not path.is_dir():
+            problem = "not a directory" if path.exists() else "no such directory"
+            raise TaskFileError(path, TASKS_DIR_ENV, problem)
+        dirs.append(path)
     return dirs
 
 
