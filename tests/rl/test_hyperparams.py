@@ -28,6 +28,8 @@ def test_packaged_file_loads(family: str) -> None:
         # Out of range, these trained into a NaN traceback, or into nothing, after the envs.
         ("[nutbolt.ppo]\ngamma = 90\n", "nutbolt.ppo.gamma", "expected a value in (0, 1]"),
         ("[nutbolt.ppo]\ngamma = nan\n", "nutbolt.ppo.gamma", "in (0, 1], got nan"),
+        # The other algorithm's table too (the file is loaded for PPO): found on first use.
+        ("[nutbolt.a2c]\ngamma = 90\n", "nutbolt.a2c.gamma", "expected a value in (0, 1]"),
         ("[nutbolt.ppo]\ngae_lambda = 1.5\n", "nutbolt.ppo.gae_lambda", "in [0, 1]"),
         ("[nutbolt.ppo]\nclip_range = -0.2\n", "nutbolt.ppo.clip_range", "positive"),
         ("[nutbolt.ppo]\nmax_grad_norm = 0\n", "nutbolt.ppo.max_grad_norm", "positive"),

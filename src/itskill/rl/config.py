@@ -147,6 +147,8 @@ _FAMILY_KEYS = {"num_envs": int, "checkpoint_every": int, "normalize_reward": bo
 _SUB_TABLES = ("policy", "demos", "init")
 """Sub-tables besides the algorithms': :class:`PolicyConfig`, :class:`DemoConfig`,
 :class:`InitConfig`."""
+_FIELDS = {*_FAMILY_KEYS, *_SUB_TABLES, *ALGOS}
+"""What a family's or task's table may hold (a family's also ``tasks``)."""
 _POSITIVE = (lambda v: v > 0, "a positive value")
 _NON_NEGATIVE = (lambda v: v >= 0, "a value of 0 or more")
 _RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
@@ -231,6 +233,22 @@ def _layer(
     )
 
 
+def _file_layers(
+    path: Path, table: dict[str, Any], family: str, algo: str
+) -> tuple[Hyperparams, dict[str, Hyperparams]]:
+    """The family's hyper-parameters for ``algo`` from its table, and each task table's."""
+    base = Hyperparams(family=family, algo=algo, algo_config=ALGO_CONFIGS[algo]())  # type: ignore[arg-type]
+    hp = _layer(path, family, table, algo, _FIELDS | {"tasks"}, base)
+    tasks = table.get("tasks", {})
+    if not isinstance(tasks, dict):
+        raise HyperparamError(path, f"{family}.tasks", "expected a table of task tables")
+    per_task = {
+        name: _layer(path, f"{family}.tasks.{name}", task_table, algo, _FIELDS, hp)
+        for name, task_table in tasks.items()
+    }
+    return hp, per_task
+
+
 def load_hyperparams(
     family: str,
     algo: str,
@@ -253,23 +271,18 @@ def load_hyperparams(
         raise HyperparamError(
             path, family, f"no table for this task family; the file has {sorted(data)}"
         )
-    fields_ = {*_FAMILY_KEYS, *_SUB_TABLES, *ALGOS}
-    base = Hyperparams(family=family, algo=algo, algo_config=ALGO_CONFIGS[algo]())  # type: ignore[arg-type]
-    hp = _layer(path, family, data[family], algo, fields_ | {"tasks"}, base)
-    tasks = data[family].get("tasks", {})
-    if not isinstance(tasks, dict):
-        raise HyperparamError(path, f"{family}.tasks", "expected a table of task tables")
-    # Every task table is checked, not only the one asked for: a typo fails on first use.
-    per_task = {
-        name: _layer(path, f"{family}.tasks.{name}", table, algo, fields_, hp)
-        for name, table in tasks.items()
-    }
+    # Every task table and the other algorithm's are checked, not only what this run uses: a
+    # typo fails on first use of the file.
+    for other in ALGOS:
+        if other != algo:
+            _file_layers(path, data[family], family, other)
+    hp, per_task = _file_layers(path, data[family], family, algo)
     hp = per_task.get(task, hp)
     if overrides:
         # The same layer as a file's table, with the algorithm's fields given by name.
         table = {k: v for k, v in overrides.items() if k in _FAMILY_KEYS or k in _SUB_TABLES}
         table[algo] = {k: v for k, v in overrides.items() if k not in table}
-        hp = _layer("overrides", "overrides", table, algo, fields_, hp)
+        hp = _layer("overrides", "overrides", table, algo, _FIELDS, hp)
     if isinstance(hp.algo_config, PPOConfig):
         # Fewer environments than the family's (a small machine, a reward-search candidate)
         # shrink the rollout below a minibatch: train on the whole rollout at once instead.
