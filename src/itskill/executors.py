@@ -26,6 +26,9 @@ Executor = Literal["local", "ray"]
 EXECUTORS: tuple[str, ...] = ("local", "ray")
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""The signals that stop a command as Ctrl-C does: the training in progress saves first."""
+
 _interrupted = False
 _RAY_STOP_S = 120.0
 """How long Ray tasks get to save a checkpoint after Ctrl-C before the shutdown ends them."""
@@ -145,16 +148,16 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
 
 
 def stop_on_first_interrupt() -> None:
-    """Make SIGINT and SIGTERM raise ``KeyboardInterrupt`` once in this process and be ignored
-    after that.
+    """Make SIGINT, SIGTERM and SIGHUP raise ``KeyboardInterrupt`` once in this process and be
+    ignored after that.
 
     A worker may get Ctrl-C twice (from the terminal, and forwarded by its parent); the second
     must not cut short the checkpoint the first one made it save. SIGTERM (a scheduler stopping
-    the whole process group, `kill`) stops it the same way instead of ending it unsaved. A
-    process started with a signal ignored (SIGINT in a background job of a script) keeps
-    ignoring it.
+    the whole process group, `kill`) and SIGHUP (the terminal closed) stop it the same way
+    instead of ending it unsaved. A process started with a signal ignored (SIGINT in a
+    background job of a script, SIGHUP under `nohup`) keeps ignoring it.
     """
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         if signal.getsignal(sig) is not signal.SIG_IGN:
             signal.signal(sig, _interrupt_once)
 
@@ -207,11 +210,17 @@ def _run_ray(fn, jobs, address: str | None, workers: int | None) -> Iterator[Job
         ) from err
     started_here = not ray.is_initialized()
     if started_here:
+        # ray.init makes SIGTERM a SystemExit for the rest of the process; a SIGTERM must stay a
+        # KeyboardInterrupt here, which cancels the tasks below and ends with the resume hint.
+        handler = signal.getsignal(signal.SIGTERM)
         try:
             ray.init(address=address, include_dashboard=False, log_to_driver=False)
         except (ConnectionError, RuntimeError, ValueError) as err:
             where = address or "a local instance"
             raise ExecutorError(f"could not start or reach Ray at {where}: {err}") from err
+        finally:
+            if handler is not None:
+                signal.signal(signal.SIGTERM, handler)
     pending: dict = {}
     try:
         remote = ray.remote(_call)

@@ -181,3 +181,16 @@ def test_an_executor_that_cannot_run_leaves_no_run_to_resume(toy, tmp_path):
     with pytest.raises(ExecutorError, match="needs the Ray executor"):
         run_experiment(config, run, "local", 1, "127.0.0.1:6379", console=quiet())
     assert not (run / "config.json").exists()  # a plain rerun with the fix is not refused
+
+
+def test_a_file_made_for_a_cluster_runs_here_with_executor_local(toy, tmp_path):
+    # The file's Ray address went with `--executor local` and was refused.
+    from itskill.experiments.config import ExecutionSettings
+
+    config, _ = toy
+    cluster = ExecutionSettings("ray", None, "10.0.0.5:6379")
+    small = type(config)(
+        **{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,), "execution": cluster}
+    )
+    summary = run_experiment(small, tmp_path / "run", "local", 1, console=quiet())
+    assert [c.seed for c in summary.finished] == [0]

@@ -96,3 +96,20 @@ def test_override_errors() -> None:
         load_search_config(overrides={"iteratoins": 2})
     with pytest.raises(SearchConfigError, match=r"overrides: sandbox\.call_timeout_s: expected a"):
         load_search_config(overrides={"sandbox": {"call_timeout_s": 0}})
+
+
+def test_a_run_made_on_a_cluster_resumes_here_without_its_address(tmp_path) -> None:
+    # The stored address went with `--executor local` and was refused, so a paid search could
+    # not be finished on this machine once the cluster was gone.
+    import json
+
+    from itskill.reward.search import CONFIG_FILE, RUN_KIND, config_from_run
+
+    cluster = load_search_config(overrides={"executor": "ray", "ray_address": "10.0.0.5:6379"})
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / CONFIG_FILE).write_text(json.dumps({"kind": RUN_KIND, "config": cluster.to_dict()}))
+    here = config_from_run(run, {"executor": "local"})
+    assert (here.executor, here.ray_address) == ("local", None)
+    again = config_from_run(run, {})
+    assert (again.executor, again.ray_address) == ("ray", "10.0.0.5:6379")

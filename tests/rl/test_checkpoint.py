@@ -11,26 +11,28 @@ import pytest
 from itskill.rl.checkpoint import interrupts_deferred
 
 
-def _ctrl_c_during_block(done: list[str]) -> list[str]:
+def _ctrl_c_during_block(done: list[str], sig: int = signal.SIGINT) -> list[str]:
     with interrupts_deferred():
-        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), sig)
         time.sleep(0.05)  # a signal is handled between bytecodes: it would have struck here
         done.append("the whole block ran")
     done.append("after the block")
     return done
 
 
-def test_ctrl_c_during_a_checkpoint_is_raised_once_it_is_written() -> None:
-    # Set here: a test run started in the background inherits SIGINT ignored.
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_a_stop_during_a_checkpoint_is_raised_once_it_is_written(sig: int) -> None:
+    # Set here as the itskill command sets them (a test run started in the background
+    # inherits SIGINT ignored).
+    previous = signal.signal(sig, signal.default_int_handler)
     try:
         done: list[str] = []
         with pytest.raises(KeyboardInterrupt):
-            _ctrl_c_during_block(done)
+            _ctrl_c_during_block(done, sig)
         assert done == ["the whole block ran"]  # raised as the block ended, not inside it
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+        assert signal.getsignal(sig) is signal.default_int_handler  # put back
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.signal(sig, previous)
 
 
 def test_a_process_ignoring_ctrl_c_still_ignores_it_after_a_checkpoint() -> None:

@@ -379,7 +379,8 @@ def test_evaluations_after_the_checkpoint_a_crash_went_back_to_are_forgotten(
 ) -> None:
     # Killed after evaluating at 192 and 256 but before checkpointing past 128: the resumed run
     # trains 128..256 again, differently; the old rows doubled the curve (and a reward
-    # candidate's peak success was taken over both), and best/ came from the lost trajectory.
+    # candidate's peak success was taken over both). best/, a policy this run trained and
+    # measured, stays until an evaluation matches or beats it.
     scores = iter([0.25, 0.25, 0.5, 1.0, 0.0, 0.0])
     fake, _ = _scripted_evaluate(scores)
     monkeypatch.setattr(eval_callback, "evaluate", fake)
@@ -394,7 +395,24 @@ def test_evaluations_after_the_checkpoint_a_crash_went_back_to_are_forgotten(
         (out / name).write_bytes(data)
     resumed = _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
     assert resumed.resumed_from == 128 and _eval_steps(out) == [64, 128, 192, 256]
-    assert resumed.best is not None and resumed.best["success"] == 0.0
+    assert resumed.best == lost.best
+
+
+def test_a_fresh_run_forgets_what_a_session_killed_before_its_first_checkpoint_left(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # No checkpoint: nothing says those rows and that best policy came from these settings.
+    fake, _ = _scripted_evaluate(iter([1.0, 1.0, 0.25, 0.25]))
+    monkeypatch.setattr(eval_callback, "evaluate", fake)
+    out = tmp_path / "run"
+    _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
+    (out / "checkpoint.json").unlink()  # the state a kill before the first checkpoint leaves
+    again = _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
+    assert again.resumed_from == 0 and _eval_steps(out) == [64, 128]
+    assert again.best is not None and again.best["success"] == 0.25
+    assert [row["step"] for row in read_metrics(out)] == sorted(
+        {r["step"] for r in read_metrics(out)}
+    )
 
 
 def test_a_checkpoint_torn_between_its_files_resumes_from_the_model(

@@ -32,8 +32,11 @@ def _stop_like_ctrl_c() -> None:
     # Ctrl-C does: the training in progress saves its checkpoint and the run can be resumed.
     # Left at their defaults they ended the process there and then, losing everything since the
     # last checkpoint.
+    # A signal the command was started with ignored stays ignored: `nohup` ignores SIGHUP so
+    # that a run outlives the terminal.
     for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, signal.default_int_handler)
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            signal.signal(sig, signal.default_int_handler)
 
 
 app.add_typer(tasks_app, name="tasks")

@@ -251,12 +251,15 @@ def run_experiment(
     """
     console = console or Console(stderr=True)
     run_dir = Path(run_dir)
+    ex = executor or config.execution.executor
+    workers = workers or config.execution.workers
+    if ray_address is None and ex == "ray":
+        # The file's address goes with the file's cluster: `--executor local` leaves it behind
+        # (to finish a run on this machine once the cluster is gone); an address given with
+        # `--executor local` is refused below.
+        ray_address = config.execution.ray_address
     # Before the run is recorded: settings that cannot run leave no run to --resume.
-    check_executor(
-        executor or config.execution.executor,
-        workers or config.execution.workers,
-        ray_address or config.execution.ray_address,
-    )
+    check_executor(ex, workers, ray_address)
     record = _run_record(config, run_dir, resume)
     # Before the run is recorded: a source that cannot be found leaves no run to --resume.
     sources = resolve_all_sources(config, run_dir)
@@ -300,8 +303,7 @@ def run_experiment(
         f"{len(todo) - len(summary.resumed)} to start → {escape(str(run_dir))}"
     )
     sessions = Sessions(run_dir / PROVENANCE_FILE)
-    ex = executor or config.execution.executor
-    sessions.start(executor=ex, workers=workers or config.execution.workers, cells=len(todo))
+    sessions.start(executor=ex, workers=workers, cells=len(todo))
     status = "interrupted"
     try:
         with Progress(
@@ -312,13 +314,7 @@ def run_experiment(
             console=console,
         ) as progress:
             bar = progress.add_task("cells", total=len(jobs))
-            results = run_jobs(
-                run_cell,
-                jobs,
-                ex,
-                workers or config.execution.workers,
-                ray_address or config.execution.ray_address,
-            )
+            results = run_jobs(run_cell, jobs, ex, workers, ray_address)
             for res in results:
                 cell = todo[res.index]
                 progress.advance(bar)

@@ -745,4 +745,8 @@ def config_from_run(run_dir: str | Path, overrides: dict[str, Any] | None = None
     """The settings a run was made with (for resuming it), ``overrides`` on top."""
     stored = read_run(run_dir)["config"].get("config", {})
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    if given.get("executor", stored.get("executor")) != "ray" and "ray_address" not in given:
+        # The stored address goes with the stored cluster: resuming with `--executor local`
+        # (the cluster gone) leaves it behind; one given with it is refused.
+        stored = {k: v for k, v in stored.items() if k != "ray_address"}
     return load_search_config(overrides={**stored, **given})

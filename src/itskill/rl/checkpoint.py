@@ -41,6 +41,7 @@ from safetensors.torch import load_file, save_file
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecNormalize
 
+from itskill.executors import STOP_SIGNALS
 from itskill.files import write_text
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
 from itskill.sim.layout import OBSERVATION_LAYOUT
@@ -92,26 +93,30 @@ def save_checkpoint(
 
 @contextlib.contextmanager
 def interrupts_deferred() -> Iterator[None]:
-    """Hold Ctrl-C (SIGINT) until the block has run, then act on it as the handler would have.
+    """Hold Ctrl-C, SIGTERM and SIGHUP until the block has run, then act on the first as its
+    handler would have.
 
-    A checkpoint cut short between its files would pair new weights with an old record. Only the
-    main thread can change signal handlers; elsewhere the block runs as it is.
+    A checkpoint cut short between its files would pair new weights with an old record. Only
+    signals with a Python handler are held (one set to be ignored stays ignored; one left at the
+    operating system's default still ends the process), and only in the main thread, the one
+    that can change handlers.
     """
-    previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or previous is None:
-        yield  # (None: a handler installed outside Python, which could not be put back)
+    if threading.current_thread() is not threading.main_thread():
+        yield
         return
+    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    held = {sig: handler for sig, handler in previous.items() if callable(handler)}
     received: list[tuple[int, Any]] = []
-    signal.signal(signal.SIGINT, lambda signum, frame: received.append((signum, frame)))
+    for sig in held:
+        signal.signal(sig, lambda signum, frame: received.append((signum, frame)))
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, handler in held.items():
+            signal.signal(sig, handler)
         if received:
-            if callable(previous):
-                previous(*received[0])
-            elif previous == signal.SIG_DFL:
-                raise KeyboardInterrupt
+            signum, frame = received[0]
+            held[signum](signum, frame)
 
 
 def _save_checkpoint(

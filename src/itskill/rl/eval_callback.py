@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import csv
 import json
-import shutil
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -56,13 +55,14 @@ def last_evaluated(run_dir: str | Path) -> int | None:
 
 
 def truncate_evaluations(run_dir: str | Path, step: int) -> None:
-    """Forget the evaluations after env-step ``step`` (a resumed run's checkpoint): their rows,
-    and the best policy if one of them chose it. They belong to a trajectory the crash threw
-    away, which the resumed run trains again differently."""
+    """Forget the evaluation rows after env-step ``step`` (a resumed run's checkpoint): they
+    belong to training the resumed run does again, differently.
+
+    ``best/`` stays, even if one of those evaluations chose it: it holds a policy this run
+    trained and measured, with its record, and a later evaluation replaces it only by matching
+    or beating that score.
+    """
     drop_rows_after(Path(run_dir) / EVAL_FILE, step)
-    kept = read_selection(run_dir)
-    if kept is not None and int(kept.get("env_steps", 0)) > step:
-        shutil.rmtree(Path(run_dir) / BEST_DIR)
 
 
 def read_selection(run_dir: str | Path) -> dict[str, Any] | None:

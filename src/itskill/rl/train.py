@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import runpy
+import shutil
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +30,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from itskill.datafile import read_toml
 from itskill.files import write_json
 from itskill.rl.checkpoint import (
+    BEST_DIR,
     MODEL_FILE,
     STAGED_POLICY_CLASS,
     class_path,
@@ -445,6 +447,12 @@ def train(
         if resuming:
             MetricsWriter(run_dir).truncate_after(resumed_from)
             truncate_evaluations(run_dir, resumed_from)
+        else:
+            # A session killed before its first checkpoint left rows and a best policy of a run
+            # whose settings nothing records: this run starts them again.
+            MetricsWriter(run_dir).truncate_after(-1)
+            truncate_evaluations(run_dir, -1)
+            shutil.rmtree(run_dir / BEST_DIR, ignore_errors=True)
         metrics = MetricsCallback(env, run_dir, steps, logger, console)
         callbacks: list[BaseCallback] = [
             metrics,
