@@ -261,3 +261,20 @@ def test_unusable_paths_and_damaged_run_files_are_one_line_errors(tmp_path, monk
     monkeypatch.setenv("ITSKILL_HOME", str(a_file))
     result = runner.invoke(app, ["skills", "list"])
     assert result.exit_code == 2 and f"cannot use {a_file}" in " ".join(result.output.split())
+
+
+def test_nohup_keeps_a_command_running_past_a_closed_terminal():
+    # The command makes SIGTERM and SIGHUP stop it as Ctrl-C does, except a signal it was
+    # started with ignored: `nohup` ignores SIGHUP so that the run outlives the terminal.
+    import signal
+
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGHUP, signal.SIGTERM)}
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        assert runner.invoke(app, ["tasks", "list", "--json"]).exit_code == 0
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) is signal.default_int_handler
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
