@@ -138,7 +138,8 @@ def work(directory, i):
 
 if __name__ == "__main__":
     import signal
-    signal.signal(signal.SIGTERM, signal.default_int_handler)  # as the itskill command does
+    for sig in (signal.SIGTERM, signal.SIGHUP):  # as the itskill command does
+        signal.signal(sig, signal.default_int_handler)
     try:
         list(run_jobs(work, [(sys.argv[1], i) for i in range(6)], "local", 2))
     except KeyboardInterrupt:
@@ -152,11 +153,13 @@ if __name__ == "__main__":
         ("process group", signal.SIGINT),
         ("parent only", signal.SIGINT),
         ("process group", signal.SIGTERM),
+        ("process group", signal.SIGHUP),
     ],
 )
 def test_ctrl_c_stops_the_jobs_in_flight_and_starts_no_more(tmp_path, target, sig) -> None:
     # A terminal's Ctrl-C reaches the parent and its workers; `kill -INT` the parent alone; a
-    # batch scheduler's SIGTERM the whole group, which then saves as it does on Ctrl-C.
+    # batch scheduler's SIGTERM, or a closed terminal's SIGHUP, the whole group, which then
+    # saves as it does on Ctrl-C.
     script = tmp_path / "parent.py"
     script.write_text(INTERRUPT_SCRIPT)
     parent = subprocess.Popen(
