@@ -4,7 +4,6 @@ expert reward's with the same training budget. Matplotlib with the Agg backend (
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +12,8 @@ import matplotlib
 matplotlib.use("Agg")  # before pyplot is imported: no display is needed
 import matplotlib.pyplot as plt
 import numpy as np
+
+from itskill.files import replaced_whole
 
 _BANDS = (
     ("generated", "tab:blue", "chosen generated reward"),
@@ -75,10 +76,8 @@ def plot_fig6(summary: dict[str, Any], out: Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=7)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    fig.savefig(tmp, format="png")
+    with replaced_whole(out) as tmp:
+        fig.savefig(tmp, format="png")
     plt.close(fig)
-    os.replace(tmp, out)
     return out

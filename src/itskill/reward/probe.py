@@ -77,8 +77,6 @@ class Probe:
 
     def check(self, code: str) -> str | None:
         """Why ``code`` cannot be used, or None if it passes the probe."""
-        if not code.strip():
-            return NO_CODE
         if self._child is None:
             self._start()
         try:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
-import os
 import platform
 import shutil
 import signal
@@ -42,7 +41,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecNormalize
 
 from itskill.executors import STOP_SIGNALS
-from itskill.files import write_text
+from itskill.files import replaced_whole, write_text
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.sim.vec_env import action_space, observation_space
@@ -124,13 +123,11 @@ def _save_checkpoint(
 ) -> dict[str, Any]:
     run_dir.mkdir(parents=True, exist_ok=True)
     if resumable:
-        tmp_zip = run_dir / "model.tmp.zip"
-        model.save(tmp_zip)
-        os.replace(tmp_zip, run_dir / MODEL_FILE)
+        with replaced_whole(run_dir / MODEL_FILE) as tmp:
+            model.save(tmp)
     state = {k: v.detach().cpu().contiguous() for k, v in model.policy.state_dict().items()}
-    tmp_st = run_dir / (POLICY_FILE + ".tmp")
-    save_file(state, str(tmp_st), metadata={"format": str(FORMAT_VERSION)})
-    os.replace(tmp_st, run_dir / POLICY_FILE)
+    with replaced_whole(run_dir / POLICY_FILE) as tmp:
+        save_file(state, str(tmp), metadata={"format": str(FORMAT_VERSION)})
     full = {
         "format": FORMAT_VERSION,
         **meta,
@@ -233,12 +230,8 @@ def export_policy(run_dir: str | Path, target: str | Path) -> Path:
     # Often over a skill in use (pretraining into the library): each file is replaced whole, and
     # Ctrl-C waits for the pair, so no reader finds truncated weights or a record of others.
     with interrupts_deferred():
-        tmp = target / f".{POLICY_FILE}.{os.getpid()}.tmp"
-        try:
+        with replaced_whole(target / POLICY_FILE) as tmp:
             shutil.copyfile(source / POLICY_FILE, tmp)
-            os.replace(tmp, target / POLICY_FILE)
-        finally:
-            tmp.unlink(missing_ok=True)
         write_text(target / META_FILE, json.dumps(meta, indent=2) + "\n")
     return target
 
