@@ -171,7 +171,7 @@ def _interrupt_once(signum: int, frame: Any) -> None:
 
 def _init_worker(parent: int) -> None:
     stop_on_first_interrupt()
-    _exit_with_parent(parent)
+    exit_with_parent(parent)
 
 
 def _run_job(fn: Callable[..., Any], *args: Any) -> Any:
@@ -181,7 +181,7 @@ def _run_job(fn: Callable[..., Any], *args: Any) -> Any:
     return fn(*args)
 
 
-def _exit_with_parent(parent: int, poll_s: float = 1.0) -> None:
+def exit_with_parent(parent: int, poll_s: float = 1.0) -> None:
     """End this worker when the process that started it is gone.
 
     A parent killed by SIGTERM or SIGKILL runs no clean-up, and its pool workers would otherwise

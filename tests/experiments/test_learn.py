@@ -262,3 +262,36 @@ def test_unknown_budget_is_a_clear_error(tmp_path, budgets):
     result = learn(COMMAND, "--budgets", str(budgets), "--budget", "huge",
                    "--out", str(tmp_path / "run"))  # fmt: skip
     assert result.exit_code == 2 and "unknown budget 'huge'" in flat(result.output)
+
+
+def test_the_final_training_runs_the_generated_reward_under_the_memory_limit(tmp_path, home):
+    """The reward search trained this code in a limited process; the final training, longer and
+    seeing other states, must too: a reward whose allocation grows with what it is given fails
+    there, in one line, and the CLI's own process keeps its limits."""
+    import resource
+
+    from rich.console import Console
+
+    from itskill.experiments.learn import LearnBudget, LearnError, TransferBudget, _Steps, _train
+
+    bomb = tmp_path / "best_reward.py"
+    bomb.write_text(
+        "import numpy as np\n\n"
+        "def compute_reward(ctx):\n"
+        "    big = np.ones(ctx['time_frac'].shape[0] * 600_000_000)  # 9.6 GB for two envs\n"
+        "    return ctx['time_frac'] + big[:1], {}\n"
+    )
+    budget = LearnBudget(
+        name="test",
+        transfer=TransferBudget(steps=64, eval_every=64, method="no_transfer", num_envs=2),
+        reward={"sandbox": {"memory_limit_mb": 4096}},
+    )
+    before = resource.getrlimit(resource.RLIMIT_AS)
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    with pytest.raises(LearnError) as info:
+        _train("pick_nut_m12", budget, 0, {"retrieved": [], "used": []},
+               {"best_path": str(bomb)}, None, run_dir, _Steps(Console(), run_dir))  # fmt: skip
+    message = str(info.value)
+    assert "ran out of memory" in message and str(bomb) in message and "--resume" in message
+    assert resource.getrlimit(resource.RLIMIT_AS) == before

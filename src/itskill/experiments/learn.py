@@ -328,7 +328,7 @@ def _pipeline(
         f"{b.transfer.method.upper()} with {b.transfer.algo.upper()} for "
         f"{b.transfer.steps:,} env-steps on the generated reward",
     )
-    transfer = _train(plan["task"], b, seed, sources, reward, client, run_dir, steps, console)
+    transfer = _train(plan["task"], b, seed, sources, reward, client, run_dir, steps)
 
     steps.begin("evaluate", f"{b.eval_episodes} held-out episodes, deterministic policy")
     evaluation = _evaluate(plan["task"], Path(transfer["policy_dir"]), b.eval_episodes, steps)
@@ -518,39 +518,35 @@ def _train(
     client: Any,
     run_dir: Path,
     steps: _Steps,
-    console,
 ) -> dict[str, Any]:
-    from itskill.reward.sandbox import compile_reward
+    """The final training, in a child process under the sandbox's memory limit, as the reward's
+    candidates trained: the generated code runs nowhere else."""
+    from itskill.reward.limited import ChildFailed, run_limited
+    from itskill.reward.sandbox import SandboxError, SandboxTimeout
     from itskill.rl.checkpoint import best_policy_dir
-    from itskill.rl.train import RewardSource
     from itskill.tasks import get_task
-    from itskill.transfer import read_transfer, train_transfer
+    from itskill.transfer import prepare_transfer, read_transfer
 
     out = run_dir / "transfer"
-    code = Path(reward["best_path"]).read_text()
-    # Generated code runs only through the sandbox, also here in the main process.
-    fn = compile_reward(code)
-    meta = {
-        "kind": "generated",
-        "sha256": hashlib.sha256(code.encode()).hexdigest(),
-        "path": reward["best_path"],
-    }
     t = b.transfer
-    res = train_transfer(
-        task,
-        t.method,
-        sources=_source_request(sources),
-        seed=seed,
-        steps=t.steps,
-        algo=t.algo,
-        out=out,
-        reward=RewardSource(fn, meta),
-        num_envs=t.num_envs,
-        eval_every=t.eval_every,
-        eval_episodes=t.eval_episodes,
-        client=client,
-        console=console,
-    )
+    # The network's record (sources, the analyzer's matrix) is written before the child starts,
+    # so the child never needs the LLM client.
+    prepare_transfer(task, t.method, _source_request(sources), seed, t.algo, out, client)
+    sandbox = b.search_config().sandbox
+    try:
+        res = run_limited(
+            _train_generated,
+            (task, t, seed, _source_request(sources), reward["best_path"], sandbox, out),
+            # A candidate's CPU-time limit is sized for a candidate's budget; this training is
+            # bounded by its own, and every reward call keeps its time limit.
+            sandbox=replace(sandbox, cpu_limit_s=None),
+            name="the final training's process",
+        )
+    except (ChildFailed, SandboxError, SandboxTimeout) as err:
+        raise LearnError(
+            f"the generated reward {reward['best_path']} failed in the final training: {err}\n"
+            f"the training's last checkpoint is kept in {out}; --resume continues from it"
+        ) from err
     curve = read_curve(out, t.steps)
     wall = float(curve.wall_s[-1])
     record = read_transfer(out)  # what was trained: PST keeps only some of the sources
@@ -585,6 +581,43 @@ def _train(
         f"evaluation {curve.success[-1]:.0%}{kept} → {summary['policy_dir']}"
     )
     return summary
+
+
+def _train_generated(
+    task: str,
+    t: TransferBudget,
+    seed: int,
+    sources: list[str] | str,
+    reward_path: str,
+    sandbox: Any,
+    out: Path,
+) -> Any:
+    """The body of :func:`_train`'s child: the reward compiled in the sandbox trains the transfer
+    network; the :class:`~itskill.rl.train.TrainResult`."""
+    from itskill.reward.sandbox import compile_reward
+    from itskill.rl.train import RewardSource
+    from itskill.transfer import train_transfer
+
+    code = Path(reward_path).read_text()
+    meta = {
+        "kind": "generated",
+        "sha256": hashlib.sha256(code.encode()).hexdigest(),
+        "path": reward_path,
+    }
+    return train_transfer(
+        task,
+        t.method,
+        sources=sources,
+        seed=seed,
+        steps=t.steps,
+        algo=t.algo,
+        out=out,
+        reward=RewardSource(compile_reward(code, sandbox), meta),
+        num_envs=t.num_envs,
+        eval_every=t.eval_every,
+        eval_episodes=t.eval_episodes,
+        console=Console(),
+    )
 
 
 def _evaluate(task: str, policy_dir: Path, episodes: int, steps: _Steps) -> dict[str, Any]:

@@ -1,12 +1,12 @@
 """Train and measure one reward candidate, in a process of its own.
 
 :func:`run_candidate` is the job the executors run (a local worker process or a Ray task). It
-starts a fresh child process for the candidate, so the sandbox's CPU and memory limits
-(:func:`itskill.reward.sandbox.apply_process_limits`) bound exactly one candidate, a candidate that
+trains the candidate in a fresh child process (:func:`itskill.reward.limited.run_limited`), so
+the sandbox's CPU and memory limits bound exactly one candidate, a candidate that
 kills its process takes down nothing else, and a wall-clock limit can stop it. The child compiles
 the code in the sandbox, trains it for every seed (:func:`itskill.rl.train.train`, resumable;
 the job's :class:`CandidateNetwork` where it has one, a transfer network for a complex task),
-and writes ``result.json`` atomically:
+and ``result.json`` is written atomically:
 
 - ``success``: the mean over seeds of the best deterministic success through training (the
   evaluations every ``eval_every`` env-steps and the final one), ``final_success`` likewise for the
@@ -22,11 +22,6 @@ A candidate whose reward raises or times out during training, or whose process d
 
 from __future__ import annotations
 
-import contextlib
-import multiprocessing
-import os
-import signal
-import threading
 import time
 import traceback
 from collections.abc import Mapping
@@ -36,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from itskill.executors import stop_on_first_interrupt
 from itskill.files import read_json, write_json
-from itskill.reward.sandbox import SandboxConfig, apply_process_limits, compile_reward, death_cause
+from itskill.reward.limited import ChildFailed, run_limited
+from itskill.reward.sandbox import SandboxConfig, compile_reward
 
 RESULT_FILE = "result.json"
 TRAIN_DIR = "train"
@@ -46,8 +41,6 @@ EXPERT = "expert"
 _CORRELATION_SEED = 30_000
 _EVAL_SEED = 20_000
 """Seed of the evaluation episodes (with 25 environments): DeterministicEvalCallback's."""
-_INTERRUPTED = 130
-"""Exit code of a candidate process stopped by Ctrl-C (as a shell reports SIGINT)."""
 
 
 @dataclass(frozen=True)
@@ -98,78 +91,32 @@ class CandidateJob:
 
 
 def run_candidate(job: CandidateJob) -> dict[str, Any]:
-    """Train ``job`` in a child process and return its ``result.json`` (written either way)."""
+    """Train ``job`` in a limited child process and return its ``result.json`` (written either
+    way: a candidate whose code fails, or whose process dies or times out, is ``failed``)."""
     path = Path(job.out) / RESULT_FILE
     if path.is_file():
         return read_json(path)
     Path(job.out).mkdir(parents=True, exist_ok=True)
     start = time.monotonic()
-    parent = os.getppid()
-    child = multiprocessing.get_context("spawn").Process(
-        target=_child_main, args=(job, os.getpid()), name=f"candidate:{job.out}"
-    )
-    child.start()
     try:
-        problem = _supervise(child, job, start, parent)
-    except KeyboardInterrupt:
-        # A terminal's Ctrl-C has reached the child already, a forwarded one has not; either way
-        # it saves a checkpoint and stops (a second SIGINT is ignored there).
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(child.pid, signal.SIGINT)
-        child.join(60.0)
-        if child.is_alive():
-            child.kill()
-        raise
-    if child.exitcode == _INTERRUPTED:
-        raise KeyboardInterrupt
-    if not path.is_file():
-        problem = problem or death_cause(child.exitcode, job.sandbox, "the candidate's process")
-        write_json(path, {"status": "failed", "error": problem, "wall_s": time.monotonic() - start})
-    return read_json(path)
-
-
-def _supervise(child: Any, job: CandidateJob, start: float, parent: int) -> str | None:
-    """Wait for the candidate's process; the reason it was stopped, if it was."""
-    problem = None
-    while child.is_alive():
-        child.join(1.0)
-        if os.getppid() != parent and multiprocessing.parent_process() is not None:
-            # The run that submitted this job is gone (kill -9): stop, leave no orphan training.
-            child.kill()
-            os._exit(1)
-        if child.is_alive() and time.monotonic() - start > job.timeout_s:
-            child.kill()
-            child.join()
-            problem = f"timed out: training took longer than {job.timeout_s:g} s (wall clock)"
-    return problem
-
-
-def _watch_parent(parent_pid: int) -> None:
-    """End this process when the one that started it dies (no orphan keeps training)."""
-
-    def watch() -> None:
-        while True:
-            time.sleep(1.0)
-            if os.getppid() != parent_pid:
-                os._exit(1)
-
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
-
-
-def _child_main(job: CandidateJob, parent_pid: int) -> None:
-    stop_on_first_interrupt()
-    _watch_parent(parent_pid)
-    start = time.monotonic()
-    try:
-        apply_process_limits(job.sandbox)
-        result = {"status": "ok", **_train_and_measure(job)}
-    except KeyboardInterrupt:
-        os._exit(_INTERRUPTED)  # Ctrl-C: no result, the candidate is redone on resume
-    except Exception as err:
+        result = {
+            "status": "ok",
+            **run_limited(
+                _train_and_measure,
+                (job,),
+                sandbox=job.sandbox,
+                name="the candidate's process",
+                timeout_s=job.timeout_s,
+            ),
+        }
+    except ChildFailed as err:  # killed by a limit or a signal, or past its time limit
+        result = {"status": "failed", "error": str(err)}
+    except Exception as err:  # the reward raised or timed out in training
         tail = traceback.format_exception_only(type(err), err)[-1].strip()
         result = {"status": "failed", "error": tail}
     result["wall_s"] = time.monotonic() - start
-    write_json(Path(job.out) / RESULT_FILE, result)
+    write_json(path, result)
+    return result
 
 
 def _train_and_measure(job: CandidateJob) -> dict[str, Any]:

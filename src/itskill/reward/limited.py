@@ -1,0 +1,139 @@
+"""A function run in a child process under the sandbox's process limits.
+
+Whatever trains with generated reward code runs through :func:`run_limited`: a reward candidate
+(:mod:`itskill.reward.candidate`) and the final training of ``itskill learn``. The child is a
+fresh spawned interpreter whose address space and CPU time are capped
+(:func:`~itskill.reward.sandbox.apply_process_limits`), so code that computes its way to a memory
+bomb on some state the static checks could not foresee fails there with ``MemoryError`` and takes
+down nothing else. The caller's process keeps its own limits, and gets back the function's value,
+its exception, or why the child died.
+
+Interruptions: a Ctrl-C in a terminal reaches the child as well (same process group); one that
+reaches only the caller (a forwarded SIGINT, or SIGTERM mapped to it) is passed on. Either way
+the child stops the way a training does on Ctrl-C (it saves) and the caller raises
+``KeyboardInterrupt`` once the child has ended.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import pickle
+import signal
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from itskill.executors import exit_with_parent, stop_on_first_interrupt
+from itskill.reward.sandbox import SandboxConfig, apply_process_limits, death_cause
+
+INTERRUPTED = 130
+"""Exit code of a child stopped by Ctrl-C (as a shell reports SIGINT)."""
+_SAVE_S = 60.0
+"""How long an interrupted child is given to save before it is killed."""
+
+
+class ChildFailed(RuntimeError):
+    """The child ended without an answer: killed (a limit, a signal) or past its time limit."""
+
+
+class RemoteTraceback(Exception):
+    """The child's traceback, chained to the exception re-raised in the caller."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(text)
+        self.text = text
+
+    def __str__(self) -> str:
+        return self.text
+
+
+def run_limited(
+    fn: Callable[..., Any],
+    args: Sequence[Any] = (),
+    *,
+    sandbox: SandboxConfig,
+    name: str,
+    timeout_s: float | None = None,
+) -> Any:
+    """``fn(*args)`` in a spawned child under ``sandbox``'s process limits; its return value.
+
+    ``fn`` and ``args`` must be picklable (``fn`` a module-level function). An exception ``fn``
+    raises is raised here, chained to a :class:`RemoteTraceback` (as a ``RuntimeError`` naming
+    its type if it does not survive pickling). :class:`ChildFailed` says why a child that died
+    or ran past ``timeout_s`` (wall clock) gave no answer; ``name`` is the child in its message
+    ("the candidate's process").
+    """
+    receiver, sender = multiprocessing.get_context("spawn").Pipe(duplex=False)
+    child = multiprocessing.get_context("spawn").Process(
+        target=_child_main, args=(sender, fn, tuple(args), sandbox, os.getpid()), name=name
+    )
+    child.start()
+    sender.close()  # the child holds the only sending end: EOF here once it is gone
+    try:
+        answer = _wait(child, receiver, name, timeout_s)
+    except KeyboardInterrupt:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(child.pid, signal.SIGINT)
+        child.join(_SAVE_S)
+        if child.is_alive():
+            child.kill()
+        raise
+    finally:
+        receiver.close()
+    child.join()
+    if answer is None:
+        if child.exitcode == INTERRUPTED:
+            raise KeyboardInterrupt
+        raise ChildFailed(death_cause(child.exitcode, sandbox, name))
+    if answer[0] == "error":
+        raise answer[1] from RemoteTraceback(answer[2])
+    return answer[1]
+
+
+def _wait(child: Any, receiver: Any, name: str, timeout_s: float | None) -> tuple | None:
+    """The child's answer, or None if it ended without one."""
+    start, parent = time.monotonic(), os.getppid()
+    while True:
+        # Read while waiting: a large answer fills the pipe and the child blocks until it is read.
+        if receiver.poll(1.0):
+            try:
+                return receiver.recv()
+            except EOFError:
+                return None
+        if not child.is_alive():
+            return receiver.recv() if receiver.poll() else None
+        if os.getppid() != parent and multiprocessing.parent_process() is not None:
+            # This is a worker whose own parent is gone (kill -9): leave no orphan training.
+            child.kill()
+            os._exit(1)
+        if timeout_s is not None and time.monotonic() - start > timeout_s:
+            child.kill()
+            child.join()
+            raise ChildFailed(f"timed out: {name} took longer than {timeout_s:g} s (wall clock)")
+
+
+def _portable(err: BaseException) -> BaseException:
+    """``err`` if it survives pickling, else a RuntimeError that names it."""
+    try:
+        pickle.loads(pickle.dumps(err))
+    except Exception:
+        return RuntimeError(f"{type(err).__name__}: {err}")
+    return err
+
+
+def _child_main(
+    sender: Any, fn: Callable[..., Any], args: tuple, sandbox: SandboxConfig, parent_pid: int
+) -> None:
+    stop_on_first_interrupt()
+    exit_with_parent(parent_pid)
+    try:
+        apply_process_limits(sandbox)
+        answer: tuple = ("ok", fn(*args))
+    except KeyboardInterrupt:
+        os._exit(INTERRUPTED)  # no answer: the caller raises KeyboardInterrupt
+    except Exception as err:
+        answer = ("error", _portable(err), traceback.format_exc())
+    sender.send(answer)
