@@ -1,3 +1,5 @@
+import math
+
 import pytest
 
 from itskill.stats import (
@@ -5,6 +7,7 @@ from itskill.stats import (
     mean_interval,
     paired_gain_p,
     paired_wins,
+    ratio_interval,
     steps_to_threshold,
     wilson_interval,
 )
@@ -74,3 +77,15 @@ def test_a_paired_comparison_counts_only_the_episodes_the_policies_differ_on() -
     assert paired_gain_p(15, 3) < 0.01 < paired_gain_p(6, 3)
     with pytest.raises(ValueError, match="cannot be paired"):
         paired_wins(new, old[:-1])
+
+
+def test_ratio_interval_of_two_independent_means():
+    # A denominator without spread: the numerator's t-interval over its mean.
+    _, low, high = mean_interval([1.0, 2.0, 3.0])
+    assert ratio_interval([1.0, 2.0, 3.0], [4.0, 4.0]) == pytest.approx((0.5, low / 4, high / 4))
+    ratio, low, high = ratio_interval([1.0, 2.0, 3.0], [3.0, 4.0, 5.0])
+    assert ratio == pytest.approx(0.5) and low < 0.5 < high
+    assert ratio_interval([1.0], [2.0, 2.0])[0] == 0.5
+    assert all(math.isnan(x) for x in ratio_interval([1.0], [2.0, 3.0])[1:])
+    with pytest.raises(ValueError, match="zero"):
+        ratio_interval([1.0], [0.0, 0.0])

@@ -40,17 +40,44 @@ def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[f
 def mean_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[float, float, float]:
     """Mean of ``values`` with its Student-t confidence interval (seeds are few, so not normal).
 
-    One value gives an interval of zero width: there is nothing to estimate the spread from.
+    One value, or equal values, give an interval of zero width: there is no spread to estimate.
     """
     data = np.asarray(values, dtype=float)
     if data.size == 0:
         raise ValueError("no values")
     mean = float(data.mean())
-    if data.size == 1:
+    if np.all(data == data[0]):  # one value, or equal values whose std rounds to 1e-17, not 0
         return mean, mean, mean
     half = float(t_dist.ppf(0.5 + confidence / 2, data.size - 1) * data.std(ddof=1))
     half /= math.sqrt(data.size)
     return mean, mean - half, mean + half
+
+
+def ratio_interval(
+    numerator: Sequence[float], denominator: Sequence[float], confidence: float = 0.95
+) -> tuple[float, float, float]:
+    """``mean(numerator) / mean(denominator)`` of two independent samples with its interval.
+
+    The delta method with Welch-Satterthwaite degrees of freedom: each mean's Student-t
+    uncertainty (as :func:`mean_interval` has it) carried through the ratio, so a denominator
+    without spread gives exactly the numerator's t-interval divided by its mean. With fewer than
+    two values on either side there is no spread to estimate: the bounds are NaN.
+    """
+    num, den = np.asarray(numerator, dtype=float), np.asarray(denominator, dtype=float)
+    if num.size == 0 or den.size == 0:
+        raise ValueError("no values")
+    if den.mean() == 0:
+        raise ValueError("the denominator's mean is zero")
+    ratio = float(num.mean() / den.mean())
+    if num.size < 2 or den.size < 2:
+        return ratio, math.nan, math.nan
+    u = num.var(ddof=1) / num.size / den.mean() ** 2
+    v = ratio**2 * den.var(ddof=1) / den.size / den.mean() ** 2
+    if u + v == 0:
+        return ratio, ratio, ratio
+    df = (u + v) ** 2 / (u**2 / (num.size - 1) + v**2 / (den.size - 1))
+    half = float(t_dist.ppf(0.5 + confidence / 2, df) * math.sqrt(u + v))
+    return ratio, ratio - half, ratio + half
 
 
 def format_rate(value: float | None) -> str:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from itskill.stats import mean_interval, steps_to_threshold
+from itskill.stats import mean_interval, ratio_interval, steps_to_threshold
 
 EVAL_FILE = "eval.csv"
 
@@ -139,21 +139,26 @@ def mean_band(curves: Sequence[Curve], grid: np.ndarray, confidence: float = 0.9
 
 @dataclass(frozen=True)
 class Estimate:
-    """A mean over seeds with its 95% interval; NaN where nothing was measured."""
+    """A mean success rate over seeds with its 95% t-interval; NaN where nothing was measured."""
 
     mean: float
     low: float
     high: float
     n: int
 
-    def format(self, percent: bool = True, digits: int = 1) -> str:
+    def format(self, digits: int = 1) -> str:
+        """A success rate: ``mean [low, high]``, the interval cut to 0–100%. Seeds that all
+        measured the same rate say so: their t-interval has no width, which is not certainty
+        (0 successes in 200 episodes is still compatible with a rate of 1–2%)."""
         if self.n == 0 or math.isnan(self.mean):
             return "n/a"
-        scale, unit = (100.0, "%") if percent else (1.0, "")
-        text = f"{self.mean * scale:.{digits}f}{unit}"
-        if self.n > 1:
-            text += f" ± {(self.high - self.low) / 2 * scale:.{digits}f}"
-        return text
+        text = f"{self.mean:.{digits}%}"
+        if self.n == 1:
+            return text
+        if self.high == self.low:
+            return f"{text} (all {self.n} seeds)"
+        low, high = max(self.low, 0.0), min(self.high, 1.0)
+        return f"{text} [{low:.{digits}%}, {high:.{digits}%}]"
 
 
 def estimate(values: Sequence[float], confidence: float = 0.95) -> Estimate:
@@ -263,7 +268,7 @@ def time_to_threshold(curves: Sequence[Curve], threshold: float) -> Threshold:
 
 @dataclass(frozen=True)
 class Gain:
-    """``1 - mean(method) / mean(baseline)`` with a seeded bootstrap interval over seeds.
+    """``1 - mean(method) / mean(baseline)`` with its interval over seeds (NaN bounds: one seed).
 
     ``bound`` says how censoring affects the point estimate: "exact" (no seed censored),
     "lower" (only the baseline has censored seeds: its true mean is larger, so the true gain is
@@ -279,8 +284,16 @@ class Gain:
         if math.isnan(self.value):
             return "n/a"
         prefix = {"exact": "", "lower": "≥ ", "upper": "≤ ", "unknown": "~"}[self.bound]
-        text = f"{prefix}{self.value:.1%} [{self.low:.1%}, {self.high:.1%}]"
+        text = f"{prefix}{self.value:.1%}"
+        if math.isnan(self.low):
+            text += " (one seed: no interval)"
+        else:
+            text += f" [{self.low:.1%}, {self.high:.1%}]"
         return text + (" (censored on both sides)" if self.bound == "unknown" else "")
+
+    def excludes(self, value: float) -> bool:
+        """Whether the interval lies wholly on one side of ``value`` (False without one)."""
+        return not math.isnan(self.low) and not self.low <= value <= self.high
 
 
 def efficiency_gain(
@@ -288,49 +301,37 @@ def efficiency_gain(
     baseline: Sequence[float],
     method_censored: int = 0,
     baseline_censored: int = 0,
-    resamples: int = 10_000,
-    seed: int = 0,
     confidence: float = 0.95,
 ) -> Gain:
     """Time-efficiency gain of ``method`` over ``baseline`` from per-seed times to threshold.
 
-    The interval is a percentile bootstrap: the seeds of each side are resampled independently
-    (different methods' seeds are not paired), ``resamples`` times with a fixed ``seed`` so a
-    report is reproducible.
+    The interval is :func:`itskill.stats.ratio_interval`'s for the ratio of the two means (the
+    methods' seeds are independent, not paired): the t-intervals the report prints for each
+    side's mean, carried through. A baseline whose seeds all ran out the budget adds no spread,
+    and the gain's interval is then the method's t-interval over the budget. With one seed on
+    either side it has none.
     """
     m = np.asarray(method, float)
     b = np.asarray(baseline, float)
     m, b = m[~np.isnan(m)], b[~np.isnan(b)]
     if m.size == 0 or b.size == 0 or b.mean() <= 0:
         return Gain(math.nan, math.nan, math.nan, "exact")
-    value = 1.0 - m.mean() / b.mean()
-    rng = np.random.default_rng(seed)
-    m_boot = m[rng.integers(0, m.size, (resamples, m.size))].mean(axis=1)
-    b_boot = b[rng.integers(0, b.size, (resamples, b.size))].mean(axis=1)
-    ratios = 1.0 - m_boot / np.where(b_boot > 0, b_boot, np.nan)
-    alpha = (1 - confidence) / 2
-    low, high = np.nanquantile(ratios, [alpha, 1 - alpha])
+    ratio, low, high = ratio_interval(m, b, confidence)
     bound = {
         (False, False): "exact",
         (False, True): "lower",
         (True, False): "upper",
         (True, True): "unknown",
     }[(method_censored > 0, baseline_censored > 0)]
-    return Gain(float(value), float(low), float(high), bound)
+    return Gain(1.0 - ratio, 1.0 - high, 1.0 - low, bound)
 
 
-def threshold_gain(
-    method: Threshold, baseline: Threshold, use: str = "steps", seed: int = 0
-) -> Gain:
+def threshold_gain(method: Threshold, baseline: Threshold, use: str = "steps") -> Gain:
     """:func:`efficiency_gain` from two :class:`Threshold` results, in env-steps or wall time."""
     if use not in ("steps", "wall_s"):
         raise ValueError(f"use must be 'steps' or 'wall_s', got {use!r}")
     if method.censored == method.n and baseline.censored == baseline.n:
         return Gain(math.nan, math.nan, math.nan, "unknown")  # neither ever reached it
     return efficiency_gain(
-        getattr(method, use),
-        getattr(baseline, use),
-        method.censored,
-        baseline.censored,
-        seed=seed,
+        getattr(method, use), getattr(baseline, use), method.censored, baseline.censored
     )

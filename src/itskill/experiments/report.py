@@ -337,7 +337,7 @@ def _task_section(
         ),
     )
     doc.add(Heading("Success at fractions of the budget (Table II)", 3))
-    _fractions_table(doc, config, by_method, "mean ± half-width of the 95% t-interval over seeds")
+    _fractions_table(doc, config, by_method, "mean [95% t-interval over seeds, cut to 0–100%]")
     _progress_section(doc, config, task, curves, run_dir, figures, notes)
     thresholds = {m: time_to_threshold(cs, rep.threshold) for m, cs in by_method.items()}
     base = thresholds.get(rep.baseline)
@@ -363,9 +363,9 @@ def _task_section(
         header,
         rows,
         "mean [95% t-interval, cut to zero and the budget]; gain: 1 − method/baseline, "
-        "bootstrap interval",
+        "95% interval",
     )
-    doc.add(Paragraph(_gain_explanation(rep.threshold, thresholds, paper, rep.baseline)))
+    doc.add(Paragraph(_gain_explanation(rep.threshold, thresholds, paper)))
     if "itn" in by_method:
         doc.add(Heading("Attention over one episode (Fig. 8)", 3))
         runs = curves[(task, "itn")]
@@ -467,7 +467,7 @@ def _progress_section(
         doc,
         config,
         by_method,
-        f"fraction of the {n_stages} subtasks finished; mean ± half-width of the 95% t-interval",
+        f"fraction of the {n_stages} subtasks finished; mean [95% t-interval, cut to 0–100%]",
     )
 
 
@@ -500,16 +500,18 @@ def _fractions_table(
 
 
 def _gain_explanation(
-    threshold: float, thresholds: dict[str, Threshold], paper: float | None, baseline: str
+    threshold: float, thresholds: dict[str, Threshold], paper: float | None
 ) -> str:
     text = (
         f"A seed that never reaches {threshold:.0%} counts as the full budget (censored), which "
         "makes a mean a lower bound (≥). The gain is marked ≥ when only the baseline has such "
-        "seeds, ≤ when only the method has, ~ when both have. Intervals of the gain: percentile "
-        "bootstrap over seeds (10,000 resamples, seed 0)."
+        "seeds, ≤ when only the method has, ~ when both have. Its interval: each side's 95% "
+        "t-interval carried through the ratio of the means (delta method, Welch degrees of "
+        "freedom); none with one seed on either side."
     )
-    if paper is not None and "itn" in thresholds and baseline in thresholds:
-        measured = threshold_gain(thresholds["itn"], thresholds[baseline], "steps")
+    # The paper's figure is ITN against No_Transfer, whichever baseline the table uses.
+    if paper is not None and "itn" in thresholds and "no_transfer" in thresholds:
+        measured = threshold_gain(thresholds["itn"], thresholds["no_transfer"], "steps")
         text += (
             f" The paper reports ITN {paper:.2%} more time-efficient than No_Transfer on this task"
         )
@@ -524,16 +526,22 @@ def _gain_explanation(
 
 
 def _verdict(measured: Gain, paper: float) -> str:
-    """How a measured gain compares with the paper's, given which way censoring biases it."""
-    if measured.value >= paper:
+    """How a measured gain compares with the paper's: its interval first, then which way
+    censoring biases it."""
+    if math.isnan(measured.low):
+        return "cannot be compared with it: one seed gives no interval"
+    if not measured.excludes(paper):
+        caveat = "; censoring on both sides leaves it open" if measured.bound == "unknown" else ""
+        return f"is consistent with it: the paper's figure lies inside the interval{caveat}"
+    if measured.value > paper:
         if measured.bound in ("exact", "lower"):
-            return "meets or beats it"
-        return "is at or above it as a point estimate, but censoring may put it below"
+            return "beats it: the whole interval lies above it"
+        return "lies above it, but censoring of ITN's seeds may put it lower"
     if measured.bound in ("exact", "upper"):
-        return "falls short of it"
+        return "falls short of it: the whole interval lies below it"
     if measured.bound == "lower":
-        return "is below it, but only as a lower bound: the true gain may reach it"
-    return "is below it as a point estimate; censoring on both sides leaves it open"
+        return "lies below it, but only as a lower bound: the true gain may reach it"
+    return "lies below it; censoring on both sides leaves it open"
 
 
 def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:

@@ -66,8 +66,9 @@ def run_limited(
     or ran past ``timeout_s`` (wall clock) gave no answer; ``name`` is the child in its message
     ("the candidate's process").
     """
-    receiver, sender = multiprocessing.get_context("spawn").Pipe(duplex=False)
-    child = multiprocessing.get_context("spawn").Process(
+    spawn = multiprocessing.get_context("spawn")
+    receiver, sender = spawn.Pipe(duplex=False)
+    child = spawn.Process(
         target=_child_main, args=(sender, fn, tuple(args), sandbox, os.getpid()), name=name
     )
     child.start()
