@@ -13,10 +13,15 @@ from itskill.skills.store import SHIPPED_LIBRARY
 runner = CliRunner()
 
 
+def shipped(task: str) -> Path:
+    """The shipped policy of ``task``: `skills add` loads the checkpoint it is given."""
+    return SHIPPED_LIBRARY / task / "policy.safetensors"
+
+
 @pytest.fixture
 def checkpoint() -> Path:
-    """A trained policy: `skills add` loads the checkpoint it is given."""
-    return SHIPPED_LIBRARY / "reach_nut_m12" / "policy.safetensors"
+    """A trained policy of reach_nut_m12."""
+    return shipped("reach_nut_m12")
 
 
 def add(checkpoint, task: str, *extra: str):
@@ -24,13 +29,16 @@ def add(checkpoint, task: str, *extra: str):
     return runner.invoke(app, args)
 
 
-def test_add_list_search_show_remove(home, checkpoint):
-    result = add(checkpoint, "insert_peg_round", "--success", "0.9", "--steps", "1000")
+def test_add_list_search_show_remove(home):
+    result = add(
+        shipped("insert_peg_round"), "insert_peg_round", "--success", "0.9", "--steps", "1000"
+    )
     assert result.exit_code == 0, result.output
     added = json.loads(result.stdout)
     assert added["description"] == "Insert the round peg into the round hole"
     assert added["actions"] == ["insert"] and added["train_steps"] == 1000
-    assert add(checkpoint, "pick_nut_m12", "--name", "pick", "--actions", "a, b").exit_code == 0
+    pick = add(shipped("pick_nut_m12"), "pick_nut_m12", "--name", "pick", "--actions", "a, b")
+    assert pick.exit_code == 0
 
     listed = json.loads(runner.invoke(app, ["skills", "list", "--json"]).stdout)
     assert [(s["id"], s["name"]) for s in listed] == [(1, "insert_peg_round"), (2, "pick")]
@@ -56,8 +64,8 @@ def test_add_list_search_show_remove(home, checkpoint):
     assert table.exit_code == 0 and "pick" in table.stdout
 
 
-def test_unknown_skill_exits_2_with_close_names(home, checkpoint):
-    assert add(checkpoint, "pick_nut_m12").exit_code == 0
+def test_unknown_skill_exits_2_with_close_names(home):
+    assert add(shipped("pick_nut_m12"), "pick_nut_m12").exit_code == 0
     result = runner.invoke(app, ["skills", "show", "pick_nut_m16"])
     assert result.exit_code == 2
     assert "unknown skill" in result.output and "pick_nut_m12" in result.output
@@ -109,6 +117,33 @@ def test_add_refuses_a_checkpoint_that_does_not_load(home, tmp_path, checkpoint)
     assert json.loads(runner.invoke(app, ["skills", "list", "--json"]).stdout) == []
 
 
+def test_add_refuses_a_policy_trained_on_another_task(home, checkpoint):
+    # A reach policy registered as an insert skill would be retrieved and chained as one.
+    result = add(checkpoint, "insert_peg_round")
+    assert result.exit_code == 2
+    assert "trainedontask'reach_nut_m12',not'insert_peg_round'" in _flat(result.output)
+    assert json.loads(runner.invoke(app, ["skills", "list", "--json"]).stdout) == []
+
+
+def test_names_queries_and_messages_are_printed_as_given_not_as_markup(home, checkpoint):
+    # "[/v2]" closed a tag that was never opened (a traceback after the skill was added);
+    # "[bold]" vanished from the name it styled.
+    for number, name in enumerate(("pick[/v2]", "[bold]loud"), start=1):
+        result = runner.invoke(app, ["skills", "add", "--task", "reach_nut_m12", "--name", name,
+                                     "--checkpoint", str(checkpoint)])  # fmt: skip
+        assert result.exit_code == 0, result.output
+        assert f"added skill {number}: {name} (reach_nut_m12)" in result.output
+    listed = runner.invoke(app, ["skills", "list"])
+    assert listed.exit_code == 0, listed.output
+    assert "pick[/v2]" in listed.output and "[bold]loud" in listed.output
+    shown = runner.invoke(app, ["skills", "show", "pick[/v2]"])
+    assert shown.exit_code == 0 and "pick[/v2]" in shown.output
+    found = runner.invoke(app, ["skills", "search", "insert [/peg]", "-k", "1"])
+    assert found.exit_code == 0 and "'insert [/peg]'" in found.output
+    removed = runner.invoke(app, ["skills", "remove", "pick[/v2]"])
+    assert removed.exit_code == 0 and "removed skill 1: pick[/v2]" in removed.output
+
+
 def test_add_refuses_an_interval_whose_low_is_above_its_high(home, checkpoint):
     result = add(
         checkpoint, "reach_nut_m12", "--success", "0.5", "--ci-low", "0.9", "--ci-high", "0.1"
@@ -123,6 +158,16 @@ def test_corrupt_database_names_path(home):
     result = runner.invoke(app, ["skills", "list"])
     assert result.exit_code == 2
     assert str(home / "skills.sqlite") in " ".join(result.output.split())
+
+
+def test_a_database_damaged_below_its_header_exits_2_naming_its_path(home, checkpoint):
+    assert add(checkpoint, "reach_nut_m12").exit_code == 0
+    path = home / "skills.sqlite"
+    data = path.read_bytes()
+    path.write_bytes(data[:4096] + b"\xff" * (len(data) - 4096))  # the header page stays
+    result = runner.invoke(app, ["skills", "list"])
+    assert result.exit_code == 2, result.output
+    assert f"{path}: not a readable itskill skill database" in " ".join(result.output.split())
 
 
 def test_pretrain_reports_the_seeds_it_tried(home, tmp_path, monkeypatch):
@@ -158,6 +203,17 @@ def test_pretrain_takes_a_comma_separated_task_list(home, tmp_path):
     assert result.exit_code == 2
     assert "unknown task 'no_such_task'" in result.output
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("tasks", ["", ",", " "])
+def test_pretrain_refuses_a_task_list_that_names_no_task(home, tmp_path, tasks):
+    # It trained every basic task, hours of it, as if --tasks had not been given.
+    result = runner.invoke(app, ["skills", "pretrain", "--tasks", tasks, "--runs", str(tmp_path)])
+    assert result.exit_code == 2
+    assert "Invalidvaluefor--tasks" in _flat(result.output) and "namesnotask" in _flat(
+        result.output
+    )
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_refined_skill_must_beat_its_start_at_a_p_value_above_zero(home):

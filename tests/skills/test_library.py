@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import sqlite3
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,6 +14,7 @@ from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.skills import ManifestEntry, open_skill_space, read_manifest, write_manifest
 from itskill.skills.library import shipped_budgets
 from itskill.skills.manifest import REFINED_KEY
+from itskill.skills.store import OFFERED_MARKER_SUFFIX
 from itskill.skills.store import SHIPPED_LIBRARY as SHIPPED
 from itskill.tasks import all_tasks
 
@@ -60,6 +63,54 @@ def test_fresh_skill_space_gets_the_shipped_library_once(tmp_path, monkeypatch, 
         assert sorted(s.name for s in space.list()) == ["grasp_nut_m12", "reach_nut_m12"]
 
 
+def test_a_new_database_gets_the_whole_library_again(tmp_path, monkeypatch, home) -> None:
+    # What the message on a corrupt database advises (move it aside), or deleting it to start
+    # over: the new database used to get nothing, as a file beside it said all was given.
+    shipped = tmp_path / "shipped"
+    _ship(shipped, ("reach_nut_m12", "pick_nut_m12"))
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
+    with open_skill_space() as space:
+        space.remove("pick_nut_m12")
+        path = space.path
+    path.rename(path.with_name("skills.sqlite.bad"))
+    # As an older release left it: the marker beside the database it has lost.
+    path.with_name(path.name + OFFERED_MARKER_SUFFIX).write_text(
+        json.dumps(["pick_nut_m12", "reach_nut_m12"])
+    )
+    with open_skill_space() as space:
+        assert sorted(s.name for s in space.list()) == ["pick_nut_m12", "reach_nut_m12"]
+        space.remove("pick_nut_m12")
+    path.unlink()
+    with open_skill_space() as space:
+        assert sorted(s.name for s in space.list()) == ["pick_nut_m12", "reach_nut_m12"]
+
+
+def _as_an_older_release_left_it(path: Path, marker: str) -> None:
+    """Make the database at ``path`` one of schema version 2, with ``marker`` in the file that
+    listed the shipped skills given to it."""
+    conn = sqlite3.connect(path)
+    conn.execute("DROP TABLE shipped_offered")
+    conn.execute("PRAGMA user_version = 2")
+    conn.commit()
+    conn.close()
+    path.with_name(path.name + OFFERED_MARKER_SUFFIX).write_text(marker)
+
+
+def test_an_upgraded_space_keeps_the_removals_its_marker_file_recorded(
+    tmp_path, monkeypatch, home
+) -> None:
+    shipped = tmp_path / "shipped"
+    _ship(shipped, ("reach_nut_m12", "pick_nut_m12"))
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
+    with open_skill_space() as space:
+        space.remove("pick_nut_m12")
+        path = space.path
+    _as_an_older_release_left_it(path, json.dumps(["pick_nut_m12", "reach_nut_m12"]))
+    _ship(shipped, ("reach_nut_m12", "pick_nut_m12", "lift_nut_m12"))
+    with open_skill_space() as space:
+        assert sorted(s.name for s in space.list()) == ["lift_nut_m12", "reach_nut_m12"]
+
+
 def test_a_space_marked_by_an_older_release_gets_the_skills_it_lacks(
     tmp_path, monkeypatch, home
 ) -> None:
@@ -67,11 +118,14 @@ def test_a_space_marked_by_an_older_release_gets_the_skills_it_lacks(
     _ship(shipped, ("reach_nut_m12",))
     monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
     with open_skill_space() as space:
-        marker = space.path.with_name(space.path.name + ".shipped-library-installed")
-    marker.write_text(f"{shipped}\n")  # the older marker: the library's path only
+        path = space.path
+    _as_an_older_release_left_it(path, f"{shipped}\n")  # the oldest marker: the library's path
     _ship(shipped, ("reach_nut_m12", "lift_nut_m12"))
     with open_skill_space() as space:
         assert sorted(s.name for s in space.list()) == ["lift_nut_m12", "reach_nut_m12"]
+        space.remove("reach_nut_m12")
+    with open_skill_space() as space:
+        assert [s.name for s in space.list()] == ["lift_nut_m12"]
 
 
 def test_an_upgrade_that_retrained_a_shipped_skill_updates_its_measurements(

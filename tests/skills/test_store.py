@@ -14,6 +14,7 @@ from itskill.skills import (
     MissingCheckpointError,
     SchemaVersionError,
     SkillSpace,
+    SkillSpaceError,
     UnknownSkillError,
     itskill_home,
 )
@@ -159,6 +160,27 @@ def test_a_name_of_digits_is_refused(home, checkpoint):
         assert len(space) == 0
 
 
+def test_only_ascii_digits_read_as_a_serial_number(home, checkpoint):
+    # "²" and "①" are digits to str.isdigit, which int() refuses: `skills show ²` crashed.
+    with SkillSpace() as space:
+        space.add(make_skill("①", Path(checkpoint)))
+        assert space.get("①").name == "①"
+        with pytest.raises(UnknownSkillError, match="unknown skill '²'"):
+            space.get("²")
+
+
+def test_a_taken_name_is_refused_before_the_description_is_embedded(home, checkpoint, monkeypatch):
+    # Embedding loads the model first: the duplicate was reported only half a minute later.
+    def embed(texts):
+        raise AssertionError("embedded a skill whose name is taken")
+
+    monkeypatch.setattr("itskill.skills.embeddings.embed", embed)
+    with SkillSpace() as space:
+        space.add(make_skill("taken", Path(checkpoint)))
+        with pytest.raises(DuplicateSkillError, match="'taken' already exists"):
+            space.add(make_skill("taken", Path(checkpoint), embedding=None))
+
+
 def test_a_new_description_clears_the_embedding(home, checkpoint):
     with SkillSpace() as space:
         space.add(make_skill("a", Path(checkpoint)))
@@ -252,3 +274,24 @@ def test_corrupt_file_names_path(home):
     with pytest.raises(CorruptDatabaseError) as err:
         SkillSpace()
     assert str(path) in str(err.value)
+
+
+def test_a_database_damaged_below_its_header_names_its_path(home, checkpoint):
+    with SkillSpace() as space:
+        space.add_many(make_skill(f"s{i}", Path(checkpoint), seed=i) for i in range(20))
+    path = home / "skills.sqlite"
+    data = path.read_bytes()
+    page = 4096  # the first page (the header and the schema) stays: the file opens
+    path.write_bytes(data[:page] + b"\xff" * (len(data) - page))
+    with SkillSpace() as space, pytest.raises(CorruptDatabaseError) as err:
+        space.list()
+    assert str(path) in str(err.value) and "not a readable itskill skill database" in str(err.value)
+
+
+def test_a_path_that_cannot_hold_a_database_is_named_as_such(home):
+    # Not "not a readable skill database ... Move it aside": there is no database to move.
+    (home / "skills.sqlite").mkdir(parents=True)
+    with pytest.raises(SkillSpaceError) as err:
+        SkillSpace()
+    assert not isinstance(err.value, CorruptDatabaseError)
+    assert f"cannot use {home / 'skills.sqlite'} as the skill database" in str(err.value)

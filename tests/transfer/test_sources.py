@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from transfer_helpers import make_source
 
 from itskill.skills import open_skill_space, search
 from itskill.tasks import get_task
@@ -99,6 +100,36 @@ def test_source_errors_name_the_problem(home: Path, tmp_path: Path) -> None:
         resolve_sources("pickplace_nut_m99", "auto")
     with pytest.raises(ValueError, match="k must be at least 1"):
         resolve_sources("pickplace_nut_m12", "auto", k=0)
+
+
+def test_a_serial_number_is_ascii_digits(home: Path) -> None:
+    # int("²") raised a ValueError with no skill in it.
+    with pytest.raises(SourceError, match="unknown skill '²'"):
+        resolve_sources("pickplace_nut_m12", "²")
+
+
+def test_auto_passes_over_a_skill_from_a_stable_baselines3_zip(tmp_path: Path, monkeypatch) -> None:
+    # `skills add` takes an SB3 .zip (for eval); retrieval chose it, and every auto transfer it
+    # ranked for failed on it.
+    from itskill.skills import Skill, SkillSpace
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    zipped = tmp_path / "pick.zip"
+    zipped.write_bytes(b"an SB3 checkpoint")
+    make_source(tmp_path / "place", seed=0)
+    with SkillSpace() as space:
+        pick = ("approach", "grasp", "lift")
+        space.add(Skill("zipped", "pick_nut_m12", "Pick up the M12 nut", pick, str(zipped)))
+        with pytest.raises(SourceError, match=r"no skill to transfer.*\.zip is none: zipped"):
+            resolve_sources("pickplace_nut_m12", "auto", space=space)
+        place = ("approach", "place")
+        weights = str(tmp_path / "place" / "policy.safetensors")
+        space.add(Skill("place", "place_nut_m12", "Place the M12 nut on the bolt", place, weights))
+        assert [s.name for s in resolve_sources("pickplace_nut_m12", "auto", space=space)] == [
+            "place"
+        ]
+        with pytest.raises(SourceError, match=r"skill 'zipped'.*not a directory"):
+            resolve_sources("pickplace_nut_m12", "zipped", space=space)
 
 
 def test_a_skill_whose_checkpoint_is_gone(tmp_path: Path, monkeypatch) -> None:

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from itskill.cli.common import (
@@ -35,8 +36,6 @@ SkillArg = Annotated[str, typer.Argument(help="Skill id or name (see `itskill sk
 @contextmanager
 def _skill_errors() -> Iterator[None]:
     """Unknown skill or task, unreadable or newer database, missing checkpoint: exit code 2."""
-    from rich.markup import escape
-
     from itskill.skills import SkillSpaceError
 
     try:
@@ -47,7 +46,9 @@ def _skill_errors() -> Iterator[None]:
 
 
 def _skill_table(rows: list[tuple[Any, float | None]], title: str) -> Table:
-    table = Table(title=title)
+    """Skills (with their search scores, if any) as a table; every cell and the title are printed
+    as they are, not read as Rich markup (a name may contain "[/b]")."""
+    table = Table(title=escape(title))
     scored = any(score is not None for _, score in rows)
     columns = ("score",) if scored else ()
     for column in (*columns, "id", "name", "task", "success", "actions", "checkpoint"):
@@ -55,9 +56,8 @@ def _skill_table(rows: list[tuple[Any, float | None]], title: str) -> Table:
     for s, score in rows:
         success = "" if s.success_rate is None else f"{s.success_rate:.1%}"
         cells = (f"{score:.3f}",) if scored else ()
-        table.add_row(
-            *cells, str(s.id), s.name, s.task_id, success, " → ".join(s.actions), s.checkpoint
-        )
+        text = (str(s.id), s.name, s.task_id, success, " → ".join(s.actions), s.checkpoint)
+        table.add_row(*cells, *map(escape, text))
     return table
 
 
@@ -125,7 +125,7 @@ def skills_show(skill: SkillArg, as_json: JsonOpt = False) -> None:
     kv.add_column(style="cyan")
     kv.add_column()
     for key, value in data.items():
-        kv.add_row(key, " → ".join(value) if key == "actions" else str(value))
+        kv.add_row(key, escape(" → ".join(value) if key == "actions" else str(value)))
     console.print(kv)
 
 
@@ -183,6 +183,7 @@ def skills_add(
         as_policy,
         best_policy_dir,
         policy_location,
+        read_meta,
     )
     from itskill.skills import Skill, open_skill_space
     from itskill.tasks.evaluate import make_policy
@@ -200,12 +201,22 @@ def skills_add(
     with _skill_errors():
         spec = get_task(task)
         if checkpoint.exists():  # a missing one is the skill space's to name
+            location = policy_location(checkpoint)
             try:
                 # Loaded as eval and a transfer load it: a truncated or foreign file, or weights
                 # without their checkpoint.json, fail now rather than at the skill's first use.
-                make_policy(as_policy(policy_location(checkpoint)), spec, num_envs=1)
+                make_policy(as_policy(location), spec, num_envs=1)
+                # A checkpoint directory records the task its policy learned, so a skill cannot
+                # claim another; a Stable-Baselines3 .zip records none and is taken at its word.
+                trained_on = read_meta(location)["task"] if location.is_dir() else spec.id
             except CheckpointError as err:
                 raise typer.BadParameter(str(err), param_hint="--checkpoint") from err
+            if trained_on != spec.id:
+                raise typer.BadParameter(
+                    f"the policy was trained on task {trained_on!r}, not {spec.id!r}; "
+                    "give --task the task it solves",
+                    param_hint="--checkpoint",
+                )
         acts = spec.actions if actions is None else tuple(a.strip() for a in actions.split(","))
         skill = Skill(
             name=name or spec.id,
@@ -226,7 +237,7 @@ def skills_add(
     if as_json:
         print_json(added.to_dict())
         return
-    console.print(f"added skill {added.id}: {added.name} ({added.task_id})")
+    console.print(escape(f"added skill {added.id}: {added.name} ({added.task_id})"))
 
 
 @skills_app.command("remove")
@@ -239,7 +250,7 @@ def skills_remove(skill: SkillArg, as_json: JsonOpt = False) -> None:
     if as_json:
         print_json(removed.to_dict())
         return
-    console.print(f"removed skill {removed.id}: {removed.name}")
+    console.print(escape(f"removed skill {removed.id}: {removed.name}"))
 
 
 @skills_app.command("install")
@@ -255,7 +266,7 @@ def skills_install(
     if as_json:
         print_json([s.to_dict() for s in added])
         return
-    console.print(f"installed {len(added)} skill(s) from {library}")
+    console.print(escape(f"installed {len(added)} skill(s) from {library}"))
 
 
 @skills_app.command("pretrain")
@@ -364,6 +375,14 @@ def skills_pretrain(
         pretrain,
     )
 
+    names = [t.strip() for item in tasks or () for t in item.split(",") if t.strip()]
+    if tasks is not None and not names:
+        # Every basic task is the default for no --tasks, not for an empty list (a variable
+        # that expanded to nothing would otherwise start hours of training).
+        raise typer.BadParameter(
+            f"{','.join(tasks)!r} names no task; leave --tasks out to train every basic task",
+            param_hint="--tasks",
+        )
     default_steps = REFINE_STEPS if refine else PretrainConfig.steps
     try:
         config = PretrainConfig(
@@ -385,7 +404,9 @@ def skills_pretrain(
 
     def report(task: str, entry, added: bool, error) -> None:
         if error is not None:
-            console.print(f"[red]{task}: failed: {type(error).__name__}: {error}[/red]")
+            console.print(
+                f"[red]{escape(f'{task}: failed: {type(error).__name__}: {error}')}[/red]"
+            )
         else:
             lo, hi = entry.success_ci
             origin = entry.extra.get(REFINED_KEY)
@@ -407,7 +428,7 @@ def skills_pretrain(
                 wall_s -= origin["wall_s"] or 0.0
                 more = f" more ({entry.steps:,} in all)"
             console.print(
-                f"{task}: success {entry.success:.1%} (95% CI {lo:.1%}-{hi:.1%}) after "
+                f"{escape(task)}: success {entry.success:.1%} (95% CI {lo:.1%}-{hi:.1%}) after "
                 f"{steps:,} env-steps{more}, {wall_s / 60:.1f} min, seed {entry.seed}{learned}"
             )
             for run in entry.extra.get(ABANDONED_KEY, []):
@@ -419,8 +440,7 @@ def skills_pretrain(
     with user_errors(), _skill_errors(), open_skill_space() as space:
         try:
             pretrain(
-                [t.strip() for item in tasks or () for t in item.split(",") if t.strip()]
-                or basic_tasks(),
+                basic_tasks() if tasks is None else names,
                 config,
                 runs,
                 library or space.library_dir,
@@ -432,5 +452,5 @@ def skills_pretrain(
                 budgets=shipped_budgets() if steps is None and not refine else None,
             )
         except ExecutorError as err:
-            console.print(f"[red]{err}[/red]")
+            console.print(f"[red]{escape(str(err))}[/red]")
             raise typer.Exit(2) from err

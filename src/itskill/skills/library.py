@@ -3,19 +3,18 @@
 ``itskill skills pretrain --library src/itskill/skills/library`` writes the shipped library: each
 skill's policy weights and normaliser (``policy.safetensors``, no optimiser state) with its
 ``checkpoint.json``, and a ``manifest.json`` with each skill's measured success and budget.
-:func:`open_skill_space` registers each shipped skill in the skill space once: a fresh install
-has the skills without training, an upgrade that ships new skills adds those, and a user who
-removes a skill does not get it back. A shipped skill's entry points at the package's own
-checkpoint (``package:<path>``, wherever the package is installed), so when a release retrains
-one, its measured success and budget are updated with it.
+:func:`open_skill_space` registers each shipped skill in the skill space once (the database records
+which it was given): a fresh install, or a new database, has the skills without training, an
+upgrade that ships new skills adds those, and a user who removes a skill does not get it back.
+A shipped skill's entry points at the package's own checkpoint (``package:<path>``, wherever the
+package is installed), so when a release retrains one, its measured success and budget are updated
+with it.
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from itskill.files import write_json
 from itskill.skills import store
 from itskill.skills.manifest import (
     MANIFEST_NAME,
@@ -33,17 +32,19 @@ def open_skill_space(
 ) -> SkillSpace:
     """Open the skill space, registering the shipped skills it has not been offered yet."""
     space = SkillSpace(path, config)
-    library = store.SHIPPED_LIBRARY  # looked up per call: tests point it elsewhere
-    if (library / MANIFEST_NAME).is_file():
-        marker = space.path.with_name(space.path.name + ".shipped-library-installed")
-        offered = _offered(marker, space)
-        entries = read_manifest(library)
-        _repoint_to_package(space, library, entries)
-        shipped = {e.name for e in entries}
-        if shipped - offered:
-            install_library(space, library, only=shipped - offered)
-            write_json(marker, sorted(offered | shipped))
-        _refresh_shipped(space, library, entries)
+    try:
+        library = store.SHIPPED_LIBRARY  # looked up per call: tests point it elsewhere
+        if (library / MANIFEST_NAME).is_file():
+            entries = read_manifest(library)
+            _repoint_to_package(space, library, entries)
+            new = {e.name for e in entries} - space.offered_shipped()
+            if new:
+                install_library(space, library, only=new)
+                space.record_offered_shipped(new)
+            _refresh_shipped(space, library, entries)
+    except BaseException:
+        space.close()  # the caller gets no space to close
+        raise
     return space
 
 
@@ -92,22 +93,3 @@ def _refresh_shipped(space: SkillSpace, library: Path, entries: list[ManifestEnt
         }
         if changes:
             space.update(skill.name, **changes)
-
-
-def _offered(marker: Path, space: SkillSpace) -> set[str]:
-    """Names of the shipped skills this space was already given (listed in its marker file).
-
-    An older marker held only the library's path; for it, the skills now in the space count as
-    offered (a skill removed before the upgrade comes back once: the old marker cannot tell it
-    from a skill the new release added).
-    """
-    if not marker.exists():
-        return set()
-    text = marker.read_text()
-    try:
-        names = json.loads(text)
-    except json.JSONDecodeError:
-        names = None
-    if isinstance(names, list) and all(isinstance(n, str) for n in names):
-        return set(names)
-    return {s.name for s in space.list()}

@@ -17,15 +17,16 @@ a newer itskill (a higher version than this code knows) is refused rather than m
 from __future__ import annotations
 
 import difflib
+import functools
 import json
 import os
 import sqlite3
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Concatenate, Literal, ParamSpec, TypeVar
 
 import numpy as np
 
@@ -36,6 +37,9 @@ EMBEDDING_DIM = 384
 # virtualenv it was first opened from, and break when itskill is reinstalled elsewhere.
 SHIPPED_LIBRARY = Path(__file__).resolve().parent / "library"
 PACKAGE_PREFIX = "package:"
+# Up to schema version 2 the shipped skills a space had been given were listed in a file beside
+# the database (``skills.sqlite`` + this); the upgrade to version 3 reads it into the database.
+OFFERED_MARKER_SUFFIX = ".shipped-library-installed"
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,12 @@ class SkillSpaceConfig:
     # Long enough for another process to finish a batch insert (embedding happens before the
     # transaction, so writers hold the lock for milliseconds, not seconds).
     busy_timeout_s: float = 30.0
+
+
+def is_serial_number(key: str) -> bool:
+    """Whether ``key`` reads as a skill's serial number: ASCII digits only (``str.isdigit`` alone
+    also takes "²" and "①", which ``int`` refuses)."""
+    return key.isascii() and key.isdigit()
 
 
 def itskill_home() -> Path:
@@ -89,6 +99,10 @@ class CorruptDatabaseError(SkillSpaceError):
 
 class DuplicateSkillError(SkillSpaceError):
     """A skill with this name already exists (names are unique)."""
+
+    def __init__(self, name: str) -> None:
+        super().__init__(f"a skill named {name!r} already exists")
+        self.name = name
 
 
 class InvalidSkillNameError(SkillSpaceError):
@@ -176,7 +190,10 @@ class Skill:
 # ---------------------------------------------------------------------------- schema
 # Each entry is one migration: the statements that take the schema from version i to i + 1.
 # Never edit a released step; append a new one. Version 1 is the paper's four attributes plus the
-# bookkeeping a first version needs; version 2 adds training metadata and stored embeddings.
+# bookkeeping a first version needs; version 2 adds training metadata and stored embeddings;
+# version 3 the names of the shipped skills the space was given
+# (:meth:`SkillSpace.offered_shipped`), which were in a file beside the database before: a new
+# database, wherever the old one went, is given the whole library.
 MIGRATIONS: list[list[str]] = [
     [
         """CREATE TABLE skills (
@@ -201,8 +218,10 @@ MIGRATIONS: list[list[str]] = [
         "ALTER TABLE skills ADD COLUMN embedding BLOB",  # float32, little-endian
         "ALTER TABLE skills ADD COLUMN embedding_model TEXT",
     ],
+    ["CREATE TABLE shipped_offered (name TEXT PRIMARY KEY)"],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
+OFFERED_TABLE_VERSION = 3
 
 _COLUMNS = (
     "id, name, task_id, description, actions, checkpoint, success_rate, success_ci_low, "
@@ -244,6 +263,26 @@ def _blob(vec: np.ndarray | None) -> bytes | None:
 
 
 # ---------------------------------------------------------------------------- the database
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def _reporting_sqlite_errors(
+    method: Callable[Concatenate[SkillSpace, P], R],
+) -> Callable[Concatenate[SkillSpace, P], R]:
+    """``method`` with SQLite's errors turned into a :class:`SkillSpaceError` naming the file: a
+    database damaged below its header opens fine and fails only when a page is read."""
+
+    @functools.wraps(method)
+    def wrapper(self: SkillSpace, *args: P.args, **kwargs: P.kwargs) -> R:
+        try:
+            return method(self, *args, **kwargs)
+        except sqlite3.DatabaseError as err:
+            raise self._sqlite_error(err) from err
+
+    return wrapper
+
+
 class SkillSpace:
     """The skill database at ``<home>/skills.sqlite``; opening it creates or upgrades it.
 
@@ -276,13 +315,25 @@ class SkillSpace:
         except sqlite3.DatabaseError as err:
             if hasattr(self, "_conn"):
                 self._conn.close()
-            raise CorruptDatabaseError(
-                f"{self.path}: not a readable itskill skill database ({err}). Move it aside or "
-                f"point {HOME_ENV} elsewhere."
-            ) from err
+            raise self._sqlite_error(err) from err
         except SkillSpaceError:
             self._conn.close()
             raise
+
+    def _sqlite_error(self, err: sqlite3.DatabaseError) -> SkillSpaceError:
+        """``err`` as the user reads it. SQLite reports what keeps it from using a path (it cannot
+        be opened or created, as a directory or a place without write access; the file is
+        read-only, locked past the busy timeout, the disk full) as an OperationalError, which
+        moving the file aside would not cure; anything else is damage to the file itself."""
+        if isinstance(err, sqlite3.OperationalError):
+            return SkillSpaceError(
+                f"cannot use {self.path} as the skill database ({err}); check the path, or point "
+                f"{HOME_ENV} at a writable directory"
+            )
+        return CorruptDatabaseError(
+            f"{self.path}: not a readable itskill skill database ({err}). Move it aside or "
+            f"point {HOME_ENV} elsewhere."
+        )
 
     def _open_retrying_while_busy(self) -> None:
         """Switch to WAL and migrate. Processes creating the file at the same moment can get
@@ -342,8 +393,39 @@ class SkillSpace:
                         f"{self.path}: upgrading the skill database to schema version {number} "
                         f"failed ({err}); the file is left at version {version}."
                     ) from err
+            if 0 < version < OFFERED_TABLE_VERSION:
+                self._adopt_offered_marker(conn)
             # user_version is part of the transaction: a failed step leaves the old version.
             conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+
+    def _adopt_offered_marker(self, conn: sqlite3.Connection) -> None:
+        """Record the shipped skills that the marker file of a database older than the
+        ``shipped_offered`` table lists. The oldest markers held only the library's path; for
+        those, the skills now in the space count as offered (one removed before the upgrade comes
+        back once: such a marker cannot tell it from a skill a new release added).
+
+        Only an upgrade reads the file: a new database beside a marker left from one moved aside
+        or deleted gets the whole library. The file stays, so an old copy of the database put
+        back is upgraded the same way.
+        """
+        marker = self.path.with_name(self.path.name + OFFERED_MARKER_SUFFIX)
+        if not marker.exists():
+            return
+        try:
+            names = json.loads(marker.read_text())
+        except ValueError:  # not JSON: the library's path
+            names = None
+        except OSError as err:
+            raise MigrationError(
+                f"{self.path}: cannot read {marker} to upgrade the skill database "
+                f"({err.strerror or err}); the file is left at its version."
+            ) from err
+        if isinstance(names, list) and all(isinstance(n, str) for n in names):
+            conn.executemany(
+                "INSERT OR IGNORE INTO shipped_offered (name) VALUES (?)", [(n,) for n in names]
+            )
+        else:
+            conn.execute("INSERT OR IGNORE INTO shipped_offered (name) SELECT name FROM skills")
 
     @property
     def schema_version(self) -> int:
@@ -381,6 +463,7 @@ class SkillSpace:
         """Add one skill (embedding it first if it has no embedding); returns it with its id."""
         return self.add_many([skill])[0]
 
+    @_reporting_sqlite_errors
     def add_many(
         self, skills: Iterable[Skill], on_conflict: Literal["error", "skip", "replace"] = "error"
     ) -> list[Skill]:
@@ -396,18 +479,22 @@ class SkillSpace:
         """
         skills = list(skills)
         for s in skills:
-            if s.name.isdigit():
+            if is_serial_number(s.name):
                 raise InvalidSkillNameError(
                     f"skill name {s.name!r} is all digits, which reads as a serial number; "
                     "give it a name with a letter"
                 )
             self._require_checkpoint(s)
+            # Before embedding, which takes seconds (the model loads first): a taken name is
+            # known now. The check in the transaction still catches one taken meanwhile.
+            if on_conflict == "error" and self._taken(self._conn, s.name):
+                raise DuplicateSkillError(s.name)
         skills = self._with_embeddings(skills)  # Outside the transaction: the model is slow.
         now = time.time()
         added: list[Skill] = []
         with self._write() as conn:
             for s in skills:
-                taken = conn.execute("SELECT 1 FROM skills WHERE name = ?", (s.name,)).fetchone()
+                taken = self._taken(conn, s.name)
                 if taken and on_conflict == "skip":
                     continue
                 if taken and on_conflict == "replace":
@@ -439,9 +526,13 @@ class SkillSpace:
                         ),
                     )
                 except sqlite3.IntegrityError as err:
-                    raise DuplicateSkillError(f"a skill named {s.name!r} already exists") from err
+                    raise DuplicateSkillError(s.name) from err
                 added.append(replace(s, id=cur.lastrowid, created=created))
         return added
+
+    @staticmethod
+    def _taken(conn: sqlite3.Connection, name: str) -> bool:
+        return conn.execute("SELECT 1 FROM skills WHERE name = ?", (name,)).fetchone() is not None
 
     def _with_embeddings(self, skills: list[Skill]) -> list[Skill]:
         from itskill.skills import embeddings, retrieval
@@ -455,6 +546,7 @@ class SkillSpace:
             out[i] = replace(skills[i], embedding=vecs[row], embedding_model=embeddings.MODEL_ID)
         return out
 
+    @_reporting_sqlite_errors
     def set_embeddings(self, items: Sequence[tuple[int, np.ndarray]], model_id: str) -> None:
         """Store embeddings for existing skills (used to fill rows that predate them)."""
         with self._write() as conn:
@@ -463,6 +555,21 @@ class SkillSpace:
                 [(_blob(vec), model_id, skill_id) for skill_id, vec in items],
             )
 
+    @_reporting_sqlite_errors
+    def offered_shipped(self) -> set[str]:
+        """Names of the shipped skills this space was given once (:func:`itskill.skills.library.
+        open_skill_space` does not give them again, so a skill the user removed stays removed)."""
+        return {row[0] for row in self._conn.execute("SELECT name FROM shipped_offered")}
+
+    @_reporting_sqlite_errors
+    def record_offered_shipped(self, names: Iterable[str]) -> None:
+        """Add ``names`` to :meth:`offered_shipped`."""
+        with self._write() as conn:
+            conn.executemany(
+                "INSERT OR IGNORE INTO shipped_offered (name) VALUES (?)", [(n,) for n in names]
+            )
+
+    @_reporting_sqlite_errors
     def remove(self, key: int | str) -> Skill:
         """Delete a skill by id or name; returns what was deleted. The checkpoint file stays."""
         with self._write() as conn:
@@ -470,6 +577,7 @@ class SkillSpace:
             conn.execute("DELETE FROM skills WHERE id = ?", (skill.id,))
         return skill
 
+    @_reporting_sqlite_errors
     def set_checkpoint(self, key: int | str, checkpoint: str) -> Skill:
         """Point a skill at another checkpoint (stored as given; the file must exist)."""
         with self._write() as conn:
@@ -478,6 +586,7 @@ class SkillSpace:
             conn.execute("UPDATE skills SET checkpoint = ? WHERE id = ?", (checkpoint, skill.id))
         return skill
 
+    @_reporting_sqlite_errors
     def update(self, key: int | str, **changes: Any) -> Skill:
         """Replace the given fields of a skill: ``task_id``, ``description``, ``actions`` or its
         measurements (``success_rate``, ``success_ci``, ``train_steps``, ``train_wall_s``).
@@ -519,12 +628,13 @@ class SkillSpace:
         return new
 
     # -- reads
+    @_reporting_sqlite_errors
     def get(self, key: int | str) -> Skill:
         """A skill by id (an int, or a string of digits) or by name."""
         return self._get(self._conn, key)
 
     def _get(self, conn: sqlite3.Connection, key: int | str) -> Skill:
-        if isinstance(key, int) or (isinstance(key, str) and key.isdigit()):
+        if isinstance(key, int) or is_serial_number(key):
             row = conn.execute(f"SELECT {_COLUMNS} FROM skills WHERE id = ?", (int(key),))
         else:
             row = conn.execute(f"SELECT {_COLUMNS} FROM skills WHERE name = ?", (key,))
@@ -534,6 +644,7 @@ class SkillSpace:
             raise UnknownSkillError(key, names)
         return _row_to_skill(found)
 
+    @_reporting_sqlite_errors
     def list(self, task_id: str | None = None) -> list[Skill]:
         """Every skill (or every skill for ``task_id``), by serial number."""
         if task_id is None:
@@ -544,5 +655,6 @@ class SkillSpace:
             )
         return [_row_to_skill(r) for r in rows]
 
+    @_reporting_sqlite_errors
     def __len__(self) -> int:
         return int(self._conn.execute("SELECT COUNT(*) FROM skills").fetchone()[0])

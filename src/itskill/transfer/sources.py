@@ -9,7 +9,9 @@ alone ranks a screw first for a pick-and-place.
 
 Every source must be a finished checkpoint on the shared observation layout and action space:
 :func:`itskill.rl.checkpoint.read_meta` checks the layout, and a missing skill or checkpoint is a
-:class:`SourceError` naming it.
+:class:`SourceError` naming it. ``"auto"`` passes over skills whose checkpoint is a
+Stable-Baselines3 ``.zip`` (``itskill skills add`` takes one for evaluation), which no transfer can
+load as a source; named, such a skill is an error.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from itskill.rl.checkpoint import (
 )
 from itskill.sim.vec_env import action_space
 from itskill.skills import SkillSpace, SkillSpaceError, open_skill_space, search
-from itskill.skills.store import Skill
+from itskill.skills.store import Skill, is_serial_number
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.spec import TaskSpec
@@ -120,6 +122,13 @@ def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSk
     )
 
 
+def _loads_as_source(space: SkillSpace, skill: Skill) -> bool:
+    """Whether ``skill``'s checkpoint is of the kind a transfer loads: weights whose directory
+    holds their metadata (:func:`policy_location`), not a Stable-Baselines3 ``.zip``."""
+    path = space.checkpoint_path(skill)
+    return policy_location(path) != path
+
+
 def _parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
     items = sources.split(",") if isinstance(sources, str) else list(sources)
     keys: list[int | str] = []
@@ -127,7 +136,7 @@ def _parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
         key = item.strip() if isinstance(item, str) else item
         if key == "":
             raise SourceError(f"empty skill name in the source list {sources!r}")
-        keys.append(int(key) if isinstance(key, str) and key.isdigit() else key)
+        keys.append(int(key) if isinstance(key, str) and is_serial_number(key) else key)
     return keys
 
 
@@ -174,7 +183,9 @@ def resolve_sources(
     learned in the target's task family before others, then those learned on the target's own
     parts, and for the target's first steps those whose task starts the parts as the target's
     does; ties by similarity to the target's command. It skips the target's own task when
-    ``exclude_target`` and repeated action sequences when ``distinct_actions``.
+    ``exclude_target``, repeated action sequences when ``distinct_actions``, and skills whose
+    checkpoint is a Stable-Baselines3 ``.zip`` (no transfer loads one; the error when no skill
+    is left names them).
     Named skills (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in
     that order. ``space`` defaults to the user's skill space (:func:`open_skill_space`).
     """
@@ -187,6 +198,8 @@ def resolve_sources(
         if isinstance(sources, str) and sources.strip() == AUTO:
             exclude = {spec.id} if exclude_target else set()
             ranked = search(space, spec.command, k=len(space), exclude_tasks=exclude)
+            unloadable = [skill.name for skill, _ in ranked if not _loads_as_source(space, skill)]
+            ranked = [(skill, score) for skill, score in ranked if skill.name not in unloadable]
             target_steps = tuple(spec.actions)
             chosen: list[tuple[Skill, float | None]] = []
             seen: set[tuple[str, ...]] = set()
@@ -223,9 +236,15 @@ def resolve_sources(
                 covered |= adds[best]
                 chosen.append((skill, score))
             if not chosen:
+                passed_over = (
+                    f" (a Stable-Baselines3 .zip is none: {', '.join(unloadable)})"
+                    if unloadable
+                    else ""
+                )
                 raise SourceError(
-                    f"the skill space ({space.path}) has no skill to transfer to {target!r} from; "
-                    "train or install some (`itskill skills pretrain`, `itskill skills install`)"
+                    f"the skill space ({space.path}) has no skill to transfer to {target!r} "
+                    f"from{passed_over}; train or install some (`itskill skills pretrain`, "
+                    "`itskill skills install`)"
                 )
         else:
             keys = _parse_keys(sources)
