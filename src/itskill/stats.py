@@ -61,7 +61,9 @@ def ratio_interval(
     The delta method with Welch-Satterthwaite degrees of freedom: each mean's Student-t
     uncertainty (as :func:`mean_interval` has it) carried through the ratio, so a denominator
     without spread gives exactly the numerator's t-interval divided by its mean. With fewer than
-    two values on either side there is no spread to estimate: the bounds are NaN.
+    two values on either side there is no spread to estimate: the bounds are NaN. Where the
+    denominator's own t-interval reaches zero the ratio is unbounded (Fieller's interval is), and
+    so are the bounds: -inf and inf.
     """
     num, den = np.asarray(numerator, dtype=float), np.asarray(denominator, dtype=float)
     if num.size == 0 or den.size == 0:
@@ -75,6 +77,9 @@ def ratio_interval(
     v = ratio**2 * den.var(ddof=1) / den.size / den.mean() ** 2
     if u + v == 0:
         return ratio, ratio, ratio
+    _, den_low, den_high = mean_interval(den, confidence)
+    if den_low <= 0 <= den_high:
+        return ratio, -math.inf, math.inf
     df = (u + v) ** 2 / (u**2 / (num.size - 1) + v**2 / (den.size - 1))
     half = float(t_dist.ppf(0.5 + confidence / 2, df) * math.sqrt(u + v))
     return ratio, ratio - half, ratio + half

@@ -124,7 +124,14 @@ def test_gain_interval_is_each_sides_t_interval_carried_through_the_ratio():
     mean, low, high = mean_interval([100, 200, 300])
     g = efficiency_gain([100, 200, 300], [500, 500, 500])
     assert g.value == pytest.approx(1 - mean / 500)
-    assert (g.low, g.high) == (pytest.approx(1 - high / 500), pytest.approx(1 - low / 500))
+    # (cut at zero: the method's lower bound, -48, is not a time)
+    assert low < 0 and (g.low, g.high) == (pytest.approx(1 - high / 500), 1.0)
+    # Cut at 100%: a time to threshold is never negative.
+    wide = efficiency_gain([0, 100, 500], [500, 500, 500])
+    assert wide.high == 1.0 and wide.low < wide.value
+    # A baseline whose own interval reaches zero leaves the ratio unbounded (Fieller).
+    g = efficiency_gain([100, 200, 300], [20, 30, 900])
+    assert math.isinf(g.low) and "unbounded" in g.format()
     # One seed on a side: nothing to estimate the spread from, and the report says so.
     g = efficiency_gain([100], [400, 400])
     assert math.isnan(g.low) and g.format() == "75.0% (one seed: no interval)"

@@ -28,8 +28,9 @@ def _allocate(gigabytes: float) -> int:
 
 
 class _Unpicklable(Exception):
-    def __init__(self, a: int, b: int) -> None:  # pickle rebuilds it with one argument: fails
+    def __init__(self, a: int, b: int) -> None:
         super().__init__(f"{a}/{b}")
+        self.lock = threading.Lock()  # an attribute no pickle takes
 
 
 def _raise(kind: str) -> None:
@@ -104,3 +105,19 @@ def test_an_interrupt_of_the_caller_reaches_the_child_which_saves(tmp_path: Path
     with pytest.raises(KeyboardInterrupt):
         run_limited(_loop_until_interrupted, (str(marker),), sandbox=LIMITS, name="child")
     assert marker.read_text() == "saved"
+
+
+def _missing_checkpoint(path: str) -> None:
+    from itskill.tasks.evaluate import CheckpointError
+
+    raise CheckpointError(path, "missing: the directory holds no finished checkpoint")
+
+
+def test_an_exception_whose_constructor_differs_from_its_args_keeps_its_type() -> None:
+    # Pickle would rebuild it as CheckpointError(message) and fail: the caller could no longer
+    # tell a user's missing checkpoint (one line) from a bug (a traceback).
+    from itskill.tasks.evaluate import CheckpointError
+
+    with pytest.raises(CheckpointError) as info:
+        run_limited(_missing_checkpoint, ("/runs/x",), sandbox=LIMITS, name="child")
+    assert info.value.path == "/runs/x" and str(info.value).startswith("/runs/x: missing")

@@ -287,13 +287,22 @@ class Gain:
         text = f"{prefix}{self.value:.1%}"
         if math.isnan(self.low):
             text += " (one seed: no interval)"
+        elif self.low == self.high:
+            text += " (the seeds agree: no spread to estimate an interval from)"
+        elif math.isinf(self.low):
+            text += " [unbounded: the baseline's interval reaches zero]"
         else:
             text += f" [{self.low:.1%}, {self.high:.1%}]"
         return text + (" (censored on both sides)" if self.bound == "unknown" else "")
 
+    @property
+    def has_interval(self) -> bool:
+        """Whether the seeds' spread gave an interval (not one seed, not seeds that agree)."""
+        return not math.isnan(self.low) and self.low < self.high
+
     def excludes(self, value: float) -> bool:
         """Whether the interval lies wholly on one side of ``value`` (False without one)."""
-        return not math.isnan(self.low) and not self.low <= value <= self.high
+        return self.has_interval and not self.low <= value <= self.high
 
 
 def efficiency_gain(
@@ -307,9 +316,10 @@ def efficiency_gain(
 
     The interval is :func:`itskill.stats.ratio_interval`'s for the ratio of the two means (the
     methods' seeds are independent, not paired): the t-intervals the report prints for each
-    side's mean, carried through. A baseline whose seeds all ran out the budget adds no spread,
-    and the gain's interval is then the method's t-interval over the budget. With one seed on
-    either side it has none.
+    side's mean, carried through, and cut at 100% (times are never negative). A baseline whose
+    seeds all ran out the budget adds no spread, and the gain's interval is then the method's
+    t-interval (cut at zero) over the budget. With one seed on either side, or seeds that all
+    agree, it has none.
     """
     m = np.asarray(method, float)
     b = np.asarray(baseline, float)
@@ -317,6 +327,7 @@ def efficiency_gain(
     if m.size == 0 or b.size == 0 or b.mean() <= 0:
         return Gain(math.nan, math.nan, math.nan, "exact")
     ratio, low, high = ratio_interval(m, b, confidence)
+    low = max(low, 0.0)  # times are never negative: a gain above 100% is impossible
     bound = {
         (False, False): "exact",
         (False, True): "lower",

@@ -543,9 +543,14 @@ def _train(
             name="the final training's process",
         )
     except (ChildFailed, SandboxError, SandboxTimeout) as err:
+        kept = (
+            f"the training's last checkpoint is kept in {out}; --resume continues from it"
+            if (out / "checkpoint.json").is_file()
+            else "it failed before its first checkpoint; --resume starts it again"
+        )
         raise LearnError(
             f"the generated reward {reward['best_path']} failed in the final training: {err}\n"
-            f"the training's last checkpoint is kept in {out}; --resume continues from it"
+            + kept
         ) from err
     curve = read_curve(out, t.steps)
     wall = float(curve.wall_s[-1])

@@ -528,8 +528,8 @@ def _gain_explanation(
 def _verdict(measured: Gain, paper: float) -> str:
     """How a measured gain compares with the paper's: its interval first, then which way
     censoring biases it."""
-    if math.isnan(measured.low):
-        return "cannot be compared with it: one seed gives no interval"
+    if not measured.has_interval:
+        return "cannot be compared with it: one seed, or seeds that all agree, give no interval"
     if not measured.excludes(paper):
         caveat = "; censoring on both sides leaves it open" if measured.bound == "unknown" else ""
         return f"is consistent with it: the paper's figure lies inside the interval{caveat}"

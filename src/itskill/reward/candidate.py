@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from itskill.files import read_json, write_json
-from itskill.reward.limited import ChildFailed, run_limited
+from itskill.reward.limited import ChildFailed, RemoteTraceback, run_limited
 from itskill.reward.sandbox import SandboxConfig, compile_reward
 
 RESULT_FILE = "result.json"
@@ -111,9 +111,11 @@ def run_candidate(job: CandidateJob) -> dict[str, Any]:
         }
     except ChildFailed as err:  # killed by a limit or a signal, or past its time limit
         result = {"status": "failed", "error": str(err)}
-    except Exception as err:  # the reward raised or timed out in training
+    except Exception as err:
+        if not isinstance(err.__cause__, RemoteTraceback):
+            raise  # this process's own failure, not the candidate's: a resume runs it again
         tail = traceback.format_exception_only(type(err), err)[-1].strip()
-        result = {"status": "failed", "error": tail}
+        result = {"status": "failed", "error": tail}  # the reward raised or timed out
     result["wall_s"] = time.monotonic() - start
     write_json(path, result)
     return result

@@ -61,10 +61,10 @@ def run_limited(
     """``fn(*args)`` in a spawned child under ``sandbox``'s process limits; its return value.
 
     ``fn`` and ``args`` must be picklable (``fn`` a module-level function). An exception ``fn``
-    raises is raised here, chained to a :class:`RemoteTraceback` (as a ``RuntimeError`` naming
-    its type if it does not survive pickling). :class:`ChildFailed` says why a child that died
-    or ran past ``timeout_s`` (wall clock) gave no answer; ``name`` is the child in its message
-    ("the candidate's process").
+    raises is raised here, of its own type, chained to a :class:`RemoteTraceback` (as a
+    ``RuntimeError`` naming its type if its attributes cannot be pickled). :class:`ChildFailed`
+    says why a child that died or ran past ``timeout_s`` (wall clock) gave no answer; ``name``
+    is the child in its message ("the candidate's process").
     """
     spawn = multiprocessing.get_context("spawn")
     receiver, sender = spawn.Pipe(duplex=False)
@@ -90,7 +90,7 @@ def run_limited(
             raise KeyboardInterrupt
         raise ChildFailed(death_cause(child.exitcode, sandbox, name))
     if answer[0] == "error":
-        raise answer[1] from RemoteTraceback(answer[2])
+        raise _unpack(answer[1]) from RemoteTraceback(answer[2])
     return answer[1]
 
 
@@ -102,7 +102,7 @@ def _wait(child: Any, receiver: Any, name: str, timeout_s: float | None) -> tupl
         if receiver.poll(1.0):
             try:
                 return receiver.recv()
-            except EOFError:
+            except (EOFError, OSError):  # gone, perhaps in the middle of its answer
                 return None
         if not child.is_alive():
             return receiver.recv() if receiver.poll() else None
@@ -116,12 +116,28 @@ def _wait(child: Any, receiver: Any, name: str, timeout_s: float | None) -> tupl
             raise ChildFailed(f"timed out: {name} took longer than {timeout_s:g} s (wall clock)")
 
 
-def _portable(err: BaseException) -> BaseException:
-    """``err`` if it survives pickling, else a RuntimeError that names it."""
+def _pack(err: BaseException) -> Any:
+    """``err`` in a form that crosses the pipe as it was: its type, ``args`` and attributes.
+
+    Pickling an exception rebuilds it as ``type(err)(*err.args)``, which fails, or builds another
+    message, for an exception whose constructor takes other arguments than its ``args``
+    (``CheckpointError(path, problem)``). A RuntimeError naming it where even that cannot travel.
+    """
+    packed = (type(err), err.args, dict(vars(err)))
     try:
-        pickle.loads(pickle.dumps(err))
+        pickle.loads(pickle.dumps(packed))
     except Exception:
         return RuntimeError(f"{type(err).__name__}: {err}")
+    return packed
+
+
+def _unpack(packed: Any) -> BaseException:
+    if isinstance(packed, BaseException):
+        return packed
+    kind, args, state = packed
+    err = kind.__new__(kind)
+    err.args = args
+    vars(err).update(state)
     return err
 
 
@@ -136,5 +152,5 @@ def _child_main(
     except KeyboardInterrupt:
         os._exit(INTERRUPTED)  # no answer: the caller raises KeyboardInterrupt
     except Exception as err:
-        answer = ("error", _portable(err), traceback.format_exc())
+        answer = ("error", _pack(err), traceback.format_exc())
     sender.send(answer)
