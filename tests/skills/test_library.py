@@ -63,15 +63,21 @@ def test_fresh_skill_space_gets_the_shipped_library_once(tmp_path, monkeypatch, 
         assert sorted(s.name for s in space.list()) == ["grasp_nut_m12", "reach_nut_m12"]
 
 
-def test_a_new_database_gets_the_whole_library_again(tmp_path, monkeypatch, home) -> None:
-    # What the message on a corrupt database advises (move it aside), or deleting it to start
-    # over: the new database used to get nothing, as a file beside it said all was given.
+def _given_both_removed_pick(tmp_path: Path, monkeypatch) -> tuple[Path, Path]:
+    """A space given reach_nut_m12 and pick_nut_m12 whose user removed the pick: the shipped
+    library's directory and the database's path."""
     shipped = tmp_path / "shipped"
     _ship(shipped, ("reach_nut_m12", "pick_nut_m12"))
     monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
     with open_skill_space() as space:
         space.remove("pick_nut_m12")
-        path = space.path
+        return shipped, space.path
+
+
+def test_a_new_database_gets_the_whole_library_again(tmp_path, monkeypatch, home) -> None:
+    # What the message on a corrupt database advises (move it aside), or deleting it to start
+    # over: the new database used to get nothing, as a file beside it said all was given.
+    _, path = _given_both_removed_pick(tmp_path, monkeypatch)
     path.rename(path.with_name("skills.sqlite.bad"))
     # As an older release left it: the marker beside the database it has lost.
     path.with_name(path.name + OFFERED_MARKER_SUFFIX).write_text(
@@ -99,12 +105,7 @@ def _as_an_older_release_left_it(path: Path, marker: str) -> None:
 def test_an_upgraded_space_keeps_the_removals_its_marker_file_recorded(
     tmp_path, monkeypatch, home
 ) -> None:
-    shipped = tmp_path / "shipped"
-    _ship(shipped, ("reach_nut_m12", "pick_nut_m12"))
-    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
-    with open_skill_space() as space:
-        space.remove("pick_nut_m12")
-        path = space.path
+    shipped, path = _given_both_removed_pick(tmp_path, monkeypatch)
     _as_an_older_release_left_it(path, json.dumps(["pick_nut_m12", "reach_nut_m12"]))
     _ship(shipped, ("reach_nut_m12", "pick_nut_m12", "lift_nut_m12"))
     with open_skill_space() as space:
