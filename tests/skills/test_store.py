@@ -169,6 +169,18 @@ def test_only_ascii_digits_read_as_a_serial_number(home, checkpoint):
             space.get("²")
 
 
+def test_a_removed_skills_serial_number_is_never_given_again(home, checkpoint):
+    # `itskill learn` records a skill's serial number; a later skill must not take it over.
+    with SkillSpace() as space:
+        space.add(make_skill("a", Path(checkpoint)))
+        b = space.add(make_skill("b", Path(checkpoint)))
+        space.remove("b")
+        c = space.add(make_skill("c", Path(checkpoint)))
+        assert c.id == b.id + 1
+        with pytest.raises(UnknownSkillError):
+            space.get(b.id)
+
+
 def test_a_taken_name_is_refused_before_the_description_is_embedded(home, checkpoint, monkeypatch):
     # Embedding loads the model first: the duplicate was reported only half a minute later.
     def embed(texts):
@@ -234,6 +246,7 @@ def test_old_version_is_upgraded_and_keeps_rows(home, checkpoint):
         assert space.schema_version == SCHEMA_VERSION > 1
         old = space.get("old")
         assert (old.success_rate, old.actions, old.embedding) == (0.7, ("approach",), None)
+        assert old.id == 1 and space.add(make_skill("new", Path(checkpoint))).id == 2
         space.update("old", train_steps=5, success_ci=(0.6, 0.8))
         assert space.get("old").train_steps == 5
 

@@ -193,7 +193,8 @@ class Skill:
 # bookkeeping a first version needs; version 2 adds training metadata and stored embeddings;
 # version 3 the names of the shipped skills the space was given
 # (:meth:`SkillSpace.offered_shipped`), which were in a file beside the database before: a new
-# database, wherever the old one went, is given the whole library.
+# database, wherever the old one went, is given the whole library; version 4 never reuses a
+# serial number.
 MIGRATIONS: list[list[str]] = [
     [
         """CREATE TABLE skills (
@@ -219,6 +220,35 @@ MIGRATIONS: list[list[str]] = [
         "ALTER TABLE skills ADD COLUMN embedding_model TEXT",
     ],
     ["CREATE TABLE shipped_offered (name TEXT PRIMARY KEY)"],
+    [
+        # AUTOINCREMENT: a serial number is never given out twice, so one recorded elsewhere
+        # (`skill.json` of `itskill learn`, `--sources 3,5`, a note) cannot come to name another
+        # skill after the highest was removed. SQLite adds it only by rebuilding the table.
+        """CREATE TABLE skills_v4 (
+            id INTEGER PRIMARY KEY AUTOINCREMENT,
+            name TEXT NOT NULL UNIQUE,
+            task_id TEXT NOT NULL,
+            description TEXT NOT NULL,
+            actions TEXT NOT NULL,
+            checkpoint TEXT NOT NULL,
+            success_rate REAL,
+            created REAL NOT NULL,
+            success_ci_low REAL,
+            success_ci_high REAL,
+            train_steps INTEGER,
+            train_wall_s REAL,
+            algo TEXT,
+            seed INTEGER,
+            embedding BLOB,
+            embedding_model TEXT
+        )""",
+        "INSERT INTO skills_v4 SELECT id, name, task_id, description, actions, checkpoint, "
+        "success_rate, created, success_ci_low, success_ci_high, train_steps, train_wall_s, algo, "
+        "seed, embedding, embedding_model FROM skills",
+        "DROP TABLE skills",
+        "ALTER TABLE skills_v4 RENAME TO skills",
+        "CREATE INDEX skills_task ON skills(task_id)",
+    ],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 OFFERED_TABLE_VERSION = 3
