@@ -25,7 +25,6 @@ resume from their own checkpoints. Budgets are data (``itskill/experiments/data/
 
 from __future__ import annotations
 
-import hashlib
 import re
 import shutil
 from dataclasses import asdict, dataclass, replace
@@ -603,12 +602,8 @@ def _train_generated(
     from itskill.rl.train import RewardSource
     from itskill.transfer import train_transfer
 
-    code = Path(reward_path).read_text()
-    meta = {
-        "kind": "generated",
-        "sha256": hashlib.sha256(code.encode()).hexdigest(),
-        "path": reward_path,
-    }
+    fn = compile_reward(Path(reward_path).read_text(), sandbox)
+    meta = {"kind": "generated", "sha256": fn.sha256, "path": reward_path}
     return train_transfer(
         task,
         t.method,
@@ -617,7 +612,7 @@ def _train_generated(
         steps=t.steps,
         algo=t.algo,
         out=out,
-        reward=RewardSource(compile_reward(code, sandbox), meta),
+        reward=RewardSource(fn, meta),
         num_envs=t.num_envs,
         eval_every=t.eval_every,
         eval_episodes=t.eval_episodes,
