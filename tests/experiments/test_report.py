@@ -166,6 +166,29 @@ def test_a_run_committed_without_its_policies_still_gets_a_report(run, tmp_path)
     assert any("no video" in n and "checkpoint.json" in n for n in files.notes)
 
 
+def test_a_report_written_elsewhere_can_be_written_again_from_its_own_directory(run, tmp_path):
+    # The directory committed to results/: the report and the run's small files, no weights.
+    out = tmp_path / "results"
+    first = experiment_report(run, out, video=False).markdown.read_text()
+    itn = Cell(TASK, "itn", 0).dir(out)
+    assert sorted(p.name for p in itn.iterdir()) == [
+        "attention.json", "checkpoint.json", "eval.csv", "metrics.csv", "result.json",
+        "transfer.json",
+    ]  # fmt: skip
+    assert not list(out.glob("cells/**/*.safetensors")) and not list(out.glob("cells/**/*.zip"))
+    again = experiment_report(out, video=False)
+    second = again.markdown.read_text()
+    assert not again.notes
+    for section in ("Attention over one episode (Fig. 8)", "### Training settings"):
+        assert section in second
+
+    def body(md: str, run_dir: Path) -> list[str]:  # the header names the directory and time
+        md = md.replace(str(run_dir.resolve()), "RUN")
+        return [line for line in md.splitlines() if not line.startswith("- report written:")]
+
+    assert body(second, out) == body(first, run)
+
+
 def test_runs_recorded_without_subtask_progress_still_get_a_report(run, tmp_path):
     import shutil
 

@@ -25,6 +25,7 @@ from itskill.transfer import (
     TransferConfig,
     attention_trace,
     read_transfer,
+    recorded_attention_trace,
     train_transfer,
 )
 
@@ -178,6 +179,29 @@ def test_run_dir_evaluates_and_traces_attention(home: Path, tmp_path: Path) -> N
     run(tmp_path / "dfs", "dfs")
     with pytest.raises(ValueError, match="no contribution weights"):
         attention_trace(tmp_path / "dfs")
+
+
+def test_the_recorded_trace_outlives_the_weights_and_follows_their_changes(
+    home: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "itn"
+    run(out, "itn")
+    first = recorded_attention_trace(out)
+    assert first == json.loads(json.dumps(attention_trace(out)))
+    assert (out / "attention.json").is_file()
+
+    copy = tmp_path / "results"
+    copy.mkdir()
+    for name in ("checkpoint.json", "attention.json"):
+        (copy / name).write_bytes((out / name).read_bytes())
+    assert recorded_attention_trace(copy) == first  # no weights: the record is the figure's source
+
+    marked = json.loads((out / "attention.json").read_text())
+    marked["trace"]["episodes"][0]["length"] = -1
+    (out / "attention.json").write_text(json.dumps(marked))
+    assert recorded_attention_trace(out)["episodes"][0]["length"] == -1  # same weights: reused
+    run(out, "itn", steps=32)  # resumed: new weights, so the record no longer describes them
+    assert recorded_attention_trace(out)["episodes"][0]["length"] == 100
 
 
 def test_the_reward_search_network_is_the_one_the_run_then_trains(home: Path, tmp_path: Path):

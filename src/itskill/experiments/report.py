@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -64,6 +65,18 @@ REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
 FIGURES_DIR = "figures"
 VIDEOS_DIR = "videos"
+RUN_FILES = (CONFIG_FILE, EXPERIMENT_FILE, SOURCES_FILE, PROVENANCE_FILE)
+CELL_FILES = (
+    RESULT_FILE,
+    ERROR_FILE,
+    "eval.csv",
+    "metrics.csv",
+    "checkpoint.json",
+    "transfer.json",
+    "attention.json",
+)
+"""What a report reads from a run and its cells, weights aside: a report written elsewhere copies
+these beside itself, so it can be written again from its own directory (without the video)."""
 
 
 class ReportError(ValueError):
@@ -116,10 +129,10 @@ def attention_section(
     doc: Document, run_dir: Path, task: str, figures: Path, notes: list[str]
 ) -> None:
     """Fig. 8: the trained policy's source weights over one deterministic episode, stages marked."""
-    from itskill.transfer import attention_trace
+    from itskill.transfer import recorded_attention_trace
 
     try:
-        trace = attention_trace(run_dir, episodes=1, seed=0)
+        trace = recorded_attention_trace(run_dir)
     except Exception as err:  # a failed trace must not cost the rest of the report
         notes.append(f"attention trace of {run_dir} failed: {type(err).__name__}: {err}")
         doc.add(Paragraph(f"No attention figure: {type(err).__name__}: {err}"))
@@ -205,7 +218,11 @@ def _curves(config: ExperimentConfig, run_dir: Path) -> tuple[dict, list[Cell], 
 def experiment_report(
     run_dir: str | Path, out: str | Path | None = None, video: bool = True
 ) -> ReportFiles:
-    """Write ``report.md`` and ``report.html`` (and ``figures/``, ``videos/``) for a run."""
+    """Write ``report.md`` and ``report.html`` (and ``figures/``, ``videos/``) for a run.
+
+    With ``out`` outside the run, the run's small files (:data:`RUN_FILES`, :data:`CELL_FILES`,
+    no weights) are copied there as well: the directory to commit to ``results/``.
+    """
     run_dir = Path(run_dir)
     if not (run_dir / CONFIG_FILE).is_file():
         raise ReportError(
@@ -263,7 +280,23 @@ def experiment_report(
         doc.add(Heading("Notes"), Bullets(tuple(notes)))
     md, html_path = out / REPORT_MD, out / REPORT_HTML
     write_document(doc, md, html_path)
+    if out.resolve() != run_dir.resolve():
+        _copy_results(config, run_dir, out)
     return ReportFiles(md, html_path, tuple(notes))
+
+
+def _copy_results(config: ExperimentConfig, run_dir: Path, out: Path) -> None:
+    for name in RUN_FILES:
+        if (run_dir / name).is_file():
+            shutil.copyfile(run_dir / name, out / name)
+    for cell in cells(config):
+        src, dst = cell.dir(run_dir), cell.dir(out)
+        for name in CELL_FILES:
+            if (src / name).is_file():
+                dst.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(src / name, dst / name)
+            else:  # gone from the run since the last copy (an error file once the cell finished)
+                (dst / name).unlink(missing_ok=True)
 
 
 def _pending_line(cell: Cell, run_dir: Path) -> str:

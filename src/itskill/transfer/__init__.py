@@ -16,7 +16,7 @@ from itskill.transfer.lateral import TransferPolicy, TransferPolicyConfig
 from itskill.transfer.methods import METHODS, Method, get_method
 from itskill.transfer.nia import NIAPolicy
 from itskill.transfer.sources import SourceError, SourceSkill, resolve_sources
-from itskill.transfer.trace import attention_trace
+from itskill.transfer.trace import attention_trace, recorded_attention_trace
 from itskill.transfer.train import (
     TRANSFER_FILE,
     prepare_transfer,
@@ -48,6 +48,7 @@ __all__ = [
     "load_transfer_config",
     "prepare_transfer",
     "read_transfer",
+    "recorded_attention_trace",
     "resolve_sources",
     "search_network",
     "target_entry",

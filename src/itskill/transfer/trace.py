@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from itskill.rl.checkpoint import load_policy, read_meta
+from itskill.files import CorruptFileError, read_json, write_json
+from itskill.rl.checkpoint import POLICY_FILE, load_policy, read_meta
 from itskill.tasks import get_task, make_batch_env
 from itskill.transfer.attention import STAGE_SLICE
 from itskill.transfer.lateral import TransferPolicy
 from itskill.transfer.train import TRANSFER_FILE, read_transfer
+
+TRACE_FILE = "attention.json"
 
 
 def attention_trace(run_dir: str | Path, episodes: int = 1, seed: int = 0) -> dict[str, Any]:
@@ -70,3 +74,30 @@ def attention_trace(run_dir: str | Path, episodes: int = 1, seed: int = 0) -> di
         "segments": [st.name for st in spec.stages],
         "episodes": runs,
     }
+
+
+def recorded_attention_trace(run_dir: str | Path) -> dict[str, Any]:
+    """:func:`attention_trace` of one deterministic episode (seed 0), kept in ``run_dir``.
+
+    The trace is written to ``attention.json`` with the sha256 of the weights it came from. It is
+    reused while those weights are unchanged and traced again once they change (a resumed run),
+    and it is read as it is where the weights are absent: a run's small files copied to
+    ``results/`` keep their Fig. 8 when the report is written again from them.
+    """
+    run_dir = Path(run_dir)
+    path, weights = run_dir / TRACE_FILE, run_dir / POLICY_FILE
+    digest = hashlib.sha256(weights.read_bytes()).hexdigest() if weights.is_file() else None
+    if path.is_file():
+        try:
+            saved = read_json(path)
+        except CorruptFileError:
+            saved = None
+        if (
+            isinstance(saved, dict)
+            and isinstance(saved.get("trace"), dict)
+            and (digest is None or saved.get("weights_sha256") == digest)
+        ):
+            return saved["trace"]
+    trace = attention_trace(run_dir, episodes=1, seed=0)
+    write_json(path, {"weights_sha256": digest, "episodes": 1, "seed": 0, "trace": trace})
+    return trace
