@@ -334,6 +334,44 @@ def test_process_limits_stop_a_memory_bomb_in_a_worker() -> None:
     assert "STOPPED the reward code ran out of memory" in out.stdout, out.stdout + out.stderr
 
 
+def test_a_memory_limit_counts_memory_not_threads() -> None:
+    # glibc reserves 64 MB of address space per thread arena: 16 threads that each allocate once
+    # would take about 1 GB of an address-space limit while using almost nothing.
+    script = textwrap.dedent(
+        """
+        import threading
+        import numpy as np
+        from itskill.reward.sandbox import SandboxConfig, apply_process_limits
+
+        def size_mb():
+            for line in open("/proc/self/status"):
+                if line.startswith("VmSize"):
+                    return int(line.split()[1]) / 1024
+
+        apply_process_limits(SandboxConfig(memory_limit_mb=4096))
+        before, held, barrier = size_mb(), [], threading.Barrier(17)
+
+        def work():
+            held.append(np.ones(1000))  # a malloc from this thread
+            barrier.wait()  # all alive at once, so none can reuse another's arena
+            barrier.wait()
+
+        threads = [threading.Thread(target=work) for _ in range(16)]
+        for t in threads:
+            t.start()
+        barrier.wait()
+        print(size_mb() - before)
+        barrier.wait()
+        for t in threads:
+            t.join()
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    # 16 thread stacks (8 MB each) and one more arena; without the cap about 1,100 MB.
+    assert float(out.stdout) < 16 * 8 + 2 * 64 + 32, out.stdout
+
+
 def test_process_limits_only_go_down() -> None:
     script = textwrap.dedent(
         """
