@@ -115,7 +115,8 @@ def test_eval_missing_checkpoint_is_a_clear_error(tmp_path):
     result = runner.invoke(app, ["eval", "pick_nut_m12", "--policy", str(missing)])
     assert result.exit_code == 2
     text = flat(result.output)
-    assert str(missing) in text and "no such checkpoint" in text
+    assert str(missing) in text and "no such file or directory (expected" in text
+    assert "a training run directory, skill:NAME" in text
 
 
 def test_eval_corrupt_checkpoint_is_a_clear_error(tmp_path):
@@ -261,6 +262,38 @@ def test_unusable_paths_and_damaged_run_files_are_one_line_errors(tmp_path, monk
     monkeypatch.setenv("ITSKILL_HOME", str(a_file))
     result = runner.invoke(app, ["skills", "list"])
     assert result.exit_code == 2 and f"cannot use {a_file}" in " ".join(result.output.split())
+
+
+def test_out_of_range_numbers_and_the_current_directory_are_refused_before_any_work(
+    tmp_path, monkeypatch
+):
+    # A negative seed ended in NumPy's traceback, a huge episode count in an OverflowError, and
+    # an empty --out wrote the run among the user's files; /proc/x cannot be created.
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    monkeypatch.chdir(tmp_path)
+    cases = [
+        (["eval", "reach_nut_m12", "--seed", "-1"], "--seed"),
+        (["train", "reach_nut_m12", "--seed", str(2**32)], "--seed"),
+        (["transfer", "train", "pick_nut_m12", "--seed", "-3"], "--seed"),
+        (["eval", "reach_nut_m12", "--episodes", "9" * 23], "--episodes"),
+        (["train", "reach_nut_m12", "--out", ""], "not the current one"),
+        (["transfer", "train", "pick_nut_m12", "--out", "."], "not the current one"),
+        (["train", "reach_nut_m12", "--steps", "64", "--out", "/proc/x"], "cannot use /proc/x"),
+    ]
+    for args, message in cases:
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, (args, result.output)
+        assert message in flat(result.output), result.output
+        assert "Traceback" not in result.output
+    assert list(tmp_path.iterdir()) == []  # nothing written, not even the skill space
+
+
+def test_user_text_is_printed_as_typed_not_as_emoji(tmp_path, monkeypatch):
+    # "skill:x:" printed as "skill❌" (rich reads :x: as an emoji code).
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    result = runner.invoke(app, ["eval", "reach_nut_m12", "--policy", "skill:x"])
+    assert result.exit_code == 2
+    assert "skill:x: unknown skill 'x'" in result.output and "❌" not in result.output
 
 
 def test_nohup_keeps_a_command_running_past_a_closed_terminal():

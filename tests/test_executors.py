@@ -15,6 +15,8 @@ import time
 import pytest
 
 from itskill.executors import ExecutorError, check_executor, run_jobs
+from itskill.rl.checkpoint import read_meta
+from itskill.tasks.evaluate import CheckpointError
 
 # A library function, so that Ray's workers can import it (a test module is not importable there).
 JOBS = [(4.0,), (9.0,), (-1.0,), (16.0,)]
@@ -31,6 +33,14 @@ def _check(results) -> None:
 @pytest.mark.parametrize("workers", [1, 2])
 def test_local_executor_returns_every_result_and_error(workers: int) -> None:
     _check(run_jobs(math.sqrt, JOBS, "local", workers))
+
+
+def test_a_worker_error_with_several_arguments_comes_back_as_itself(tmp_path) -> None:
+    # CheckpointError(path, problem) used to break the pool: it could not be unpickled.
+    missing = tmp_path / "no_run"
+    [result] = run_jobs(read_meta, [(missing,)], "local", 2)
+    assert isinstance(result.error, CheckpointError)
+    assert str(result.error) == f"{missing}: no such checkpoint directory"
 
 
 def test_unknown_executor_is_a_clear_error() -> None:

@@ -11,13 +11,15 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from itskill.errors import PicklableError
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
 
-class DataFileError(ValueError):
+class DataFileError(PicklableError, ValueError):
     """A data file that does not validate: names the file, the field and the problem."""
 
     def __init__(self, path: str | Path, where: str, problem: str) -> None:

@@ -50,12 +50,14 @@ class CorruptFileError(ValueError):
 
 UNUSABLE_PATH_ERRORS: tuple[type[OSError], ...] = (
     FileExistsError,
+    FileNotFoundError,
     IsADirectoryError,
     NotADirectoryError,
     PermissionError,
 )
 """What a user-given path that cannot be written or read raises (a file where a directory should
-be, a read-only place, ...): the commands report it as one line naming the path."""
+be, a read-only place, a directory that cannot be created, ...): the commands report it as one
+line naming the path."""
 
 
 def read_json(path: Path) -> Any:

@@ -75,6 +75,11 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
         ),
         (("steps = 1000", "steps = 1000\nsources = 3"), "sources", "expected 'auto'"),
         (("steps = 1000", "steps = 1000\nbudget = 3"), "budget", "unknown field"),
+        # The name is the run directory's: "../.." ran the experiment in the current directory.
+        *(
+            (("steps = 1000", f"steps = 1000\nname = {name!r}"), "name", "expected a plain")
+            for name in ("../..", "..", ".", "", "  ", "a/b", "runs\\x")
+        ),
         (
             ("every = 500", 'every = 500\n[report]\nbaseline = "pst"'),
             "report.baseline",

@@ -182,6 +182,35 @@ def test_ungroundable_command_is_one_clear_line(tmp_path, budgets):
     assert not (tmp_path / "run").exists()  # nothing to resume: a retry starts afresh
 
 
+@pytest.mark.parametrize(
+    ("made", "why"), [(False, "no such directory"), (True, "the directory is empty")]
+)
+def test_resume_with_no_run_to_resume_is_refused(tmp_path, budgets, made, why):
+    # It started a fresh run instead: hours of training where a continuation was asked for.
+    out = tmp_path / "run"
+    if made:
+        out.mkdir()
+    result = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out),
+                   "--resume")  # fmt: skip
+    assert result.exit_code == 2, result.output
+    text = flat(result.output)
+    assert f"nothing to resume: there is no learn run in {out} ({why})" in text
+    assert "leave out --resume to start a new run" in text and "Traceback" not in text
+    assert "[1/8]" not in text  # not even the plan was started
+    assert out.exists() == made and not (made and any(out.iterdir()))
+
+
+@pytest.mark.parametrize("out", [False, True])
+def test_empty_command_is_one_short_line(tmp_path, budgets, out):
+    args = ["--out", str(tmp_path / "run")] if out else []
+    result = learn("  ", "--budgets", str(budgets), "--budget", "test", *args)
+    assert result.exit_code == 2, result.output
+    text = flat(result.output)
+    assert "the command is empty: say what the robot should do" in text
+    assert "pick_nut_m12" not in text and len(text) < 250
+    assert not (tmp_path / "run").exists()
+
+
 def test_unreachable_llm_is_one_clear_line(tmp_path, budgets, monkeypatch):
     from itskill.llm import openai_client
 

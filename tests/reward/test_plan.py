@@ -44,17 +44,25 @@ def test_paraphrases(offline, command: str, task: str) -> None:
         assert "M12" in plan.notes  # "the nut" alone is grounded, and the plan says how
 
 
-def test_ungroundable_command_lists_what_is_known(offline) -> None:
+def test_ungroundable_command_says_what_is_known_in_one_short_line(offline) -> None:
     with pytest.raises(PlanError) as info:
         plan_command("make me a sandwich", offline)
     message = str(info.value)
     assert "make me a sandwich" in message
-    assert "nut_m12" in message and "pick_nut_m12" in message
+    assert "nut_m12" in message and "itskill tasks list" in message
+    # Nothing is like a sandwich: no task is offered, and the catalogue is not dumped.
+    assert "Closest tasks" not in message and "pick_nut_m12" not in message
+    assert len(message) < 500
 
 
-def test_empty_command() -> None:
-    with pytest.raises(PlanError, match="empty command"):
-        plan_command("   ", make_client("offline"))
+@pytest.mark.parametrize("command", ["", "   ", "\t\n"])
+def test_empty_command_gets_a_short_error(command: str) -> None:
+    with pytest.raises(PlanError) as info:
+        plan_command(command, make_client("offline"))
+    message = str(info.value)
+    assert message.startswith("the command is empty: say what the robot should do, e.g.")
+    assert "itskill tasks list" in message
+    assert "pick_nut_m12" not in message and len(message) < 200
 
 
 def test_plan_for_task_needs_no_model() -> None:
@@ -129,6 +137,16 @@ def test_a_model_that_never_gives_a_valid_plan() -> None:
 
 def test_a_model_that_says_it_cannot_ground_the_command() -> None:
     with FakeOpenAIServer(['{"error": "there is no sandwich here"}']) as server:
-        with pytest.raises(PlanError, match=r"there is no sandwich here.*Known tasks"):
+        with pytest.raises(PlanError, match=r"there is no sandwich here.*itskill tasks list"):
             plan_command("make me a sandwich", _openai(server))
         assert len(server.requests) == 1
+
+
+def test_a_refused_command_names_the_closest_tasks() -> None:
+    with FakeOpenAIServer(['{"error": "which nut?"}']) as server, pytest.raises(PlanError) as info:
+        plan_command("pick up the nut", _openai(server))
+    message = str(info.value)
+    closest = message[message.index("Closest tasks:") :]
+    assert "pick_nut_m12 (Pick up the M12 nut)" in closest
+    assert "pick_nut_m16" in closest
+    assert "insert_peg_rect" not in message and len(message) < 500

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -115,17 +116,22 @@ def test_unreachable_model_and_unusable_run_dirs(tmp_path: Path, quiet) -> None:
     client.retry = RetryConfig(max_retries=0, timeout_s=2.0)
     with pytest.raises(LLMUnavailableError, match=r"127\.0\.0\.1:9"):
         generate_reward("Pick up the M12 nut", client, run, tiny_config(), console=quiet)
-    with pytest.raises(RewardSearchError, match="already holds a reward search"):
-        generate_reward("Pick up the M12 nut", client, run, tiny_config(), console=quiet)
+    assert not run.exists()  # the command was never planned: no run to be refused or resumed
+    # A task id needs no model to plan: the run is recorded, then its first samples fail.
+    with pytest.raises(LLMUnavailableError):
+        generate_reward("pick_nut_m12", client, run, tiny_config(), console=quiet)
+    taken = f"{run} already holds a reward search: continue it with --resume {run} or choose"
+    with pytest.raises(RewardSearchError, match=re.escape(taken)):
+        generate_reward("pick_nut_m12", client, run, tiny_config(), console=quiet)
     with pytest.raises(RewardSearchError, match=r"other settings: samples=2 \(now 3\)"):
         generate_reward(
-            "Pick up the M12 nut", client, run, tiny_config(samples=3), resume=True, console=quiet
+            "pick_nut_m12", client, run, tiny_config(samples=3), resume=True, console=quiet
         )
     with pytest.raises(RewardSearchError, match="made with target="):
-        generate_reward("pick_nut_m12", client, run, tiny_config(), resume=True, console=quiet)
+        generate_reward("pick_nut_m16", client, run, tiny_config(), resume=True, console=quiet)
     other = CandidateNetwork(StagedActorCriticPolicy, None, "another network")
     with pytest.raises(RewardSearchError, match="made with network=None"):
-        generate_reward("Pick up the M12 nut", client, run, tiny_config(), resume=True,
+        generate_reward("pick_nut_m12", client, run, tiny_config(), resume=True,
                         console=quiet, network=other)  # fmt: skip
     with pytest.raises(RewardSearchError, match="not a reward search run"):
         generate_reward("pick_nut_m12", client, tmp_path, tiny_config(), resume=True)
@@ -157,6 +163,20 @@ def test_unknown_task_and_ungroundable_command(tmp_path: Path, quiet) -> None:
     assert not (tmp_path / "a" / "config.json").exists()  # nothing to resume: nothing written
     with pytest.raises(PlanError, match=r"Known objects: .*nut_m12"):
         generate_reward("make me a sandwich", client, tmp_path / "b", tiny_config(), console=quiet)
+    assert not (tmp_path / "b" / "config.json").exists()
+
+
+@pytest.mark.parametrize("command", ["", "  "])
+def test_an_empty_command_leaves_no_run_behind(tmp_path: Path, quiet, command: str) -> None:
+    # The run used to be recorded before the command was planned: the same --out was then
+    # refused as taken, and --resume failed on the empty command again.
+    run = tmp_path / "run"
+    client = search_client(run, "offline")
+    with pytest.raises(PlanError, match="the command is empty"):
+        generate_reward(command, client, run, tiny_config(), console=quiet)
+    assert not run.exists()
+    with pytest.raises(RewardSearchError, match="not a reward search run"):
+        generate_reward(command, client, run, tiny_config(), resume=True, console=quiet)
 
 
 def test_a_reward_repeated_in_a_later_iteration_is_not_trained_again(tmp_path: Path, quiet) -> None:

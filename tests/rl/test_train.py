@@ -272,6 +272,59 @@ def test_bad_reward_file(tmp_path: Path) -> None:
         _train(tmp_path / "run", bad, 64)
 
 
+BROKEN_REWARDS = {
+    "raises": ("raise RuntimeError('boom')", "compute_reward raised RuntimeError: boom"),
+    "returns a string": (
+        "return 'high'",
+        "compute_reward must return (total, components); got str",
+    ),
+    "returns one number": (
+        "return 1.0, {}",
+        "total has shape (); expected (2,), one per environment",
+    ),
+    "returns no components": (
+        "return ctx['time_frac'] * 0.0, None",
+        "components must be a dict; got NoneType",
+    ),
+}
+
+
+def _reward_file(directory: Path, body: str) -> Path:
+    path = directory / "my_reward.py"
+    path.write_text(f"def compute_reward(ctx):\n    {body}\n")
+    return path
+
+
+@pytest.mark.parametrize("case", list(BROKEN_REWARDS))
+def test_a_broken_reward_file_is_refused_before_training(tmp_path: Path, case: str) -> None:
+    body, problem = BROKEN_REWARDS[case]
+    reward = _reward_file(tmp_path, body)
+    with pytest.raises(RewardLoadError) as err:
+        _train(tmp_path / "run", reward, 64)
+    assert str(err.value) == f"{reward}: {problem}"
+    assert not (tmp_path / "run").exists()  # refused before anything was built or written
+
+
+def test_a_reward_file_failing_during_training_names_the_file(tmp_path: Path) -> None:
+    # Fine on the initial states it is probed on; it breaks once the episodes have begun.
+    late = "if ctx['time_frac'].max() > 0:\n        raise ValueError('late')"
+    body = f"{late}\n    return ctx['time_frac'] * 0.0, {{}}"
+    reward = _reward_file(tmp_path, body)
+    with pytest.raises(RewardLoadError) as err:
+        _train(tmp_path / "run", reward, 64)
+    assert str(err.value) == f"{reward}: compute_reward raised ValueError: late"
+
+
+def test_cli_reports_a_broken_reward_file_in_one_line(tmp_path: Path) -> None:
+    reward = _reward_file(tmp_path, BROKEN_REWARDS["raises"][0])
+    args = ["train", TASK, "--steps", "64", "--reward", str(reward), "--out", str(tmp_path / "run")]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    output = "".join(result.output.split())  # rich wraps long lines
+    assert "compute_rewardraisedRuntimeError:boom" in output and str(reward) in output
+    assert "Traceback" not in result.output
+
+
 def test_cli_train_and_eval_run_directory(tmp_path: Path, reach_reward: Path) -> None:
     out = tmp_path / "run"
     runner = CliRunner()

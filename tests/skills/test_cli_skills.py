@@ -125,6 +125,23 @@ def test_add_refuses_a_policy_trained_on_another_task(home, checkpoint):
     assert json.loads(runner.invoke(app, ["skills", "list", "--json"]).stdout) == []
 
 
+def test_add_refuses_a_skill_without_actions(home, checkpoint):
+    # Accepted before, and the analyzer then failed with a traceback on the skill as a source.
+    result = add(checkpoint, "reach_nut_m12", "--actions", " , ,")
+    assert result.exit_code == 2
+    assert "--actions" in _flat(result.output) and "needsatleastoneaction" in _flat(result.output)
+    assert json.loads(runner.invoke(app, ["skills", "list", "--json"]).stdout) == []
+
+
+def test_install_from_a_file_or_a_missing_directory_is_a_one_line_error(home, tmp_path):
+    a_file = tmp_path / "afile"
+    a_file.write_text("not a library")
+    for library in (a_file, tmp_path / "missing"):
+        result = runner.invoke(app, ["skills", "install", str(library)])
+        assert result.exit_code == 2, result.output
+        assert str(library) in _flat(result.output) and "Traceback" not in result.output
+
+
 def test_names_queries_and_messages_are_printed_as_given_not_as_markup(home, checkpoint):
     # "[/v2]" closed a tag that was never opened (a traceback after the skill was added);
     # "[bold]" vanished from the name it styled.
@@ -186,6 +203,29 @@ def test_pretrain_reports_the_seeds_it_tried(home, tmp_path, monkeypatch):
         "seed0",
         "seed1",
     ]
+
+
+def test_pretrain_exits_non_zero_when_a_skill_fails(home, tmp_path, monkeypatch):
+    # The failure was printed and the command exited 0, so a script went on as if all was well.
+    def broken(*args, **kwargs):
+        raise RuntimeError("the evaluation broke")
+
+    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", broken)
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--steps", "256", "--seeds", "1"]
+    args += ["--eval-every", "0", "--workers", "1", "--runs", str(tmp_path / "runs")]
+    result = runner.invoke(app, [*args, "--library", str(tmp_path / "library")])
+    assert result.exit_code == 1, result.output
+    assert "reach_nut_m12: failed: RuntimeError: the evaluation broke" in result.output
+    assert "1skill(s)failed:reach_nut_m12" in _flat(result.output)
+
+
+def test_pretrain_refuses_an_unknown_algorithm_before_training(home, tmp_path):
+    # It started the worker pool, whose job died with a KeyboardInterrupt traceback.
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--algo", "foo"]
+    result = runner.invoke(app, [*args, "--runs", str(tmp_path / "runs")])
+    assert result.exit_code == 2
+    assert "algomustbeoneofa2c,ppo,got'foo'" in _flat(result.output)
+    assert not (tmp_path / "runs").exists()
 
 
 def test_pretrain_refuses_a_min_success_outside_0_to_1(home, tmp_path):

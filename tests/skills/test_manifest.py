@@ -2,7 +2,9 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -15,6 +17,7 @@ from itskill.skills import (
     update_manifest,
     write_manifest,
 )
+from itskill.skills.store import SHIPPED_LIBRARY
 
 
 def entries() -> list[ManifestEntry]:
@@ -24,7 +27,7 @@ def entries() -> list[ManifestEntry]:
             task="pick_nut_m12",
             description="Pick up the M12 nut",
             actions=("approach", "grasp", "lift"),
-            checkpoint="pick_nut_m12.zip",
+            checkpoint="pick_nut_m12/policy.safetensors",
             success=0.97,
             success_ci=(0.92, 0.99),
             steps=200_000,
@@ -37,7 +40,7 @@ def entries() -> list[ManifestEntry]:
             task="insert_peg_round",
             description="Insert the round peg into the round hole",
             actions=("insert",),
-            checkpoint="sub/insert_peg_round.zip",
+            checkpoint="sub/insert_peg_round/policy.safetensors",
         ),
     ]
 
@@ -94,28 +97,62 @@ def test_bad_manifest_names_file(tmp_path):
         read_manifest(tmp_path)
 
 
+def put_policy(lib: Path, entry: ManifestEntry, task: str | None = None) -> None:
+    """A trained policy of ``task`` (default: the entry's) where ``entry`` puts its checkpoint."""
+    shutil.copytree(SHIPPED_LIBRARY / (task or entry.task), (lib / entry.checkpoint).parent)
+
+
 def test_install_requires_every_checkpoint(home, tmp_path):
     lib = tmp_path / "lib"
-    write_manifest(lib, entries())
-    (lib / "pick_nut_m12.zip").write_bytes(b"x")
+    pick, insert = entries()
+    write_manifest(lib, [pick, insert])
+    put_policy(lib, pick)
     with SkillSpace() as space:
-        with pytest.raises(ManifestError, match=r"insert_peg_round\.zip"):
+        with pytest.raises(ManifestError, match=r"insert_peg_round/policy\.safetensors"):
             install_library(space, lib)
         assert len(space) == 0  # All or nothing.
-        (lib / "sub").mkdir()
-        (lib / "sub" / "insert_peg_round.zip").write_bytes(b"x")
+        put_policy(lib, insert)
         added = install_library(space, lib)
         assert [s.name for s in added] == ["pick_nut_m12", "insert_peg_round"]
         pick = space.get("pick_nut_m12")
         assert (pick.success_ci, pick.train_steps, pick.algo) == ((0.92, 0.99), 200_000, "ppo")
-        assert pick.checkpoint == str(lib / "pick_nut_m12.zip")  # Outside the home: absolute.
+        # Outside the home: absolute.
+        assert pick.checkpoint == str(lib / "pick_nut_m12" / "policy.safetensors")
         assert install_library(space, lib) == []  # A second install adds nothing.
+
+
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
+        ({"task": "no_such_task"}, "unknown task 'no_such_task'"),
+        ({"actions": ()}, "needs at least one action"),
+        ({"actions": (" ",)}, "needs at least one action"),
+        ({"policy_of": "reach_nut_m12"}, "trained on task 'reach_nut_m12', not 'pick_nut_m12'"),
+        ({"truncate": True}, "corrupt policy weights"),
+    ],
+)
+def test_install_refuses_what_skills_add_refuses(home, tmp_path, change, problem):
+    # Each was installed and failed only at the skill's first use as a transfer source.
+    lib = tmp_path / "lib"
+    pick, insert = entries()
+    put_policy(lib, insert)
+    put_policy(lib, pick, change.pop("policy_of", None))
+    if change.pop("truncate", False):
+        weights = lib / pick.checkpoint
+        weights.write_bytes(weights.read_bytes()[:1000])
+    write_manifest(lib, [insert, replace(pick, **change)])
+    with SkillSpace() as space:
+        with pytest.raises(ManifestError, match="skill 'pick_nut_m12'") as err:
+            install_library(space, lib)
+        assert problem in str(err.value)
+        assert len(space) == 0  # the good entry is not installed either
 
 
 def test_own_library_is_stored_relative(home):
     with SkillSpace() as space:
-        write_manifest(space.library_dir, entries()[:1])
-        (space.library_dir / "pick_nut_m12.zip").write_bytes(b"x")
+        pick = entries()[0]
+        write_manifest(space.library_dir, [pick])
+        put_policy(space.library_dir, pick)
         (skill,) = install_library(space, space.library_dir)
-        assert skill.checkpoint == "pick_nut_m12.zip"
+        assert skill.checkpoint == "pick_nut_m12/policy.safetensors"
         assert space.checkpoint_path(skill).is_file()

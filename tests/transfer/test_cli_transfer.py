@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from itskill.cli import app
@@ -73,3 +74,19 @@ def test_settings_that_cannot_train_are_one_line_errors(home: Path, tmp_path: Pa
     assert pst.exit_code == 2 and "that is ITN itself" in " ".join(pst.output.split())
     for result in (bad_llm, pst):
         assert "Traceback" not in result.output
+
+
+def test_a_broken_reward_file_is_one_line_and_writes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The same check as `itskill train`: the reward file is probed before the run is recorded.
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    reward = tmp_path / "my_reward.py"
+    reward.write_text("def compute_reward(ctx):\n    return 'high'\n")
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["transfer", "train", "pick_nut_m12", "--method", "no_transfer",
+                              "--reward", str(reward), "--out", str(out)])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    problem = f"{reward}: compute_reward must return (total, components); got str"
+    assert "".join(problem.split()) in "".join(res.output.split())  # rich wraps long lines
+    assert "Traceback" not in res.output and not out.exists()

@@ -14,7 +14,7 @@ from itskill.llm.client import make_client
 from itskill.rl.checkpoint import as_policy, load_policy, read_meta
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.policy import StagedActorCriticPolicy
-from itskill.rl.train import ResumeMismatchError
+from itskill.rl.train import ResumeMismatchError, train
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import evaluate
 from itskill.transfer import (
@@ -222,3 +222,32 @@ def test_the_reward_search_network_is_the_one_the_run_then_trains(home: Path, tm
     assert search_network(TARGET, "no_transfer", tmp_path / "scratch", client=client) is None
     with pytest.raises(ResumeMismatchError, match="method="):
         search_network(TARGET, "dfs", out, SOURCES, algo="a2c", client=client)
+
+
+def _files(directory: Path) -> dict[str, bytes]:
+    return {
+        str(f.relative_to(directory)): f.read_bytes() for f in directory.rglob("*") if f.is_file()
+    }
+
+
+def test_a_refused_run_leaves_its_directory_as_it_was(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    # A plain training run of another task: the transfer run is refused, and must not leave a
+    # transfer.json claiming the directory for its own task, which would refuse the next command.
+    plain = tmp_path / "plain"
+    train("reach_nut_m12", "a2c", 16, seed=0, out=plain, num_envs=2, logger=QUIET)
+    before = _files(plain)
+    with pytest.raises(ResumeMismatchError, match="task='reach_nut_m12'"):
+        train_transfer("pick_nut_m12", "no_transfer", steps=16, out=plain, num_envs=2, logger=QUIET)
+    assert _files(plain) == before
+
+    fresh = tmp_path / "fresh"
+    with pytest.raises(ValueError, match="seed must be between 0 and"):
+        train_transfer("pick_nut_m12", "no_transfer", seed=-1, steps=16, out=fresh, num_envs=2,
+                       logger=QUIET)  # fmt: skip
+    assert not fresh.exists()
+    result = train_transfer("pick_nut_m12", "no_transfer", steps=16, out=fresh, num_envs=2,
+                            logger=QUIET)  # fmt: skip
+    assert result.num_timesteps == 16 and read_transfer(fresh)["target"] == "pick_nut_m12"

@@ -13,15 +13,17 @@ from rich.console import Console
 from rich.markup import escape
 
 from itskill.files import UNUSABLE_PATH_ERRORS, CorruptFileError, path_error_message
+from itskill.rl.train import SEED_MAX
 from itskill.tasks import TaskFileError, UnknownTaskError, render
 from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.scripted import ScriptError
 
-console = Console()
+# No emoji codes: user text such as `skill:x:` must print as typed, and escape() leaves them.
+console = Console(emoji=False)
 
 
 # Soft wrap: a long path in an error message must stay copyable, not be folded at 80 columns.
-err_console = Console(stderr=True, soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True, emoji=False)
 
 
 USAGE_ERROR = 2
@@ -40,7 +42,25 @@ PolicyOpt = Annotated[
 ]
 
 
-SeedOpt = Annotated[int, typer.Option(help="Seed of the initial-state sequence.")]
+def seed_option(help: str) -> Any:
+    """A ``--seed`` option: a non-negative integer NumPy and Stable-Baselines3 can seed with."""
+    return typer.Option(help=help, min=0, max=SEED_MAX)
+
+
+SeedOpt = Annotated[int, seed_option("Seed of the initial-state sequence.")]
+
+
+def _not_the_current_directory(value: Path | None) -> Path | None:
+    # Typer reads an empty --out (a variable that expanded to nothing) as ".", which would put
+    # the run's checkpoints and logs among the user's own files.
+    if value is not None and value.expanduser().resolve() == Path.cwd().resolve():
+        raise typer.BadParameter("name a directory for the run, not the current one")
+    return value
+
+
+def run_dir_option(help: str) -> Any:
+    """An ``--out`` option naming a run directory: anything but the current directory."""
+    return typer.Option(help=help, callback=_not_the_current_directory)
 
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
@@ -64,7 +84,17 @@ EvalEveryOpt = Annotated[
 ]
 
 
-EvalEpisodesOpt = Annotated[int, typer.Option(min=1, help="Episodes per evaluation.")]
+EPISODES_MAX = 1_000_000
+"""More episodes than any rate needs (±0.1% at 95%), and the bound keeps counts inside NumPy's
+integers."""
+
+
+def episodes_option(help: str) -> Any:
+    """An episode-count option: 1 to :data:`EPISODES_MAX`."""
+    return typer.Option(help=help, min=1, max=EPISODES_MAX)
+
+
+EvalEpisodesOpt = Annotated[int, episodes_option("Episodes per evaluation.")]
 
 
 def print_trained(what: str, result: Any) -> None:

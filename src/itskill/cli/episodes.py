@@ -17,6 +17,7 @@ from itskill.cli.common import (
     SeedOpt,
     TaskArg,
     console,
+    episodes_option,
     err_console,
     policy_ref,
     print_json,
@@ -48,7 +49,7 @@ def _print_eval(result: EvalResult, spec: TaskSpec, as_json: bool) -> None:
 def eval_cmd(
     task: TaskArg,
     policy: PolicyOpt = SCRIPTED,
-    episodes: Annotated[int, typer.Option(min=1, help="Episodes to count.")] = 100,
+    episodes: Annotated[int, episodes_option("Episodes to count.")] = 100,
     seed: SeedOpt = 0,
     num_envs: Annotated[int, typer.Option(min=1, help="Environments stepped together.")] = 16,
     starts: Annotated[
@@ -97,7 +98,7 @@ def render_cmd(
     task: TaskArg,
     out: Annotated[Path, typer.Option(help="Output video (.mp4).")],
     policy: PolicyOpt = SCRIPTED,
-    episodes: Annotated[int, typer.Option(min=1, help="Episodes to film.")] = 1,
+    episodes: Annotated[int, episodes_option("Episodes to film.")] = 1,
     seed: SeedOpt = 0,
     camera: CameraOpt = "front",
 ) -> None:
@@ -117,7 +118,7 @@ def _check_camera(camera: str) -> None:
 
 def demo(
     task: Annotated[str, typer.Option(help="A Table I task.")] = "pick_nut_m12",
-    episodes: Annotated[int, typer.Option(min=1, help="Episodes to evaluate.")] = 100,
+    episodes: Annotated[int, episodes_option("Episodes to evaluate.")] = 100,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/demo"),
     seed: SeedOpt = 0,
     camera: CameraOpt = "front",

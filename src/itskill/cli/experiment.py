@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from itskill.cli.common import USAGE_ERROR, console, err_console, user_errors
+from itskill.cli.common import USAGE_ERROR, console, err_console, run_dir_option, user_errors
 
 experiment_app = typer.Typer(
     no_args_is_help=True,
@@ -25,7 +25,7 @@ def _fail(err: BaseException) -> typer.Exit:
 def experiment_run(
     file: Annotated[Path, typer.Argument(help="Experiment file (see experiments/*.toml).")],
     out: Annotated[
-        Path | None, typer.Option(help="Run directory (default: runs/experiments/<name>).")
+        Path | None, run_dir_option("Run directory (default: runs/experiments/<name>).")
     ] = None,
     executor: Annotated[
         str | None, typer.Option(help=escape("local or ray (default: the file's [execution])."))

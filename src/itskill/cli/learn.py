@@ -8,7 +8,14 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from itskill.cli.common import USAGE_ERROR, console, err_console, user_errors
+from itskill.cli.common import (
+    USAGE_ERROR,
+    console,
+    err_console,
+    run_dir_option,
+    seed_option,
+    user_errors,
+)
 
 
 def learn_cmd(
@@ -34,9 +41,9 @@ def learn_cmd(
         ),
     ] = None,
     out: Annotated[
-        Path | None, typer.Option(help="Run directory (default: runs/learn/<command slug>).")
+        Path | None, run_dir_option("Run directory (default: runs/learn/<command slug>).")
     ] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the transfer training.")] = 0,
+    seed: Annotated[int, seed_option("Seed of the transfer training.")] = 0,
     resume: Annotated[
         bool, typer.Option("--resume", help="Continue an interrupted run in the same directory.")
     ] = False,

@@ -17,7 +17,15 @@ from rich.markup import escape
 from rich.syntax import Syntax
 from rich.table import Table
 
-from itskill.cli.common import USAGE_ERROR, JsonOpt, console, err_console, print_json, user_errors
+from itskill.cli.common import (
+    USAGE_ERROR,
+    JsonOpt,
+    console,
+    err_console,
+    print_json,
+    run_dir_option,
+    user_errors,
+)
 
 reward_app = typer.Typer(
     no_args_is_help=True,
@@ -169,7 +177,7 @@ def generate_cmd(
         ),
     ] = None,
     out: Annotated[
-        Path | None, typer.Option(help="Run directory (default runs/reward/<target>).")
+        Path | None, run_dir_option("Run directory (default runs/reward/<target>).")
     ] = None,
     resume: Annotated[
         Path | None, typer.Option(help="Continue the search in this run directory.")

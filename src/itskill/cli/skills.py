@@ -18,8 +18,11 @@ from itskill.cli.common import (
     USAGE_ERROR,
     JsonOpt,
     console,
+    episodes_option,
     err_console,
     print_json,
+    run_dir_option,
+    seed_option,
     user_errors,
 )
 from itskill.stats import format_rate_interval
@@ -173,20 +176,13 @@ def skills_add(
     steps: Annotated[int | None, typer.Option(min=0, help="Training env-steps.")] = None,
     wall_s: Annotated[float | None, typer.Option(min=0, help="Training wall seconds.")] = None,
     algo: Annotated[str | None, typer.Option(help="Algorithm, e.g. ppo or a2c.")] = None,
-    seed: Annotated[int | None, typer.Option(help="Training seed.")] = None,
+    seed: Annotated[int | None, seed_option("Training seed.")] = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Add a learned skill (its checkpoint must exist and load as a policy)."""
-    from itskill.rl.checkpoint import (
-        POLICY_FILE,
-        CheckpointError,
-        as_policy,
-        best_policy_dir,
-        policy_location,
-        read_meta,
-    )
+    from itskill.rl.checkpoint import POLICY_FILE, best_policy_dir
     from itskill.skills import Skill, open_skill_space
-    from itskill.tasks.evaluate import make_policy
+    from itskill.skills.admission import InadmissibleSkillError, check_admissible
 
     if (ci_low is None) != (ci_high is None):
         raise typer.BadParameter("give both --ci-low and --ci-high, or neither")
@@ -200,24 +196,12 @@ def skills_add(
         checkpoint = best_policy_dir(checkpoint) / POLICY_FILE
     with _skill_errors():
         spec = get_task(task)
-        if checkpoint.exists():  # a missing one is the skill space's to name
-            location = policy_location(checkpoint)
-            try:
-                # Loaded as eval and a transfer load it: a truncated or foreign file, or weights
-                # without their checkpoint.json, fail now rather than at the skill's first use.
-                make_policy(as_policy(location), spec, num_envs=1)
-                # A checkpoint directory records the task its policy learned, so a skill cannot
-                # claim another; a Stable-Baselines3 .zip records none and is taken at its word.
-                trained_on = read_meta(location)["task"] if location.is_dir() else spec.id
-            except CheckpointError as err:
-                raise typer.BadParameter(str(err), param_hint="--checkpoint") from err
-            if trained_on != spec.id:
-                raise typer.BadParameter(
-                    f"the policy was trained on task {trained_on!r}, not {spec.id!r}; "
-                    "give --task the task it solves",
-                    param_hint="--checkpoint",
-                )
         acts = spec.actions if actions is None else tuple(a.strip() for a in actions.split(","))
+        try:
+            check_admissible(spec.id, checkpoint, acts)
+        except InadmissibleSkillError as err:
+            hint = "--checkpoint" if checkpoint.exists() and any(acts) else "--actions"
+            raise typer.BadParameter(str(err), param_hint=hint) from err
         skill = Skill(
             name=name or spec.id,
             task_id=spec.id,
@@ -261,7 +245,7 @@ def skills_install(
     """Register every skill of a library directory (skipping names already present)."""
     from itskill.skills import install_library, open_skill_space
 
-    with _skill_errors(), open_skill_space() as space:
+    with user_errors(), _skill_errors(), open_skill_space() as space:
         added = install_library(space, library)
     if as_json:
         print_json([s.to_dict() for s in added])
@@ -287,7 +271,7 @@ def skills_pretrain(
         ),
     ] = None,
     algo: Annotated[str, typer.Option(help="a2c or ppo.")] = "ppo",
-    seed: Annotated[int, typer.Option(help="The first seed each skill tries.")] = 0,
+    seed: Annotated[int, seed_option("The first seed each skill tries.")] = 0,
     seeds: Annotated[
         int,
         typer.Option(
@@ -298,7 +282,7 @@ def skills_pretrain(
     ] = 3,
     episodes: Annotated[
         int | None,
-        typer.Option(min=1, help="Held-out evaluation episodes per skill (default: 400)."),
+        episodes_option("Held-out evaluation episodes per skill (default: 400)."),
     ] = None,
     eval_every: Annotated[
         int,
@@ -310,10 +294,9 @@ def skills_pretrain(
     ] = 50_000,
     eval_episodes: Annotated[
         int | None,
-        typer.Option(
-            min=1,
-            help="Episodes of each evaluation during training (--eval-every), which chooses "
-            "the policy exported (default: 50).",
+        episodes_option(
+            "Episodes of each evaluation during training (--eval-every), which chooses "
+            "the policy exported (default: 50)."
         ),
     ] = None,
     min_success: Annotated[
@@ -328,7 +311,7 @@ def skills_pretrain(
         ),
     ] = None,
     ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,
-    runs: Annotated[Path, typer.Option(help="Training run directories (resumable).")] = Path(
+    runs: Annotated[Path, run_dir_option("Training run directories (resumable).")] = Path(
         "runs/pretrain"
     ),
     library: Annotated[
@@ -402,8 +385,11 @@ def skills_pretrain(
     except ValueError as err:  # the config validates what the options' ranges cannot say
         raise typer.BadParameter(str(err)) from err
 
+    failed: list[str] = []
+
     def report(task: str, entry, added: bool, error) -> None:
         if error is not None:
+            failed.append(task)
             console.print(
                 f"[red]{escape(f'{task}: failed: {type(error).__name__}: {error}')}[/red]"
             )
@@ -454,3 +440,10 @@ def skills_pretrain(
         except ExecutorError as err:
             console.print(f"[red]{escape(str(err))}[/red]")
             raise typer.Exit(2) from err
+    if failed:
+        err_console.print(
+            f"[red]error:[/red] {len(failed)} skill(s) failed: {escape(', '.join(failed))}; "
+            "the same command tries them again, from their last checkpoints",
+            highlight=False,
+        )
+        raise typer.Exit(1)

@@ -16,6 +16,8 @@ from itskill.cli.common import (
     console,
     err_console,
     print_trained,
+    run_dir_option,
+    seed_option,
     user_errors,
 )
 
@@ -24,11 +26,11 @@ def train_cmd(
     task: TaskArg,
     algo: Annotated[str, typer.Option(help="a2c (the paper's algorithm) or ppo.")] = "ppo",
     steps: Annotated[int, typer.Option(min=1, help="Total env-steps (a rerun resumes).")] = 100_000,
-    seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
+    seed: Annotated[int, seed_option("Seed of the run.")] = 0,
     reward: Annotated[
         str, typer.Option(help="'expert' or a .py file defining compute_reward(ctx).")
     ] = "expert",
-    out: Annotated[Path, typer.Option(help="Run directory (checkpoints, metrics).")] = Path(
+    out: Annotated[Path, run_dir_option("Run directory (checkpoints, metrics).")] = Path(
         "runs/train"
     ),
     num_envs: Annotated[

@@ -22,9 +22,12 @@ from itskill.cli.common import (
     JsonOpt,
     TaskArg,
     console,
+    episodes_option,
     err_console,
     print_json,
     print_trained,
+    run_dir_option,
+    seed_option,
     user_errors,
 )
 
@@ -58,6 +61,7 @@ ConfigOpt = Annotated[
 def transfer_errors() -> Iterator[None]:
     """Errors in the user's input or environment: a red one-line message and exit code 2."""
     from itskill.llm.client import LLMError
+    from itskill.llm.prompts import PromptError
     from itskill.rl.config import HyperparamError
     from itskill.rl.train import ResumeMismatchError, RewardLoadError
     from itskill.skills import SkillSpaceError
@@ -71,6 +75,7 @@ def transfer_errors() -> Iterator[None]:
         TransferConfigError,
         SkillSpaceError,
         LLMError,
+        PromptError,  # a skill added before skills had to name an action
         HyperparamError,
         RewardLoadError,
         ResumeMismatchError,
@@ -98,7 +103,7 @@ def transfer_train(
     method: Annotated[str, typer.Option(help="itn, nia, dfs, pst or no_transfer.")] = "itn",
     sources: SourcesOpt = "auto",
     k: KOpt = None,
-    seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
+    seed: Annotated[int, seed_option("Seed of the run.")] = 0,
     steps: Annotated[int, typer.Option(min=1, help="Total env-steps (a rerun resumes).")] = 200_000,
     algo: Annotated[
         str, typer.Option(help="ppo, or a2c (the paper's algorithm; it learns less from sources).")
@@ -106,7 +111,7 @@ def transfer_train(
     reward: Annotated[
         str, typer.Option(help="'expert' or a .py file defining compute_reward(ctx).")
     ] = "expert",
-    out: Annotated[Path, typer.Option(help="Run directory.")] = Path("runs/transfer"),
+    out: Annotated[Path, run_dir_option("Run directory.")] = Path("runs/transfer"),
     num_envs: Annotated[
         int | None, typer.Option(min=1, help="Environments stepped together.")
     ] = None,
@@ -191,8 +196,8 @@ def transfer_analyze(
 @transfer_app.command("trace")
 def transfer_trace(
     run_dir: Annotated[Path, typer.Argument(help="A transfer run directory (itn, pst, nia).")],
-    episodes: Annotated[int, typer.Option(min=1, help="Deterministic episodes.")] = 1,
-    seed: Annotated[int, typer.Option(help="Seed of the initial states.")] = 0,
+    episodes: Annotated[int, episodes_option("Deterministic episodes.")] = 1,
+    seed: Annotated[int, seed_option("Seed of the initial states.")] = 0,
     as_json: JsonOpt = False,
 ) -> None:
     """The contribution weights W at every step of an episode of a trained transfer policy."""

@@ -15,12 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
+from itskill.errors import PicklableError
 from itskill.stats import mean_interval, ratio_interval, steps_to_threshold
 
 EVAL_FILE = "eval.csv"
 
 
-class CurveError(ValueError):
+class CurveError(PicklableError, ValueError):
     """An evaluation file that cannot be read as a learning curve: names the file and problem."""
 
     def __init__(self, path: str | Path, problem: str) -> None:

@@ -6,7 +6,7 @@ problem is reported with the file, the field and what was expected, before any t
 Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but ``tasks``,
 ``methods``, ``steps`` and ``eval.every`` has a default)::
 
-    name, description
+    name (default: the file's stem; a plain directory name), description
     tasks = [task ids]           methods = [itn, nia, dfs, pst, no_transfer]
     seeds = 5 | [0, 1, ...]      algo = "a2c" | "ppo"       steps = env-steps per cell
     num_envs = N                 (default: the family's, from the hyper-parameter table)
@@ -166,6 +166,20 @@ def _strings(path: Path, where: str, value: Any) -> tuple[str, ...]:
     return tuple(items)
 
 
+def _name(path: Path, value: Any) -> str:
+    """The experiment's name, which names its run directory (``runs/experiments/<name>``): one
+    plain directory name, so that no name puts the run outside that folder or over the cwd."""
+    name = _typed(path, "name", value, str)
+    if not name.strip() or name == "." or any(bad in name for bad in ("/", "\\", "..")):
+        raise ExperimentConfigError(
+            path,
+            "name",
+            f"expected a plain, non-empty name (it names the run directory) without '/', '\\' "
+            f"or '..', got {name!r}",
+        )
+    return name
+
+
 def _per_task(
     path: Path, where: str, value: Any, tasks: tuple[str, ...], default: Any
 ) -> dict[str, Any]:
@@ -255,7 +269,7 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
     report = _parse_report(path, raw.get("report", {}), methods, tasks)
     execution = _parse_execution(path, raw.get("execution", {}))
     return ExperimentConfig(
-        name=_typed(path, "name", raw.get("name", path.stem), str),
+        name=_name(path, raw.get("name", path.stem)),
         description=_typed(path, "description", raw.get("description", ""), str),
         tasks=tasks,
         methods=methods,

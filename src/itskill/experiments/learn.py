@@ -219,6 +219,8 @@ class _Steps:
 
 
 def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> None:
+    """Record ``settings`` in ``run_dir``; :class:`LearnError` when it holds a learn run and
+    ``resume`` is not given, one with other settings, or, with ``resume``, no learn run."""
     path = run_dir / LEARN_FILE
     if path.is_file():
         if not resume:
@@ -233,8 +235,19 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
                     f"{run_dir} was started with {key}={old.get(key)!r}, this call gives "
                     f"{value!r}; resume with the same settings or use another --out"
                 )
-    elif resume and run_dir.is_dir() and any(run_dir.iterdir()):
-        raise LearnError(f"{run_dir} is not a learn run directory (no {LEARN_FILE})")
+    elif resume:
+        # Starting afresh instead would spend hours where a continuation was asked for: a
+        # mistyped --out must be said, as `experiment run --resume` says it.
+        if not run_dir.exists():
+            why = "no such directory"
+        elif run_dir.is_dir() and not any(run_dir.iterdir()):
+            why = "the directory is empty"
+        else:
+            why = f"no {LEARN_FILE}"
+        raise LearnError(
+            f"nothing to resume: there is no learn run in {run_dir} ({why}); give the run's "
+            "--out, or leave out --resume to start a new run"
+        )
     write_json(path, settings)
 
 
@@ -257,7 +270,9 @@ def learn(
     adding the skill; ``llm`` is ``"offline"`` (the default, no network) or ``"openai:MODEL"``.
     """
     from itskill.llm import make_client
+    from itskill.reward import check_command
 
+    check_command(command)  # before the slug: an empty command would be said to have no letters
     console = console or Console()
     budgets = load_budgets(budgets_file)
     if budget not in budgets:

@@ -23,6 +23,7 @@ _EXPORTS = {
     "CandidateNetwork": "candidate",
     "PlanError": "plan",
     "TaskPlan": "plan",
+    "check_command": "plan",
     "plan_command": "plan",
     "plan_for_task": "plan",
     "task_catalogue": "plan",

@@ -12,6 +12,7 @@ A task id needs no model: :func:`plan_for_task` writes the plan straight from th
 
 from __future__ import annotations
 
+import difflib
 import json
 import re
 import sys
@@ -34,13 +35,20 @@ else:  # pragma: no cover
 PLAN_ATTEMPTS = 3
 """How many replies the planner asks for before giving up on a command."""
 
+LIST_TASKS = "`itskill tasks list`"
+"""The command that lists every task, which an error points to instead of listing them all."""
+CLOSEST_TASKS = 3
+CLOSEST_CUTOFF = 0.5
+"""How alike (difflib's ratio) a task's command must be to the user's to be suggested: below it,
+"make me a sandwich" would be offered "Grasp the round peg" as its closest task."""
+
 _HOLDING_AFTER = {"grasp", "lift", "carry"}
 _RELEASED_AFTER = {"place", "insert", "release", "screw"}
 
 
 class PlanError(ValueError):
-    """A command that cannot be grounded in the scene; the message says why and lists what is
-    known (tasks and objects)."""
+    """A command that cannot be grounded in the scene; the message says why, names the closest
+    tasks and how to list them all."""
 
 
 @dataclass(frozen=True)
@@ -169,15 +177,25 @@ def plan_for_task(task_id: str) -> TaskPlan:
     )
 
 
+def check_command(command: str) -> None:
+    """:class:`PlanError` for an empty or blank command, with an example of a good one."""
+    if not command.strip():
+        example = next(t.command for t in all_tasks().values() if t.table_i)
+        raise PlanError(
+            f'the command is empty: say what the robot should do, e.g. "{example}", or give a '
+            f"task id ({LIST_TASKS} lists them)"
+        )
+
+
 def plan_command(command: str, client: LLMClient, attempts: int = PLAN_ATTEMPTS) -> TaskPlan:
     """Plan ``command`` with ``client``; re-ask up to ``attempts`` times while the reply is invalid.
 
-    Raises :class:`PlanError` when the model says the command cannot be grounded in the scene, or
-    gives no valid plan in ``attempts`` replies; the message lists the known tasks and objects.
+    Raises :class:`PlanError` for an empty command, when the model says the command cannot be
+    grounded in the scene, or gives no valid plan in ``attempts`` replies; the message names the
+    closest tasks and how to list them all.
     """
+    check_command(command)
     command = " ".join(command.split())
-    if not command:
-        raise PlanError("empty command: say what the robot should do. " + known_text())
     messages: list[Message] = planner_messages(command, task_catalogue())
     problem = ""
     for _ in range(attempts):
@@ -186,7 +204,8 @@ def plan_command(command: str, client: LLMClient, attempts: int = PLAN_ATTEMPTS)
             data = parse_json_reply(reply)
             if "error" in data:
                 raise PlanError(
-                    f"cannot plan {command!r} ({client.name}): {data['error']}. " + known_text()
+                    f"cannot plan {command!r} ({client.name}): {data['error']}. "
+                    + known_text(command)
                 )
             return validate_plan(command, data)
         except _InvalidPlan as err:
@@ -198,7 +217,7 @@ def plan_command(command: str, client: LLMClient, attempts: int = PLAN_ATTEMPTS)
         ]
     raise PlanError(
         f"no valid plan for {command!r} from {client.name} in {attempts} replies; "
-        f"the last one: {problem}. " + known_text()
+        f"the last one: {problem}. " + known_text(command)
     )
 
 
@@ -274,13 +293,20 @@ def validate_plan(command: str, data: dict[str, Any]) -> TaskPlan:
     )
 
 
-def known_text() -> str:
-    """The tasks and objects the planner can ground a command in, for error messages."""
-    tasks = all_tasks().values()
+def known_text(command: str) -> str:
+    """What an error about ``command`` says is known: the objects and fixtures, the tasks whose
+    commands are closest to it, and how to list every task (the full list is thousands of
+    characters, too long for an error line)."""
+    tasks = list(all_tasks().values())
     objects = sorted({o.name for t in tasks for o in t.objects})
     fixtures = sorted({f.part.name for t in tasks for f in t.fixtures})
-    listing = "; ".join(f"{t.id} ({t.command})" for t in tasks)
+    by_command = {t.command.lower(): t for t in tasks}
+    close = difflib.get_close_matches(
+        command.lower(), list(by_command), n=CLOSEST_TASKS, cutoff=CLOSEST_CUTOFF
+    )
+    closest = "; ".join(f"{by_command[c].id} ({by_command[c].command})" for c in close)
     return (
         f"Known objects: {', '.join(objects)}; fixtures: {', '.join(fixtures)}. "
-        f"Known tasks: {listing}."
+        + (f"Closest tasks: {closest}. " if closest else "")
+        + f"{LIST_TASKS} shows all {len(tasks)} tasks."
     )

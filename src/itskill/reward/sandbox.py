@@ -39,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from itskill.reward_contract import RewardOutputError, check_reward_output
+
 FILENAME = "<reward>"
 
 
@@ -522,7 +524,10 @@ class SandboxedReward:
     def __call__(self, ctx: Mapping[str, Any]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         n = int(np.asarray(ctx["ee_pos"]).shape[0])
         result = _run(self._fn, _read_only(ctx), timeout=self.config.call_timeout_s)
-        return validate_output(result, n)
+        try:
+            return check_reward_output(result, n)
+        except RewardOutputError as err:
+            raise SandboxError(str(err)) from err
 
     def __getstate__(self) -> dict[str, Any]:
         # The function cannot be pickled; the source can, and is re-checked on arrival.
@@ -531,37 +536,6 @@ class SandboxedReward:
     def __setstate__(self, state: dict[str, Any]) -> None:
         other = compile_reward(state["source"], state["config"])
         self.__dict__.update(other.__dict__)
-
-
-def _finite_vector(value: Any, n: int, what: str) -> np.ndarray:
-    try:
-        array = np.array(value, dtype=np.float64)  # a copy: never a view of the context
-    except (TypeError, ValueError) as err:
-        raise SandboxError(f"{what} is not numeric: {type(value).__name__}") from err
-    if array.shape != (n,):
-        raise SandboxError(f"{what} has shape {array.shape}; expected ({n},), one per environment")
-    if not np.all(np.isfinite(array)):
-        bad = int(np.sum(~np.isfinite(array)))
-        raise SandboxError(f"{what} has {bad} non-finite value(s) (nan or inf)")
-    return array
-
-
-def validate_output(result: Any, n: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """``(total, components)`` checked and converted to float64, or :class:`SandboxError`."""
-    if not isinstance(result, tuple) or len(result) != 2:
-        raise SandboxError(
-            f"compute_reward must return (total, components); got {type(result).__name__}"
-        )
-    total, components = result
-    total = _finite_vector(total, n, "total")
-    if not isinstance(components, dict):
-        raise SandboxError(f"components must be a dict; got {type(components).__name__}")
-    checked = {}
-    for key, value in components.items():
-        if not isinstance(key, str):
-            raise SandboxError(f"component names must be strings; got {key!r}")
-        checked[key] = _finite_vector(value, n, f"components[{key!r}]")
-    return total, checked
 
 
 def compile_reward(source: str, config: SandboxConfig | None = None) -> SandboxedReward:

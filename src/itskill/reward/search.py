@@ -282,13 +282,15 @@ def plan_target(target: str, client: LLMClient) -> TaskPlan:
     return plan_for_task(task) if task is not None else plan_command(target, client)
 
 
-def _plan(target: str, client: LLMClient, out: Path, plan: TaskPlan | None) -> TaskPlan:
+def _plan(
+    target: str, client: LLMClient, out: Path, plan: TaskPlan | None, resume: bool
+) -> TaskPlan:
+    """The search's plan: a resumed run's stored one, else ``plan``, else a new one. Writes
+    nothing: a fresh run records it only once the run itself is recorded."""
     path = out / PLAN_FILE
-    if path.is_file():
+    if resume and path.is_file():
         return TaskPlan.from_dict(read_json(path), where=str(path))
-    plan = plan or plan_target(target, client)
-    write_json(path, plan.to_dict())
-    return plan
+    return plan or plan_target(target, client)
 
 
 def _write_sample(sample_dir: Path, sample: Sample) -> None:
@@ -450,9 +452,13 @@ def generate_reward(
     elif (out / CONFIG_FILE).exists():
         raise RewardSearchError(
             f"{out} already holds a reward search: continue it with --resume {out} "
-            "(resume=True) or choose another --out"
+            "or choose another --out"
         )
-    else:
+    run = _Run(out, client, console)  # its clock starts here, so the planning counts
+    # Planned before anything is written: a command the planner refuses must leave no run behind,
+    # or the same --out would be refused as taken and --resume would fail on it again.
+    plan = _plan(target, client, out, plan, resume)
+    if not resume:
         write_json(
             out / CONFIG_FILE,
             {
@@ -463,12 +469,12 @@ def generate_reward(
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             },
         )
-    with _Run(out, client, console) as run:  # its usage is saved however the search ends
+    write_json(out / PLAN_FILE, plan.to_dict())
+    with run:  # its usage is saved however the search ends
         backend = f"{client.name}: {OFFLINE_NOTE}" if client.offline else client.name
         console.print(f"reward search in {out} with {backend}", highlight=False)
         if network is not None:
             console.print(f"candidates train {network.label}", highlight=False)
-        plan = _plan(target, client, out, plan)
         run.save_usage()
         console.print(f"plan: task {plan.task}; " + " ".join(plan.subtasks), highlight=False)
 

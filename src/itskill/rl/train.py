@@ -28,7 +28,9 @@ from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from itskill.datafile import read_toml
+from itskill.errors import PicklableError
 from itskill.files import write_json
+from itskill.reward_contract import RewardOutputError, check_reward_output
 from itskill.rl.checkpoint import (
     BEST_DIR,
     MODEL_FILE,
@@ -55,16 +57,22 @@ from itskill.rl.init_policy import (
 )
 from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
 from itskill.rl.policy import StagedActorCriticPolicy
-from itskill.sim.task import RewardFn
+from itskill.sim.task import Context, RewardFn
 from itskill.tasks import get_task, make_batch_env
 from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.spec import TaskSpec
 
 ALGO_CLASSES: dict[str, type[BaseAlgorithm]] = {"a2c": A2C, "ppo": PPO}
 EXPERT = "expert"
+SEED_MAX = 2**32 - 1
+"""The largest seed a run takes: NumPy's legacy seeding, which Stable-Baselines3 uses, stops
+there."""
+_PROBE_ENVS = 2
+"""Environments a reward file is probed on: more than one, so a total that is a single number
+instead of one per environment is caught."""
 
 
-class RewardLoadError(ValueError):
+class RewardLoadError(PicklableError, ValueError):
     """A reward file that cannot be used: names the file and the problem."""
 
     def __init__(self, path: str | Path, problem: str) -> None:
@@ -130,7 +138,10 @@ def load_reward(
     a :class:`RewardSource` is used as given (generated rewards arrive this way, already
     sandboxed). Anything else is a path to a Python file defining ``compute_reward(ctx) -> (total,
     components)``, executed as plain Python in this process: a file the user wrote is trusted like
-    any script they run; generated code goes through :mod:`itskill.reward.sandbox` instead.
+    any script they run; generated code goes through :mod:`itskill.reward.sandbox` instead. The
+    file's function is called once on a batch of ``spec``'s initial states here, and its results
+    are checked at every call: an exception it raises or a result of the wrong shape or type is a
+    :class:`RewardLoadError` naming the file.
     """
     if isinstance(reward, RewardSource):
         return reward.fn, dict(reward.meta)
@@ -149,7 +160,41 @@ def load_reward(
     fn = namespace.get("compute_reward")
     if not callable(fn):
         raise RewardLoadError(path, "defines no function compute_reward(ctx)")
-    return fn, {"kind": "file", "path": str(path.resolve()), "sha256": _sha256(source)}
+    checked = _FileReward(fn, path)
+    _probe(checked, spec)
+    return checked, {"kind": "file", "path": str(path.resolve()), "sha256": _sha256(source)}
+
+
+class _FileReward:
+    """A reward file's ``compute_reward`` whose every failure names the file: an exception it
+    raises, or a result that is not ``(total[N], {component: [N]})`` with finite values, is a
+    :class:`RewardLoadError` instead of a traceback from deep in the simulator."""
+
+    def __init__(self, fn: RewardFn, path: Path) -> None:
+        self.fn, self.path = fn, path
+
+    def __call__(self, ctx: Context) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        try:
+            result = self.fn(ctx)
+        except Exception as err:
+            raise RewardLoadError(
+                self.path, f"compute_reward raised {type(err).__name__}: {err}"
+            ) from err
+        try:
+            return check_reward_output(result, len(ctx["ee_pos"]))
+        except RewardOutputError as err:
+            raise RewardLoadError(self.path, str(err)) from err
+
+
+def _probe(reward: _FileReward, spec: TaskSpec) -> None:
+    """Call ``reward`` once on a few of ``spec``'s initial states, so that a broken file fails
+    before anything is built or written, not at the first training step."""
+    env = make_batch_env(spec, _PROBE_ENVS, seed=0)
+    try:
+        env.reset()
+        reward(env.context())
+    finally:
+        env.close()
 
 
 def _sha256(data: bytes) -> str:
@@ -285,11 +330,58 @@ def train(
     observation normaliser keeps the statistics it came with, and the starting policy is
     evaluated at env-step 0, so the best policy kept is never worse than the one it started from.
     """
-    torch.set_num_threads(1)
+    setup = check_training(
+        task, algo, steps, seed, reward, out, num_envs, hyperparams, overrides, policy_class, init
+    )
+    return run_training(setup, policy_kwargs, logger, n_threads, console, eval_every, eval_episodes)
+
+
+@dataclass(frozen=True)
+class TrainSetup:
+    """A run :func:`check_training` accepted, checked against its run directory: what
+    :func:`run_training` trains."""
+
+    spec: TaskSpec
+    algo: str
+    steps: int
+    seed: int
+    run_dir: Path
+    hp: Hyperparams
+    reward_fn: RewardFn
+    meta: dict[str, Any]
+    """What the run's checkpoints record."""
+    policy_class: type[ActorCriticPolicy]
+    previous: dict[str, Any] | None
+    """The checkpoint metadata of the run resumed from ``run_dir``; None for a new run."""
+
+
+def check_training(
+    task: str,
+    algo: str = "ppo",
+    steps: int = 100_000,
+    seed: int = 0,
+    reward: str | Path | RewardSource = EXPERT,
+    out: str | Path = Path("runs/train"),
+    num_envs: int | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    policy_class: type[ActorCriticPolicy] = StagedActorCriticPolicy,
+    init: str | Path | None = None,
+) -> TrainSetup:
+    """Everything :func:`train` checks before it builds or writes anything (its arguments are
+    :func:`train`'s): the settings, the reward (a reward file is probed, see :func:`load_reward`)
+    and the run ``out`` may already hold, which must be the same run
+    (:class:`ResumeMismatchError`) and resumable (:class:`CheckpointError`).
+
+    It only reads, so a refused run leaves ``out`` as it was: a caller that writes into ``out``
+    before training (a transfer run's record) checks first.
+    """
     if algo not in ALGO_CLASSES:
         raise HyperparamError("algo", "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
     if steps < 1:
         raise ValueError(f"steps must be positive, got {steps}")
+    if not 0 <= seed <= SEED_MAX:
+        raise ValueError(f"seed must be between 0 and {SEED_MAX}, got {seed}")
     spec = get_task(task)
     run_dir = Path(out)
     ov = dict(overrides or {})
@@ -331,18 +423,34 @@ def train(
     }
     if init is not None:
         meta["init"] = describe_init(init)
-    keep_obs_stats = bool(hp.demos.episodes) or init is not None
+    previous = None
+    if (run_dir / "checkpoint.json").exists():
+        previous = read_meta(run_dir)
+        _check_resume(previous, meta, run_dir)
+        if not (run_dir / MODEL_FILE).is_file():
+            raise CheckpointError(
+                run_dir / MODEL_FILE, "missing: cannot resume training without it"
+            )
+    return TrainSetup(spec, algo, steps, seed, run_dir, hp, reward_fn, meta, policy_class, previous)
 
-    resumed_from = 0
-    old: dict[str, Any] = {}
+
+def run_training(
+    setup: TrainSetup,
+    policy_kwargs: Mapping[str, Any] | None = None,
+    logger: LoggerConfig | None = None,
+    n_threads: int | None = None,
+    console: Console | None = None,
+    eval_every: int | None = None,
+    eval_episodes: int = 50,
+) -> TrainResult:
+    """Train the run :func:`check_training` accepted; the other arguments are :func:`train`'s."""
+    torch.set_num_threads(1)
+    spec, hp, meta, run_dir = setup.spec, setup.hp, setup.meta, setup.run_dir
+    algo, seed, steps = setup.algo, setup.seed, setup.steps
+    resuming, old = setup.previous is not None, setup.previous or {}
+    resumed_from = int(old["num_timesteps"]) if resuming else 0
     model_path = run_dir / MODEL_FILE
-    resuming = (run_dir / "checkpoint.json").exists()
-    if resuming:
-        old = read_meta(run_dir)
-        _check_resume(old, meta, run_dir)
-        if not model_path.is_file():
-            raise CheckpointError(model_path, "missing: cannot resume training without it")
-        resumed_from = int(old["num_timesteps"])
+    keep_obs_stats = bool(hp.demos.episodes) or "init" in meta
 
     # A resumed run draws fresh initial states, not a replay of the first ones.
     env_seed = int(np.random.SeedSequence([seed, resumed_from]).generate_state(1)[0])
@@ -350,7 +458,7 @@ def train(
         spec.id,
         hp.num_envs,
         seed=env_seed,
-        reward_fn=reward_fn,
+        reward_fn=setup.reward_fn,
         n_threads=n_threads,
         training=True,
     )
@@ -390,7 +498,7 @@ def train(
         else:
             set_random_seed(seed)
             model = cls(
-                policy_class,
+                setup.policy_class,
                 train_env,
                 policy_kwargs={**hp.policy.policy_kwargs(), **dict(policy_kwargs or {})},
                 seed=seed,
@@ -410,7 +518,7 @@ def train(
                     f"warm start: {summary['episodes_kept']} of {summary['episodes_run']} "
                     f"demonstrations kept, clone fitted in {summary['wall_s']:.0f} s"
                 )
-            if init is not None:
+            if "init" in meta:
                 init_policy(model.policy, meta["init"])
                 note(
                     f"starting from {meta['init']['path']}: fitting the critic to "

@@ -27,7 +27,9 @@ from typing import Any
 from filelock import FileLock
 
 from itskill.files import write_text
+from itskill.skills.admission import InadmissibleSkillError, check_admissible
 from itskill.skills.store import Skill, SkillSpace, SkillSpaceError
+from itskill.tasks import UnknownTaskError
 
 MANIFEST_NAME = "manifest.json"
 MANIFEST_FORMAT = 1
@@ -187,11 +189,15 @@ def install_library(
     library_dir: Path | str,
     skip_existing: bool = True,
     only: Collection[str] | None = None,
+    check: bool = True,
 ) -> list[Skill]:
     """Register the manifest entries of ``library_dir`` in ``space`` (those named in ``only``, if
     given); returns the added skills.
 
     Every checkpoint must exist, or nothing is installed and the error names each missing file.
+    With ``check``, every entry to add must also pass
+    :func:`~itskill.skills.admission.check_admissible` (its task known, its checkpoint a policy
+    of that task, an action named), or nothing is installed and the error names the entry.
     Entries whose name is already in the space are skipped when ``skip_existing`` (so installing
     twice, or from two processes opening a new space at once, is harmless). Checkpoints are
     stored as :meth:`SkillSpace.checkpoint_ref` says: relative inside the space's own library
@@ -207,9 +213,11 @@ def install_library(
             + ", ".join(missing)
         )
     existing = {s.name for s in space.list()} if skip_existing else set()
-    todo = [
-        e.to_skill(space.checkpoint_ref(library_dir / e.checkpoint))
-        for e in entries
-        if e.name not in existing
-    ]
+    entries = [e for e in entries if e.name not in existing]
+    for e in entries if check else ():
+        try:
+            check_admissible(e.task, library_dir / e.checkpoint, e.actions)
+        except (InadmissibleSkillError, UnknownTaskError) as err:
+            raise ManifestError(f"{library_dir / MANIFEST_NAME}: skill {e.name!r}: {err}") from err
+    todo = [e.to_skill(space.checkpoint_ref(library_dir / e.checkpoint)) for e in entries]
     return space.add_many(todo, on_conflict="skip" if skip_existing else "error")

@@ -38,6 +38,7 @@ from itskill.rl.checkpoint import (
     best_policy_dir,
     export_policy,
 )
+from itskill.rl.config import ALGOS
 from itskill.rl.demos import read_demo_summary
 from itskill.rl.init_policy import CRITIC_WARM_UP_FILE
 from itskill.rl.train import TrainResult, train
@@ -102,6 +103,8 @@ class PretrainConfig:
     91.5% against 92.5% on 400 others (docs/skills.md, "Twenty-first pretraining")."""
 
     def __post_init__(self) -> None:
+        if self.algo not in ALGOS:  # checked here, not in each worker after the pool started
+            raise ValueError(f"algo must be one of {', '.join(ALGOS)}, got {self.algo!r}")
         if self.seeds < 1:
             raise ValueError(f"seeds must be at least 1, got {self.seeds}")
         if self.select_episodes < 1:

@@ -30,6 +30,8 @@ from typing import Any, Concatenate, Literal, ParamSpec, TypeVar
 
 import numpy as np
 
+from itskill.errors import PicklableError
+
 HOME_ENV = "ITSKILL_HOME"
 EMBEDDING_DIM = 384
 # The pretrained library inside the installed package. Its checkpoints are stored as
@@ -81,7 +83,7 @@ def itskill_home() -> Path:
 
 
 # ---------------------------------------------------------------------------- errors
-class SkillSpaceError(RuntimeError):
+class SkillSpaceError(PicklableError, RuntimeError):
     """Any problem with the skill database that the user has to act on."""
 
 

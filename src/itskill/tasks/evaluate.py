@@ -17,6 +17,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from stable_baselines3 import A2C, PPO
 
+from itskill.errors import PicklableError
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.stats import wilson_interval
 from itskill.tasks import make_batch_env
@@ -52,7 +53,7 @@ class RandomPolicy:
         return self.rng.uniform(-1.0, 1.0, (len(ctx["ee_pos"]), 5))
 
 
-class CheckpointError(ValueError):
+class CheckpointError(PicklableError, ValueError):
     """A policy checkpoint that is missing, unreadable or does not fit the observation layout."""
 
     def __init__(self, path: str | Path, problem: str) -> None:
@@ -94,7 +95,9 @@ def _load_sb3(path: Path) -> Any:
         )
     if not path.is_file():
         raise CheckpointError(
-            path, f"no such checkpoint file (expected {SCRIPTED!r} or a Stable-Baselines3 .zip)"
+            path,
+            f"no such file or directory (expected {SCRIPTED!r}, a training run directory, "
+            "skill:NAME or a Stable-Baselines3 .zip)",
         )
     if not zipfile.is_zipfile(path):
         raise CheckpointError(path, "not a Stable-Baselines3 checkpoint (not a zip archive)")

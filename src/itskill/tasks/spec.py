@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from itskill.datafile import DataFileError, read_toml
+from itskill.errors import PicklableError
 from itskill.sim.context import max_grip_offset
 from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec, PlacedFixture
 from itskill.sim.scene import SceneSpec
@@ -38,7 +39,7 @@ class TaskFileError(DataFileError):
     """A task or parts file that does not validate: names the file, the field and the problem."""
 
 
-class UnknownTaskError(KeyError):
+class UnknownTaskError(PicklableError, KeyError):
     """A task name that no task file defines."""
 
     def __init__(self, name: str, known: list[str]) -> None:

@@ -1,11 +1,13 @@
 """Train a target task with a transfer method: sources, analyzer, network, then the trainer.
 
-:func:`train_transfer` resolves the sources, asks the analyzer for the contribution matrix (the
-methods that use it), writes ``transfer.json`` and hands the method's policy class to
-:func:`itskill.rl.train.train`, which checkpoints and resumes as usual. ``transfer.json`` is written
-before training starts and read back by a rerun on the same directory, which then resumes with the
-same sources and matrix without asking the analyzer again. A run evaluated while it trained gets
-a copy in its ``best/`` policy too, so that directory describes itself.
+:func:`train_transfer` has the trainer check the run first (:func:`itskill.rl.train.check_training`:
+the settings, the reward, a run already in the directory), then resolves the sources, asks the
+analyzer for the contribution matrix (the methods that use it), writes ``transfer.json`` and trains
+the method's network with :func:`itskill.rl.train.run_training`, which checkpoints and resumes as
+usual. A refused run thus writes nothing. ``transfer.json`` is read back by a rerun on the same
+directory, which then resumes with the same sources and matrix without asking the analyzer again.
+A run evaluated while it trained gets a copy in its ``best/`` policy too, so that directory
+describes itself.
 """
 
 from __future__ import annotations
@@ -25,13 +27,20 @@ from itskill.llm.client import LLMClient
 from itskill.reward.candidate import CandidateNetwork
 from itskill.rl.checkpoint import BEST_DIR, CheckpointError, class_path
 from itskill.rl.logger import LoggerConfig
-from itskill.rl.train import EXPERT, ResumeMismatchError, RewardSource, TrainResult, train
+from itskill.rl.train import (
+    EXPERT,
+    ResumeMismatchError,
+    RewardSource,
+    TrainResult,
+    check_training,
+    run_training,
+)
 from itskill.skills import SkillSpace
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer.analyzer import ContributionMatrix, analyze
 from itskill.transfer.config import TransferConfig, load_transfer_config
-from itskill.transfer.methods import get_method
+from itskill.transfer.methods import Method, get_method
 from itskill.transfer.sources import AUTO, SourceSkill, resolve_sources
 from itskill.transfer.stages import fill_performers, stage_map, stage_performers
 
@@ -92,6 +101,37 @@ def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
             )
 
 
+def _settings(
+    spec: TaskSpec,
+    meth: Method,
+    sources: str | Sequence[int | str],
+    seed: int,
+    algo: str,
+    config: TransferConfig,
+) -> dict[str, Any]:
+    """The settings part of a transfer record: what a rerun must ask for again to resume."""
+    return {
+        "format": FORMAT_VERSION,
+        "target": spec.id,
+        "command": spec.command,
+        "method": meth.name,
+        "algo": algo,
+        "seed": seed,
+        "sources_request": _request(sources) if meth.uses_sources else None,
+        "k": config.k if meth.uses_sources else None,
+        "config": config.to_dict(),
+    }
+
+
+def _recorded(out: Path, settings: dict[str, Any]) -> dict[str, Any] | None:
+    """The record ``out`` holds, checked against ``settings``; None if it holds none."""
+    if not (out / TRANSFER_FILE).is_file():
+        return None
+    old = read_transfer(out)
+    _check_resume(old, settings, out)
+    return old
+
+
 def prepare_transfer(
     target: str,
     method: str,
@@ -111,24 +151,12 @@ def prepare_transfer(
     the analyzer again, so that whatever trains with this network (the run itself, or the reward
     search's candidates before it) sees the same sources and matrix.
     """
-    spec = get_task(target)
-    meth = get_method(method)
+    spec, meth = get_task(target), get_method(method)
     config = config or load_transfer_config()
     out = Path(out)
-    record: dict[str, Any] = {
-        "format": FORMAT_VERSION,
-        "target": spec.id,
-        "command": spec.command,
-        "method": meth.name,
-        "algo": algo,
-        "seed": seed,
-        "sources_request": _request(sources) if meth.uses_sources else None,
-        "k": config.k if meth.uses_sources else None,
-        "config": config.to_dict(),
-    }
-    if (out / TRANSFER_FILE).is_file():
-        old = read_transfer(out)
-        _check_resume(old, record, out)
+    record = _settings(spec, meth, sources, seed, algo, config)
+    old = _recorded(out, record)
+    if old is not None:
         return old
     chosen: list[SourceSkill] = []
     matrix: ContributionMatrix | None = None
@@ -252,32 +280,41 @@ def train_transfer(
     ids/names. ``client`` answers the analyzer (default: :func:`itskill.llm.client.make_client`,
     i.e. ``$ITSKILL_LLM_MODEL`` or the offline backend). ``reward``, ``num_envs``,
     ``eval_every``, ``eval_episodes``, ``n_threads``, ``hyperparams`` and ``overrides`` are
-    :func:`itskill.rl.train.train`'s. Rerunning on the same ``out`` resumes.
+    :func:`itskill.rl.train.train`'s. Rerunning on the same ``out`` resumes; a run refused (its
+    settings, its reward, or another run already in ``out``) leaves ``out`` as it was.
     """
     config = config or load_transfer_config()
     out = Path(out)
-    record = prepare_transfer(target, method, sources, seed, algo, out, client, config, space)
-    policy_class, policy_kwargs = transfer_network(record, config)
-    if console is not None and record["sources"]:
-        names = ", ".join(s["name"] for s in record["sources"])
-        console.print(f"{record['method']} on {record['target']}: sources {names}")
-    result = train(
-        record["target"],
+    spec, meth = get_task(target), get_method(method)
+    # A record already in out, then the trainer, check the run before a record is written: a
+    # refused run (another run in out, a bad seed or reward file) must leave out as it was, with
+    # no transfer.json to block the next command.
+    _recorded(out, _settings(spec, meth, sources, seed, algo, config))
+    setup = check_training(
+        spec.id,
         algo,
         steps,
         seed,
         reward,
         out,
-        num_envs=num_envs,
-        hyperparams=hyperparams,
-        overrides=overrides,
+        num_envs,
+        hyperparams,
+        overrides,
+        policy_class=meth.policy_class,
+    )
+    record = prepare_transfer(target, method, sources, seed, algo, out, client, config, space)
+    _, policy_kwargs = transfer_network(record, config)
+    if console is not None and record["sources"]:
+        names = ", ".join(s["name"] for s in record["sources"])
+        console.print(f"{record['method']} on {record['target']}: sources {names}")
+    result = run_training(
+        setup,
+        policy_kwargs,
         logger=logger or LoggerConfig(progress=progress),
         n_threads=n_threads,
         console=console,
         eval_every=eval_every,
         eval_episodes=eval_episodes,
-        policy_class=policy_class,
-        policy_kwargs=policy_kwargs,
     )
     if result.best is not None:
         # The kept best policy describes itself like the run does (method, sources, prior).

@@ -1,0 +1,51 @@
+"""What a reward callable must return: ``compute_reward(ctx) -> (total[N], {component: [N]})``.
+
+One check for every reward that does not come from itskill itself: a user's reward file
+(:func:`itskill.rl.train.load_reward`) and generated code (:mod:`itskill.reward.sandbox`). It
+imports NumPy only, so the sandbox's worker processes stay quick to start.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+class RewardOutputError(ValueError):
+    """A reward callable's result that breaks the contract; the message says how."""
+
+
+def _finite_vector(value: Any, n: int, what: str) -> np.ndarray:
+    try:
+        array = np.array(value, dtype=np.float64)  # a copy: never a view of the context
+    except (TypeError, ValueError) as err:
+        raise RewardOutputError(f"{what} is not numeric: {type(value).__name__}") from err
+    if array.shape != (n,):
+        raise RewardOutputError(
+            f"{what} has shape {array.shape}; expected ({n},), one per environment"
+        )
+    if not np.all(np.isfinite(array)):
+        bad = int(np.sum(~np.isfinite(array)))
+        raise RewardOutputError(f"{what} has {bad} non-finite value(s) (nan or inf)")
+    return array
+
+
+def check_reward_output(result: Any, n: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """``result`` of a reward call on ``n`` environments, checked and converted to float64:
+    ``(total, components)`` with a finite value per environment in each array, or
+    :class:`RewardOutputError`."""
+    if not isinstance(result, tuple) or len(result) != 2:
+        raise RewardOutputError(
+            f"compute_reward must return (total, components); got {type(result).__name__}"
+        )
+    total, components = result
+    total = _finite_vector(total, n, "total")
+    if not isinstance(components, dict):
+        raise RewardOutputError(f"components must be a dict; got {type(components).__name__}")
+    checked = {}
+    for key, value in components.items():
+        if not isinstance(key, str):
+            raise RewardOutputError(f"component names must be strings; got {key!r}")
+        checked[key] = _finite_vector(value, n, f"components[{key!r}]")
+    return total, checked
