@@ -288,6 +288,30 @@ def test_out_of_range_numbers_and_the_current_directory_are_refused_before_any_w
     assert list(tmp_path.iterdir()) == []  # nothing written, not even the skill space
 
 
+def test_eval_of_a_policy_on_another_task_runs_with_a_note(tmp_path, monkeypatch):
+    from itskill.skills.store import SHIPPED_LIBRARY
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    reach = SHIPPED_LIBRARY / "reach_nut_m12"
+    args = ["eval", "pick_nut_m12", "--policy", str(reach), "--episodes", "2", "--num-envs", "2"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert f"note: {reach} was trained on reach_nut_m12; evaluated on pick_nut_m12" in flat(
+        result.output
+    )
+    same = runner.invoke(app, ["eval", "reach_nut_m12", *args[2:]])
+    assert same.exit_code == 0 and "note:" not in same.output
+
+
+def test_plan_of_a_task_id_needs_no_model_but_refuses_a_mistyped_one(monkeypatch):
+    monkeypatch.delenv("ITSKILL_LLM_MODEL", raising=False)
+    ok = runner.invoke(app, ["plan", "pick_nut_m12"])
+    assert ok.exit_code == 0 and "planned from the task file" in ok.output
+    bad = runner.invoke(app, ["plan", "pick_nut_m12", "--llm", "foo"])
+    assert bad.exit_code == 2, bad.output  # was planned, the flag ignored
+    assert "unknown language model 'foo'" in flat(bad.output)
+
+
 def test_user_text_is_printed_as_typed_not_as_emoji(tmp_path, monkeypatch):
     # "skill:x:" printed as "skill❌" (rich reads :x: as an emoji code).
     monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))

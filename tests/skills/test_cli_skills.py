@@ -219,21 +219,20 @@ def test_pretrain_exits_non_zero_when_a_skill_fails(home, tmp_path, monkeypatch)
     assert "1skill(s)failed:reach_nut_m12" in _flat(result.output)
 
 
-def test_pretrain_refuses_an_unknown_algorithm_before_training(home, tmp_path):
-    # It started the worker pool, whose job died with a KeyboardInterrupt traceback.
-    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--algo", "foo"]
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        # It started the worker pool, whose job died with a KeyboardInterrupt traceback.
+        (["--algo", "foo"], "algomustbeoneofa2c,ppo,got'foo'"),
+        # 2 (or 50 for "50%") trained every seed of every skill and could never add one.
+        (["--min-success", "2"], "Invalidvaluefor'--min-success'"),
+    ],
+)
+def test_pretrain_refuses_bad_settings_before_training(home, tmp_path, option, message):
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", *option]
     result = runner.invoke(app, [*args, "--runs", str(tmp_path / "runs")])
     assert result.exit_code == 2
-    assert "algomustbeoneofa2c,ppo,got'foo'" in _flat(result.output)
-    assert not (tmp_path / "runs").exists()
-
-
-def test_pretrain_refuses_a_min_success_outside_0_to_1(home, tmp_path):
-    # 2 (or 50 for "50%") trained every seed of every skill and could never add one.
-    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--min-success", "2"]
-    result = runner.invoke(app, [*args, "--runs", str(tmp_path / "runs")])
-    assert result.exit_code == 2
-    assert "Invalidvaluefor'--min-success'" in _flat(result.output)
+    assert message in _flat(result.output)
     assert not (tmp_path / "runs").exists()
 
 

@@ -67,6 +67,7 @@ def eval_cmd(
     with user_errors():
         ref = policy_ref(policy)
         spec = get_task(task)
+        _note_another_task(policy, spec)
         if starts is None:
             result = evaluate(spec, ref, episodes=episodes, seed=seed, num_envs=num_envs)
             _print_eval(result, spec, as_json)
@@ -92,6 +93,19 @@ def eval_cmd(
             f"{row['mean_length']:.1f}",
         )
     console.print(table)
+
+
+def _note_another_task(policy: str, spec: TaskSpec) -> None:
+    """Evaluating a policy on a task it was not trained on is a fair question (a source on its
+    target), so it runs; the note keeps a mistyped task from passing for the policy's result."""
+    from itskill.rl.checkpoint import META_FILE, read_meta
+
+    if not (Path(policy) / META_FILE).is_file():
+        return
+    trained = read_meta(policy)["task"]
+    if trained != spec.id:
+        note = f"{policy} was trained on {trained}; evaluated on {spec.id}"
+        err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)
 
 
 def render_cmd(

@@ -85,6 +85,7 @@ def plan_cmd(
 ) -> None:
     """Plan a command: the task it means, its ordered subtasks, actions and objects."""
     from itskill.llm import make_client
+    from itskill.llm.client import model_spec
     from itskill.reward.plan import plan_command, plan_for_task
     from itskill.reward.search import OFFLINE_NOTE, resolve_target
 
@@ -92,6 +93,7 @@ def plan_cmd(
         task = resolve_target(command)
         client = None
         if task is not None:
+            model_spec(llm)  # not asked, but a mistyped --llm is said, not ignored
             plan = plan_for_task(task)
         else:
             client = make_client(llm, base_url=base_url)

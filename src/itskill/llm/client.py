@@ -139,6 +139,27 @@ class BaseClient:
         raise NotImplementedError
 
 
+def model_spec(spec: str | None = None) -> tuple[str, str]:
+    """``spec`` (``None``: ``$ITSKILL_LLM_MODEL``, else ``"offline"``) as ``(backend, model)``:
+    ``("offline", "")`` or ``("openai", MODEL)``; :class:`UnknownModelError` for anything else.
+
+    Commands that may not need a model (``itskill plan TASK_ID``) check the spec with it anyway, so
+    a mistyped ``--llm`` is never silently ignored.
+    """
+    if spec is None:
+        spec = os.environ.get(MODEL_ENV) or "offline"
+    spec = spec.strip()
+    if spec == "offline":
+        return "offline", ""
+    backend, _, model = spec.partition(":")
+    if backend == "openai" and model.strip():
+        return "openai", model.strip()
+    raise UnknownModelError(
+        f"unknown language model {spec!r}: expected 'offline' or 'openai:MODEL' "
+        "(e.g. openai:gpt-4o, or openai:llama3.1 with OPENAI_BASE_URL=http://localhost:11434/v1)"
+    )
+
+
 def make_client(
     spec: str | None = None,
     *,
@@ -147,7 +168,7 @@ def make_client(
     cache_dir: Path | None = None,
     price: tuple[float, float] | None = None,
 ) -> LLMClient:
-    """The client named by ``spec``.
+    """The client named by ``spec`` (:func:`model_spec`).
 
     ``spec`` is ``"offline"``, ``"openai:MODEL"`` (any OpenAI-compatible endpoint: the model name is
     whatever the server calls it), or ``None`` for ``$ITSKILL_LLM_MODEL``, else ``"offline"``.
@@ -155,25 +176,17 @@ def make_client(
     ``(USD per 1M input tokens, USD per 1M output tokens)`` and overrides the price table.
     ``cache_dir`` turns on the reply cache (a rerun replays instead of asking again).
     """
-    if spec is None:
-        spec = os.environ.get(MODEL_ENV) or "offline"
-    spec = spec.strip()
-    if spec == "offline":
+    backend, model = model_spec(spec)
+    if backend == "offline":
         from itskill.llm.offline import OfflineClient
 
         return OfflineClient(cache_dir=cache_dir)
-    backend, _, model = spec.partition(":")
-    if backend == "openai" and model.strip():
-        from itskill.llm.openai_client import OpenAIClient
+    from itskill.llm.openai_client import OpenAIClient
 
-        return OpenAIClient(
-            model.strip(),
-            base_url=base_url or os.environ.get(BASE_URL_ENV) or None,
-            api_key=api_key or os.environ.get(API_KEY_ENV) or None,
-            cache_dir=cache_dir,
-            price=price,
-        )
-    raise UnknownModelError(
-        f"unknown language model {spec!r}: expected 'offline' or 'openai:MODEL' "
-        "(e.g. openai:gpt-4o, or openai:llama3.1 with OPENAI_BASE_URL=http://localhost:11434/v1)"
+    return OpenAIClient(
+        model,
+        base_url=base_url or os.environ.get(BASE_URL_ENV) or None,
+        api_key=api_key or os.environ.get(API_KEY_ENV) or None,
+        cache_dir=cache_dir,
+        price=price,
     )
