@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from itskill.experiments.analysis import (
+    EVAL_FILE,
     Band,
     Curve,
     CurveError,
@@ -69,14 +70,15 @@ RUN_FILES = (CONFIG_FILE, EXPERIMENT_FILE, SOURCES_FILE, PROVENANCE_FILE)
 CELL_FILES = (
     RESULT_FILE,
     ERROR_FILE,
-    "eval.csv",
+    EVAL_FILE,
     "metrics.csv",
     "checkpoint.json",
     "transfer.json",
     "attention.json",
 )
 """What a report reads from a run and its cells, weights aside: a report written elsewhere copies
-these beside itself, so it can be written again from its own directory (without the video)."""
+these beside itself, so it can be written again from its own directory (without the video). The
+rl and transfer layers' names are spelled out: importing them would load torch for every report."""
 
 
 class ReportError(ValueError):
