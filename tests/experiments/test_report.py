@@ -36,7 +36,8 @@ def write_cell(run: Path, cell: Cell, success: list[float]) -> None:
     (out / "eval.csv").write_text(
         "env_steps,wall_s,success,ci_low,ci_high,mean_length,stages_done\n" + "\n".join(rows) + "\n"
     )
-    write_json(out / "result.json", {"task": cell.task, "method": cell.method, "seed": cell.seed})
+    result = {"task": cell.task, "method": cell.method, "seed": cell.seed, "num_timesteps": 1000}
+    write_json(out / "result.json", {**result, "final_success": success[-1]})
 
 
 @pytest.fixture(scope="module")
@@ -187,6 +188,17 @@ def test_a_report_written_elsewhere_can_be_written_again_from_its_own_directory(
         return [line for line in md.splitlines() if not line.startswith("- report written:")]
 
     assert body(second, out) == body(first, run)
+
+
+def test_a_damaged_result_is_not_counted_and_says_how_to_finish_it(run, tmp_path):
+    import shutil
+
+    damaged = tmp_path / "damaged"
+    shutil.copytree(run, damaged)
+    (Cell(TASK, "no_transfer", 2).dir(damaged) / "result.json").write_text("")
+    md = experiment_report(damaged, tmp_path / "report", video=False).markdown.read_text()
+    assert "5 of 8 runs finished" in md
+    assert "no_transfer/seed_2: its result.json cannot be read" in md and "--resume" in md
 
 
 def test_runs_recorded_without_subtask_progress_still_get_a_report(run, tmp_path):

@@ -115,6 +115,23 @@ def test_partial_cell_resumes_from_its_checkpoint(toy, tmp_path):
     assert result["best"]["env_steps"] in (128, result["num_timesteps"])
 
 
+def test_resume_finishes_again_a_cell_whose_result_was_damaged(toy, tmp_path, capsys):
+    config, _ = toy
+    config = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
+    run = tmp_path / ":rocket:"  # printed as named, not as an emoji
+    run_experiment(config, run, "local", 1)
+    assert ":rocket:" in capsys.readouterr().err.replace("\n", "")
+    result = Cell("pickplace_nut_m12", "no_transfer", 0).dir(run) / RESULT_FILE
+    before = json.loads(result.read_text())
+    result.write_text("")
+    assert load_cell_results(run) == {}
+    summary = run_experiment(config, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.finished] == ["pickplace_nut_m12/no_transfer/seed_0"]
+    after = json.loads(result.read_text())
+    assert after["num_timesteps"] == before["num_timesteps"]
+    assert after["final_success"] == before["final_success"]
+
+
 def test_resume_refuses_other_training_settings(toy, tmp_path):
     config, _ = toy
     run = tmp_path / "run"

@@ -273,7 +273,7 @@ def learn(
     from itskill.reward import check_command
 
     check_command(command)  # before the slug: an empty command would be said to have no letters
-    console = console or Console()
+    console = console or Console(emoji=False)
     budgets = load_budgets(budgets_file)
     if budget not in budgets:
         raise LearnError(f"unknown budget {budget!r}; expected one of {list(budgets)}")
@@ -631,7 +631,7 @@ def _train_generated(
         num_envs=t.num_envs,
         eval_every=t.eval_every,
         eval_episodes=t.eval_episodes,
-        console=Console(),
+        console=Console(emoji=False),
     )
 
 

@@ -58,9 +58,10 @@ from itskill.experiments.runner import (
     Cell,
     ExperimentRunError,
     cells,
+    finished_result,
     read_run_config,
 )
-from itskill.files import read_json
+from itskill.files import CorruptFileError, read_json
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
@@ -205,7 +206,7 @@ def _curves(config: ExperimentConfig, run_dir: Path) -> tuple[dict, list[Cell], 
     pending, broken = [], []
     for cell in cells(config):
         out = cell.dir(run_dir)
-        if not (out / RESULT_FILE).is_file():
+        if finished_result(out) is None:
             pending.append(cell)
             continue
         try:
@@ -305,8 +306,16 @@ def _pending_line(cell: Cell, run_dir: Path) -> str:
     out = cell.dir(run_dir)
     if (out / ERROR_FILE).is_file():
         return f"{cell.name}: failed: {(out / ERROR_FILE).read_text().strip()}"
+    if (out / RESULT_FILE).is_file():
+        return (
+            f"{cell.name}: its {RESULT_FILE} cannot be read (damaged or edited), so the run is not "
+            "counted; `itskill experiment run ... --resume` finishes it again from its checkpoint"
+        )
     if (out / "checkpoint.json").is_file():
-        steps = read_json(out / "checkpoint.json").get("num_timesteps", 0)
+        try:
+            steps = read_json(out / "checkpoint.json").get("num_timesteps", 0)
+        except CorruptFileError:
+            return f"{cell.name}: in progress (its checkpoint.json cannot be read)"
         return f"{cell.name}: in progress ({steps:,} env-steps checkpointed)"
     return f"{cell.name}: not started"
 

@@ -30,7 +30,7 @@ from itskill.executors import check_executor, run_jobs
 from itskill.experiments.analysis import read_curve, time_to_threshold
 from itskill.experiments.config import AUTO, ExperimentConfig
 from itskill.experiments.provenance import Sessions
-from itskill.files import read_json, write_json
+from itskill.files import CorruptFileError, read_json, write_json
 
 CELLS_DIR = "cells"
 RESULT_FILE = "result.json"
@@ -249,7 +249,7 @@ def run_experiment(
     ``executor``, ``workers`` and ``ray_address`` default to the file's ``[execution]`` table.
     A cell that fails is reported (and its error saved in ``error.txt``); the others go on.
     """
-    console = console or Console(stderr=True)
+    console = console or Console(stderr=True, emoji=False)
     run_dir = Path(run_dir)
     ex = executor or config.execution.executor
     workers = workers or config.execution.workers
@@ -270,7 +270,7 @@ def run_experiment(
     todo: list[Cell] = []
     for cell in cells(config):
         out = cell.dir(run_dir)
-        if (out / RESULT_FILE).is_file():
+        if finished_result(out) is not None:
             summary.skipped.append(cell)
             continue
         if (out / "checkpoint.json").is_file():
@@ -346,10 +346,31 @@ def _describe(cell: Cell, result: dict[str, Any]) -> str:
     )
 
 
+_RESULT_KEYS = frozenset({"task", "method", "seed", "num_timesteps", "final_success"})
+
+
+def finished_result(out: Path) -> dict[str, Any] | None:
+    """The ``result.json`` of the cell in ``out``, or None while the cell is unfinished.
+
+    A ``result.json`` that cannot be read (emptied or edited outside itskill: the runner writes it
+    whole) counts as unfinished too, so ``--resume`` finishes the cell again from its checkpoint
+    and the report does not count a run it cannot vouch for.
+    """
+    path = Path(out) / RESULT_FILE
+    if not path.is_file():
+        return None
+    try:
+        data = read_json(path)
+    except CorruptFileError:
+        return None
+    return data if isinstance(data, dict) and data.keys() >= _RESULT_KEYS else None
+
+
 def load_cell_results(run_dir: Path) -> dict[Cell, dict[str, Any]]:
     """Every finished cell's ``result.json`` in ``run_dir``."""
     found = {}
     for path in sorted((Path(run_dir) / CELLS_DIR).glob(f"*/*/seed_*/{RESULT_FILE}")):
-        data = read_json(path)
-        found[Cell(data["task"], data["method"], int(data["seed"]))] = data
+        data = finished_result(path.parent)
+        if data is not None:
+            found[Cell(data["task"], data["method"], int(data["seed"]))] = data
     return found

@@ -434,7 +434,7 @@ def generate_reward(
     network's sources), so the model is not asked twice; a resumed run keeps its stored plan.
     """
     config = config or RewardSearchConfig()
-    console = console or Console(stderr=True)
+    console = console or Console(stderr=True, emoji=False)
     out = Path(out)
     resolve_target(target)  # an unknown task id fails before anything is written
     check_executor(config.executor, config.workers, config.ray_address)  # so does a bad executor

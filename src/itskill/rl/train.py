@@ -474,7 +474,7 @@ def run_training(
     def note(text: str) -> None:
         # A warm start takes up to a minute or two before the progress bar appears.
         if (logger or LoggerConfig()).progress:
-            (console or Console(stderr=True)).print(text, highlight=False)
+            (console or Console(stderr=True, emoji=False)).print(text, highlight=False)
 
     clock = WallClock.from_checkpoint(old)  # from here, so that a warm start's time counts
     try:
@@ -589,7 +589,7 @@ def run_training(
         except KeyboardInterrupt:
             metrics.close()
             _save(model, run_dir, meta, clock)
-            (console or Console(stderr=True)).print(
+            (console or Console(stderr=True, emoji=False)).print(
                 f"interrupted: checkpoint saved at {model.num_timesteps} env-steps in {run_dir}"
             )
             raise
