@@ -114,6 +114,8 @@ def test_missing_required_field_and_bad_syntax(tmp_path):
         load_experiment(write(tmp_path, "tasks = ["))
     with pytest.raises(ExperimentConfigError, match="no such experiment file"):
         load_experiment(tmp_path / "absent.toml")
+    with pytest.raises(ExperimentConfigError, match="a directory, not a file"):
+        load_experiment(tmp_path)
 
 
 def test_cli_reports_a_bad_experiment_file_in_one_line(tmp_path):

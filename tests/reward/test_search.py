@@ -137,6 +137,10 @@ def test_unreachable_model_and_unusable_run_dirs(tmp_path: Path, quiet) -> None:
         generate_reward("pick_nut_m12", client, tmp_path, tiny_config(), resume=True)
     with pytest.raises(RewardSearchError, match="has not finished"):
         load_search(run)
+    with pytest.raises(RewardSearchError, match="no such run directory"):
+        load_search(tmp_path / "absent")
+    with pytest.raises(RewardSearchError, match="a file, not a run directory"):
+        load_search(run / "config.json")
 
 
 def test_tokens_paid_for_before_an_outage_are_on_record(tmp_path: Path, quiet) -> None:

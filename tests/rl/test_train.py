@@ -270,6 +270,10 @@ def test_bad_reward_file(tmp_path: Path) -> None:
     bad.write_text("x = 1\n")
     with pytest.raises(RewardLoadError, match="compute_reward"):
         _train(tmp_path / "run", bad, 64)
+    with pytest.raises(RewardLoadError, match="no such reward file"):
+        _train(tmp_path / "run", tmp_path / "absent.py", 64)
+    with pytest.raises(RewardLoadError, match="a directory"):
+        _train(tmp_path / "run", tmp_path, 64)
 
 
 BROKEN_REWARDS = {

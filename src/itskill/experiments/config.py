@@ -344,6 +344,7 @@ def load_experiment(path: str | Path) -> ExperimentConfig:
     """Read and validate an experiment file (:class:`ExperimentConfigError` says what is wrong)."""
     path = Path(path)
     if not path.is_file():
-        raise ExperimentConfigError(path, "file", "no such experiment file")
+        why = "a directory, not a file" if path.is_dir() else "no such experiment file"
+        raise ExperimentConfigError(path, "file", why)
     data = read_toml(path, ExperimentConfigError)
     return parse_experiment(data, path)

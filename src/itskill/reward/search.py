@@ -713,7 +713,8 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
     run_dir = Path(run_dir)
     path = run_dir / CONFIG_FILE
     if not run_dir.is_dir():
-        raise RewardSearchError(f"{run_dir}: no such run directory")
+        why = "a file, not a run directory" if run_dir.exists() else "no such run directory"
+        raise RewardSearchError(f"{run_dir}: {why}")
     if not path.is_file():
         raise RewardSearchError(f"{run_dir}: not a reward search run (no {CONFIG_FILE})")
     try:

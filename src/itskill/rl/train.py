@@ -151,7 +151,8 @@ def load_reward(
         return expert_reward(spec), {"kind": EXPERT}
     path = Path(reward)
     if not path.is_file():
-        raise RewardLoadError(path, f"no such reward file (expected {EXPERT!r} or a .py file)")
+        what = "a directory" if path.is_dir() else "no such reward file"
+        raise RewardLoadError(path, f"{what} (expected {EXPERT!r} or a .py file)")
     source = path.read_bytes()
     try:
         namespace = runpy.run_path(str(path), run_name="itskill_reward")
