@@ -457,7 +457,13 @@ def generate_reward(
     run = _Run(out, client, console)  # its clock starts here, so the planning counts
     # Planned before anything is written: a command the planner refuses must leave no run behind,
     # or the same --out would be refused as taken and --resume would fail on it again.
-    plan = _plan(target, client, out, plan, resume)
+    created = not out.exists()
+    try:
+        plan = _plan(target, client, out, plan, resume)
+    except BaseException:
+        if created:  # all it holds is the reply cache of a command that cannot be planned
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     if not resume:
         write_json(
             out / CONFIG_FILE,

@@ -154,8 +154,8 @@ def plan(command: str, catalogue: list[dict]) -> dict:
         grounded, notes = _ground_objects(command, fixture_parts)
     words = set(_words(command))
     if not grounded:
-        known = ", ".join(sorted({p.label for p in parts}))
-        return {"error": f"the command names no object of this scene (known objects: {known})"}
+        # The caller's error line goes on with the objects and fixtures it knows.
+        return {"error": "the command names no object of this scene"}
     clauses = _clauses(command)
     if not clauses:
         return {
