@@ -87,6 +87,14 @@ def test_every_broken_reply_is_handled_and_the_good_one_wins(tmp_path: Path, qui
     assert usage["total"]["requests"] == 6 and usage["total"]["prompt_tokens"] > 0
     assert load_search(run).best == result.best
 
+    # Resumed once finished: nothing is asked, trained or written again (its duration included).
+    files = {path: path.read_bytes() for path in run.rglob("*") if path.is_file()}
+    client = search_client(run, "openai:fake-model", "http://127.0.0.1:9/v1")
+    again = generate_reward("pick_nut_m12", client, run, tiny_config(samples=6),
+                            resume=True, compare_expert=False, console=quiet)  # fmt: skip
+    assert again.best == result.best
+    assert {path: path.read_bytes() for path in run.rglob("*") if path.is_file()} == files
+
 
 def test_feedback_carries_the_best_code_and_its_statistics() -> None:
     best = {"code": "def compute_reward(ctx): ...", "success": 0.25,

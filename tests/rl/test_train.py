@@ -137,6 +137,19 @@ def test_the_learning_curves_clock_goes_on_across_a_resume_without_the_evaluatio
     assert walls[-1] <= meta["train_wall_s"] - meta["eval_wall_s"] + 0.01
 
 
+def test_a_run_whose_evaluation_file_was_emptied_resumes(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    out = tmp_path / "run"
+    _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
+    (out / "eval.csv").write_text("")
+    _train(out, reach_reward, 192, eval_every=64, eval_episodes=2)
+    # The header is written again, and the policy at the checkpoint evaluated again.
+    lines = (out / "eval.csv").read_text().splitlines()
+    assert lines[0].startswith("env_steps,")
+    assert [line.split(",")[0] for line in lines[1:]] == ["128", "192"]
+
+
 def test_a_run_without_evaluations_keeps_no_best_policy(tmp_path: Path, reach_reward: Path) -> None:
     out = tmp_path / "run"
     result = _train(out, reach_reward, 64)
@@ -224,11 +237,37 @@ def test_interrupt_saves_checkpoint(tmp_path: Path, reach_reward: Path, monkeypa
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
         _train(out, reach_reward, 10_000)
+    # Ctrl-C at env-step 160, in the third rollout of 64 (16 steps x 4 environments): the
+    # checkpoint counts the two rollouts the weights learned from.
     meta = json.loads((out / "checkpoint.json").read_text())
-    assert 0 < meta["num_timesteps"] < 10_000
+    assert meta["num_timesteps"] == 128
     monkeypatch.undo()
-    done = _train(out, reach_reward, meta["num_timesteps"] + 64)
-    assert done.resumed_from == meta["num_timesteps"]
+    done = _train(out, reach_reward, 256)
+    assert done.resumed_from == 128 and done.num_timesteps == 256
+    assert [row["step"] for row in read_metrics(out)][-1] == 256
+
+
+def test_an_update_cut_short_leaves_its_rollout_uncounted(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    from stable_baselines3 import PPO
+
+    calls = {"n": 0}
+    original = PPO.train
+
+    def interrupting(self):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(PPO, "train", interrupting)
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        _train(out, reach_reward, 10_000)
+    assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 64
+    monkeypatch.undo()
+    assert _train(out, reach_reward, 192).num_timesteps == 192
 
 
 def test_missing_and_corrupt_checkpoints(tmp_path: Path, reach_reward: Path) -> None:
@@ -256,6 +295,15 @@ def test_missing_and_corrupt_checkpoints(tmp_path: Path, reach_reward: Path) -> 
     meta_file.write_text(meta[:20])
     with pytest.raises(CheckpointError, match="not valid JSON"):
         load_policy(out)
+    # Resuming from it says what to do instead.
+    with pytest.raises(CheckpointError, match=r"not valid JSON.*train into another run directory"):
+        _train(out, reach_reward, 128)
+    meta_file.write_text(meta)
+    model = (out / "model.zip").read_bytes()
+    (out / "model.zip").unlink()
+    with pytest.raises(CheckpointError, match=r"model\.zip: missing; the run cannot be resumed"):
+        _train(out, reach_reward, 128)
+    (out / "model.zip").write_bytes(model)
     data = json.loads(meta)
     data["policy"]["stages"] = [64, 64, 64]
     meta_file.write_text(json.dumps(data))

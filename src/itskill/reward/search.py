@@ -449,6 +449,11 @@ def generate_reward(
     }
     if resume:
         _check_resume(out, header)
+        if (out / SUMMARY_FILE).is_file():
+            # Nothing is left to train; replaying the search would only add its time to the
+            # recorded duration.
+            console.print(f"{out}: the search has already finished", highlight=False)
+            return load_search(out)
     elif (out / CONFIG_FILE).exists():
         raise RewardSearchError(
             f"{out} already holds a reward search: continue it with --resume {out} "

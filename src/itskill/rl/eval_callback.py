@@ -115,7 +115,7 @@ class DeterministicEvalCallback(BaseCallback):
         kept = read_selection(self.run_dir)
         if kept is not None:
             self._best = (float(kept["success"]), float(kept.get("stages_done", 0.0)))
-        if not self.path.exists():
+        if not self.path.exists() or self.path.stat().st_size == 0:  # an emptied file too
             with open(self.path, "w", newline="") as fh:
                 csv.writer(fh).writerow(EVAL_COLUMNS)
         with open(self.path, newline="") as fh:

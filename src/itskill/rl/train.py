@@ -122,6 +122,13 @@ class TrainResult:
     run was evaluated while it trained."""
 
 
+CANNOT_RESUME = (
+    "; the run cannot be resumed from it: train into another run directory (--out). Its "
+    "metrics.csv and eval.csv stay readable"
+)
+"""What a damaged checkpoint's error adds when a run was to resume from it."""
+
+
 def _save(model: Any, run_dir: Path, meta: Mapping[str, Any], clock: WallClock) -> float:
     """Save a checkpoint; returns the run's wall seconds as recorded in it."""
     fields = clock.checkpoint_fields()
@@ -203,7 +210,12 @@ def _sha256(data: bytes) -> str:
 
 
 class CheckpointCallback(BaseCallback):
-    """Saves a checkpoint at the end of the first update after every ``every`` env-steps."""
+    """Saves a checkpoint at the start of the first rollout after every ``every`` env-steps.
+
+    A rollout starts once the previous one's update is done, so a checkpoint's step count is
+    exactly the env-steps its weights learned from. ``trained`` keeps that count between
+    checkpoints for an interrupted run: the steps of a rollout cut short were never learned from.
+    """
 
     def __init__(
         self, run_dir: Path, every: int, meta: Mapping[str, Any], clock: WallClock
@@ -211,16 +223,16 @@ class CheckpointCallback(BaseCallback):
         super().__init__()
         self.run_dir, self.every, self.meta, self.clock = run_dir, every, dict(meta), clock
         self._last = 0
+        self.trained = 0
 
     def _on_training_start(self) -> None:
-        self._last = self.num_timesteps
+        self._last = self.trained = self.num_timesteps
 
     def _on_step(self) -> bool:
         return True
 
-    def _on_rollout_end(self) -> None:
-        # Runs between collecting a rollout and the update on it: the saved weights have not seen
-        # that rollout, so a resumed run simply collects fresh data from the saved step count.
+    def _on_rollout_start(self) -> None:
+        self.trained = self.num_timesteps
         if self.num_timesteps - self._last >= self.every:
             _save(self.model, self.run_dir, self.meta, self.clock)
             self._last = self.num_timesteps
@@ -426,12 +438,13 @@ def check_training(
         meta["init"] = describe_init(init)
     previous = None
     if (run_dir / "checkpoint.json").exists():
-        previous = read_meta(run_dir)
+        try:
+            previous = read_meta(run_dir)
+        except CheckpointError as err:
+            raise CheckpointError(err.path, err.problem + CANNOT_RESUME) from err
         _check_resume(previous, meta, run_dir)
         if not (run_dir / MODEL_FILE).is_file():
-            raise CheckpointError(
-                run_dir / MODEL_FILE, "missing: cannot resume training without it"
-            )
+            raise CheckpointError(run_dir / MODEL_FILE, "missing" + CANNOT_RESUME)
     return TrainSetup(spec, algo, steps, seed, run_dir, hp, reward_fn, meta, policy_class, previous)
 
 
@@ -484,7 +497,7 @@ def run_training(
                 model = cls.load(model_path, env=train_env, device="cpu")
             except Exception as err:
                 raise CheckpointError(
-                    model_path, f"cannot resume: {type(err).__name__}: {err}"
+                    model_path, f"{type(err).__name__}: {err}{CANNOT_RESUME}"
                 ) from err
             model._last_obs = None  # the saved observation belongs to the old process's envs
             if model.num_timesteps != resumed_from:
@@ -563,10 +576,8 @@ def run_training(
             truncate_evaluations(run_dir, -1)
             shutil.rmtree(run_dir / BEST_DIR, ignore_errors=True)
         metrics = MetricsCallback(env, run_dir, steps, logger, console)
-        callbacks: list[BaseCallback] = [
-            metrics,
-            CheckpointCallback(run_dir, hp.checkpoint_every, meta, clock),
-        ]
+        checkpoints = CheckpointCallback(run_dir, hp.checkpoint_every, meta, clock)
+        callbacks: list[BaseCallback] = [metrics, checkpoints]
         if eval_every:
             callbacks.append(
                 DeterministicEvalCallback(
@@ -589,6 +600,9 @@ def run_training(
             )
         except KeyboardInterrupt:
             metrics.close()
+            # Counting the cut-short rollout would have the resumed run collect whole rollouts on
+            # top and stop past `steps`, with that rollout's steps never learned from.
+            model.num_timesteps = checkpoints.trained
             _save(model, run_dir, meta, clock)
             (console or Console(stderr=True, emoji=False)).print(
                 f"interrupted: checkpoint saved at {model.num_timesteps} env-steps in {run_dir}"
