@@ -195,3 +195,74 @@ def test_ctrl_c_stops_the_jobs_in_flight_and_starts_no_more(tmp_path, target, si
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(parent.pid, signal.SIGKILL)
+
+
+SLOW_IMPORT_MODULE = """
+import multiprocessing, os, sys, time
+
+if os.environ.get("SLOW_IMPORT") and multiprocessing.parent_process() is not None:
+    # In a worker: importing the job's modules (torch, MuJoCo) takes seconds.
+    open(os.path.join(os.environ["MARKS"], f"{os.getpid()}.importing"), "w").close()
+    time.sleep(60)
+
+def work(i):
+    return i
+"""
+
+SLOW_IMPORT_SCRIPT = """
+import sys
+from itskill.executors import run_jobs
+from itskill.reward.limited import run_limited
+from itskill.reward.sandbox import SandboxConfig
+
+def limited(i):
+    import os
+    from slowmod import work
+    os.environ["SLOW_IMPORT"] = "1"  # slow in run_limited's child, not in this pool worker
+    return run_limited(work, (i,), sandbox=SandboxConfig(), name="the child")
+
+if __name__ == "__main__":
+    import os, signal
+    import slowmod  # here, not above: the workers import this script too, as itskill's light one
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    if sys.argv[1] == "pool":
+        fn = slowmod.work
+        os.environ["SLOW_IMPORT"] = "1"
+    else:
+        fn = limited
+    try:
+        list(run_jobs(fn, [(i,) for i in range(4)], "local", 2))
+    except KeyboardInterrupt:
+        sys.exit(130)
+"""
+
+
+@pytest.mark.parametrize("where", ["pool", "limited"])
+def test_ctrl_c_while_workers_import_their_job_ends_without_a_traceback(tmp_path, where) -> None:
+    # Ctrl-C in the first seconds of a reward search or an experiment: the workers are still
+    # importing torch. The terminal should show the command's own message, not a traceback
+    # from every worker.
+    (tmp_path / "slowmod.py").write_text(SLOW_IMPORT_MODULE)
+    script = tmp_path / "parent.py"
+    script.write_text(SLOW_IMPORT_SCRIPT)
+    parent = subprocess.Popen(
+        [sys.executable, str(script), where],
+        cwd=tmp_path,
+        env={**os.environ, "MARKS": str(tmp_path)},
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(tmp_path.glob("*.importing"))) < 2:
+            assert time.monotonic() < deadline, "workers did not start"
+            time.sleep(0.1)
+        os.killpg(parent.pid, signal.SIGINT)
+        _, stderr = parent.communicate(timeout=30)
+        assert parent.returncode == 130
+        assert "Traceback" not in stderr
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(parent.pid, signal.SIGKILL)

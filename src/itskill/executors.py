@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import pickle
 import signal
 import socket
 import threading
@@ -30,6 +31,7 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """The signals that stop a command as Ctrl-C does: the training in progress saves first."""
 
 _interrupted = False
+_in_job = False
 _RAY_STOP_S = 120.0
 """How long Ray tasks get to save a checkpoint after Ctrl-C before the shutdown ends them."""
 _RAY_CONNECT_S = 10.0
@@ -125,9 +127,14 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
         initargs=(os.getpid(),),
     )
     try:
-        pending: dict[Future, int] = {
-            pool.submit(_run_job, fn, *args): i for i, args in enumerate(jobs)
-        }
+        pending: dict[Future, int] = {}
+        for i, args in enumerate(jobs):
+            try:
+                payload = pickle.dumps((fn, args))
+            except Exception as err:  # an argument that cannot travel fails its job alone
+                yield JobResult(i, error=err)
+                continue
+            pending[pool.submit(_run_job, payload)] = i
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
@@ -157,9 +164,13 @@ def stop_on_first_interrupt() -> None:
     instead of ending it unsaved. A process started with a signal ignored (SIGINT in a
     background job of a script, SIGHUP under `nohup`) keeps ignoring it.
     """
+    _install(_interrupt_once)
+
+
+def _install(handler: Callable[[int, Any], None]) -> None:
     for sig in STOP_SIGNALS:
         if signal.getsignal(sig) is not signal.SIG_IGN:
-            signal.signal(sig, _interrupt_once)
+            signal.signal(sig, handler)
 
 
 def _interrupt_once(signum: int, frame: Any) -> None:
@@ -169,16 +180,36 @@ def _interrupt_once(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
 
 
+def _interrupt_job(signum: int, frame: Any) -> None:
+    """A pool worker's handler: as :func:`_interrupt_once` inside a job; outside one (starting
+    up, waiting for the next) the stop is only noted, and the job it is then handed is refused.
+    Raised there, it would end the worker with a traceback on the terminal."""
+    global _interrupted
+    if not _interrupted:
+        _interrupted = True
+        if _in_job:
+            raise KeyboardInterrupt
+
+
 def _init_worker(parent: int) -> None:
-    stop_on_first_interrupt()
+    _install(_interrupt_job)
     exit_with_parent(parent)
 
 
-def _run_job(fn: Callable[..., Any], *args: Any) -> Any:
-    if _interrupted:
-        # Handed to this worker after Ctrl-C (a pool queues a job per worker ahead): refused.
-        raise KeyboardInterrupt
-    return fn(*args)
+def _run_job(payload: bytes) -> Any:
+    global _in_job
+    _in_job = True
+    try:
+        if _interrupted:
+            # Stopped before it began: handed to this worker after Ctrl-C (a pool queues a
+            # job per worker ahead) or while the worker was starting.
+            raise KeyboardInterrupt
+        # Unpickled here, not by the pool, so the seconds of importing the job's modules
+        # (torch, MuJoCo) count as the job and a Ctrl-C there ends it as it ends a running one.
+        fn, args = pickle.loads(payload)
+        return fn(*args)
+    finally:
+        _in_job = False
 
 
 def exit_with_parent(parent: int, poll_s: float = 1.0) -> None:

@@ -52,3 +52,20 @@ def test_resume_truncation_drops_a_row_cut_short_by_a_crash(tmp_path: Path) -> N
     lines = writer.csv_path.read_text().splitlines()
     assert [line.split(",")[0] for line in lines[1:]] == ["64", "128"]
     assert not list(tmp_path.glob(".*.tmp"))  # rewritten through a temporary file
+
+
+def test_resume_rebuilds_an_emptied_csv_from_the_jsonl_rows(tmp_path: Path) -> None:
+    # A full disk or a user's mistake left metrics.csv empty; metrics.jsonl still has the rows.
+    writer = MetricsWriter(tmp_path)
+    for step in (64, 128, 192):
+        writer.write({"step": step, "wall_s": 0.5, "success_rate": 0.25, "reach": 1.5})
+    writer.csv_path.write_text("")
+    resumed = MetricsWriter(tmp_path)
+    resumed.truncate_after(128)
+    resumed.write({"step": 192, "wall_s": 0.5, "success_rate": 0.75, "reach": 2.0})
+    lines = writer.csv_path.read_text().splitlines()
+    header = lines[0].split(",")
+    assert header[0] == "step" and header[-1] == "reach"
+    assert [line.split(",")[0] for line in lines[1:]] == ["64", "128", "192"]
+    assert lines[1].split(",")[header.index("success_rate")] == "0.25"
+    assert lines[3].split(",")[header.index("reach")] == "2"

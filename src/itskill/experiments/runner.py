@@ -302,6 +302,10 @@ def run_experiment(
         f"{len(summary.skipped)} done, {len(summary.resumed)} to resume, "
         f"{len(todo) - len(summary.resumed)} to start → {escape(str(run_dir))}"
     )
+    if not todo:
+        # Nothing ran: a session recorded now would add a command, a machine and a wall time
+        # that produced none of the results.
+        return summary
     sessions = Sessions(run_dir / PROVENANCE_FILE)
     sessions.start(executor=ex, workers=workers, cells=len(todo))
     status = "interrupted"

@@ -69,7 +69,9 @@ def run_limited(
     spawn = multiprocessing.get_context("spawn")
     receiver, sender = spawn.Pipe(duplex=False)
     child = spawn.Process(
-        target=_child_main, args=(sender, fn, tuple(args), sandbox, os.getpid()), name=name
+        target=_child_main,
+        args=(sender, pickle.dumps((fn, tuple(args))), sandbox, os.getpid()),
+        name=name,
     )
     child.start()
     sender.close()  # the child holds the only sending end: EOF here once it is gone
@@ -141,12 +143,13 @@ def _unpack(packed: Any) -> BaseException:
     return err
 
 
-def _child_main(
-    sender: Any, fn: Callable[..., Any], args: tuple, sandbox: SandboxConfig, parent_pid: int
-) -> None:
+def _child_main(sender: Any, payload: bytes, sandbox: SandboxConfig, parent_pid: int) -> None:
     stop_on_first_interrupt()
     exit_with_parent(parent_pid)
     try:
+        # Unpickled once the handlers are in place: it imports the function's modules (torch,
+        # MuJoCo: seconds), and a Ctrl-C then must end the child quietly, not with a traceback.
+        fn, args = pickle.loads(payload)
         apply_process_limits(sandbox)
         answer: tuple = ("ok", fn(*args))
     except KeyboardInterrupt:

@@ -71,9 +71,14 @@ class MetricsWriter:
             self._columns = header or None
 
     def truncate_after(self, step: int) -> None:
-        """Drop rows with ``step`` greater than ``step`` (logged after the last checkpoint)."""
+        """Drop rows with ``step`` greater than ``step`` (logged after the last checkpoint).
+
+        A ``metrics.csv`` that is gone or empty (deleted, or a full disk) is written again from
+        ``metrics.jsonl``, which holds the same rows: otherwise the resumed run would start it
+        afresh and the table would lose the rows before the checkpoint.
+        """
+        kept: list[str] = []
         if self.jsonl_path.exists():
-            kept = []
             for line in self.jsonl_path.read_text().splitlines():
                 try:
                     if json.loads(line)["step"] <= step:
@@ -81,20 +86,34 @@ class MetricsWriter:
                 except (json.JSONDecodeError, KeyError, TypeError):
                     continue  # a line cut short by a crash
             write_text(self.jsonl_path, "".join(ln + "\n" for ln in kept))
-        drop_rows_after(self.csv_path, step)
+        if self._columns is None and kept:
+            rows = [json.loads(line) for line in kept]
+            self._columns = _columns_for(rows[0])
+            text = io.StringIO()
+            csv.writer(text).writerows([self._columns, *(self._csv_row(r) for r in rows)])
+            write_text(self.csv_path, text.getvalue())
+        else:
+            drop_rows_after(self.csv_path, step)
 
     def write(self, row: dict[str, Any]) -> None:
         with open(self.jsonl_path, "a") as fh:
             fh.write(json.dumps({k: _json_value(v) for k, v in row.items()}) + "\n")
         new_file = self._columns is None
         if new_file:
-            comps = sorted(k for k in row if k not in FIXED_COLUMNS)
-            self._columns = [*FIXED_COLUMNS, *comps]
+            self._columns = _columns_for(row)
         with open(self.csv_path, "a", newline="") as fh:
             writer = csv.writer(fh)
             if new_file:
                 writer.writerow(self._columns)
-            writer.writerow([_csv_value(row.get(c)) for c in self._columns])  # type: ignore[union-attr]
+            writer.writerow(self._csv_row(row))
+
+    def _csv_row(self, row: dict[str, Any]) -> list[str]:
+        return [_csv_value(row.get(c)) for c in self._columns or ()]
+
+
+def _columns_for(row: dict[str, Any]) -> list[str]:
+    """The CSV header a first row fixes: the fixed columns, then its reward components by name."""
+    return [*FIXED_COLUMNS, *sorted(k for k in row if k not in FIXED_COLUMNS)]
 
 
 def drop_rows_after(path: Path, step: int) -> None:
