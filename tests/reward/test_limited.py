@@ -101,9 +101,17 @@ def test_an_interrupt_of_the_caller_reaches_the_child_which_saves(tmp_path: Path
             time.sleep(0.05)
         os.kill(os.getpid(), signal.SIGINT)  # reaches this process alone, as `kill -INT` does
 
-    threading.Thread(target=interrupt_once_started, daemon=True).start()
-    with pytest.raises(KeyboardInterrupt):
-        run_limited(_loop_until_interrupted, (str(marker),), sandbox=LIMITS, name="child")
+    # Set here as the itskill command sets it: a test run started in the background by a
+    # script inherits SIGINT ignored, and the interrupt would never come.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        threading.Thread(target=interrupt_once_started, daemon=True).start()
+        with pytest.raises(KeyboardInterrupt):
+            run_limited(
+                _loop_until_interrupted, (str(marker),), sandbox=LIMITS, name="child", timeout_s=60
+            )
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert marker.read_text() == "saved"
 
 
