@@ -50,8 +50,16 @@ def test_defaults_and_round_trip(tmp_path):
     assert ExperimentConfig.from_dict(config.to_dict()) == config
 
 
+GOOD_REWARD = """\
+import numpy as np
+
+def compute_reward(ctx):
+    return np.zeros(len(ctx["ee_pos"])), {}
+"""
+
+
 def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path):
-    (tmp_path / "r.py").write_text("def compute_reward(ctx):\n    pass\n")
+    (tmp_path / "r.py").write_text(GOOD_REWARD)
     text = MINIMAL.replace("steps = 1000", 'steps = 1000\nreward = {pick_nut_m12 = "r.py"}')
     config = load_experiment(write(tmp_path, text))
     assert config.reward["pick_nut_m12"] == str((tmp_path / "r.py").resolve())
@@ -67,6 +75,13 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
         (("every = 500", "every = 5000"), "eval.every", "more than steps"),
         (("steps = 1000", 'steps = 1000\nalgo = "dqn"'), "algo", "expected one of"),
         (("steps = 1000", "steps = 1000\nseeds = [1, 1]"), "seeds", "distinct"),
+        # These failed every cell only once the run had started (and needed --resume once fixed).
+        *(
+            (("steps = 1000", f"steps = 1000\nseeds = [0, {seed}]"), "seeds[1]", "between 0 and")
+            for seed in (-1, 2**32, 99999999999)
+        ),
+        (("steps = 1000", 'steps = 1000\nllm = "bogus"'), "llm", "unknown language model"),
+        (("steps = 1000", 'steps = 1000\nllm = "openai:"'), "llm", "unknown language model"),
         (("steps = 1000", 'steps = 1000\nreward = "nope.py"'), "reward", "existing .py"),
         (
             ("steps = 1000", 'steps = 1000\nsources = {pick_nut_m16 = "auto"}'),
@@ -107,6 +122,26 @@ def test_invalid_fields_are_named(tmp_path, edit, where, problem):
     assert str(path) in str(info.value)
 
 
+@pytest.mark.parametrize(
+    ("body", "problem"),
+    [
+        ("def compute_reward(ctx)\n    return 0\n", "failed to run: SyntaxError"),
+        ("def reward(ctx):\n    return 0\n", "defines no function compute_reward"),
+        # Runs, but its result is caught only when called on the task's states.
+        ("def compute_reward(ctx):\n    return 0\n", "must return (total, components)"),
+    ],
+)
+def test_a_reward_file_training_would_refuse_is_refused_at_load(tmp_path, body, problem):
+    (tmp_path / "r.py").write_text(body)
+    text = MINIMAL.replace("steps = 1000", 'steps = 1000\nreward = {pick_nut_m12 = "r.py"}')
+    path = write(tmp_path, text)
+    with pytest.raises(ExperimentConfigError) as info:
+        load_experiment(path)
+    assert info.value.where == "reward.pick_nut_m12"
+    assert str(tmp_path / "r.py") in info.value.problem and problem in info.value.problem
+    assert str(path) in str(info.value)
+
+
 def test_missing_required_field_and_bad_syntax(tmp_path):
     with pytest.raises(ExperimentConfigError, match="methods: missing"):
         load_experiment(write(tmp_path, MINIMAL.replace('methods = ["itn", "no_transfer"]', "")))
@@ -130,6 +165,32 @@ def test_cli_reports_a_bad_experiment_file_in_one_line(tmp_path):
     assert "Traceback" not in result.output and not (tmp_path / "r").exists()
     report = CliRunner().invoke(app, ["report", str(tmp_path)])
     assert report.exit_code == 2 and "not an experiment run directory" in report.output
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        ("seeds = [-1]", "seeds[0]: expected a seed between 0 and 4294967295, got -1"),
+        ('llm = "bogus"', "llm: unknown language model 'bogus'"),
+        ('reward = "r.py"', "reward: " + "{r}: failed to run: SyntaxError"),
+    ],
+)
+def test_cli_refuses_what_every_cell_would_fail_on_before_making_the_run(tmp_path, edit, message):
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+
+    (tmp_path / "r.py").write_text("def compute_reward(ctx)\n")
+    # no_transfer uses no model: a mistyped llm was still fatal to every cell.
+    text = MINIMAL.replace('["itn", "no_transfer"]', '["no_transfer"]')
+    path = write(tmp_path, text.replace("steps = 1000", f"steps = 1000\n{edit}"))
+    out = tmp_path / "r"
+    result = CliRunner().invoke(app, ["experiment", "run", str(path), "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    output = "".join(result.output.split())
+    assert "error:" in output and str(path) in output
+    assert "".join(message.format(r=tmp_path / "r.py").split()) in output
+    assert "Traceback" not in result.output and not out.exists()
 
 
 def test_cli_reports_an_unreadable_skill_space_and_records_no_run(tmp_path, monkeypatch):

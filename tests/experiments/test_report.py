@@ -201,6 +201,19 @@ def test_a_damaged_result_is_not_counted_and_says_how_to_finish_it(run, tmp_path
     assert "no_transfer/seed_2: its result.json cannot be read" in md and "--resume" in md
 
 
+def test_a_damaged_curve_is_noted_for_its_cell_and_the_rest_is_reported(run, tmp_path):
+    import shutil
+
+    damaged = tmp_path / "damaged"
+    shutil.copytree(run, damaged)
+    eval_csv = Cell(TASK, "no_transfer", 2).dir(damaged) / "eval.csv"
+    eval_csv.write_bytes(eval_csv.read_bytes() + b"\xff\xfe\n")
+    files = experiment_report(damaged, tmp_path / "report", video=False)
+    md = files.markdown.read_text()
+    assert "5 of 8 runs finished" in md and "Success at fractions of the budget (Table II)" in md
+    assert any(str(eval_csv) in n and "not UTF-8 text" in n for n in files.notes)
+
+
 def test_runs_recorded_without_subtask_progress_still_get_a_report(run, tmp_path):
     import shutil
 

@@ -59,6 +59,11 @@ def test_user_file(tmp_path: Path) -> None:
         ("[search]\nsamples = 0\n", "samples: expected a positive number"),
         ("[search]\nalgo = 'sac'\n", "algo: expected one of"),
         ("[search]\nseeds = [1, 1]\n", "seeds: expected distinct seeds"),
+        # These planned and generated, then every candidate failed to train.
+        ("[search]\nseeds = [0, -1]\n", r"seeds\[1\]: expected a seed between 0 and 4294967295"),
+        ("[search]\nseeds = [99999999999]\n", r"seeds\[0\]: expected a seed between 0 and"),
+        # The final retraining trains on the seeds after the largest: the search's last step.
+        ("[search]\nseeds = [4294967295]\n", "seeds: the retraining after the search takes"),
         ("[search]\nselect_top = -1\n", "select_top: expected 0 or more"),
         ("[search]\nselect_seeds = 0\n", "select_seeds: expected a positive number"),
         ("[sandbox]\ntimeout = 1\n", "sandbox.timeout: unknown field"),
@@ -92,6 +97,8 @@ def test_file_errors_name_the_file_and_field(tmp_path: Path, text: str, message:
 def test_override_errors() -> None:
     with pytest.raises(SearchConfigError, match="overrides: executor: expected one of"):
         load_search_config(overrides={"executor": "slurm"})
+    with pytest.raises(SearchConfigError, match=r"overrides: seeds\[0\]: expected a seed between"):
+        load_search_config(overrides={"seeds": [-1]})
     with pytest.raises(SearchConfigError, match="overrides: iteratoins: unknown field"):
         load_search_config(overrides={"iteratoins": 2})
     with pytest.raises(SearchConfigError, match=r"overrides: sandbox\.call_timeout_s: expected a"):

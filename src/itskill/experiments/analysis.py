@@ -8,6 +8,7 @@ curves with known answers; reading run directories is :func:`read_curve`'s only 
 from __future__ import annotations
 
 import csv
+import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -65,15 +66,23 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
     path = Path(run_dir) / EVAL_FILE
     if not path.is_file():
         raise CurveError(path, "missing: the run was not trained with evaluations (eval_every)")
-    with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        missing = {"env_steps", "wall_s", column} - set(reader.fieldnames or ())
-        if missing:
-            raise CurveError(path, f"missing column(s) {', '.join(sorted(missing))}")
-        try:
-            raw = [(float(r["env_steps"]), float(r["wall_s"]), float(r[column])) for r in reader]
-        except (TypeError, ValueError) as err:
-            raise CurveError(path, f"not a number: {err}") from err
+    try:
+        # Decoded whole, so a damaged byte's offset is the file's, not one of a read buffer's.
+        reader = csv.DictReader(io.StringIO(path.read_bytes().decode("utf-8"), newline=""))
+        rows = list(reader)
+    except OSError as err:
+        raise CurveError(path, f"cannot be read: {(err.strerror or str(err)).lower()}") from err
+    except UnicodeDecodeError as err:
+        raise CurveError(path, f"not UTF-8 text (byte {err.start})") from err
+    except csv.Error as err:
+        raise CurveError(path, f"not a CSV file: {err}") from err
+    missing = {"env_steps", "wall_s", column} - set(reader.fieldnames or ())
+    if missing:
+        raise CurveError(path, f"missing column(s) {', '.join(sorted(missing))}")
+    try:
+        raw = [(float(r["env_steps"]), float(r["wall_s"]), float(r[column])) for r in rows]
+    except (TypeError, ValueError) as err:
+        raise CurveError(path, f"not a number: {err}") from err
     kept: list[list[float]] = []  # [step, wall over the run, success]
     offset = 0.0
     for step, wall, success in raw:

@@ -1,7 +1,9 @@
 """Experiment files: a TOML file naming tasks × methods × seeds and the training budget.
 
 ``experiments/validation.toml`` (the paper's validation experiment) is the worked example. Every
-problem is reported with the file, the field and what was expected, before any training starts.
+problem is reported with the file, the field and what was expected, before any training starts:
+a reward file is run and probed on its task's initial states when the experiment file is loaded,
+as training does (:func:`itskill.rl.train.load_reward`).
 
 Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but ``tasks``,
 ``methods``, ``steps`` and ``eval.every`` has a default)::
@@ -26,6 +28,9 @@ from typing import Any
 
 from itskill.datafile import DataFileError, read_toml
 from itskill.executors import EXECUTORS
+from itskill.llm.client import UnknownModelError, model_spec
+from itskill.reward.config import check_seeds
+from itskill.rl.train import RewardLoadError, load_reward
 from itskill.tasks import UnknownTaskError, get_task
 
 ALGOS = ("a2c", "ppo")
@@ -194,6 +199,15 @@ def _per_task(
     return {t: value.get(t, default) for t in tasks}
 
 
+def _check_reward_file(path: Path, where: str, file: Path, task: str) -> None:
+    """Load ``file`` for ``task`` as training will (run and probed on the task's initial states),
+    so a broken reward file is refused here instead of failing every cell of the task."""
+    try:
+        load_reward(file, get_task(task))
+    except RewardLoadError as err:
+        raise ExperimentConfigError(path, where, str(err)) from err
+
+
 def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
     """Validate a parsed experiment file; relative reward paths are resolved against ``path``."""
     from itskill.transfer import METHODS
@@ -217,8 +231,7 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
     seeds_raw = raw.get("seeds", 5)
     if isinstance(seeds_raw, list):
         seeds = tuple(_typed(path, f"seeds[{i}]", s, int) for i, s in enumerate(seeds_raw))
-        if not seeds or len(set(seeds)) != len(seeds):
-            raise ExperimentConfigError(path, "seeds", "expected distinct seeds, at least one")
+        check_seeds(path, "seeds", seeds, ExperimentConfigError)
     else:
         seeds = tuple(range(_positive(path, "seeds", seeds_raw)))
     algo = _typed(path, "algo", raw.get("algo", "a2c"), str)
@@ -241,6 +254,7 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
             raise ExperimentConfigError(
                 path, where, f"expected {EXPERT!r} or an existing .py reward file, got {value!r}"
             )
+        _check_reward_file(path, where, file, task)
         reward[task] = str(file)
 
     sources: dict[str, str | tuple[str, ...]] = {}
@@ -266,6 +280,11 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
         raise ExperimentConfigError(
             path, "eval.every", f"{evaluation.every} is more than steps ({steps}): no curve"
         )
+    llm = _typed(path, "llm", raw.get("llm", "offline"), str)
+    try:
+        model_spec(llm)  # parses the spec only: loading a file never contacts a model
+    except UnknownModelError as err:
+        raise ExperimentConfigError(path, "llm", str(err)) from err
     report = _parse_report(path, raw.get("report", {}), methods, tasks)
     execution = _parse_execution(path, raw.get("execution", {}))
     return ExperimentConfig(
@@ -281,7 +300,7 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
         reward=reward,
         sources=sources,
         k=_positive(path, "k", raw.get("k", 3)),
-        llm=_typed(path, "llm", raw.get("llm", "offline"), str),
+        llm=llm,
         report=report,
         execution=execution,
     )

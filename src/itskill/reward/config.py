@@ -17,6 +17,7 @@ from itskill.datafile import DataFileError, read_toml
 from itskill.executors import EXECUTORS
 from itskill.reward.sandbox import SandboxConfig
 from itskill.rl.config import ALGOS
+from itskill.rl.train import SEED_MAX
 
 
 class SearchConfigError(DataFileError):
@@ -59,6 +60,22 @@ def _coerce(source: str | Path, where: str, value: Any, kind: type, optional: bo
     if not isinstance(value, kind) or isinstance(value, bool):
         raise SearchConfigError(source, where, f"expected {kind.__name__}, got {value!r}")
     return value
+
+
+def check_seeds(
+    source: str | Path, where: str, seeds: tuple[int, ...], error: type[DataFileError]
+) -> tuple[int, ...]:
+    """``seeds`` if they are distinct, at least one, and each a seed training takes (0 to
+    :data:`~itskill.rl.train.SEED_MAX`), else ``error`` naming ``source`` and the field: a seed
+    training refuses would otherwise fail every run only once the runs start."""
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise error(source, where, f"expected distinct seeds, at least one, got {list(seeds)}")
+    for i, seed in enumerate(seeds):
+        if not 0 <= seed <= SEED_MAX:
+            raise error(
+                source, f"{where}[{i}]", f"expected a seed between 0 and {SEED_MAX}, got {seed}"
+            )
+    return seeds
 
 
 def _sandbox(source: str | Path, table: Any, base: SandboxConfig | None = None) -> SandboxConfig:
@@ -151,8 +168,16 @@ class RewardSearchConfig:
             raise SearchConfigError(
                 where, "executor", f"expected one of {EXECUTORS}, got {self.executor!r}"
             )
-        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
-            raise SearchConfigError(where, "seeds", f"expected distinct seeds, got {self.seeds!r}")
+        check_seeds(where, "seeds", self.seeds, SearchConfigError)
+        # The final (and selection) retraining train on the seeds after the largest one.
+        last = (self.select_seed_list if self.select_top else self.final_seed_list)[-1]
+        if last > SEED_MAX:
+            raise SearchConfigError(
+                where,
+                "seeds",
+                f"the retraining after the search takes the seeds after the largest one, up to "
+                f"{last}, more than {SEED_MAX}: use smaller seeds",
+            )
         if self.workers is not None and self.workers < 1:
             raise SearchConfigError(where, "workers", f"expected at least 1, got {self.workers}")
         if self.select_top < 0:
