@@ -69,3 +69,15 @@ def test_resume_rebuilds_an_emptied_csv_from_the_jsonl_rows(tmp_path: Path) -> N
     assert [line.split(",")[0] for line in lines[1:]] == ["64", "128", "192"]
     assert lines[1].split(",")[header.index("success_rate")] == "0.25"
     assert lines[3].split(",")[header.index("reach")] == "2"
+
+
+def test_a_run_started_again_gets_the_header_of_its_own_reward(tmp_path: Path) -> None:
+    # A killed run with another reward left rows but no checkpoint; the new run starts over.
+    old = MetricsWriter(tmp_path)
+    old.write({"step": 64, "wall_s": 0.5, "success_rate": 0.0, "foo": 1.0})
+    fresh = MetricsWriter(tmp_path)
+    fresh.truncate_after(-1)
+    fresh.write({"step": 64, "wall_s": 0.5, "success_rate": 0.5, "reach": 2.0})
+    header, *rows = fresh.csv_path.read_text().splitlines()
+    assert header.split(",")[-1] == "reach" and "foo" not in header
+    assert len(rows) == 1

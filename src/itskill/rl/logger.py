@@ -75,7 +75,8 @@ class MetricsWriter:
 
         A ``metrics.csv`` that is gone or empty (deleted, or a full disk) is written again from
         ``metrics.jsonl``, which holds the same rows: otherwise the resumed run would start it
-        afresh and the table would lose the rows before the checkpoint.
+        afresh and the table would lose the rows before the checkpoint. One left with no rows
+        is removed, so the next row writes its header.
         """
         kept: list[str] = []
         if self.jsonl_path.exists():
@@ -92,8 +93,13 @@ class MetricsWriter:
             text = io.StringIO()
             csv.writer(text).writerows([self._columns, *(self._csv_row(r) for r in rows)])
             write_text(self.csv_path, text.getvalue())
-        else:
-            drop_rows_after(self.csv_path, step)
+            return
+        drop_rows_after(self.csv_path, step)
+        if self._columns is not None and not _has_rows(self.csv_path):
+            # Every row went (a run started again): the next row fixes the header anew, for
+            # a reward whose components may differ from the abandoned run's.
+            self.csv_path.unlink()
+            self._columns = None
 
     def write(self, row: dict[str, Any]) -> None:
         with open(self.jsonl_path, "a") as fh:
@@ -132,6 +138,11 @@ def drop_rows_after(path: Path, step: int) -> None:
     text = io.StringIO()
     csv.writer(text).writerows([header, *kept])
     write_text(path, text.getvalue())
+
+
+def _has_rows(path: Path) -> bool:
+    with open(path, newline="") as fh:
+        return sum(1 for _ in csv.reader(fh)) > 1
 
 
 def _row_step(value: str) -> float:
