@@ -67,3 +67,39 @@ def test_an_export_cut_short_leaves_the_old_policy_whole(tmp_path, monkeypatch) 
         checkpoint.export_policy(SHIPPED_LIBRARY / "place_nut_m12", target)
     assert {p.name: p.read_bytes() for p in target.iterdir()} == before
     checkpoint.load_policy(target)  # still loads
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "expected"),
+    [
+        ("num_timesteps", "abc", 'num_timesteps: expected an integer of 0 or more, got "abc"'),
+        ("num_timesteps", -5, "num_timesteps: expected an integer of 0 or more, got -5"),
+        ("seed", True, "seed: expected an integer of 0 or more, got true"),
+        ("reward", None, "reward: expected an object, got null"),
+        ("policy", [256, 256], "policy: expected an object, got [256, 256]"),
+        ("task", 12, "task: expected a string, got 12"),
+    ],
+)
+def test_a_resume_from_metadata_of_the_wrong_type_names_the_field(
+    tmp_path, field: str, value: object, expected: str
+) -> None:
+    # A hand-edited checkpoint.json with a field of the wrong type resumed into a traceback
+    # (int() of "abc", .get on None) instead of a message naming the field.
+    import json
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+    from itskill.skills.store import SHIPPED_LIBRARY
+
+    run = tmp_path / "run"
+    shutil.copytree(SHIPPED_LIBRARY / "pick_nut_m12", run)
+    meta = json.loads((run / "checkpoint.json").read_text())
+    (run / "checkpoint.json").write_text(json.dumps({**meta, field: value}))
+    args = ["train", "pick_nut_m12", "--steps", "256", "--num-envs", "2", "--out", str(run)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    message = f"{run / 'checkpoint.json'}: corrupt metadata: field {expected}"
+    assert "".join(message.split()) in "".join(result.output.split())  # rich wraps long lines
+    assert "Traceback" not in result.output

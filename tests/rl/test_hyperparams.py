@@ -116,3 +116,68 @@ def test_packaged_task_tables_name_tasks_of_their_family(family: str) -> None:
     tables = read_toml(default_path(), HyperparamError)[family].get("tasks", {})
     for name in tables:
         assert get_task(name).family == family
+
+
+@pytest.mark.parametrize(
+    ("table", "problem"),
+    [
+        # A typo: the run trained with the family's n_steps, and nothing said so.
+        ("nutbolt.tasks.pick_nut_m21", "unknown task 'pick_nut_m21'; did you mean"),
+        # Under the other family, the task's own family never reads it.
+        ("peghole.tasks.pick_nut_m12", "task 'pick_nut_m12' is of family 'nutbolt'"),
+        ("nutbolt.tasks.pick_peg_round", "its table goes under [peghole.tasks.pick_peg_round]"),
+    ],
+)
+def test_a_task_table_of_no_task_of_its_family_is_named(
+    tmp_path: Path, table: str, problem: str
+) -> None:
+    path = tmp_path / "hp.toml"
+    path.write_text(default_path().read_text() + f"\n[{table}.ppo]\nn_steps = 32\n")
+    with pytest.raises(HyperparamError) as info:
+        load_hyperparams("nutbolt", "ppo", path, task="pick_nut_m12")
+    assert (info.value.path, info.value.where) == (str(path), table)
+    assert problem in info.value.problem
+    if "did you mean" in problem:
+        assert "'pick_nut_m12'" in info.value.problem
+
+
+MY_TASK = """\
+[[task]]
+id = "my_pick"
+family = "nutbot"
+command = "Pick up the M12 nut"
+skills = ["Pick"]
+actions = ["approach", "grasp"]
+objects = ["nut_m12"]
+max_steps = 60
+success = "grasped(0)"
+stages = [{ name = "grasp", done = "grasped(0)" }]
+[task.init]
+objects = [{ mode = "table", x = 0.5 }]
+"""
+
+
+def test_a_task_of_a_family_without_hyperparameters_is_named(monkeypatch, tmp_path: Path) -> None:
+    # The packaged hyper-parameter file took the blame for a typo in the user's task file.
+    from typer.testing import CliRunner
+
+    import itskill.tasks.spec as spec_module
+    from itskill.cli import app
+
+    (tmp_path / "tasks").mkdir()
+    task_file = tmp_path / "tasks" / "mine.toml"
+    task_file.write_text(MY_TASK)
+    monkeypatch.setenv(spec_module.TASKS_DIR_ENV, str(tmp_path / "tasks"))
+    spec_module._registry.cache_clear()
+    try:
+        args = ["train", "my_pick", "--steps", "64", "--out", str(tmp_path / "run")]
+        result = CliRunner().invoke(app, args)
+    finally:
+        spec_module._registry.cache_clear()
+    assert result.exit_code == 2, result.output
+    message = (
+        f"nutbot: no table for task family 'nutbot' (of task 'my_pick', from {task_file}); "
+        "this file has tables for nutbolt, peghole"
+    )
+    assert "".join(message.split()) in "".join(result.output.split())  # rich wraps long lines
+    assert "Traceback" not in result.output and not (tmp_path / "run").exists()

@@ -25,11 +25,12 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
+import math
 import platform
 import shutil
 import signal
 import threading
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from itskill.executors import STOP_SIGNALS
 from itskill.files import replaced_whole, write_text
+from itskill.rl.clock import EVAL_WALL_KEY, TRAIN_WALL_KEY
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.sim.vec_env import action_space, observation_space
@@ -54,6 +56,45 @@ META_FILE = "checkpoint.json"
 REWARD_NORM_FILE = "reward_norm.json"
 FORMAT_VERSION = 1
 REQUIRED_META = ("format", "task", "algo", "seed", "num_timesteps", "obs_size", "policy")
+
+
+def _is_count(value: Any) -> bool:
+    # JSON true and false load as bool, which Python counts as an int.
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _is_seconds(value: Any) -> bool:
+    return (
+        isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+        and value >= 0
+    )
+
+
+_COUNT = ("an integer of 0 or more", _is_count)
+_STRING = ("a string", lambda v: isinstance(v, str))
+_OBJECT = ("an object", lambda v: isinstance(v, dict))
+_SECONDS = ("a finite number of 0 or more", _is_seconds)
+META_FIELDS: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "format": _COUNT,
+    "task": _STRING,
+    "algo": _STRING,
+    "seed": _COUNT,
+    "num_timesteps": _COUNT,
+    "obs_size": _COUNT,
+    "action_size": _COUNT,
+    "policy": _OBJECT,
+    "policy_class": _STRING,
+    "reward": _OBJECT,
+    "hyperparams": _OBJECT,
+    "init": _OBJECT,
+    TRAIN_WALL_KEY: _SECONDS,
+    EVAL_WALL_KEY: _SECONDS,
+}
+"""What each ``checkpoint.json`` field that its readers use must hold (those not in
+:data:`REQUIRED_META` only when present): :func:`read_meta` checks them, so a hand-edited or
+damaged record is refused with the field named, not by a traceback deep in a resume."""
 BEST_DIR = "best"
 """Subdirectory of a run holding the policy that scored best in the evaluations during training
 (:class:`itskill.rl.eval_callback.DeterministicEvalCallback`)."""
@@ -181,6 +222,12 @@ def read_meta(run_dir: str | Path) -> dict[str, Any]:
     missing = [k for k in REQUIRED_META if k not in meta]
     if missing:
         raise CheckpointError(path, f"corrupt metadata: missing field(s) {', '.join(missing)}")
+    for key, (expected, valid) in META_FIELDS.items():
+        if key in meta and not valid(meta[key]):
+            raise CheckpointError(
+                path,
+                f"corrupt metadata: field {key}: expected {expected}, got {json.dumps(meta[key])}",
+            )
     if meta["format"] != FORMAT_VERSION:
         raise CheckpointError(
             path, f"checkpoint format {meta['format']!r}, this version reads {FORMAT_VERSION}"

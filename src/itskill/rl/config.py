@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
+from difflib import get_close_matches
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -19,6 +20,7 @@ from itskill.datafile import DataFileError, check_like, read_toml
 from itskill.rl.demos import DemoConfig
 from itskill.rl.init_policy import InitConfig
 from itskill.rl.policy import PolicyConfig
+from itskill.tasks.spec import all_tasks
 
 Algo = Literal["a2c", "ppo"]
 ALGOS: tuple[str, ...] = ("a2c", "ppo")
@@ -233,6 +235,38 @@ def _layer(
     )
 
 
+def _check_task_ids(path: Path, data: dict[str, Any]) -> None:
+    """Every ``[<family>.tasks.<id>]`` table in the file names a known task of that family.
+
+    A table under a mistyped id, or under another family than its task's, is never read: its
+    task would train with the family's values and nothing would say so. The tables of every
+    family are checked, since a task's table misplaced under another family is not in its own.
+    """
+    tasks = all_tasks()
+    for family, table in data.items():
+        own = table.get("tasks") if isinstance(table, dict) else None
+        # A family's table of another shape is reported when that family is loaded.
+        for name in own if isinstance(own, dict) else ():
+            where = f"{family}.tasks.{name}"
+            spec = tasks.get(name)
+            if spec is None:
+                ids = [t.id for t in tasks.values() if t.family == family] or list(tasks)
+                close = get_close_matches(name, ids)
+                hint = (
+                    f"did you mean {' or '.join(map(repr, close))}?"
+                    if close
+                    else f"known tasks: {', '.join(ids)}"
+                )
+                raise HyperparamError(path, where, f"unknown task {name!r}; {hint}")
+            if spec.family != family:
+                raise HyperparamError(
+                    path,
+                    where,
+                    f"task {name!r} is of family {spec.family!r} ({spec.source}), not "
+                    f"{family!r}: its table goes under [{spec.family}.tasks.{name}]",
+                )
+
+
 def _file_layers(
     path: Path, table: dict[str, Any], family: str, algo: str
 ) -> tuple[Hyperparams, dict[str, Hyperparams]]:
@@ -268,9 +302,16 @@ def load_hyperparams(
         raise HyperparamError(path, "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
     data = read_toml(path, HyperparamError)
     if family not in data:
+        # Mostly the task file's family is mistyped, not this file short of a table.
+        spec = all_tasks().get(task) if task is not None else None
+        of = "" if spec is None else f" (of task {spec.id!r}, from {spec.source})"
         raise HyperparamError(
-            path, family, f"no table for this task family; the file has {sorted(data)}"
+            path,
+            family,
+            f"no table for task family {family!r}{of}; this file has tables for "
+            f"{', '.join(sorted(data)) or 'no family'}",
         )
+    _check_task_ids(path, data)
     # Every task table and the other algorithm's are checked, not only what this run uses: a
     # typo fails on first use of the file.
     for other in ALGOS:

@@ -7,6 +7,7 @@ file is reported with the file, the field and what was expected.
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field, replace
 from functools import cache
@@ -111,6 +112,12 @@ class TaskSpec:
 
 
 # ---------------------------------------------------------------------- validation helpers
+def _is_number(value: Any) -> bool:
+    """Whether ``value`` is a finite int or float, not a bool: TOML also reads ``nan`` and ``inf``,
+    which no length, angle or share can be (the simulator fails on them at its first reset)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
 class _Reader:
     """Typed access to one table of a TOML file, with errors that say where."""
 
@@ -135,6 +142,8 @@ class _Reader:
                 kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
             )
             raise self._fail(key, f"expected {name}, got {type(value).__name__} {value!r}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise self._fail(key, f"expected a finite number, got {value!r}")
         return value
 
     def strings(self, key: str, default: Any = ...) -> tuple[str, ...]:
@@ -144,15 +153,12 @@ class _Reader:
         return tuple(value)
 
     def range(self, key: str, default: tuple[float, float]) -> Range:
-        value = self.table.get(key, list(default))
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            value = [value, value]
-        if (
-            not isinstance(value, list)
-            or len(value) != 2
-            or not all(isinstance(v, int | float) for v in value)
-        ):
-            raise self._fail(key, f"expected [low, high] or a number, got {value!r}")
+        raw = self.table.get(key, list(default))
+        value = [raw, raw] if isinstance(raw, int | float) and not isinstance(raw, bool) else raw
+        if not isinstance(value, list) or len(value) != 2 or not all(map(_is_number, value)):
+            raise self._fail(
+                key, f"expected a finite number or [low, high] of finite numbers, got {raw!r}"
+            )
         if value[1] < value[0]:
             raise self._fail(key, f"expected low <= high, got {value!r}")
         return Range(float(value[0]), float(value[1]))
@@ -181,11 +187,13 @@ def load_parts(path: Path) -> dict[str, Any]:
             allowed = set(cls.__dataclass_fields__) - {"name", "kind"}
             reader.check_keys(allowed)
             values = dict(fields)
+            for key, value in values.items():
+                if isinstance(value, float):
+                    # The parts' own checks let inf through, and nan where they check nothing.
+                    reader.get(key, float)
             if "rgba" in values:
                 rgba = reader.get("rgba", list)
-                if len(rgba) != 4 or not all(
-                    isinstance(v, int | float) and not isinstance(v, bool) for v in rgba
-                ):
+                if len(rgba) != 4 or not all(map(_is_number, rgba)):
                     raise TaskFileError(
                         path,
                         f"{kind}.{name}.rgba",
@@ -229,8 +237,10 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         fr = _Reader(path, f"task {task_id!r}.fixtures[{k}]", fx)
         fr.check_keys({"part", "xy", "yaw"})
         xy = fr.get("xy", list)
-        if len(xy) != 2 or not all(isinstance(v, int | float) for v in xy):
-            raise TaskFileError(path, fr.where + ".xy", f"expected [x, y], got {xy!r}")
+        if len(xy) != 2 or not all(map(_is_number, xy)):
+            raise TaskFileError(
+                path, fr.where + ".xy", f"expected [x, y] of finite numbers, got {xy!r}"
+            )
         placed = PlacedFixture(
             part(fr.get("part", str), (BoltSpec, HoleSpec), fr.where + ".part"),
             (float(xy[0]), float(xy[1])),
