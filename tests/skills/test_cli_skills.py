@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -166,7 +167,57 @@ def test_add_refuses_an_interval_whose_low_is_above_its_high(home, checkpoint):
         checkpoint, "reach_nut_m12", "--success", "0.5", "--ci-low", "0.9", "--ci-high", "0.1"
     )
     assert result.exit_code == 2 and "--ci-low" in _flat(result.output)
-    assert "0.9isabove--ci-high0.1" in _flat(result.output)
+    assert "low0.9isabovehigh0.1" in _flat(result.output)
+
+
+@pytest.mark.parametrize("name", ["", "  ", " pick"])
+def test_add_refuses_a_name_that_sources_could_not_name(home, checkpoint, name):
+    # "  " was added as skill 50, which no --sources list could then name.
+    result = add(checkpoint, "reach_nut_m12", "--name", name)
+    assert result.exit_code == 2
+    assert "Invalid value for --name" in result.output
+    assert not home.exists()  # refused before the skill space was opened
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "problem"),
+    [
+        ("actions", "approach", "actions: a skill needs at least one action"),
+        ("success", 5, "success: 5.0 is not a rate in [0, 1]"),
+        ("success_ci", [0.9, 0.1], "success_ci: low 0.9 is above high 0.1"),
+    ],
+)
+def test_install_refuses_a_manifest_field_of_the_wrong_type_or_range(
+    home, tmp_path, field, value, problem
+):
+    # Each was installed: "approach" as eight one-letter actions, 5 as a success of 500%.
+    lib = tmp_path / "lib"
+    shutil.copytree(SHIPPED_LIBRARY / "reach_nut_m12", lib / "reach_nut_m12")
+    manifest = json.loads((SHIPPED_LIBRARY / "manifest.json").read_text())
+    entry = next(e for e in manifest["skills"] if e["name"] == "reach_nut_m12")
+    (lib / "manifest.json").write_text(json.dumps({"skills": [{**entry, field: value}]}))
+    result = runner.invoke(app, ["skills", "install", str(lib)])
+    assert result.exit_code == 2 and result.stdout == ""
+    where = f"{lib / 'manifest.json'}: skills[0] (skill 'reach_nut_m12'): {problem}"
+    assert " ".join(result.stderr.split()).startswith(f"error: {where}")
+    assert not home.exists()  # not even the skill space was created
+
+
+@pytest.mark.parametrize("query", ["", "   "])
+def test_search_refuses_a_blank_query(home, query):
+    # It printed the skills closest to the embedding of nothing, and exited 0.
+    result = runner.invoke(app, ["skills", "search", query])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr.startswith("error: the query is empty")
+
+
+def test_search_refuses_to_exclude_an_unknown_task(home):
+    # The typo excluded nothing, and pick_nut_m12's skill came first.
+    args = ["skills", "search", "pick nut", "--exclude-task", "pick_nut_m21"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr.startswith("error: unknown task 'pick_nut_m21'")
+    assert "pick_nut_m12" in result.stderr
 
 
 def test_corrupt_database_names_path(home):
@@ -226,6 +277,8 @@ def test_pretrain_exits_non_zero_when_a_skill_fails(home, tmp_path, monkeypatch)
         (["--algo", "foo"], "algomustbeoneofa2c,ppo,got'foo'"),
         # 2 (or 50 for "50%") trained every seed of every skill and could never add one.
         (["--min-success", "2"], "Invalidvaluefor'--min-success'"),
+        # Told on stdout, without "error:", by the executor once the skill space was open.
+        (["--workers", "0"], "Invalidvaluefor'--workers'"),
     ],
 )
 def test_pretrain_refuses_bad_settings_before_training(home, tmp_path, option, message):
@@ -234,6 +287,15 @@ def test_pretrain_refuses_bad_settings_before_training(home, tmp_path, option, m
     assert result.exit_code == 2
     assert message in _flat(result.output)
     assert not (tmp_path / "runs").exists()
+
+
+def test_pretrain_reports_an_unknown_executor_as_an_error(home, tmp_path):
+    # It was printed on stdout without "error:", after the skill space had been created.
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--executor", "foo"]
+    result = runner.invoke(app, [*args, "--runs", str(tmp_path / "runs")])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr.startswith("error: unknown executor 'foo'")
+    assert not (tmp_path / "runs").exists() and not home.exists()
 
 
 def test_pretrain_takes_a_comma_separated_task_list(home, tmp_path):

@@ -90,11 +90,56 @@ def test_bad_manifest_names_file(tmp_path):
     # A budget that is not an object was an AttributeError traceback from `skills install`.
     entry = {**entries()[0].to_json(), "budget": 5}
     (tmp_path / "manifest.json").write_text(json.dumps({"skills": [entry]}))
-    with pytest.raises(ManifestError, match=r"manifest\.json: skills\[0\]\.budget: expected an"):
+    with pytest.raises(
+        ManifestError, match=r"skills\[0\] \(skill 'pick_nut_m12'\): budget: expected"
+    ):
         read_manifest(tmp_path)
     (tmp_path / "manifest.json").write_text('{"format": "1", "skills": []}')
     with pytest.raises(ManifestError, match="'format' must be a whole number"):
         read_manifest(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "problem"),
+    [
+        # A string was read as a list of letters: eight actions, "a → p → p → r → o → ...".
+        ("actions", "approach", "actions: a skill needs at least one action"),
+        ("actions", [], "actions: a skill needs at least one action"),
+        ("actions", ["approach", 3], "actions: expected action names"),
+        # Both were stored as they were, a success of 500% and an interval upside down.
+        ("success", 5, "success: 5.0 is not a rate in [0, 1]"),
+        ("success", "0.9", "success: expected a finite number, got '0.9'"),
+        ("success_ci", [0.9, 0.1], "success_ci: low 0.9 is above high 0.1"),
+        ("success_ci", [0.1, 1.5], "success_ci: [0.1, 1.5] is not an interval of rates"),
+        ("success_ci", [0.1], "success_ci: expected [low, high]"),
+        ("budget", {"steps": -1}, "budget.steps: expected a whole number of at least 0"),
+        ("budget", {"steps": 1.5}, "budget.steps: expected a whole number"),
+        ("budget", {"wall_s": float("nan")}, "budget.wall_s: expected a finite number"),
+        ("seed", True, "seed: expected a whole number"),
+        ("algo", 3, "algo: expected a string"),
+        ("task", None, "task: expected a string"),
+    ],
+)
+def test_a_field_of_the_wrong_type_or_range_names_the_manifest_skill_and_field(
+    tmp_path, field, value, problem
+):
+    entry = {**entries()[0].to_json(), field: value}
+    (tmp_path / "manifest.json").write_text(json.dumps({"skills": [entry]}))
+    with pytest.raises(ManifestError) as err:
+        read_manifest(tmp_path)
+    where = f"{tmp_path / 'manifest.json'}: skills[0] (skill 'pick_nut_m12'): "
+    assert str(err.value).startswith(where) and problem in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("name", "problem"), [("  ", "is blank"), (" pick", "whitespace around it"), (5, "a string")]
+)
+def test_a_name_no_command_could_look_up_is_refused(tmp_path, name, problem):
+    entry = {**entries()[0].to_json(), "name": name}
+    (tmp_path / "manifest.json").write_text(json.dumps({"skills": [entry]}))
+    with pytest.raises(ManifestError, match=r"skills\[0\]: name: ") as err:
+        read_manifest(tmp_path)
+    assert problem in str(err.value)
 
 
 def put_policy(lib: Path, entry: ManifestEntry, task: str | None = None) -> None:

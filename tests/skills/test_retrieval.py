@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from itskill.skills import Skill, SkillSpace, embeddings, search, skill_text
-from itskill.tasks import all_tasks
+from itskill.skills.retrieval import EmptyQueryError
+from itskill.tasks import UnknownTaskError, all_tasks
 
 QUERY = "Pick up the round peg and insert it into the round hole"
 
@@ -60,6 +61,20 @@ def test_insert_round_peg_ranks_first(library):
     # is not in the space) gives the same first choice.
     sources = search(library, QUERY, k=3, exclude_tasks={"pickplaceinsert_peg_round"})
     assert sources[0][0].name == "insert_peg_round"
+
+
+@pytest.mark.parametrize("query", ["", "   "])
+def test_a_blank_query_is_refused(home, query):
+    # It ranked the skills by the embedding of nothing and returned the first k.
+    with SkillSpace() as space, pytest.raises(EmptyQueryError, match="the query is empty"):
+        search(space, query)
+
+
+def test_excluding_an_unknown_task_is_refused_not_ignored(home):
+    # "pick_nut_m21" for pick_nut_m12 excluded nothing and said nothing.
+    with SkillSpace() as space, pytest.raises(UnknownTaskError, match="'pick_nut_m21'") as err:
+        search(space, "pick up the nut", exclude_tasks={"pick_nut_m12", "pick_nut_m21"})
+    assert "pick_nut_m12" in str(err.value)
 
 
 def test_search_embeds_only_the_query(library, monkeypatch):

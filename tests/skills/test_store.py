@@ -160,6 +160,18 @@ def test_a_name_of_digits_is_refused(home, checkpoint):
         assert len(space) == 0
 
 
+@pytest.mark.parametrize(
+    ("name", "problem"),
+    [("", "'' is blank"), ("  ", "'  ' is blank"), (" pick ", "give it as 'pick'")],
+)
+def test_a_name_that_sources_cannot_name_is_refused(home, checkpoint, name, problem):
+    # "  " was added, and no --sources list could then name it (each name there is stripped).
+    with SkillSpace() as space:
+        with pytest.raises(InvalidSkillNameError, match=problem):
+            space.add(make_skill(name, Path(checkpoint)))
+        assert len(space) == 0
+
+
 def test_only_ascii_digits_read_as_a_serial_number(home, checkpoint):
     # "²" and "①" are digits to str.isdigit, which int() refuses: `skills show ²` crashed.
     with SkillSpace() as space:

@@ -285,6 +285,14 @@ def test_unknown_task_name_lists_known_tasks():
     assert isinstance(err.value, KeyError)  # dict-like lookups can catch it as a KeyError
 
 
+def test_a_mistyped_task_name_gets_the_near_ones_not_the_whole_catalogue():
+    with pytest.raises(UnknownTaskError) as err:
+        get_task("pick_nut_m21")
+    message = str(err.value)
+    assert "did you mean" in message and "'pick_nut_m12'" in message
+    assert "insert_peg_rect" not in message and len(message) < 200
+
+
 # ---------------------------------------------------------------------- predicates
 def context(n: int = 3, **values) -> dict[str, np.ndarray]:
     """A hand-built context of ``n`` environments with two object slots, all zero by default."""

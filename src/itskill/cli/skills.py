@@ -38,12 +38,14 @@ SkillArg = Annotated[str, typer.Argument(help="Skill id or name (see `itskill sk
 
 @contextmanager
 def _skill_errors() -> Iterator[None]:
-    """Unknown skill or task, unreadable or newer database, missing checkpoint: exit code 2."""
+    """Unknown skill or task, unreadable or newer database, missing checkpoint, settings no
+    executor can run: exit code 2."""
+    from itskill.executors import ExecutorError
     from itskill.skills import SkillSpaceError
 
     try:
         yield
-    except (SkillSpaceError, UnknownTaskError, TaskFileError) as err:
+    except (SkillSpaceError, UnknownTaskError, TaskFileError, ExecutorError) as err:
         err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
         raise typer.Exit(USAGE_ERROR) from err
 
@@ -143,9 +145,13 @@ def skills_search(
 ) -> None:
     """The skills most similar to QUERY (cosine similarity of sentence embeddings)."""
     from itskill.skills import open_skill_space, search
+    from itskill.skills.retrieval import check_search
 
-    with _skill_errors(), open_skill_space() as space:
-        hits = search(space, query, k=k, exclude_tasks=set(exclude_task or ()))
+    exclude = set(exclude_task or ())
+    with _skill_errors():
+        check_search(query, exclude)  # before the space is opened, which may create it
+        with open_skill_space() as space:
+            hits = search(space, query, k=k, exclude_tasks=exclude)
     if as_json:
         print_json([{"score": score, **s.to_dict()} for s, score in hits])
         return
@@ -183,14 +189,25 @@ def skills_add(
     from itskill.rl.checkpoint import POLICY_FILE, best_policy_dir
     from itskill.skills import Skill, open_skill_space
     from itskill.skills.admission import InadmissibleSkillError, check_admissible
+    from itskill.skills.store import (
+        InvalidMeasurementError,
+        InvalidSkillNameError,
+        check_skill_name,
+        check_success,
+    )
 
     if (ci_low is None) != (ci_high is None):
         raise typer.BadParameter("give both --ci-low and --ci-high, or neither")
-    if ci_low is not None and ci_high is not None and ci_low > ci_high:
-        raise typer.BadParameter(
-            f"{ci_low} is above --ci-high {ci_high}; the interval is [low, high]",
-            param_hint="--ci-low",
-        )
+    ci = None if ci_low is None or ci_high is None else (ci_low, ci_high)
+    try:
+        check_success(success, ci)
+        if name is not None:
+            check_skill_name(name)  # before the policy loads, which takes seconds
+    except InvalidMeasurementError as err:
+        hint = "--success" if err.field == "success" else "--ci-low"
+        raise typer.BadParameter(err.problem, param_hint=hint) from err
+    except InvalidSkillNameError as err:
+        raise typer.BadParameter(str(err), param_hint="--name") from err
     checkpoint = checkpoint.expanduser().resolve()
     if checkpoint.is_dir():
         checkpoint = best_policy_dir(checkpoint) / POLICY_FILE
@@ -210,7 +227,7 @@ def skills_add(
             # Absolute: a path relative to the shell's directory means nothing to other processes.
             checkpoint=str(checkpoint),
             success_rate=success,
-            success_ci=None if ci_low is None else (ci_low, ci_high),
+            success_ci=ci,
             train_steps=steps,
             train_wall_s=wall_s,
             algo=algo,
@@ -243,10 +260,12 @@ def skills_install(
     as_json: JsonOpt = False,
 ) -> None:
     """Register every skill of a library directory (skipping names already present)."""
-    from itskill.skills import install_library, open_skill_space
+    from itskill.skills import install_library, open_skill_space, read_manifest
 
-    with user_errors(), _skill_errors(), open_skill_space() as space:
-        added = install_library(space, library)
+    with user_errors(), _skill_errors():
+        read_manifest(library)  # a bad manifest fails before the space opens, which may create it
+        with open_skill_space() as space:
+            added = install_library(space, library)
     if as_json:
         print_json([s.to_dict() for s in added])
         return
@@ -307,7 +326,8 @@ def skills_pretrain(
     workers: Annotated[
         int | None,
         typer.Option(
-            help="Parallel jobs (default: one per core; with Ray, as many as the cluster takes)."
+            min=1,
+            help="Parallel jobs (default: one per core; with Ray, as many as the cluster takes).",
         ),
     ] = None,
     ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,
@@ -346,7 +366,7 @@ def skills_pretrain(
             "it decides whether a refined skill replaces the library's; add --refine",
             param_hint="--replace-p",
         )
-    from itskill.executors import ExecutorError
+    from itskill.executors import check_executor
     from itskill.skills import open_skill_space
     from itskill.skills.library import shipped_budgets
     from itskill.skills.pretrain import (
@@ -423,8 +443,10 @@ def skills_pretrain(
                     f"{run['steps']:,} env-steps, {run['wall_s'] / 60:.1f} min"
                 )
 
-    with user_errors(), _skill_errors(), open_skill_space() as space:
-        try:
+    with user_errors(), _skill_errors():
+        # Before the space opens (which may create it) and pretrain makes the library directory.
+        check_executor(executor, workers, ray_address)
+        with open_skill_space() as space:
             pretrain(
                 basic_tasks() if tasks is None else names,
                 config,
@@ -437,9 +459,6 @@ def skills_pretrain(
                 on_result=report,
                 budgets=shipped_budgets() if steps is None and not refine else None,
             )
-        except ExecutorError as err:
-            console.print(f"[red]{escape(str(err))}[/red]")
-            raise typer.Exit(2) from err
     if failed:
         err_console.print(
             f"[red]error:[/red] {len(failed)} skill(s) failed: {escape(', '.join(failed))}; "

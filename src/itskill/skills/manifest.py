@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import tempfile
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
@@ -28,7 +29,15 @@ from filelock import FileLock
 
 from itskill.files import write_text
 from itskill.skills.admission import InadmissibleSkillError, check_admissible
-from itskill.skills.store import Skill, SkillSpace, SkillSpaceError
+from itskill.skills.store import (
+    InvalidMeasurementError,
+    InvalidSkillNameError,
+    Skill,
+    SkillSpace,
+    SkillSpaceError,
+    check_skill_name,
+    check_success,
+)
 from itskill.tasks import UnknownTaskError
 
 MANIFEST_NAME = "manifest.json"
@@ -79,34 +88,62 @@ class ManifestEntry:
         }
 
     @classmethod
-    def from_json(cls, data: dict[str, Any], where: str) -> ManifestEntry:
+    def from_json(cls, data: Any, where: str) -> ManifestEntry:
+        """The entry ``data`` (an item of the manifest's ``skills``, found at ``where``), every
+        field checked as the skill space checks a skill it is given: a :class:`ManifestError`
+        names the place, the skill and the field."""
         if not isinstance(data, dict):
             raise ManifestError(f"{where}: bad skill entry (expected an object, got {data!r})")
-        budget = data.get("budget") or {}
+        name = _string(data, "name", where)
+        try:
+            check_skill_name(name)
+        except InvalidSkillNameError as err:
+            raise ManifestError(f"{where}: name: {err}") from err
+        where = f"{where} (skill {name!r})"
+        actions = _required(data, "actions", where)
+        if not isinstance(actions, list) or not actions:
+            raise ManifestError(
+                f"{where}: actions: a skill needs at least one action; expected a list of "
+                f"action names, got {actions!r}"
+            )
+        if not all(isinstance(a, str) for a in actions):
+            raise ManifestError(f"{where}: actions: expected action names, got {actions!r}")
+        success = _number(data.get("success"), "success", where)
+        ci = data.get("success_ci")
+        if ci is not None:
+            if not isinstance(ci, list) or len(ci) != 2:
+                raise ManifestError(f"{where}: success_ci: expected [low, high], got {ci!r}")
+            ci = (_number(ci[0], "success_ci", where), _number(ci[1], "success_ci", where))
+        try:
+            check_success(success, ci)
+        except InvalidMeasurementError as err:
+            raise ManifestError(f"{where}: {err}") from err
+        budget = data.get("budget")
+        if budget is None:
+            budget = {}
         if not isinstance(budget, dict):
             raise ManifestError(
-                f"{where}.budget: expected an object with steps and wall_s, got {budget!r}"
+                f"{where}: budget: expected an object with steps and wall_s, got {budget!r}"
             )
-        try:
-            ci = data.get("success_ci")
-            known = {"name", "task", "description", "actions", "checkpoint", "success"}
-            known |= {"success_ci", "budget", "algo", "seed"}
-            return cls(
-                name=str(data["name"]),
-                task=str(data["task"]),
-                description=str(data["description"]),
-                actions=tuple(str(a) for a in data["actions"]),
-                checkpoint=str(data["checkpoint"]),
-                success=None if data.get("success") is None else float(data["success"]),
-                success_ci=None if ci is None else (float(ci[0]), float(ci[1])),
-                steps=None if budget.get("steps") is None else int(budget["steps"]),
-                wall_s=None if budget.get("wall_s") is None else float(budget["wall_s"]),
-                algo=data.get("algo"),
-                seed=None if data.get("seed") is None else int(data["seed"]),
-                extra={k: v for k, v in data.items() if k not in known},
-            )
-        except (KeyError, TypeError, ValueError, IndexError) as err:
-            raise ManifestError(f"{where}: bad skill entry ({err!r})") from err
+        algo = data.get("algo")
+        if algo is not None and not isinstance(algo, str):
+            raise ManifestError(f"{where}: algo: expected a string, got {algo!r}")
+        known = {"name", "task", "description", "actions", "checkpoint", "success"}
+        known |= {"success_ci", "budget", "algo", "seed"}
+        return cls(
+            name=name,
+            task=_string(data, "task", where),
+            description=_string(data, "description", where),
+            actions=tuple(actions),
+            checkpoint=_string(data, "checkpoint", where),
+            success=success,
+            success_ci=ci,
+            steps=_count(budget.get("steps"), "budget.steps", where),
+            wall_s=_number(budget.get("wall_s"), "budget.wall_s", where, minimum=0.0),
+            algo=algo,
+            seed=_count(data.get("seed"), "seed", where),
+            extra={k: v for k, v in data.items() if k not in known},
+        )
 
     def to_skill(self, checkpoint: str) -> Skill:
         return Skill(
@@ -122,6 +159,44 @@ class ManifestEntry:
             algo=self.algo,
             seed=self.seed,
         )
+
+
+def _required(data: dict[str, Any], key: str, where: str) -> Any:
+    if key not in data:
+        raise ManifestError(f"{where}: {key}: missing")
+    return data[key]
+
+
+def _string(data: dict[str, Any], key: str, where: str) -> str:
+    value = _required(data, key, where)
+    if not isinstance(value, str):
+        raise ManifestError(f"{where}: {key}: expected a string, got {value!r}")
+    return value
+
+
+def _number(value: Any, key: str, where: str, minimum: float = -math.inf) -> float | None:
+    """``value`` as a float, None where it is not recorded. Strings and booleans are refused,
+    and so are NaN and Infinity, which Python's JSON reader takes."""
+    if value is None:
+        return None
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value < minimum
+    ):
+        at_least = "" if minimum == -math.inf else f" of at least {minimum:g}"
+        raise ManifestError(f"{where}: {key}: expected a finite number{at_least}, got {value!r}")
+    return float(value)
+
+
+def _count(value: Any, key: str, where: str) -> int | None:
+    """``value`` as a whole number of at least 0 (None: not recorded)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ManifestError(f"{where}: {key}: expected a whole number of at least 0, got {value!r}")
+    return value
 
 
 def read_manifest(library_dir: Path | str) -> list[ManifestEntry]:

@@ -27,7 +27,12 @@ from dataclasses import replace
 import numpy as np
 
 from itskill.skills import embeddings
-from itskill.skills.store import Skill, SkillSpace
+from itskill.skills.store import Skill, SkillSpace, SkillSpaceError
+from itskill.tasks import get_task
+
+
+class EmptyQueryError(SkillSpaceError):
+    """A blank search query: its embedding says nothing, so every skill would rank by chance."""
 
 
 def skill_text(skill: Skill) -> str:
@@ -56,6 +61,17 @@ def _ensure_embeddings(space: SkillSpace, skills: list[Skill]) -> list[Skill]:
     return out
 
 
+def check_search(query: str, exclude_tasks: Collection[str] = ()) -> None:
+    """Raise :class:`EmptyQueryError` for a blank ``query`` and ``UnknownTaskError`` for a task
+    id in ``exclude_tasks`` that no task has (a typo would exclude nothing, silently)."""
+    if not query.strip():
+        raise EmptyQueryError(
+            'the query is empty: say what the robot should do, e.g. "Pick up the round peg"'
+        )
+    for task in exclude_tasks:
+        get_task(task)
+
+
 def search(
     space: SkillSpace,
     query: str,
@@ -66,7 +82,9 @@ def search(
 
     ``exclude_tasks`` drops skills of these task ids, e.g. the target task itself when looking for
     transfer sources for it. Ties are broken by serial number so the order is reproducible.
+    Raises what :func:`check_search` raises for the query and the task ids.
     """
+    check_search(query, exclude_tasks)
     if k <= 0:
         return []
     skills = [s for s in space.list() if s.task_id not in exclude_tasks]

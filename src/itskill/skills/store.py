@@ -108,7 +108,17 @@ class DuplicateSkillError(SkillSpaceError):
 
 
 class InvalidSkillNameError(SkillSpaceError):
-    """A name that would be read as something else (all digits: a serial number)."""
+    """A name that cannot be looked up as written: blank, with surrounding whitespace (which
+    ``--sources`` strips), or all digits (a serial number)."""
+
+
+class InvalidMeasurementError(SkillSpaceError, ValueError):
+    """A success rate or interval that no evaluation gives: outside [0, 1], or low above high.
+    ``field`` is ``success`` or ``success_ci``; ``problem`` says what is wrong with it."""
+
+    def __init__(self, field: str, problem: str) -> None:
+        super().__init__(f"{field}: {problem}")
+        self.field, self.problem = field, problem
 
 
 class MissingCheckpointError(SkillSpaceError):
@@ -126,6 +136,43 @@ class UnknownSkillError(SkillSpaceError, KeyError):
     def __str__(self) -> str:
         hint = f" Did you mean: {', '.join(self.close)}?" if self.close else ""
         return f"unknown skill {self.key!r}.{hint} (`itskill skills list` shows them all)"
+
+
+def check_skill_name(name: str) -> None:
+    """Raise :class:`InvalidSkillNameError` unless ``name`` can name a skill wherever a skill is
+    named: not blank, no whitespace around it (a name in ``--sources`` is stripped, so " pick"
+    could never be given there), not all digits (``get`` and ``remove`` would take it for a
+    serial number)."""
+    if not name.strip():
+        raise InvalidSkillNameError(f"skill name {name!r} is blank; give it a name with a letter")
+    if name != name.strip():
+        raise InvalidSkillNameError(
+            f"skill name {name!r} has whitespace around it, which lookups by name do not "
+            f"match; give it as {name.strip()!r}"
+        )
+    if is_serial_number(name):
+        raise InvalidSkillNameError(
+            f"skill name {name!r} is all digits, which reads as a serial number; "
+            "give it a name with a letter"
+        )
+
+
+def check_success(success: float | None, ci: tuple[float, float] | None) -> None:
+    """Raise :class:`InvalidMeasurementError` unless ``success`` and each end of ``ci`` (either
+    may be None: not measured) are rates in [0, 1] and ``ci`` is ``(low, high)`` in that order."""
+    if success is not None and not 0 <= success <= 1:  # also refuses NaN
+        raise InvalidMeasurementError("success", f"{success} is not a rate in [0, 1]")
+    if ci is None:
+        return
+    low, high = ci
+    if not (0 <= low <= 1 and 0 <= high <= 1):
+        raise InvalidMeasurementError(
+            "success_ci", f"[{low}, {high}] is not an interval of rates in [0, 1]"
+        )
+    if low > high:
+        raise InvalidMeasurementError(
+            "success_ci", f"low {low} is above high {high}; the interval is [low, high]"
+        )
 
 
 UPDATABLE_FIELDS = (
@@ -502,20 +549,16 @@ class SkillSpace:
         """Add several skills in one transaction (all or none); returns those added.
 
         Raises :class:`MissingCheckpointError` if a checkpoint file does not exist,
-        :class:`InvalidSkillNameError` for a name of digits only (``get`` and ``remove`` would take
-        it for a serial number) and, where a name is taken by the time the transaction runs
-        (another process may have added it while this one was embedding), what ``on_conflict``
-        says: ``error`` raises :class:`DuplicateSkillError`, ``skip`` leaves the skill out,
-        ``replace`` deletes the old skill in the same transaction, so there is no moment without
-        one and two processes replacing the same skill leave the later one.
+        :class:`InvalidSkillNameError` for a name :func:`check_skill_name` refuses and, where a
+        name is taken by the time the transaction runs (another process may have added it while
+        this one was embedding), what ``on_conflict`` says: ``error`` raises
+        :class:`DuplicateSkillError`, ``skip`` leaves the skill out, ``replace`` deletes the old
+        skill in the same transaction, so there is no moment without one and two processes
+        replacing the same skill leave the later one.
         """
         skills = list(skills)
         for s in skills:
-            if is_serial_number(s.name):
-                raise InvalidSkillNameError(
-                    f"skill name {s.name!r} is all digits, which reads as a serial number; "
-                    "give it a name with a letter"
-                )
+            check_skill_name(s.name)
             self._require_checkpoint(s)
             # Before embedding, which takes seconds (the model loads first): a taken name is
             # known now. The check in the transaction still catches one taken meanwhile.

@@ -7,6 +7,8 @@ file is reported with the file, the field and what was expected.
 
 from __future__ import annotations
 
+import difflib
+
 import math
 import os
 from dataclasses import dataclass, field, replace
@@ -48,6 +50,13 @@ class UnknownTaskError(PicklableError, KeyError):
         self.name, self.known = name, known
 
     def __str__(self) -> str:
+        close = difflib.get_close_matches(self.name, self.known, n=3, cutoff=0.8)
+        if close:
+            # A typo: the few ids it is near, not all of them (`itskill tasks list` has those).
+            return (
+                f"unknown task {self.name!r}; did you mean {' or '.join(map(repr, close))}? "
+                "(`itskill tasks list` shows every task)"
+            )
         return f"unknown task {self.name!r}. Known tasks: {', '.join(self.known)}"
 
 
