@@ -19,3 +19,11 @@ for v in nsteps5 clip5; do
     --eval-every 20000 --eval-episodes 50 --workers 2 \
     --hyperparams results/learn_basic/a2c_screening/$v/hyperparams.toml --out runs/a2c_screening/$v
 done
+# 2026-12-05, later: a smaller value-loss weight (0.25: the critic's share of the clipped gradient
+# norm shrinks, so the actor's step is cut less) and a smaller initial action noise (log-std
+# -1.0, as the pick-and-place tasks needed a lower noise to keep their chained sources).
+for v in vf025 logstd1; do
+  python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 --steps 300000 \
+    --eval-every 20000 --eval-episodes 50 --workers 2 \
+    --hyperparams results/learn_basic/a2c_screening/$v/hyperparams.toml --out runs/a2c_screening/$v
+done
