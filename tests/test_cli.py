@@ -1,4 +1,5 @@
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,11 @@ runner = CliRunner()
 def flat(text: str) -> str:
     """Output with line wrapping undone, so assertions do not depend on terminal width."""
     return " ".join(text.split())
+
+
+def unspaced(text: str) -> str:
+    """Text without any whitespace: rich folds a long path anywhere, even inside a name."""
+    return "".join(text.split())
 
 
 def test_tasks_list_json_has_every_task():
@@ -94,16 +100,31 @@ def test_malformed_task_file_names_file_and_field(tmp_path, monkeypatch):
     assert "Traceback" not in text
 
 
-def test_scripted_eval_of_a_task_without_a_script_is_a_clear_error(tmp_path, monkeypatch):
-    (tmp_path / "mine.toml").write_text(
+def my_pick_task(command: str) -> str:
+    """A task file of one task, my_pick, without a script, commanded by ``command``."""
+    return (
         '[[task]]\nid = "my_pick"\nfamily = "nutbolt"\nkind = "basic"\n'
-        'command = "Pick up the M12 nut"\nskills = ["Pick"]\nactions = ["approach", "grasp"]\n'
+        f'command = "{command}"\nskills = ["Pick"]\nactions = ["approach", "grasp"]\n'
         'objects = ["nut_m12"]\nfixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]\n'
         'max_steps = 60\nsuccess = "grasped(0)"\n'
         'stages = [{ name = "approach", done = "near(0, 0.02)" }]\n'
         "[task.init]\nee = { x = [0.4, 0.5], y = [-0.08, 0.08], z = [0.15, 0.22] }\n"
         'objects = [{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }]\n'
     )
+
+
+def test_a_task_file_s_text_is_shown_as_written(tmp_path, monkeypatch):
+    # Rich read it as markup: "[b]" vanished from the command, "[/b]" ended in a traceback.
+    (tmp_path / "mine.toml").write_text(my_pick_task("Pick up the [b]M12[/b] nut"))
+    monkeypatch.setenv(TASKS_DIR_ENV, str(tmp_path))
+    for args in (["tasks", "show", "my_pick"], ["tasks", "list"]):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 0, result.output
+        assert "[b]M12[/b]" in unspaced(result.output)
+
+
+def test_scripted_eval_of_a_task_without_a_script_is_a_clear_error(tmp_path, monkeypatch):
+    (tmp_path / "mine.toml").write_text(my_pick_task("Pick up the M12 nut"))
     monkeypatch.setenv(TASKS_DIR_ENV, str(tmp_path))
     result = runner.invoke(app, ["eval", "my_pick", "--episodes", "2"])
     assert result.exit_code == 2
@@ -335,3 +356,56 @@ def test_nohup_keeps_a_command_running_past_a_closed_terminal():
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def test_file_names_in_error_messages_are_printed_as_typed(tmp_path, monkeypatch):
+    # Rich read the brackets as markup: "error: reward.py: ..." named a file that does not exist.
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    reward = tmp_path / "reward[v2].py"
+    reward.write_text("x = 1\n")
+    hyperparams = tmp_path / "hp[old].toml"
+    hyperparams.write_text("foo = [\n")
+    out = tmp_path / "run"
+    train = ["train", "pick_nut_m12", "--steps", "64", "--num-envs", "2", "--out", str(out)]
+    cases = [
+        (["--reward", str(reward)], f"error: {reward}: defines no function compute_reward(ctx)"),
+        (["--hyperparams", str(hyperparams)], f"error: {hyperparams}: TOML syntax"),
+    ]
+    for args, message in cases:
+        result = runner.invoke(app, [*train, *args])
+        assert result.exit_code == 2, result.output
+        assert message in flat(result.output)
+        assert "Traceback" not in result.output
+
+
+def test_paths_and_start_names_with_brackets_are_printed_as_typed(tmp_path, monkeypatch):
+    # "with run[b]x" printed as "with runx", the start "[red]nudged" lost its name.
+    from itskill.skills.store import SHIPPED_LIBRARY
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    policy = tmp_path / "run[b]x"
+    shutil.copytree(SHIPPED_LIBRARY / "reach_nut_m12", policy)
+    eval_args = ["eval", "reach_nut_m12", "--policy", str(policy), "--episodes", "1",
+                 "--num-envs", "1"]  # fmt: skip
+    result = runner.invoke(app, eval_args)
+    assert result.exit_code == 0, result.output
+    assert unspaced(f"reach_nut_m12 with {policy}: success") in unspaced(result.output)
+    starts = tmp_path / "starts.toml"
+    starts.write_text('[[start]]\nname = "[red]nudged"\nobjects = [{ x = 0.55, y = 0.12 }]\n')
+    table = runner.invoke(app, [*eval_args, "--starts", str(starts)])
+    assert table.exit_code == 0, table.output
+    assert "[red]nudged: " in table.output and "│ [red]nudged" in table.output
+    out = tmp_path / "demo[/b]"
+    demo_args = ["demo", "--task", "reach_nut_m12", "--episodes", "1", "--out", str(out)]
+    demo = runner.invoke(app, demo_args)
+    assert demo.exit_code == 0, demo.output
+    assert unspaced(f"summary: {out}/reach_nut_m12_eval.json") in unspaced(demo.output)
+
+
+@pytest.mark.skipif(GL_BACKEND is None, reason="no EGL or OSMesa library installed")
+def test_render_prints_the_video_path_as_typed(tmp_path):
+    # '[/b]' ended in a MarkupError traceback after the video was written.
+    out = tmp_path / "a[/b]c.mp4"
+    result = runner.invoke(app, ["render", "reach_nut_m12", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert unspaced(f"wrote {out} (") in unspaced(result.output) and out.is_file()

@@ -182,6 +182,31 @@ def test_ungroundable_command_is_one_clear_line(tmp_path, budgets):
     assert not (tmp_path / "run").exists()  # nothing to resume: a retry starts afresh
 
 
+@pytest.mark.parametrize("command", ["asdf [/b]", "asdf [red]x"])
+def test_a_command_with_brackets_is_printed_as_typed(tmp_path, budgets, command):
+    # Rich read it as markup: "[/b]" ended in a MarkupError traceback, "[red]" vanished.
+    result = learn(command, "--budgets", str(budgets), "--budget", "test",
+                   "--out", str(tmp_path / "run"))  # fmt: skip
+    assert result.exit_code == 2, result.output
+    text = flat(result.output)
+    assert f"[1/8] plan: grounding {command!r} in the task catalogue" in text
+    assert f"error: cannot plan {command!r}" in text and "Traceback" not in text
+
+
+def test_step_results_print_skill_and_file_names_as_typed(tmp_path):
+    import io
+
+    from rich.console import Console
+
+    from itskill.experiments.learn import _Steps
+
+    out = io.StringIO()
+    steps = _Steps(Console(file=out, emoji=False), tmp_path)
+    steps.begin("sources", "retrieving source skills")
+    steps.done("pick[/v2], reach[red]2", cached=True)
+    assert "✓ (kept from the previous session) pick[/v2], reach[red]2" in out.getvalue()
+
+
 @pytest.mark.parametrize(
     ("made", "why"), [(False, "no such directory"), (True, "the directory is empty")]
 )

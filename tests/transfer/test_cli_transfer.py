@@ -90,3 +90,55 @@ def test_a_broken_reward_file_is_one_line_and_writes_nothing(
     problem = f"{reward}: compute_reward must return (total, components); got str"
     assert "".join(problem.split()) in "".join(res.output.split())  # rich wraps long lines
     assert "Traceback" not in res.output and not out.exists()
+
+
+def test_skill_names_with_brackets_are_printed_as_typed(home: Path, tmp_path: Path) -> None:
+    # Rich read the name as markup: a MarkupError traceback from each command, the training's
+    # after its transfer.json was written.
+    from dataclasses import replace
+
+    from itskill.skills import open_skill_space
+
+    name = "pick[/v2]"
+    with open_skill_space() as space:
+        space.add(replace(space.get("pick_nut_m12"), name=name, id=None, created=None))
+    try:
+        sources = f"{name},reach_nut_m12"
+        analyze = runner.invoke(app, ["transfer", "analyze", "pick_nut_m12", "--sources", sources])
+        assert analyze.exit_code == 0, analyze.output
+        assert name in analyze.output
+        out = tmp_path / "run"
+        train = runner.invoke(app, ["transfer", "train", "pick_nut_m12", "--sources", sources,
+                                    "--algo", "a2c", "--steps", "16", "--num-envs", "2",
+                                    "--out", str(out)])  # fmt: skip
+        assert train.exit_code == 0, train.output
+        assert f"itn on pick_nut_m12: sources {name}, reach_nut_m12" in train.output
+        trace = runner.invoke(app, ["transfer", "trace", str(out)])
+        assert trace.exit_code == 0, trace.output
+        assert f"W {name}" in trace.output
+    finally:
+        with open_skill_space() as space:
+            space.remove(name)
+
+
+def test_a_damaged_transfer_record_is_one_line_naming_the_file(home: Path, tmp_path: Path) -> None:
+    # Each ended in a traceback: a list has no .get, a null config no keys, and bytes that are not
+    # UTF-8 a UnicodeDecodeError.
+    out = tmp_path / "run"
+    train = ["transfer", "train", "pick_nut_m12", "--sources", "pick_nut_m12,reach_nut_m12",
+             "--algo", "a2c", "--steps", "16", "--num-envs", "2", "--out", str(out)]  # fmt: skip
+    assert runner.invoke(app, train).exit_code == 0
+    record = out / "transfer.json"
+    null_config = json.dumps({**json.loads(record.read_text()), "config": None}).encode()
+    damages = [
+        (b"[]", "expected a JSON object, got []"),
+        (null_config, "field config: expected an object, got null"),
+        (b"\xff\xfe{", "not UTF-8 text"),
+    ]
+    for damage, problem in damages:
+        record.write_bytes(damage)
+        for args in (train, ["transfer", "trace", str(out)]):
+            result = runner.invoke(app, args)
+            assert result.exit_code == 2, result.output
+            assert f"error: {record}: {problem}" in result.output
+            assert "Traceback" not in result.output

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,7 @@ from typer.testing import CliRunner
 
 from itskill.cli import app
 from itskill.llm.client import make_client
-from itskill.rl.checkpoint import as_policy, load_policy, read_meta
+from itskill.rl.checkpoint import CheckpointError, as_policy, load_policy, read_meta
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.rl.train import ResumeMismatchError, train
@@ -251,3 +252,30 @@ def test_a_refused_run_leaves_its_directory_as_it_was(
     result = train_transfer("pick_nut_m12", "no_transfer", steps=16, out=fresh, num_envs=2,
                             logger=QUIET)  # fmt: skip
     assert result.num_timesteps == 16 and read_transfer(fresh)["target"] == "pick_nut_m12"
+
+
+def _read_back(run_dir: Path, record: dict) -> dict:
+    (run_dir / "transfer.json").write_text(json.dumps(record))
+    return read_transfer(run_dir)
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        (lambda r: r.pop("method"), "missing field method"),
+        (lambda r: r.update(sources=["pick_nut_m12"]), "field sources: expected a list of objects"),
+        (lambda r: r.update(contribution=[[1.0]]), "field contribution: expected an object"),
+        (lambda r: r.update(source_specs=None), "field source_specs: expected a list of objects"),
+    ],
+)
+def test_a_record_with_a_field_its_readers_cannot_use_is_refused(
+    tmp_path: Path, edit, problem: str
+) -> None:
+    # Each was a KeyError or TypeError wherever the field was first used.
+    record = {"target": TARGET, "method": "itn", "config": {}, "sources": [{"name": "pick"}],
+              "source_specs": [{}], "contribution": None}  # fmt: skip
+    assert _read_back(tmp_path, record) == record
+    edit(record)
+    message = f"{tmp_path / 'transfer.json'}: {problem}"
+    with pytest.raises(CheckpointError, match=re.escape(message)):
+        _read_back(tmp_path, record)

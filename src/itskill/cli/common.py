@@ -107,7 +107,18 @@ def print_trained(what: str, result: Any) -> None:
             f"; best evaluation {result.best['success']:.0%} at "
             f"{int(result.best['env_steps']):,} env-steps, policy in {result.run_dir}/best"
         )
-    console.print(line, highlight=False)
+    # Not markup: the task and the run directory are the user's text ('runs/[v2]').
+    console.print(line, highlight=False, markup=False)
+
+
+def usage_error(message: str) -> typer.Exit:
+    """Print ``message`` as one red ``error:`` line on stderr; returns the exit (code 2) to raise.
+
+    The message is printed as written: the file and skill names in it are the user's text, and
+    rich would read ``reward[v2].py`` or ``pick[/v2]`` as markup (dropping text, or failing).
+    """
+    err_console.print(f"[red]error:[/red] {escape(message)}", highlight=False)
+    return typer.Exit(USAGE_ERROR)
 
 
 @contextmanager
@@ -123,12 +134,9 @@ def user_errors() -> Iterator[None]:
         render.RenderError,
         CorruptFileError,
     ) as err:
-        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False, markup=True)
-        raise typer.Exit(USAGE_ERROR) from err
+        raise usage_error(str(err)) from err
     except UNUSABLE_PATH_ERRORS as err:
-        message = escape(path_error_message(err))
-        err_console.print(f"[red]error:[/red] {message}", highlight=False, markup=True)
-        raise typer.Exit(USAGE_ERROR) from err
+        raise usage_error(path_error_message(err)) from err
 
 
 def print_json(data: Any) -> None:

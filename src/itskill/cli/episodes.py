@@ -33,7 +33,7 @@ def _print_eval(result: EvalResult, spec: TaskSpec, as_json: bool) -> None:
         print_json(result.to_dict())
         return
     console.print(
-        f"[bold]{result.task}[/bold] with {result.policy}: "
+        f"[bold]{escape(result.task)}[/bold] with {escape(result.policy)}: "
         f"success {result.successes}/{result.episodes} = [bold]{result.success_rate:.1%}[/bold] "
         f"(95% CI {result.ci_low:.1%}–{result.ci_high:.1%}), "
         f"subtasks done {result.mean_stages_done:.2f}/{result.n_stages}, "
@@ -43,7 +43,7 @@ def _print_eval(result: EvalResult, spec: TaskSpec, as_json: bool) -> None:
         f"{k}.{stage.name} {steps:.1f}"
         for k, (stage, steps) in enumerate(zip(spec.stages, result.stage_steps, strict=True))
     )
-    console.print(f"steps per episode in each subtask: {spent}", highlight=False)
+    console.print(f"steps per episode in each subtask: {spent}", highlight=False, markup=False)
 
 
 def eval_cmd(
@@ -77,16 +77,17 @@ def eval_cmd(
         for name, variant in variants:
             result = evaluate(variant, ref, episodes=episodes, seed=seed, num_envs=num_envs)
             rows.append({"start": name, **result.to_dict()})
-            err_console.print(f"{name}: {result.success_rate:.0%}", highlight=False)
+            err_console.print(f"{name}: {result.success_rate:.0%}", highlight=False, markup=False)
     if as_json:
         print_json(rows)
         return
-    table = Table(title=f"{task} with {policy}, {episodes} episodes per start (seed {seed})")
+    title = f"{task} with {policy}, {episodes} episodes per start (seed {seed})"
+    table = Table(title=escape(title))
     for column in ("start", "success", "95% CI", "subtasks done", "mean length"):
         table.add_column(column)
     for row in rows:
         table.add_row(
-            row["start"],
+            escape(row["start"]),
             f"{row['successes']}/{row['episodes']} = {row['success_rate']:.0%}",
             f"{row['ci_low']:.0%}–{row['ci_high']:.0%}",
             f"{row['mean_stages_done']:.2f}/{row['n_stages']}",
@@ -122,7 +123,9 @@ def render_cmd(
         ref = policy_ref(policy)
         video = render.record(get_task(task), ref, out, episodes, seed=seed, camera=camera)
     wins = sum(video.successes)
-    console.print(f"wrote {video.path} ({video.frames} frames); {wins}/{episodes} succeeded")
+    console.print(
+        f"wrote {video.path} ({video.frames} frames); {wins}/{episodes} succeeded", markup=False
+    )
 
 
 def _check_camera(camera: str) -> None:
@@ -148,12 +151,12 @@ def demo(
             video = render.record(
                 spec, SCRIPTED, out / f"{task}.mp4", episodes=1, seed=seed, camera=camera
             )
-            console.print(f"video: {video.path}")
+            console.print(f"video: {video.path}", markup=False)
         except render.RenderError as err:
-            err_console.print(f"[yellow]no video:[/yellow] {err}", highlight=False)
+            err_console.print(f"[yellow]no video:[/yellow] {escape(str(err))}", highlight=False)
         result = evaluate(spec, SCRIPTED, episodes=episodes, seed=seed)
     _print_eval(result, spec, as_json=False)
     out.mkdir(parents=True, exist_ok=True)
     summary = out / f"{task}_eval.json"
     summary.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
-    console.print(f"summary: {summary}")
+    console.print(f"summary: {summary}", markup=False)

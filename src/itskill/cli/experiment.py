@@ -3,22 +3,20 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
 
-from itskill.cli.common import USAGE_ERROR, console, err_console, run_dir_option, user_errors
+from itskill.cli.common import console, err_console, run_dir_option, usage_error, user_errors
+
+if TYPE_CHECKING:
+    from itskill.experiments.report import ReportFiles
 
 experiment_app = typer.Typer(
     no_args_is_help=True,
     help="Experiments: tasks × methods × seeds, resumable, on local processes or Ray.",
 )
-
-
-def _fail(err: BaseException) -> typer.Exit:
-    err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
-    return typer.Exit(USAGE_ERROR)
 
 
 @experiment_app.command("run")
@@ -74,20 +72,21 @@ def experiment_run(
         SkillSpaceError,
         LLMError,
     ) as err:
-        raise _fail(err) from err
+        raise usage_error(str(err)) from err
     except KeyboardInterrupt:
         where = f" --out {run_dir}" if run_dir is not None else ""
         err_console.print(
-            f"interrupted; continue with: itskill experiment run {file}{where} --resume"
+            f"interrupted; continue with: itskill experiment run {file}{where} --resume",
+            markup=False,
         )
         raise typer.Exit(130) from None
     console.print(
         f"{len(summary.finished)} cells trained, {len(summary.skipped)} already done, "
-        f"{len(summary.failed)} failed; run directory {summary.run_dir}"
+        f"{len(summary.failed)} failed; run directory {summary.run_dir}",
+        markup=False,
     )
     if report:
-        files = experiment_report(summary.run_dir)
-        console.print(f"report: {files.markdown} and {files.html}")
+        _print_report(experiment_report(summary.run_dir))
     if summary.failed:
         raise typer.Exit(1)
 
@@ -108,7 +107,12 @@ def report_cmd(
         with user_errors():
             files = experiment_report(run, out, video=video)
     except ReportError as err:
-        raise _fail(err) from err
+        raise usage_error(str(err)) from err
     for note in files.notes:
         err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)
-    console.print(f"report: {files.markdown} and {files.html}")
+    _print_report(files)
+
+
+def _print_report(files: ReportFiles) -> None:
+    # Not markup: the paths are under the user's run directory ('runs/[v2]').
+    console.print(f"report: {files.markdown} and {files.html}", markup=False)

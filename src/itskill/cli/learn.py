@@ -6,14 +6,13 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.markup import escape
 
 from itskill.cli.common import (
-    USAGE_ERROR,
     console,
     err_console,
     run_dir_option,
     seed_option,
+    usage_error,
     user_errors,
 )
 
@@ -73,8 +72,7 @@ def learn_cmd(
                 min_success,
             )  # fmt: skip
     except learn_errors() as err:
-        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
-        raise typer.Exit(USAGE_ERROR) from None
+        raise usage_error(str(err)) from None
     except KeyboardInterrupt:
         err_console.print("interrupted; continue with the same command and --resume")
         raise typer.Exit(130) from None

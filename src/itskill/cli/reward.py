@@ -18,12 +18,12 @@ from rich.syntax import Syntax
 from rich.table import Table
 
 from itskill.cli.common import (
-    USAGE_ERROR,
     JsonOpt,
     console,
     err_console,
     print_json,
     run_dir_option,
+    usage_error,
     user_errors,
 )
 
@@ -67,8 +67,7 @@ def _errors() -> Iterator[None]:
         SearchConfigError,
         ExecutorError,
     ) as err:
-        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
-        raise typer.Exit(USAGE_ERROR) from err
+        raise usage_error(str(err)) from err
 
 
 def plan_cmd(
@@ -101,16 +100,17 @@ def plan_cmd(
     if as_json:
         print_json(plan.to_dict())
         return
-    console.print(f"[bold]{escape(plan.command)}[/bold] → task [bold]{plan.task}[/bold]")
+    console.print(f"[bold]{escape(plan.command)}[/bold] → task [bold]{escape(plan.task)}[/bold]")
     for sentence in plan.subtasks:
         console.print(f"  {escape(sentence)}", highlight=False)
-    console.print(f"actions: {' → '.join(plan.actions)}; objects: {', '.join(plan.objects)}")
+    actions, objects = " → ".join(plan.actions), ", ".join(plan.objects)
+    console.print(f"actions: {actions}; objects: {objects}", markup=False)
     if plan.notes:
         console.print(f"notes: {escape(plan.notes)}", highlight=False)
     if client is None:
         console.print("planned from the task file (no language model)", style="dim")
     elif client.offline:
-        console.print(f"planned by {client.name}: {OFFLINE_NOTE}", style="dim")
+        console.print(f"planned by {client.name}: {OFFLINE_NOTE}", style="dim", markup=False)
 
 
 def _slug(text: str) -> str:
@@ -248,10 +248,13 @@ def generate_cmd(
         except KeyboardInterrupt:
             err_console.print(
                 f"interrupted: finished candidates are saved; continue with "
-                f"itskill reward generate --resume {run_dir}"
+                f"itskill reward generate --resume {run_dir}",
+                markup=False,
             )
             raise typer.Exit(130) from None
-    console.print(f"best reward: {result.best_path}; details: itskill reward show {run_dir}")
+    console.print(
+        f"best reward: {result.best_path}; details: itskill reward show {run_dir}", markup=False
+    )
 
 
 def _network_method(record_dir: Path) -> str:
@@ -297,14 +300,15 @@ def show_cmd(
     llm = config.get("llm", "?")
     console.print(f"[bold]{escape(str(run))}[/bold]: target {escape(config.get('target', '?'))}")
     if config.get("offline"):
-        console.print(f"replies by {llm}: {OFFLINE_NOTE}", style="yellow")
+        console.print(f"replies by {llm}: {OFFLINE_NOTE}", style="yellow", markup=False)
     else:
-        console.print(f"replies by {llm}")
+        console.print(f"replies by {llm}", markup=False)
     if config.get("network"):
-        console.print(f"candidates trained {config['network']['label']}", highlight=False)
+        label = config["network"]["label"]
+        console.print(f"candidates trained {label}", highlight=False, markup=False)
     plan = data["plan"]
     if plan:
-        console.print(f"plan: task {plan['task']}", highlight=False)
+        console.print(f"plan: task {plan['task']}", highlight=False, markup=False)
         for sentence in plan["subtasks"]:
             console.print(f"  {escape(sentence)}", highlight=False)
     table = Table(title="iterations")
@@ -333,6 +337,7 @@ def show_cmd(
             f"unfinished: {done}/{settings.get('iterations', '?')} iterations done; continue "
             f"with itskill reward generate --resume {run}",
             style="yellow",
+            markup=False,
         )
     else:
         final = summary["final"]
@@ -368,6 +373,7 @@ def show_cmd(
             + (f", over every seed {format_rate(best['selected_success'])}" if selection else "")
             + f"); figure: {Path(run) / 'fig6.png'}",
             highlight=False,
+            markup=False,
         )
     if usage:
         total = usage["total"]
@@ -377,4 +383,5 @@ def show_cmd(
             f"{total['cache_hits']} cache hits; {len(usage['sessions'])} session(s), "
             f"{total['wall_s'] / 60:.1f} min",
             highlight=False,
+            markup=False,
         )

@@ -7,6 +7,7 @@ from dataclasses import asdict
 from typing import Annotated, Any
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from itskill.cli.common import (
@@ -87,7 +88,9 @@ def tasks_list(
         table.add_column(column)
     for s in tasks.values():
         stages = ", ".join(st.name for st in s.stages)
-        table.add_row(s.id, s.family, s.kind, "yes" if s.table_i else "", s.command, stages)
+        cells = (s.id, s.family, s.kind, "yes" if s.table_i else "", s.command, stages)
+        # Cells are markup: a task file's text is escaped ('Pick up the [small] nut').
+        table.add_row(*(escape(c) for c in cells))
     console.print(table)
 
 
@@ -99,29 +102,28 @@ def tasks_show(task: TaskArg, as_json: JsonOpt = False) -> None:
     if as_json:
         print_json(data)
         return
-    console.print(f"[bold]{data['id']}[/bold]: {data['command']}")
-    kv = Table.grid(padding=(0, 2))
-    kv.add_column(style="cyan")
-    kv.add_column()
-    kv.add_row("family / kind", f"{data['family']} / {data['kind']}")
-    kv.add_row("Table I", "yes" if data["table_i"] else "no")
+    console.print(f"[bold]{escape(data['id'])}[/bold]: {escape(data['command'])}")
+    rows = [
+        ("family / kind", f"{data['family']} / {data['kind']}"),
+        ("Table I", "yes" if data["table_i"] else "no"),
+    ]
     if data["description"]:
-        kv.add_row("description", data["description"])
-    kv.add_row("skills", ", ".join(data["skills"]))
-    kv.add_row("actions", " → ".join(data["actions"]))
+        rows.append(("description", data["description"]))
+    rows.append(("skills", ", ".join(data["skills"])))
+    rows.append(("actions", " → ".join(data["actions"])))
     for i, part in enumerate(data["objects"]):
-        kv.add_row(f"object {i}", _part_text(part))
+        rows.append((f"object {i}", _part_text(part)))
     for j, fx in enumerate(data["fixtures"]):
-        kv.add_row(f"fixture {j}", f"{_part_text(fx['part'])} at xy={fx['xy']} yaw={fx['yaw']}")
-    kv.add_row("object → fixture", str(data["object_fixture"]))
-    kv.add_row("init ee", json.dumps(data["init"]["ee"]))
+        rows.append((f"fixture {j}", f"{_part_text(fx['part'])} at xy={fx['xy']} yaw={fx['yaw']}"))
+    rows.append(("object → fixture", str(data["object_fixture"])))
+    rows.append(("init ee", json.dumps(data["init"]["ee"])))
     for i, obj in enumerate(data["init"]["objects"]):
-        kv.add_row(f"init object {i}", json.dumps(obj))
+        rows.append((f"init object {i}", json.dumps(obj)))
     for k, st in enumerate(data["stages"]):
-        kv.add_row(f"stage {k}", f"{st['name']}: {st['done']}")
-    kv.add_row("success", data["success"])
-    kv.add_row("episode length", f"{data['max_steps']} steps")
-    kv.add_row("script", "; ".join(data["script"]) or "(none)")
+        rows.append((f"stage {k}", f"{st['name']}: {st['done']}"))
+    rows.append(("success", data["success"]))
+    rows.append(("episode length", f"{data['max_steps']} steps"))
+    rows.append(("script", "; ".join(data["script"]) or "(none)"))
     if data["training_starts"]:
         starts = [
             f"{t['share']:.0%} from {t['task']}'s start"
@@ -129,8 +131,14 @@ def tasks_show(task: TaskArg, as_json: JsonOpt = False) -> None:
             else f"{t['share']:.0%} from {json.dumps(t['init'])}"
             for t in data["training_starts"]
         ]
-        kv.add_row("training starts", "; ".join(starts))
-    kv.add_row("file", data["source"])
+        rows.append(("training starts", "; ".join(starts)))
+    rows.append(("file", data["source"]))
+    kv = Table.grid(padding=(0, 2))
+    kv.add_column(style="cyan")
+    kv.add_column()
+    for label, value in rows:
+        # Cells are markup: a task file's text is escaped ('Pick up the [small] nut').
+        kv.add_row(label, escape(value))
     console.print(kv)
 
 

@@ -8,16 +8,15 @@ from typing import Annotated
 import typer
 
 from itskill.cli.common import (
-    USAGE_ERROR,
     EvalEpisodesOpt,
     EvalEveryOpt,
     HyperparamsOpt,
     TaskArg,
     console,
-    err_console,
     print_trained,
     run_dir_option,
     seed_option,
+    usage_error,
     user_errors,
 )
 
@@ -81,8 +80,7 @@ def train_cmd(
                 init=init,
             )
     except (HyperparamError, RewardLoadError, ResumeMismatchError, DemoError) as err:
-        err_console.print(f"[red]error:[/red] {err}", highlight=False, markup=True)
-        raise typer.Exit(USAGE_ERROR) from err
+        raise usage_error(str(err)) from err
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
     print_trained(f"{task} with {algo}", result)

@@ -15,7 +15,6 @@ from rich.markup import escape
 from rich.table import Table
 
 from itskill.cli.common import (
-    USAGE_ERROR,
     EvalEpisodesOpt,
     EvalEveryOpt,
     HyperparamsOpt,
@@ -23,11 +22,11 @@ from itskill.cli.common import (
     TaskArg,
     console,
     episodes_option,
-    err_console,
     print_json,
     print_trained,
     run_dir_option,
     seed_option,
+    usage_error,
     user_errors,
 )
 
@@ -84,8 +83,7 @@ def transfer_errors() -> Iterator[None]:
         with user_errors():
             yield
     except errors as err:
-        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
-        raise typer.Exit(USAGE_ERROR) from err
+        raise usage_error(str(err)) from err
 
 
 def _config(path: Path | None, k: int | None):
@@ -182,12 +180,14 @@ def transfer_analyze(
     if as_json:
         print_json({**matrix.to_dict(), "source_skills": [s.to_dict() for s in chosen]})
         return
-    table = Table(title=f"contribution of {len(chosen)} sources to {spec.id} ({client.name})")
+    # Titles, headers and cells are markup: skill and task names are escaped ('pick[/v2]').
+    title = f"contribution of {len(chosen)} sources to {spec.id} ({client.name})"
+    table = Table(title=escape(title))
     table.add_column("stage")
     for s in chosen:
-        table.add_column(s.name, justify="right")
+        table.add_column(escape(s.name), justify="right")
     for i, segment in enumerate(matrix.segments):
-        table.add_row(f"{i} {segment}", *(f"{v:.2f}" for v in matrix.matrix[i]))
+        table.add_row(escape(f"{i} {segment}"), *(f"{v:.2f}" for v in matrix.matrix[i]))
     console.print(table)
     if matrix.reasoning:
         console.print(escape(matrix.reasoning), highlight=False)
@@ -207,21 +207,21 @@ def transfer_trace(
         with user_errors():
             trace = attention_trace(run_dir, episodes, seed)
     except ValueError as err:
-        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
-        raise typer.Exit(USAGE_ERROR) from err
+        raise usage_error(str(err)) from err
     if as_json:
         print_json(trace)
         return
     for n, ep in enumerate(trace["episodes"]):
-        table = Table(title=f"{trace['task']} episode {n}: success {ep['success']}")
+        table = Table(title=escape(f"{trace['task']} episode {n}: success {ep['success']}"))
         table.add_column("step", justify="right")
         table.add_column("stage")
         for name in trace["sources"]:
-            table.add_column(f"W {name}", justify="right")
+            table.add_column(escape(f"W {name}"), justify="right")
         previous = None
         for t, (stage, w) in enumerate(zip(ep["stage"], ep["weights"], strict=True)):
             # One row per stage change and every 10th step keeps an episode on one screen.
             if stage != previous or t % 10 == 0:
-                table.add_row(str(t), trace["segments"][stage], *(f"{v:.2f}" for v in w))
+                segment = escape(trace["segments"][stage])
+                table.add_row(str(t), segment, *(f"{v:.2f}" for v in w))
             previous = stage
         console.print(table)

@@ -200,18 +200,22 @@ class LearnResult:
 
 
 class _Steps:
-    """Prints ``[i/n] step`` lines and skips a step whose result file exists."""
+    """Prints ``[i/n] step`` lines and skips a step whose result file exists.
+
+    A line's text holds the user's command, file and skill names: it is escaped, so that rich
+    does not read ``asdf [red]x`` or ``pick[/v2]`` as markup.
+    """
 
     def __init__(self, console: Console, run_dir: Path) -> None:
         self.console, self.run_dir, self.i = console, run_dir, 0
 
     def begin(self, name: str, text: str) -> None:
         self.i += 1
-        self.console.print(f"[bold cyan][{self.i}/{len(STEPS)}] {name}[/bold cyan]: {text}")
+        self.console.print(f"[bold cyan][{self.i}/{len(STEPS)}] {name}[/bold cyan]: {escape(text)}")
 
     def done(self, text: str, cached: bool = False) -> None:
         mark = "(kept from the previous session) " if cached else ""
-        self.console.print(f"    [green]✓[/green] {mark}{text}", highlight=False)
+        self.console.print(f"    [green]✓[/green] {mark}{escape(text)}", highlight=False)
 
     def cached(self, file: str) -> dict[str, Any] | None:
         path = self.run_dir / file
@@ -313,10 +317,11 @@ def learn(
         if skill["added"]
         else f"below {skill['min_success']:.0%}, not added to the skill space"
     )
-    console.print(
-        f"[bold green]learned[/bold green] {escape(command)!r}: success "
-        f"{summary['evaluation']['success_rate']:.0%}; {outcome}; report {report.markdown}"
+    rest = (
+        f"{command!r}: success {summary['evaluation']['success_rate']:.0%}; {outcome}; "
+        f"report {report.markdown}"
     )
+    console.print(f"[bold green]learned[/bold green] {escape(rest)}")
     return LearnResult(run_dir, summary, report)
 
 

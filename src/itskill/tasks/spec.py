@@ -8,7 +8,6 @@ file is reported with the file, the field and what was expected.
 from __future__ import annotations
 
 import difflib
-
 import math
 import os
 from dataclasses import dataclass, field, replace

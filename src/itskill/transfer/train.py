@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +28,7 @@ from itskill.reward.candidate import CandidateNetwork
 from itskill.rl.checkpoint import BEST_DIR, CheckpointError, class_path
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import (
+    CANNOT_RESUME,
     EXPERT,
     ResumeMismatchError,
     RewardSource,
@@ -75,15 +76,55 @@ def _request(sources: str | Sequence[int | str]) -> str | list[int | str]:
     return sources.strip() if isinstance(sources, str) else list(sources)
 
 
+def _is_objects(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(v, dict) for v in value)
+
+
+def _is_sources(value: Any) -> bool:
+    return _is_objects(value) and all(isinstance(s.get("name"), str) for s in value)
+
+
+def _is_contribution(value: Any) -> bool:
+    return value is None or (isinstance(value, dict) and isinstance(value.get("matrix"), list))
+
+
+_RECORD_FIELDS: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "target": ("a string", lambda v: isinstance(v, str)),
+    "method": ("a string", lambda v: isinstance(v, str)),
+    "config": ("an object", lambda v: isinstance(v, dict)),
+    "sources": ("a list of objects with a string name", _is_sources),
+    "source_specs": ("a list of objects", _is_objects),
+    "contribution": ("an object with a matrix, or null", _is_contribution),
+    "performers": ("a list or null", lambda v: v is None or isinstance(v, list)),
+}
+"""What each ``transfer.json`` field its readers index must hold: :func:`read_transfer` checks
+them, so a hand-edited or damaged record is refused with its file named, not by a TypeError
+where the field is first used."""
+_OPTIONAL_FIELDS = ("performers",)  # absent from records written before the residual
+
+
 def read_transfer(run_dir: str | Path) -> dict[str, Any]:
-    """``transfer.json`` of a transfer run directory."""
+    """``transfer.json`` of a transfer run directory, checked; :class:`CheckpointError` names the
+    file and says what is wrong (not JSON, not UTF-8, a field missing or of the wrong type)."""
     path = Path(run_dir) / TRANSFER_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing (not a directory written by train_transfer)")
     try:
-        return json.loads(path.read_text())
+        record = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as err:
         raise CheckpointError(path, f"not valid JSON ({err})") from err
+    except UnicodeDecodeError as err:
+        raise CheckpointError(path, f"not UTF-8 text (byte {err.start})") from err
+    if not isinstance(record, dict):
+        raise CheckpointError(path, f"expected a JSON object, got {json.dumps(record)}")
+    for key, (expected, valid) in _RECORD_FIELDS.items():
+        if key not in record and key not in _OPTIONAL_FIELDS:
+            raise CheckpointError(path, f"missing field {key}")
+        if key in record and not valid(record[key]):
+            raise CheckpointError(
+                path, f"field {key}: expected {expected}, got {json.dumps(record[key])}"
+            )
+    return record
 
 
 # Settings a run directory written before they existed was trained with: its network had no
@@ -92,7 +133,7 @@ _LEGACY_CONFIG = {"residual": False}
 
 
 def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
-    old = {**old, "config": {**_LEGACY_CONFIG, **old.get("config", {})}}
+    old = {**old, "config": {**_LEGACY_CONFIG, **old["config"]}}
     for key in ("target", "method", "algo", "seed", "sources_request", "k", "config"):
         if old.get(key) != new[key]:
             raise ResumeMismatchError(
@@ -127,7 +168,10 @@ def _recorded(out: Path, settings: dict[str, Any]) -> dict[str, Any] | None:
     """The record ``out`` holds, checked against ``settings``; None if it holds none."""
     if not (out / TRANSFER_FILE).is_file():
         return None
-    old = read_transfer(out)
+    try:
+        old = read_transfer(out)
+    except CheckpointError as err:
+        raise CheckpointError(err.path, err.problem + CANNOT_RESUME) from err
     _check_resume(old, settings, out)
     return old
 
@@ -306,7 +350,8 @@ def train_transfer(
     _, policy_kwargs = transfer_network(record, config)
     if console is not None and record["sources"]:
         names = ", ".join(s["name"] for s in record["sources"])
-        console.print(f"{record['method']} on {record['target']}: sources {names}")
+        # Not markup: skill names are the user's text ('pick[/v2]').
+        console.print(f"{record['method']} on {record['target']}: sources {names}", markup=False)
     result = run_training(
         setup,
         policy_kwargs,
