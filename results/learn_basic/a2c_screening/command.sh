@@ -27,3 +27,8 @@ for v in vf025 logstd1; do
     --eval-every 20000 --eval-episodes 50 --workers 2 \
     --hyperparams results/learn_basic/a2c_screening/$v/hyperparams.toml --out runs/a2c_screening/$v
 done
+# Adam at 3e-4 with normalised advantages (as adam/) but a constant learning rate: adam/'s seeds
+# were still rising over the last 100k env-steps, where the linear schedule takes the rate to 0.
+python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 --steps 300000 \
+  --eval-every 20000 --eval-episodes 50 --workers 2 \
+  --hyperparams results/learn_basic/a2c_screening/adam_const/hyperparams.toml --out runs/a2c_screening/adam_const
