@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# The guide's task (pick, place and screw down the M12 nut): the expert reward on the ITN that
+# `itskill learn` trains, as in ../itn_300k_lownoise/command.sh, but with PPO's learning rate
+# 1e-5 instead of the packaged 3e-5 (hyperparams.toml here: the packaged file with that one
+# change, hyperparams.diff). 2026-12-05, the project machine (2 vCPUs), two runs at a time.
+set -euo pipefail
+out=results/learn_pickplacescrew_m12/itn_300k_lr1e5
+for seed in 0 1; do
+  itskill transfer train pickplacescrew_nut_m12 --method itn --sources auto --reward expert \
+    --algo ppo --steps 300000 --seed $seed --eval-every 20000 --eval-episodes 50 --num-envs 16 \
+    --k 3 --hyperparams $out/hyperparams.toml --out runs/pps_itn_lr1e5/expert_seed$seed
+  itskill eval pickplacescrew_nut_m12 --policy runs/pps_itn_lr1e5/expert_seed$seed/best \
+    --episodes 100 --seed 10000 --num-envs 25 --json > "$out/expert_seed${seed}_heldout.json"
+done
