@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The guide's command end to end at the task's packaged settings (log-std -2.0, PPO 3e-5;
+# The guide's command end to end at the task's settings of the day (log-std -2.0, PPO 3e-5, 1e-5 since;
 # [nutbolt.tasks.pickplacescrew_nut_m12] in src/itskill/rl/data/hyperparams.toml), the default
 # budget, each seed in a new skill space (so a seed's new skill is not retrieved as a source by
 # the next). 2026-12-05, the project machine (2 vCPUs), beside other training runs and the test
