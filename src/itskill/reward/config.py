@@ -64,9 +64,9 @@ def _coerce(source: str | Path, where: str, value: Any, kind: type, optional: bo
 
 def check_seeds(
     source: str | Path, where: str, seeds: tuple[int, ...], error: type[DataFileError]
-) -> tuple[int, ...]:
-    """``seeds`` if they are distinct, at least one, and each a seed training takes (0 to
-    :data:`~itskill.rl.train.SEED_MAX`), else ``error`` naming ``source`` and the field: a seed
+) -> None:
+    """Raise ``error`` naming ``source`` and the field unless ``seeds`` are distinct, at least
+    one, and each a seed training takes (0 to :data:`~itskill.rl.train.SEED_MAX`): a seed
     training refuses would otherwise fail every run only once the runs start."""
     if not seeds or len(set(seeds)) != len(seeds):
         raise error(source, where, f"expected distinct seeds, at least one, got {list(seeds)}")
@@ -75,7 +75,6 @@ def check_seeds(
             raise error(
                 source, f"{where}[{i}]", f"expected a seed between 0 and {SEED_MAX}, got {seed}"
             )
-    return seeds
 
 
 def _sandbox(source: str | Path, table: Any, base: SandboxConfig | None = None) -> SandboxConfig:

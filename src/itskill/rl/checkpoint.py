@@ -72,23 +72,25 @@ def _is_seconds(value: Any) -> bool:
     )
 
 
-_COUNT = ("an integer of 0 or more", _is_count)
-_STRING = ("a string", lambda v: isinstance(v, str))
-_OBJECT = ("an object", lambda v: isinstance(v, dict))
-_SECONDS = ("a finite number of 0 or more", _is_seconds)
-META_FIELDS: dict[str, tuple[str, Callable[[Any], bool]]] = {
+FieldCheck = tuple[str, Callable[[Any], bool]]
+"""What a record's field must hold, in words for the error, and the test of it."""
+_COUNT: FieldCheck = ("an integer of 0 or more", _is_count)
+STRING: FieldCheck = ("a string", lambda v: isinstance(v, str))
+OBJECT: FieldCheck = ("an object", lambda v: isinstance(v, dict))
+_SECONDS: FieldCheck = ("a finite number of 0 or more", _is_seconds)
+META_FIELDS: dict[str, FieldCheck] = {
     "format": _COUNT,
-    "task": _STRING,
-    "algo": _STRING,
+    "task": STRING,
+    "algo": STRING,
     "seed": _COUNT,
     "num_timesteps": _COUNT,
     "obs_size": _COUNT,
     "action_size": _COUNT,
-    "policy": _OBJECT,
-    "policy_class": _STRING,
-    "reward": _OBJECT,
-    "hyperparams": _OBJECT,
-    "init": _OBJECT,
+    "policy": OBJECT,
+    "policy_class": STRING,
+    "reward": OBJECT,
+    "hyperparams": OBJECT,
+    "init": OBJECT,
     TRAIN_WALL_KEY: _SECONDS,
     EVAL_WALL_KEY: _SECONDS,
 }
@@ -201,6 +203,19 @@ def restore_reward_norm(env: VecNormalize, run_dir: Path) -> None:
         raise CheckpointError(path, f"corrupt reward-normalisation statistics: {err}") from err
 
 
+def check_fields(
+    path: Path, record: Mapping[str, Any], fields: Mapping[str, FieldCheck], prefix: str = ""
+) -> None:
+    """Raise :class:`CheckpointError` on ``path`` for the first field of ``record`` that
+    ``fields`` says it cannot hold (a field ``record`` lacks is not checked), ``prefix`` before
+    the problem."""
+    for key, (expected, valid) in fields.items():
+        if key in record and not valid(record[key]):
+            raise CheckpointError(
+                path, f"{prefix}field {key}: expected {expected}, got {json.dumps(record[key])}"
+            )
+
+
 def read_meta(run_dir: str | Path) -> dict[str, Any]:
     """``checkpoint.json`` of ``run_dir``, checked; :class:`CheckpointError` says what is wrong."""
     run_dir = Path(run_dir)
@@ -222,12 +237,7 @@ def read_meta(run_dir: str | Path) -> dict[str, Any]:
     missing = [k for k in REQUIRED_META if k not in meta]
     if missing:
         raise CheckpointError(path, f"corrupt metadata: missing field(s) {', '.join(missing)}")
-    for key, (expected, valid) in META_FIELDS.items():
-        if key in meta and not valid(meta[key]):
-            raise CheckpointError(
-                path,
-                f"corrupt metadata: field {key}: expected {expected}, got {json.dumps(meta[key])}",
-            )
+    check_fields(path, meta, META_FIELDS, "corrupt metadata: ")
     if meta["format"] != FORMAT_VERSION:
         raise CheckpointError(
             path, f"checkpoint format {meta['format']!r}, this version reads {FORMAT_VERSION}"

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
-from difflib import get_close_matches
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -20,7 +19,7 @@ from itskill.datafile import DataFileError, check_like, read_toml
 from itskill.rl.demos import DemoConfig
 from itskill.rl.init_policy import InitConfig
 from itskill.rl.policy import PolicyConfig
-from itskill.tasks.spec import all_tasks
+from itskill.tasks.spec import UnknownTaskError, all_tasks
 
 Algo = Literal["a2c", "ppo"]
 ALGOS: tuple[str, ...] = ("a2c", "ppo")
@@ -251,13 +250,7 @@ def _check_task_ids(path: Path, data: dict[str, Any]) -> None:
             spec = tasks.get(name)
             if spec is None:
                 ids = [t.id for t in tasks.values() if t.family == family] or list(tasks)
-                close = get_close_matches(name, ids)
-                hint = (
-                    f"did you mean {' or '.join(map(repr, close))}?"
-                    if close
-                    else f"known tasks: {', '.join(ids)}"
-                )
-                raise HyperparamError(path, where, f"unknown task {name!r}; {hint}")
+                raise HyperparamError(path, where, str(UnknownTaskError(name, ids)))
             if spec.family != family:
                 raise HyperparamError(
                     path,

@@ -94,8 +94,7 @@ class MetricsWriter:
             csv.writer(text).writerows([self._columns, *(self._csv_row(r) for r in rows)])
             write_text(self.csv_path, text.getvalue())
             return
-        drop_rows_after(self.csv_path, step)
-        if self._columns is not None and not _has_rows(self.csv_path):
+        if drop_rows_after(self.csv_path, step) == 0 and self._columns is not None:
             # Every row went (a run started again): the next row fixes the header anew, for
             # a reward whose components may differ from the abandoned run's.
             self.csv_path.unlink()
@@ -122,27 +121,23 @@ def _columns_for(row: dict[str, Any]) -> list[str]:
     return [*FIXED_COLUMNS, *sorted(k for k in row if k not in FIXED_COLUMNS)]
 
 
-def drop_rows_after(path: Path, step: int) -> None:
+def drop_rows_after(path: Path, step: int) -> int:
     """Rewrite the CSV file at ``path`` (env-steps in its first column) without the rows past
-    ``step``, atomically. A row cut short by a crash goes too."""
+    ``step``, atomically; the number of rows kept (0 where there is no file). A row cut short by
+    a crash goes too."""
     if not path.exists():
-        return
+        return 0
     with open(path, newline="") as fh:
         rows = list(csv.reader(fh))
     if not rows:
-        return
+        return 0
     header, body = rows[0], rows[1:]
     kept = [r for r in body if len(r) == len(header) and _row_step(r[0]) <= step]
-    if len(kept) == len(body):
-        return
-    text = io.StringIO()
-    csv.writer(text).writerows([header, *kept])
-    write_text(path, text.getvalue())
-
-
-def _has_rows(path: Path) -> bool:
-    with open(path, newline="") as fh:
-        return sum(1 for _ in csv.reader(fh)) > 1
+    if len(kept) < len(body):
+        text = io.StringIO()
+        csv.writer(text).writerows([header, *kept])
+        write_text(path, text.getvalue())
+    return len(kept)
 
 
 def _row_step(value: str) -> float:

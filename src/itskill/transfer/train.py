@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +25,15 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from itskill.files import write_json
 from itskill.llm.client import LLMClient
 from itskill.reward.candidate import CandidateNetwork
-from itskill.rl.checkpoint import BEST_DIR, CheckpointError, class_path
+from itskill.rl.checkpoint import (
+    BEST_DIR,
+    OBJECT,
+    STRING,
+    CheckpointError,
+    FieldCheck,
+    check_fields,
+    class_path,
+)
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import (
     CANNOT_RESUME,
@@ -88,10 +96,10 @@ def _is_contribution(value: Any) -> bool:
     return value is None or (isinstance(value, dict) and isinstance(value.get("matrix"), list))
 
 
-_RECORD_FIELDS: dict[str, tuple[str, Callable[[Any], bool]]] = {
-    "target": ("a string", lambda v: isinstance(v, str)),
-    "method": ("a string", lambda v: isinstance(v, str)),
-    "config": ("an object", lambda v: isinstance(v, dict)),
+_RECORD_FIELDS: dict[str, FieldCheck] = {
+    "target": STRING,
+    "method": STRING,
+    "config": OBJECT,
     "sources": ("a list of objects with a string name", _is_sources),
     "source_specs": ("a list of objects", _is_objects),
     "contribution": ("an object with a matrix, or null", _is_contribution),
@@ -117,13 +125,10 @@ def read_transfer(run_dir: str | Path) -> dict[str, Any]:
         raise CheckpointError(path, f"not UTF-8 text (byte {err.start})") from err
     if not isinstance(record, dict):
         raise CheckpointError(path, f"expected a JSON object, got {json.dumps(record)}")
-    for key, (expected, valid) in _RECORD_FIELDS.items():
+    for key in _RECORD_FIELDS:
         if key not in record and key not in _OPTIONAL_FIELDS:
             raise CheckpointError(path, f"missing field {key}")
-        if key in record and not valid(record[key]):
-            raise CheckpointError(
-                path, f"field {key}: expected {expected}, got {json.dumps(record[key])}"
-            )
+    check_fields(path, record, _RECORD_FIELDS)
     return record
 
 
