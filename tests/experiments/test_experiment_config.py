@@ -75,6 +75,7 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
         (("every = 500", "every = 5000"), "eval.every", "more than steps"),
         (("steps = 1000", 'steps = 1000\nalgo = "dqn"'), "algo", "expected one of"),
         (("steps = 1000", "steps = 1000\nseeds = [1, 1]"), "seeds", "distinct"),
+        (("steps = 1000", "steps = 1000\nseeds = 10000000000"), "seeds", "at most 1000"),
         # These failed every cell only once the run had started (and needed --resume once fixed).
         *(
             (("steps = 1000", f"steps = 1000\nseeds = [0, {seed}]"), "seeds[1]", "between 0 and")

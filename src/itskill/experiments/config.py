@@ -10,7 +10,7 @@ Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but 
 
     name (default: the file's stem; a plain directory name), description
     tasks = [task ids]           methods = [itn, nia, dfs, pst, no_transfer]
-    seeds = 5 | [0, 1, ...]      algo = "a2c" | "ppo"       steps = env-steps per cell
+    seeds = 5 (at most 1000) | [0, 1, ...]   algo = "a2c" | "ppo"   steps = env-steps per cell
     num_envs = N                 (default: the family's, from the hyper-parameter table)
     reward = "expert" | {task = "file.py", ...}   (paths relative to the experiment file)
     sources = "auto" | {task = [skill names or ids], ...}   k = sources retrieved by "auto"
@@ -36,6 +36,7 @@ from itskill.tasks import UnknownTaskError, get_task
 ALGOS = ("a2c", "ppo")
 EXPERT = "expert"
 AUTO = "auto"
+MAX_SEED_COUNT = 1000
 
 
 class ExperimentConfigError(DataFileError):
@@ -233,7 +234,15 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
         seeds = tuple(_typed(path, f"seeds[{i}]", s, int) for i, s in enumerate(seeds_raw))
         check_seeds(path, "seeds", seeds, ExperimentConfigError)
     else:
-        seeds = tuple(range(_positive(path, "seeds", seeds_raw)))
+        count = _positive(path, "seeds", seeds_raw)
+        if count > MAX_SEED_COUNT:
+            # A mistyped count (50000 for 5) would queue that many runs per task and method, and
+            # a huge one hang building them; more than this is listed on purpose.
+            raise ExperimentConfigError(
+                path, "seeds", f"at most {MAX_SEED_COUNT} as a count, got {count}; list the "
+                "seeds to run more"
+            )  # fmt: skip
+        seeds = tuple(range(count))
     algo = _typed(path, "algo", raw.get("algo", "a2c"), str)
     if algo not in ALGOS:
         raise ExperimentConfigError(path, "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
