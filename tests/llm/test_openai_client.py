@@ -139,11 +139,36 @@ def test_cache_replays_without_a_second_request(tmp_path: Path) -> None:
         assert len(server.requests) == 2
         assert rerun.usage.cache_hits == 2 and rerun.usage.requests == 0
         assert rerun.usage.cost_usd == 0.0
-        # A different purpose, temperature or n is a different request.
-        assert rerun.complete(MESSAGES, n=2, purpose="reward", temperature=0.5) != a
     files = sorted(tmp_path.glob("*.json"))
-    assert len(files) == 3
+    assert len(files) == 2
     assert all(json.loads(f.read_text())["model"] == "openai:fake-model" for f in files)
+
+
+@pytest.mark.parametrize(
+    ("change", "fresh"),
+    [
+        ({"purpose": "plan"}, ["three", "four"]),
+        ({"temperature": 0.5}, ["three", "four"]),
+        ({"n": 1}, ["three"]),
+    ],
+)
+def test_cache_does_not_replay_a_request_that_differs(
+    tmp_path: Path, change: dict, fresh: list[str]
+) -> None:
+    asked = {"n": 2, "purpose": "reward", "temperature": 1.0}
+    other = {**asked, **change}
+    with FakeOpenAIServer(["one", "two", "three", "four"]) as server:
+        cached = client(server, cache_dir=tmp_path).complete(MESSAGES, **asked)
+        # A new client, so both are the first occurrence of their request: a cache key that left
+        # the difference out would replay the cached replies here.
+        assert client(server, cache_dir=tmp_path).complete(MESSAGES, **other) == fresh
+        assert len(server.requests) == 2
+        # Neither overwrote the other: a rerun replays both.
+        rerun = client(server, cache_dir=tmp_path)
+        assert rerun.complete(MESSAGES, **asked) == cached
+        assert rerun.complete(MESSAGES, **other) == fresh
+        assert len(server.requests) == 2
+    assert len(list(tmp_path.glob("*.json"))) == 2
 
 
 def test_cache_is_shared_across_endpoints_of_the_same_model(tmp_path: Path) -> None:

@@ -11,6 +11,8 @@
    are exactly the clauses' (optional ones may be absent). Among matches, the one whose own
    command shares most words with the user's wins, less one per optional action it lacks (this
    tells "pull the peg out of the hole" from "pick up the peg", and "lift the nut" from a pick).
+   A tie goes to the task whose command carries (carry, bring, ...) if the user's does, and to
+   one whose command does not otherwise ("reach for the nut" is not the carry task).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from dataclasses import dataclass
 
 BACKEND = "offline rule-based backend"
 
+_CARRY_VERB = r"\bcarry\w*|\btransport\w*|\bbring\w*|\bhold\w*"
 # verb phrase -> distinguishing actions; a "?" suffix marks an action that may be absent.
 _VERBS: list[tuple[str, tuple[str, ...]]] = [
     (r"\bunscrew\w*|\bloosen\w*", ("unscrew",)),
@@ -37,7 +40,7 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
     (r"\balign\w*|\borient\w*", ("align",)),
     (r"\bpush\w*|\bslide\w*|\bshove\w*|\bnudge\w*", ("push",)),
     (r"\breach\w*|\bmove\w*|\bgo\b|\btouch\w*|\bapproach\w*", ()),
-    (r"\bcarry\w*|\btransport\w*|\bbring\w*|\bhold\w*", ()),
+    (_CARRY_VERB, ()),
 ]
 _IMPLIED = {"approach", "carry"}
 _ORDINALS = ["First", "Second", "Third", "Fourth", "Fifth", "Sixth", "Seventh", "Eighth", "Ninth",
@@ -123,6 +126,10 @@ def _clauses(command: str) -> list[tuple[str, ...]]:
     return [actions for _, actions in sorted(hits)]
 
 
+def _carries(command: str) -> bool:
+    return re.search(_CARRY_VERB, command.lower()) is not None
+
+
 def _skipped(pattern: list[str], actions: list[str]) -> int | None:
     """How few optional elements ``actions`` must skip to fit ``pattern`` (``a?`` optional,
     ``a|b`` alternatives); None if they do not fit."""
@@ -162,6 +169,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             "error": "the command has no action this robot can do (pick up, place, screw, "
             "unscrew, insert, pull out, push, lift, move to)"
         }
+    carries = _carries(command)
     named_fixtures = {p.kind for p in fixture_parts if p.kind in words or f"{p.kind}s" in words}
     per_object = [a for clause in clauses for a in clause]
     pattern = per_object * (len(grounded) if len(grounded) > 1 else 1)
@@ -176,7 +184,10 @@ def plan(command: str, catalogue: list[dict]) -> dict:
         skipped = _skipped(pattern, distinctive)
         if skipped is not None:
             overlap = len((words - _STOP) & (set(_words(entry["command"])) - _STOP))
-            candidates.append((skipped - overlap, skipped, entry["task"], entry))
+            # Reaching a part and carrying it over its fixture are both one approach, so "reach
+            # for the nut" would tie with the carry task on shared words alone.
+            carry_mismatch = _carries(entry["command"]) != carries
+            candidates.append((skipped - overlap, carry_mismatch, skipped, entry["task"], entry))
     if not candidates:
         labels = " and ".join(p.label for p in grounded)
         read = ", ".join(a.rstrip("?") for a in pattern)
@@ -184,7 +195,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             "error": f"no catalogue task does what the command asks with the {labels} "
             f"(actions read from the command: {read or 'move to'})"
         }
-    entry = min(candidates, key=lambda c: c[:3])[3]
+    entry = min(candidates, key=lambda c: c[:4])[4]
     notes.append(f"planned by the {BACKEND} (not a language model): matched catalogue task "
                  f"{entry['task']!r}")  # fmt: skip
     return {
