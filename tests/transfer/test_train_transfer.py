@@ -249,8 +249,8 @@ def test_a_refused_run_leaves_its_directory_as_it_was(
         train_transfer("pick_nut_m12", "no_transfer", seed=-1, steps=16, out=fresh, num_envs=2,
                        logger=QUIET)  # fmt: skip
     assert not fresh.exists()
-    result = train_transfer("pick_nut_m12", "no_transfer", steps=16, out=fresh, num_envs=2,
-                            logger=QUIET)  # fmt: skip
+    result = train_transfer("pick_nut_m12", "no_transfer", steps=16, algo="a2c", out=fresh,
+                            num_envs=2, logger=QUIET)  # fmt: skip
     assert result.num_timesteps == 16 and read_transfer(fresh)["target"] == "pick_nut_m12"
 
 
