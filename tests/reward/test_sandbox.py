@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import pickle
 import signal
 import subprocess
@@ -18,7 +19,6 @@ from itskill.reward.sandbox import (
     SandboxError,
     SandboxTimeout,
     SandboxViolation,
-    apply_process_limits,
     check_source,
     compile_reward,
     death_cause,
@@ -386,8 +386,27 @@ def test_process_limits_only_go_down() -> None:
     assert out.stdout.strip() == "50", out.stderr
 
 
-def test_apply_process_limits_is_callable_without_limits() -> None:
-    apply_process_limits(SandboxConfig())  # no limits configured: nothing changes
+def test_apply_process_limits_changes_nothing_without_limits() -> None:
+    # In a child process: limits set here would hold for the rest of the test run.
+    script = textwrap.dedent(
+        """
+        import json, resource
+        from itskill.reward.sandbox import SandboxConfig, apply_process_limits
+        def limits():
+            return [resource.getrlimit(k) for k in (resource.RLIMIT_CPU, resource.RLIMIT_AS)]
+        before = limits()
+        apply_process_limits(SandboxConfig())
+        unlimited = limits()
+        apply_process_limits(SandboxConfig(cpu_limit_s=30, memory_limit_mb=4096))
+        print(json.dumps([before, unlimited, limits()]))
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    before, unlimited, limited = json.loads(out.stdout)
+    assert unlimited == before
+    # The same call with limits does set them, so the comparison above could have failed.
+    assert [soft for soft, _ in limited] == [30, 4096 * 1024 * 1024]
 
 
 def test_the_cause_of_a_dead_worker_process_is_named() -> None:

@@ -24,14 +24,39 @@ QUIET = LoggerConfig(progress=False, tensorboard=False, min_steps_per_row=1)
 TASK = "reach_nut_m12"
 
 
-def test_demonstrations_are_the_scripts_successful_episodes() -> None:
+def test_demonstrations_are_the_scripts_successful_episodes(monkeypatch) -> None:
     spec = get_task(TASK)
+    script = demos_module.ScriptedPolicy.__call__
+
+    def idle_in_odd_envs(self, ctx):
+        # The reach script succeeds from every start; standing still never reaches.
+        actions = script(self, ctx).copy()
+        actions[1::2] = 0.0
+        return actions
+
+    monkeypatch.setattr(demos_module.ScriptedPolicy, "__call__", idle_in_odd_envs)
     env = make_batch_env(spec, num_envs=4, seed=3, training=True)
+    sent, successes = [], []
+    step = env.step
+
+    def step_and_record(actions):
+        obs, rewards, dones, infos = step(actions)
+        sent.append(np.clip(actions, -1.0, 1.0))
+        successes.extend(infos[e]["is_success"] for e in np.flatnonzero(dones))
+        return obs, rewards, dones, infos
+
+    monkeypatch.setattr(env, "step", step_and_record)
     try:
-        demos = collect_demos(spec, env, episodes=6)
+        demos = collect_demos(spec, env, episodes=8)
     finally:
         env.close()
-    assert demos.attempted == 6 and 1 <= demos.episodes <= 6
+    assert demos.attempted == len(successes) == 8
+    assert demos.episodes == sum(successes) == 4
+    # Two rounds of episodes run to the time limit together; what is kept is, in order, the
+    # successful environments' episodes and none of the idle ones'.
+    rounds = np.stack(sent).reshape(2, spec.max_steps, 4, -1)
+    kept = [rounds[r, :, e] for r in range(2) for e in range(4) if successes[4 * r + e]]
+    np.testing.assert_array_equal(demos.actions, np.concatenate(kept))
     assert demos.episode_ends[-1] == len(demos.obs) == len(demos.actions) == len(demos.rewards)
     assert demos.episodes * spec.max_steps == len(demos.obs)  # reach runs to its time limit
     assert demos.obs.shape[1] == env.observation_space.shape[0]

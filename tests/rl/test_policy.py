@@ -87,3 +87,10 @@ def test_every_sb3_path_normalises_once() -> None:
         torch.testing.assert_close(policy.predict_values(obs), values)
         ev_values, _, _ = policy.evaluate_actions(obs, actions)
         torch.testing.assert_close(ev_values, values)
+        # Agreeing with each other is not enough: every path could normalise twice alike.
+        norm = policy.obs_norm
+        seen = ((obs.double() - norm.mean) / torch.sqrt(norm.var + 1e-8)).clamp(-10, 10).float()
+        actor = policy.mlp_extractor.forward_actor(seen)
+        critic = policy.mlp_extractor.forward_critic(seen)
+        torch.testing.assert_close(actions, policy.action_net(actor))
+        torch.testing.assert_close(values, policy.value_net(critic))
