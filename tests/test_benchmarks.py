@@ -42,13 +42,22 @@ def test_pull_jam_tells_a_straight_pull_from_a_sideways_drag() -> None:
     assert dragged["out_held"] == 0.0 and dragged["lost_in_hole"] == 1.0
 
 
-def test_paired_policies_finds_no_difference_between_a_policy_and_itself(tmp_path, capsys) -> None:
+def test_paired_policies_compares_the_two_policies_on_the_same_episodes(tmp_path, capsys) -> None:
+    """Two policies with one exception each, at different episodes. Of the first 8
+    reach_nut_m12 episodes of seed 10,001 the M16 nut's Reach skill misses only episode 3 (it
+    ends 21 mm from the nut, success is within 15) and the round peg's reaches only episode 7
+    (5 mm), so paired, the M16 skill wins the 6 others. Measuring one policy twice would find 0;
+    another seed for either (neither has an exception on 10,000 or 10,002), 7."""
     from itskill.skills import SHIPPED_LIBRARY
 
-    skill = SHIPPED_LIBRARY / "reach_nut_m12"
+    before, after = SHIPPED_LIBRARY / "reach_peg_round", SHIPPED_LIBRARY / "reach_nut_m16"
     out = tmp_path / "paired.json"
-    args = ["reach_nut_m12", str(skill), str(skill), "--episodes", "4", "--json", str(out)]
-    assert _load("paired_policies").main(args) == 0
-    assert "won 0 episodes and lost 0" in capsys.readouterr().out
+    args = ["reach_nut_m12", str(before), str(after), "--episodes", "8", "--seed", "10001"]
+    assert _load("paired_policies").main([*args, "--json", str(out)]) == 0
+    assert "after won 6 episodes and lost 0; one-sided exact McNemar p = 0.016" in (
+        capsys.readouterr().out
+    )
     result = json.loads(out.read_text())
-    assert result["before"]["success"] == result["after"]["success"] and result["p"] == 1.0
+    assert result["before"]["success"] == 1 / 8 and result["after"]["success"] == 7 / 8
+    assert (result["episodes_won"], result["episodes_lost"]) == (6, 0)
+    assert result["p"] == pytest.approx(0.5**6)

@@ -38,10 +38,23 @@ def test_interval_contains_rate_and_narrows_with_n():
     assert high2 - low2 < high1 - low1
 
 
-@pytest.mark.parametrize(("successes", "n"), [(1, 0), (-1, 5), (6, 5)])
-def test_rejects_bad_counts(successes, n):
-    with pytest.raises(ValueError):
-        wilson_interval(successes, n)
+@pytest.mark.parametrize(
+    ("successes", "n", "confidence", "message"),
+    [
+        (1, 0, 0.95, "n must be positive, got 0"),
+        # Without their own check these two would still raise ValueError, from math.sqrt.
+        (-1, 5, 0.95, r"successes must be in \[0, 5\], got -1"),
+        (6, 5, 0.95, r"successes must be in \[0, 5\], got 6"),
+        # 0 would give an interval of zero width without an error; 1 and a percentage would fail
+        # inside NormalDist, with a message about its own argument.
+        (3, 5, 0.0, r"confidence must be in \(0, 1\), got 0.0"),
+        (3, 5, 1.0, r"confidence must be in \(0, 1\), got 1.0"),
+        (3, 5, 95, r"confidence must be in \(0, 1\), got 95"),
+    ],
+)
+def test_rejects_bad_counts_and_confidence(successes, n, confidence, message):
+    with pytest.raises(ValueError, match=message):
+        wilson_interval(successes, n, confidence)
 
 
 def test_mean_interval_uses_student_t() -> None:

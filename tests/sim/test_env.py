@@ -343,18 +343,18 @@ def test_a_nut_on_the_bolt_is_held_by_closing_the_hand_around_it_and_stays_on_th
     assert (ctx["grasped"][:, 0] > 0.5).all() and (ctx["engaged"][:, 0] > 0.5).all()
 
 
-def _starts(env, episodes: int) -> tuple[int, list[bool]]:
-    """Episodes begun in the fingers (grasped right after reset), and each episode's
-    ``training_start`` flag, over ``episodes`` episodes of the single environment of ``env``."""
-    in_hand, flags = 0, []
+def _starts(env, episodes: int) -> list[tuple[bool, bool]]:
+    """For each of ``episodes`` episodes of the single environment of ``env``: whether it began
+    on the table (not grasped right after reset), and the ``training_start`` flag of its end."""
+    starts = []
     env.reset()
     for _ in range(episodes):
-        in_hand += int(env.context()["grasped"][0, 0] > 0.5)
+        on_table = bool(env.context()["grasped"][0, 0] < 0.5)
         for _ in range(env.task.max_steps):
             _, _, done, infos = env.step(np.array([[0.0, 0.0, 0.0, 0.0, 1.0]]))
         assert done[0]
-        flags.append(infos[0].get("training_start", False))
-    return in_hand, flags
+        starts.append((on_table, infos[0].get("training_start", False)))
+    return starts
 
 
 def test_training_environments_draw_the_tasks_training_starts_and_say_so():
@@ -364,14 +364,16 @@ def test_training_environments_draw_the_tasks_training_starts_and_say_so():
     table = get_task("pick_nut_m12").init
     task = replace(spec.to_sim_task(), max_steps=1, training_starts=(TrainingStart(table, 0.5),))
     training = BatchEnv(task, num_envs=1, seed=0, n_threads=1, training=True)
-    held, flags = _starts(training, 40)
+    starts = _starts(training, 40)
     training.close()
-    assert 10 <= 40 - held <= 30
-    assert flags.count(True) == 40 - held  # exactly the table starts are flagged
+    assert 10 <= sum(on_table for on_table, _ in starts) <= 30
+    # Episode by episode: a log leaving out flagged episodes must leave out exactly the table
+    # starts, not as many episodes that began in the fingers.
+    assert [flag for _, flag in starts] == [on_table for on_table, _ in starts]
     evaluation = BatchEnv(task, num_envs=1, seed=0, n_threads=1)
-    held, flags = _starts(evaluation, 10)
+    starts = _starts(evaluation, 10)
     evaluation.close()
-    assert held == 10 and not any(flags)
+    assert starts == [(False, False)] * 10
 
 
 # ---------------------------------------------------------------------- observation layout

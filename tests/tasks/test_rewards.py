@@ -7,7 +7,7 @@ import pytest
 
 from itskill.sim.context import MAX_FIXTURES, MAX_OBJECTS
 from itskill.tasks import all_tasks, get_task, make_batch_env
-from itskill.tasks.rewards import SUCCESS_BONUS, TEMPERATURES, expert_reward
+from itskill.tasks.rewards import PROGRESS_WEIGHT, SUCCESS_BONUS, TEMPERATURES, expert_reward
 from itskill.tasks.scripted import ScriptedPolicy
 
 N = 3
@@ -290,16 +290,29 @@ def _scripted_rollout(task: str, num_envs: int = 4):
 
 
 @pytest.mark.parametrize("task", ["pick_nut_m12", "place_nut_m12", "insert_peg_round"])
-def test_reward_rises_along_a_scripted_episode(task: str) -> None:
-    rewards, stages, successes = _scripted_rollout(task)
+def test_reward_rises_along_a_scripted_episode_and_jumps_when_it_succeeds(task: str) -> None:
+    rewards, _, successes = _scripted_rollout(task)
     assert successes[-1].all(), "the script should solve the task"
     assert (rewards[-1] > rewards[0]).all()
+    # The success bonus is paid from the step the task is solved on, so the per-step reward jumps
+    # there by more than the shaping could give up. A single-stage task has no stage bonus: this
+    # is its one step up.
+    solved = successes[1:] & ~successes[:-1]
+    assert solved.any(axis=0).all()
+    assert (rewards[1:][solved] - rewards[:-1][solved] > SUCCESS_BONUS - PROGRESS_WEIGHT).all()
+
+
+@pytest.mark.parametrize("task", ["pick_nut_m12", "place_nut_m12"])
+def test_reward_rises_as_a_scripted_episode_finishes_each_stage(task: str) -> None:
+    n_stages = len(get_task(task).stages)
+    rewards, stages, _ = _scripted_rollout(task)
+    assert (stages[-1] == n_stages - 1).all(), "the script should go through every stage"
     # At stage transitions upward the per-step reward rises (the stage bonus covers the shaping
     # the finished stage paid), apart from the odd physics wobble.
     up = stages[1:] > stages[:-1]
-    if up.any():
-        rises = rewards[1:][up] > rewards[:-1][up]
-        assert rises.mean() >= 0.9
+    assert up.any(axis=0).all()
+    rises = rewards[1:][up] > rewards[:-1][up]
+    assert rises.mean() >= 0.9
 
 
 @pytest.mark.parametrize("task", list(all_tasks()))
