@@ -8,6 +8,8 @@ run's best evaluated policy (``best/``) and evaluates it on 100 held-out episode
 reward, the final training evaluation and the held-out success per seed, their means with 95%
 intervals and the env-steps to 80%; it writes ``summary.json``, ``curves.png`` and each run's
 ``eval.csv`` and held-out result to ``--results``. Runs go to ``--out`` (rerunning resumes them).
+``--hyperparams FILE.toml`` trains both rewards with a hyper-parameter file of the packaged
+file's shape instead (to compare rewards at another learning rate, say).
 
 Target (issue 4): generated reward success >= the expert's.
 
@@ -51,11 +53,13 @@ THRESHOLD = 0.8
 
 
 def train_one(task: str, method: str, reward: str, seed: int, steps: int, every: int,
-              episodes: int, out: str) -> int:  # fmt: skip
-    """One transfer run into ``out`` (resumed if it is there), PPO with the packaged settings."""
+              episodes: int, out: str, hyperparams: str | None) -> int:  # fmt: skip
+    """One transfer run into ``out`` (resumed if it is there), PPO with the packaged settings
+    or those of the ``hyperparams`` file."""
     train_transfer(
         task, method, "auto", seed=seed, steps=steps, algo="ppo", out=Path(out), reward=reward,
         eval_every=every, eval_episodes=episodes, n_threads=1, progress=False,
+        hyperparams=hyperparams,
     )  # fmt: skip
     return seed
 
@@ -78,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("runs/reward_at_budget"))
     parser.add_argument("--results", type=Path, required=True)
+    parser.add_argument(
+        "--hyperparams", type=Path, help="a hyper-parameter file instead of the packaged one"
+    )
     args = parser.parse_args(argv)
     if not args.reward.is_file():
         parser.error(f"no reward file {args.reward}")
@@ -87,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     jobs = [
         (args.task, args.method, rewards[r], s, args.steps, args.eval_every, args.eval_episodes,
-         str(d))
+         str(d), str(args.hyperparams) if args.hyperparams else None)
         for (r, s), d in runs.items()
     ]  # fmt: skip
     failed = False
@@ -105,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         "method": args.method,
         "reward": str(args.reward),
         "algo": "ppo",
+        "hyperparams": str(args.hyperparams) if args.hyperparams else "packaged",
         "steps": args.steps,
         "eval_every": args.eval_every,
         "eval_episodes": args.eval_episodes,
