@@ -63,6 +63,11 @@ def test_resume_continues_step_count(tmp_path: Path, reach_reward: Path) -> None
     done = _train(out, reach_reward, 256)
     assert done.num_timesteps == 256 and done.session_wall_s == 0.0
     assert done.wall_s == second.wall_s
+    # A smaller budget would have stopped at 128: its figures cannot be read off this run.
+    with pytest.raises(ResumeMismatchError, match="trained to 256 env-steps, past the 128"):
+        _train(out, reach_reward, 128)
+    # One the last rollout passed (it stops at the first rollout at or over its budget) is done.
+    assert _train(out, reach_reward, 200).num_timesteps == 256
 
 
 def test_a_run_resumed_from_an_older_evaluation_file_keeps_its_columns(

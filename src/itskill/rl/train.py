@@ -553,6 +553,16 @@ def run_training(
             # rollouts would shift every input it learned on (a policy object forgets this flag,
             # so a resumed run sets it again).
             model.policy.update_obs_stats = False
+        rollout = model.n_steps * model.n_envs
+        if model.num_timesteps - rollout >= steps:
+            # Trained past where this budget stops (the first rollout at or over it): what it
+            # holds is not a run of this budget, whose learning rate would also have decayed
+            # sooner, and figures read from it would carry the wrong budget.
+            raise ResumeMismatchError(
+                f"{run_dir}: holds a run trained to {model.num_timesteps:,} env-steps, past the "
+                f"{steps:,} asked for; use another --out directory or --steps "
+                f"{model.num_timesteps:,} or more"
+            )
         finished = model.num_timesteps >= steps
         if finished and not (eval_every and (last_evaluated(run_dir) or -1) < model.num_timesteps):
             return TrainResult(
