@@ -2,9 +2,12 @@
 
 For each task x algorithm x seed, train with periodic deterministic evaluation
 (:class:`itskill.rl.eval_callback.DeterministicEvalCallback`), then report per task and algorithm:
-env-steps and wall-minutes to 80% and 90% deterministic success (mean over the seeds that got
-there, and how many did), the final success, and a learning-curve plot with a 95% band across
-seeds. Runs are resumable: rerunning the same command continues unfinished trainings.
+env-steps and wall-minutes to 80% and 90% deterministic success (mean over the seeds with its
+95% interval, and how many seeds got there: a seed that never did counts at its budget, so the
+mean is then a lower bound, printed with ``≥``), the final success, and a learning-curve plot with
+a 95% band across seeds. Runs are resumable: rerunning the same command continues unfinished
+trainings. Each cell reports how many of its seeds completed; the exit status is 1 if any run
+failed.
 
 Targets (the task-suite issue): Pick (nut M12) at 80% within 200k env-steps and 5 wall-minutes
 with PPO; A2C within 2x PPO's steps; every basic skill >= 95% final success.
@@ -22,9 +25,9 @@ packaged file's shape instead of the packaged one, to screen settings on several
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
+import sys
 from pathlib import Path
 
 import matplotlib
@@ -34,11 +37,16 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from itskill.executors import EXECUTORS, run_jobs
-from itskill.experiments.analysis import read_curve
+from itskill.experiments.analysis import Curve, read_curve, time_to_threshold
+from itskill.files import write_json
 from itskill.rl.train import train
-from itskill.stats import mean_interval, steps_to_threshold
+from itskill.stats import mean_interval
 
 THRESHOLDS = (0.8, 0.9)
+
+
+def _key(threshold: float) -> str:
+    return f"to_{round(threshold * 100)}"
 
 
 def run_one(
@@ -78,28 +86,45 @@ def run_one(
     }
 
 
-def summarise(curves: list[dict]) -> dict:
-    """Steps and minutes to each threshold (over the seeds that reached it) and final success."""
-    out: dict = {"seeds": len(curves)}
-    for thr in THRESHOLDS:
-        hits = [
-            (
-                steps_to_threshold(c["steps"], c["success"], thr),
-                steps_to_threshold(c["wall_s"], c["success"], thr),
-                c["budget"],
-            )
-            for c in curves
-        ]
-        # Training ends one rollout past its budget: a crossing at that last evaluation is not
-        # within the budget.
-        reached = [(s, w) for s, w, budget in hits if s is not None and s <= budget]
-        key = f"to_{round(thr * 100)}"
-        out[key] = {
-            "reached": len(reached),
-            "env_steps_mean": mean_interval([s for s, _ in reached])[0] if reached else None,
-            "wall_min_mean": mean_interval([w for _, w in reached])[0] / 60 if reached else None,
-        }
+def summarise(curves: list[dict], requested: int) -> dict:
+    """Steps and minutes to each threshold and the final success of one cell's completed runs.
+
+    ``curves`` are :func:`run_one`'s results, ``requested`` the number of seeds asked for. A seed
+    that never reaches a threshold within its budget counts at the budget
+    (:func:`itskill.experiments.analysis.time_to_threshold`): leaving it out would average only
+    the fast seeds. The mean is then a lower bound (``lower_bound``, and ``≥`` in the texts).
+    """
     curves = sorted(curves, key=lambda c: c["seed"])
+    runs = [
+        Curve(
+            np.asarray(c["steps"], float),
+            np.asarray(c["success"], float),
+            np.asarray(c["wall_s"], float),
+            float(c["budget"]),
+        )
+        for c in curves
+    ]
+    out: dict = {"seeds": len(curves), "seeds_requested": requested}
+    for thr in THRESHOLDS:
+        hit = time_to_threshold(runs, thr)
+        steps, wall = hit.steps_estimate(), hit.wall_estimate()
+        out[_key(thr)] = {
+            "reached": int(hit.reached.sum()),
+            "lower_bound": hit.censored > 0,
+            # Renamed from env_steps_mean and wall_min_mean, which averaged only the seeds that
+            # reached the threshold: a reader of an older summary.json must not mix the two.
+            "env_steps_mean_censored": steps.mean,
+            "env_steps_ci": [steps.low, steps.high],
+            "wall_min_mean_censored": wall.mean / 60,
+            "wall_min_ci": [wall.low / 60, wall.high / 60],
+            "env_steps_text": hit.format_steps(),
+            "wall_min_text": hit.format_minutes(),
+            "per_seed": {
+                "env_steps": hit.steps.tolist(),
+                "wall_s": hit.wall_s.tolist(),
+                "reached": hit.reached.tolist(),
+            },
+        }
     finals = [c["success"][-1] for c in curves]
     mean, low, high = mean_interval(finals)
     # A rate's interval is clipped to [0, 1]; with 3 seeds the t-interval easily runs past it.
@@ -113,11 +138,12 @@ def summarise(curves: list[dict]) -> dict:
     return out
 
 
-def _cell(s: dict, key: str) -> str:
-    c, seeds = s[key], s["seeds"]
-    if not c["reached"]:
-        return f"not reached (0/{seeds})"
-    return f"{c['env_steps_mean']:,.0f} / {c['wall_min_mean']:.1f} ({c['reached']}/{seeds})"
+def _cell(s: dict, threshold: float) -> str:
+    c = s[_key(threshold)]
+    return (
+        f"reached by {c['reached']}/{s['seeds']} seeds; env-steps {c['env_steps_text']}; "
+        f"minutes {c['wall_min_text']}"
+    )
 
 
 def plot(task: str, curves_by_algo: dict[str, list[dict]], path: Path) -> None:
@@ -146,7 +172,8 @@ def plot(task: str, curves_by_algo: dict[str, list[dict]], path: Path) -> None:
     plt.close(fig)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    """Train every task x algorithm x seed, print and write the summary; 1 if any run failed."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", nargs="+", default=["pick_nut_m12"])
     parser.add_argument("--algos", nargs="+", default=["ppo", "a2c"])
@@ -170,7 +197,7 @@ def main() -> None:
     parser.add_argument("--executor", choices=EXECUTORS, default="local")
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--out", type=Path, default=Path("results/learn_basic"))
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     args.out.mkdir(parents=True, exist_ok=True)
     cells = [(t, a, s) for t in args.tasks for a in args.algos for s in args.seeds]
@@ -179,10 +206,15 @@ def main() -> None:
     common = (args.eval_every, args.eval_episodes, str(args.out), args.reward, hyperparams)
     jobs = [(t, a, s, budget.get(a, args.steps), *common) for t, a, s in cells]
     curves: dict[tuple[str, str], list[dict]] = {}
+    failed = 0
     for res in run_jobs(run_one, jobs, args.executor, args.workers):
         task, algo, seed = cells[res.index]
         if not res.ok:
-            print(f"{task} {algo} seed {seed}: FAILED {type(res.error).__name__}: {res.error}")
+            failed += 1
+            print(
+                f"{task} {algo} seed {seed}: FAILED {type(res.error).__name__}: {res.error}",
+                file=sys.stderr,
+            )
             continue
         curves.setdefault((task, algo), []).append(res.value)
         print(f"{task} {algo} seed {seed}: final success {res.value['success'][-1]:.0%}")
@@ -194,23 +226,35 @@ def main() -> None:
         },
         "results": {},
     }
-    print(f"\n{'task':24s} {'algo':5s} {'to 80%: steps / min (seeds)':32s} {'to 90%':28s} final")
+    requested = len(args.seeds)
+    print(
+        "\nmeans over seeds [95% t-interval]; time to a threshold counts a seed that never "
+        "reached it at its budget (≥: a lower bound)"
+    )
     for task in args.tasks:
         by_algo = {a: curves[(task, a)] for a in args.algos if (task, a) in curves}
-        if not by_algo:
-            continue
-        plot(task, by_algo, args.out / f"{task}.png")
-        for algo, cs in by_algo.items():
-            s = summarise(cs)
+        if by_algo:
+            plot(task, by_algo, args.out / f"{task}.png")
+        for algo in args.algos:
+            if algo not in by_algo:
+                print(f"{task} {algo}: 0/{requested} seeds completed")
+                continue
+            s = summarise(by_algo[algo], requested)
             summary["results"][f"{task}/{algo}"] = s
             final = s["final_success"]
             print(
-                f"{task:24s} {algo:5s} {_cell(s, 'to_80'):32s} {_cell(s, 'to_90'):28s} "
+                f"{task} {algo}: {s['seeds']}/{requested} seeds completed; final success "
                 f"{final['mean']:.0%} [{final['ci'][0]:.0%}, {final['ci'][1]:.0%}]"
             )
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+            for thr in THRESHOLDS:
+                print(f"  to {thr:.0%}: {_cell(s, thr)}")
+    write_json(args.out / "summary.json", summary)
     print(f"\nplots and summary.json in {args.out}")
+    if failed:
+        print(f"{failed} of {len(jobs)} runs failed", file=sys.stderr)
+        return 1
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

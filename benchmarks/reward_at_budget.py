@@ -41,7 +41,7 @@ from itskill.experiments.analysis import (
 )
 from itskill.experiments.learn import EVAL_SEED
 from itskill.experiments.plots import plot_learning_curves
-from itskill.files import write_json
+from itskill.files import replaced_whole, write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy
 from itskill.rl.eval_callback import EVAL_FILE
 from itskill.stats import format_rate_interval
@@ -67,6 +67,10 @@ def train_one(task: str, method: str, reward: str, seed: int, steps: int, every:
 def _band(values: list[float]) -> dict[str, float]:
     est = estimate(values)
     return {"mean": est.mean, "ci_low": est.low, "ci_high": est.high}
+
+
+def _format_band(band: dict[str, float]) -> str:
+    return format_rate_interval(band["mean"], band["ci_low"], band["ci_high"])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -134,8 +138,10 @@ def main(argv: list[str] | None = None) -> int:
             heldout.append(res.success_rate)
             stage_steps.append(res.stage_steps)
             keep = args.results / name / f"seed_{s}"
-            keep.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(run_dir / EVAL_FILE, keep / EVAL_FILE)
+            # Copied to a temporary file replacing the target whole: an interrupted copy must not
+            # leave a truncated curve that a later analysis would read as a short run.
+            with replaced_whole(keep / EVAL_FILE) as tmp:
+                shutil.copyfile(run_dir / EVAL_FILE, tmp)
             write_json(keep / "heldout_eval.json", res.to_dict())
         reached = time_to_threshold(curves, THRESHOLD)
         final = [float(c.success[-1]) for c in curves]
@@ -152,11 +158,12 @@ def main(argv: list[str] | None = None) -> int:
             "final_band": _band(final),
             "heldout_band": _band(heldout),
         }
-        band = summary["rewards"][name]["heldout_band"]
+        result = summary["rewards"][name]
         print(
-            f"{name:>9}: final {', '.join(f'{v:.0%}' for v in final)}; held-out "
-            f"{', '.join(f'{v:.0%}' for v in heldout)}; "
-            f"mean {format_rate_interval(band['mean'], band['ci_low'], band['ci_high'])}; "
+            f"{name:>9}: final {', '.join(f'{v:.0%}' for v in final)}, "
+            f"mean {_format_band(result['final_band'])}; held-out "
+            f"{', '.join(f'{v:.0%}' for v in heldout)}, "
+            f"mean {_format_band(result['heldout_band'])}; "
             f"80% reached: {reached.format_steps()}"
         )
     plot_learning_curves(bands, f"{args.task}: generated vs expert reward ({args.method})",

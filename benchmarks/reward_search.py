@@ -2,8 +2,10 @@
 
 For each task, run the full loop (:func:`itskill.reward.generate_reward`, default 5 iterations x
 10 samples, the packaged candidate budget), then report the wall time on this machine and the
-chosen reward's final success (mean over the final seeds, 95% interval) beside the expert
-reward's (same env-steps, same seeds). Results go to ``results/reward_search/<task>/`` (the
+chosen reward's success on the final seeds beside the expert reward's (same env-steps, same
+seeds): each seed's best evaluation through training (what the search ranks by, optimistic as a
+maximum of noisy evaluations) and its last evaluation, at the budget, each as a mean over the
+seeds with its 95% t-interval. Results go to ``results/reward_search/<task>/`` (the
 search's ``summary.json``, ``fig6.png`` and the chosen ``best_reward.py``); the run directories
 to ``--runs`` (resumable: rerunning the same command continues an interrupted search).
 
@@ -22,7 +24,6 @@ to ``results/reward_search/<task>_<method>/``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import shutil
@@ -32,18 +33,21 @@ from pathlib import Path
 from rich.console import Console
 
 from itskill.executors import EXECUTORS
+from itskill.files import read_json, replaced_whole, write_json
 from itskill.reward import generate_reward, load_search_config, search_client
 from itskill.reward.search import BEST_FILE, CONFIG_FILE, FIGURE_FILE, NETWORK_DIR, SUMMARY_FILE
-from itskill.stats import format_rate_interval
+from itskill.stats import format_rate_interval, mean_interval
 from itskill.transfer import search_network
 
 DEFAULT_TASKS = ("pick_nut_m12", "pickplace_nut_m12")
 
 
-def _interval(band: dict | None) -> str:
-    if not band or band.get("mean") is None:
+def _interval(band: dict | None, key: str) -> str:
+    """Mean over the final seeds of ``band[key]`` (their best or last evaluations) with its 95%
+    t-interval; ``-`` where no seed finished, or the expert reward was not compared."""
+    if not band or not band.get(key):
         return "-"
-    return format_rate_interval(band["mean"], band["ci_low"], band["ci_high"])
+    return format_rate_interval(*mean_interval(band[key]))
 
 
 def main() -> None:
@@ -96,31 +100,41 @@ def main() -> None:
         )
         wall = time.perf_counter() - start
         target = args.results / name
-        target.mkdir(parents=True, exist_ok=True)
-        summary = json.loads((run_dir / SUMMARY_FILE).read_text())
+        summary = read_json(run_dir / SUMMARY_FILE)
         summary["benchmark"] = {
             "wall_s_this_call": round(wall, 1),
             "cpus": os.cpu_count(),
             "machine": platform.machine(),
             "python": platform.python_version(),
         }
-        (target / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+        write_json(target / SUMMARY_FILE, summary)
         for file in (FIGURE_FILE, BEST_FILE):
-            shutil.copyfile(run_dir / file, target / file)
+            # Copied to a temporary file replacing the target whole: an interrupted copy must not
+            # leave a truncated figure or reward beside a summary that looks complete.
+            with replaced_whole(target / file) as tmp:
+                shutil.copyfile(run_dir / file, tmp)
         rows.append((name, summary, result))
     print(
         f"\n{config.iterations} iterations x {config.samples} samples, {config.steps} env-steps "
         f"per candidate, best {config.select_top} retrained on {config.select_seeds} more seeds, "
         f"{config.final_seeds} final seeds, {os.cpu_count()} cores"
     )
-    print(f"{'task':<26} {'wall min':>9}  {'generated':<20} {'expert':<20}")
+    print(
+        "success on the final seeds, mean [95% t-interval]: each seed's best evaluation through "
+        "training (optimistic: the maximum of its evaluations) and its last evaluation"
+    )
+    columns = ("generated best eval", "generated last eval", "expert best eval", "expert last eval")
+    print(f"{'task':<26} {'wall min':>9}  " + " ".join(f"{c:<19}" for c in columns))
     for name, summary, _ in rows:
         final = summary["final"]
         minutes = summary["usage"]["wall_s"] / 60
-        print(
-            f"{name:<26} {minutes:>9.1f}  {_interval(final['generated']):<20} "
-            f"{_interval(final['expert']):<20}"
-        )
+        # The search's "success" per seed is its peak evaluation, "final_success" its last.
+        cells = [
+            _interval(final[reward], key)
+            for reward in ("generated", "expert")
+            for key in ("success", "final_success")
+        ]
+        print(f"{name:<26} {minutes:>9.1f}  " + " ".join(f"{c:<19}" for c in cells))
 
 
 if __name__ == "__main__":

@@ -61,3 +61,153 @@ def test_paired_policies_compares_the_two_policies_on_the_same_episodes(tmp_path
     assert result["before"]["success"] == 1 / 8 and result["after"]["success"] == 7 / 8
     assert (result["episodes_won"], result["episodes_lost"]) == (6, 0)
     assert result["p"] == pytest.approx(0.5**6)
+
+
+def _curve(seed: int, success: list[float], budget: int = 300) -> dict:
+    """A run_one result of learn_basic: evaluations every 100 env-steps, one minute apart."""
+    steps = [100 * (k + 1) for k in range(len(success))]
+    return {
+        "seed": seed,
+        "budget": budget,
+        "steps": steps,
+        "wall_s": [60.0 * (k + 1) for k in range(len(success))],
+        "success": success,
+    }
+
+
+def test_learn_basic_counts_a_seed_that_never_reached_a_threshold_at_its_budget() -> None:
+    """Seeds 0 and 1 reach 80% at 100 and 200 env-steps; seed 2 never does. Averaging the two
+    that did would say 150; counted at its budget (300) seed 2 makes it at least 200. Seed 1's
+    90% comes at 400, past its budget of 300 (training ends a rollout late), so it is censored."""
+    summarise = _load("learn_basic").summarise
+    curves = [
+        _curve(2, [0.1, 0.3, 0.5]),
+        _curve(0, [0.9, 0.95, 0.9]),
+        _curve(1, [0.5, 0.8, 0.85, 0.9]),
+    ]
+    s = summarise(curves, requested=4)
+    assert (s["seeds"], s["seeds_requested"]) == (3, 4)
+    to_80 = s["to_80"]
+    assert to_80["reached"] == 2 and to_80["lower_bound"] is True
+    assert to_80["env_steps_mean_censored"] == pytest.approx(200.0)
+    assert to_80["wall_min_mean_censored"] == pytest.approx(2.0)
+    assert to_80["per_seed"]["reached"] == [True, True, False]
+    assert to_80["env_steps_text"].startswith("≥ 200 [")
+    assert to_80["env_steps_text"].endswith("(1/3 never reached)")
+    assert to_80["wall_min_text"].startswith("≥ 2.0 [")
+    to_90 = s["to_90"]
+    assert to_90["reached"] == 1 and to_90["per_seed"]["env_steps"] == [100.0, 300.0, 300.0]
+    assert s["final_success"]["seeds"] == [0, 1, 2]
+    assert s["final_success"]["per_seed"] == [0.9, 0.9, 0.5]
+
+
+def test_learn_basic_reports_failed_runs_and_exits_non_zero(tmp_path, monkeypatch, capsys) -> None:
+    """One of three seeds fails: the cell is summarised over the two that completed, says so,
+    and main returns 1; with every run done it returns 0."""
+    from itskill.executors import JobResult
+
+    module = _load("learn_basic")
+    fail_seed: list[int] = [1]
+
+    def fake_run_jobs(fn, jobs, executor, workers):
+        for index, job in enumerate(jobs):
+            seed = job[2]
+            if seed in fail_seed:
+                yield JobResult(index, error=RuntimeError("simulator crashed"))
+            else:
+                yield JobResult(index, value=_curve(seed, [0.5, 0.9, 0.9], budget=job[3]))
+
+    monkeypatch.setattr(module, "run_jobs", fake_run_jobs)
+    args = ["--algos", "ppo", "--seeds", "0", "1", "2", "--steps", "300", "--out", str(tmp_path)]
+    assert module.main(args) == 1
+    captured = capsys.readouterr()
+    assert "pick_nut_m12 ppo seed 1: FAILED RuntimeError: simulator crashed" in captured.err
+    assert "1 of 3 runs failed" in captured.err
+    assert "pick_nut_m12 ppo: 2/3 seeds completed" in captured.out
+    result = json.loads((tmp_path / "summary.json").read_text())["results"]["pick_nut_m12/ppo"]
+    assert (result["seeds"], result["seeds_requested"]) == (2, 3)
+
+    fail_seed.clear()
+    assert module.main(args) == 0
+    assert "pick_nut_m12 ppo: 3/3 seeds completed" in capsys.readouterr().out
+
+
+def test_reward_search_reports_the_best_and_the_last_evaluation() -> None:
+    """The search's per-seed "success" is each run's best evaluation, "final_success" its last:
+    the two columns must not be confused."""
+    interval = _load("reward_search")._interval
+    band = {"success": [0.8, 0.8, 0.8], "final_success": [0.4, 0.5, 0.6], "mean": 0.8}
+    assert interval(band, "success").startswith("80% [80%, 80%]")
+    assert interval(band, "final_success").startswith("50% [")
+    assert interval(None, "final_success") == "-"
+    assert interval({"success": [], "final_success": []}, "success") == "-"
+
+
+def test_reward_at_budget_prints_the_final_and_held_out_means(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    """Training and held-out evaluation replaced by hand-made curves and rates: the final
+    training evaluation's mean is printed beside the held-out one, and each run's eval.csv is
+    kept whole."""
+    from types import SimpleNamespace
+
+    from itskill.executors import JobResult
+
+    module = _load("reward_at_budget")
+    out, results = tmp_path / "runs", tmp_path / "results"
+    finals = {("generated", 1): 0.6, ("generated", 2): 0.8, ("expert", 1): 0.4, ("expert", 2): 0.4}
+    for (reward, seed), final in finals.items():
+        run_dir = out / f"{reward}_seed{seed}"
+        run_dir.mkdir(parents=True)
+        (run_dir / "eval.csv").write_text(
+            f"env_steps,wall_s,success\n100,10.0,0.2\n200,20.0,{final}\n"
+        )
+
+    def fake_run_jobs(fn, jobs, workers):
+        yield from (JobResult(k, value=job[3]) for k, job in enumerate(jobs))
+
+    heldout = iter([0.5, 0.7, 0.3, 0.3])
+    monkeypatch.setattr(module, "run_jobs", fake_run_jobs)
+    monkeypatch.setattr(module, "as_policy", lambda path: None)
+    monkeypatch.setattr(
+        module,
+        "evaluate",
+        lambda *a, **k: SimpleNamespace(
+            success_rate=next(heldout), stage_steps=[1.0], to_dict=lambda: {}
+        ),
+    )
+    reward = tmp_path / "reward.py"
+    reward.write_text("")
+    argv = ["--reward", str(reward), "--seeds", "1", "2", "--steps", "200"]
+    assert module.main([*argv, "--out", str(out), "--results", str(results)]) == 0
+    printed = capsys.readouterr().out
+    assert "generated: final 60%, 80%, mean 70% [" in printed
+    assert "held-out 50%, 70%, mean 60% [" in printed
+    assert "expert: final 40%, 40%, mean 40% [40%, 40%]; held-out 30%, 30%, mean 30%" in printed
+    kept = results / "generated" / "seed_2" / "eval.csv"
+    assert kept.read_bytes() == (out / "generated_seed2" / "eval.csv").read_bytes()
+    assert [p.name for p in kept.parent.iterdir() if p.name.startswith(".")] == []
+
+
+def test_library_success_refuses_to_write_figures_of_other_episodes(tmp_path, capsys) -> None:
+    """The manifest's success is the 400 held-out episodes of seed 10,000: a figure measured on
+    others must not replace it silently."""
+    # A library that is not there: a check that let the update through fails differently, and
+    # never touches the shipped manifest.
+    library = tmp_path / "library"
+    main = _load("library_success").main
+    for extra in (["--episodes", "50", "--seed", "0"], ["--seed", "0"]):
+        with pytest.raises(SystemExit) as stop:
+            main(["--update", "--library", str(library), *extra])
+        assert stop.value.code == 2
+        assert "--update writes the manifest's success" in capsys.readouterr().err
+    assert not library.exists()
+
+
+@pytest.mark.parametrize(
+    "argv", [["--contact", "--task", "screw_nut_m12"], ["--contact", "--policy", "x"]]
+)
+def test_thread_turns_refuses_a_contact_measurement_it_cannot_make(argv, capsys) -> None:
+    with pytest.raises(SystemExit) as stop:
+        _load("thread_turns").main(argv)
+    assert stop.value.code == 2 and "error:" in capsys.readouterr().err
