@@ -29,15 +29,31 @@ from itskill.tasks import get_task
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Re-measure the chosen skills, print old and new success, and optionally record them."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--library", type=Path, default=SHIPPED_LIBRARY)
     parser.add_argument("--skills", nargs="+", help="skill names (default: all)")
     parser.add_argument("--episodes", type=int, default=PretrainConfig.eval_episodes)
     parser.add_argument("--seed", type=int, default=PretrainConfig.eval_seed)
     parser.add_argument("--min-success", type=float, default=0.5)
-    parser.add_argument("--update", action="store_true", help="write the figures to the manifest")
+    parser.add_argument(
+        "--update",
+        action="store_true",
+        help="write the figures to the manifest (only with the default --episodes and --seed)",
+    )
     parser.add_argument("--json", type=Path, help="also write the results as JSON")
     args = parser.parse_args(argv)
+    # The manifest records no episode count or seed: its success is by definition the figure over
+    # pretraining's held-out episodes, so a figure over any others must not be written there.
+    if args.update and (args.episodes, args.seed) != (
+        PretrainConfig.eval_episodes,
+        PretrainConfig.eval_seed,
+    ):
+        parser.error(
+            f"--update writes the manifest's success, which is measured over "
+            f"{PretrainConfig.eval_episodes} episodes from seed {PretrainConfig.eval_seed}; "
+            f"drop --update or --episodes/--seed (got {args.episodes} episodes, seed {args.seed})"
+        )
     config = PretrainConfig(eval_episodes=args.episodes, eval_seed=args.seed)
 
     entries = read_manifest(args.library)

@@ -13,10 +13,11 @@ uniformly random policy over the same number of episodes: what a task gives away
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
+from pathlib import Path
 
+from itskill.files import write_json
 from itskill.stats import wilson_interval
 from itskill.tasks import all_tasks, get_task
 from itskill.tasks.evaluate import RandomPolicy, evaluate
@@ -26,13 +27,14 @@ THRESHOLD = 0.9
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the scripted controller on each task and print its success; 1 if ``--check`` fails."""
     table_i = [name for name, spec in all_tasks().items() if spec.table_i]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=table_i, help="task ids (default: Table I)")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--num-envs", type=int, default=25)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="also write the results as JSON")
     parser.add_argument("--random", action="store_true", help="also run a random policy")
     below = f"exit 1 if a Table I task is below {THRESHOLD * 100:.0f}%%"
     parser.add_argument("--check", action="store_true", help=below)
@@ -67,8 +69,7 @@ def main(argv: list[str] | None = None) -> int:
             }
         )
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(results, fh, indent=2)
+        write_json(args.json, results)
     failing = [r["task"] for r in results if r["table_i"] and r["success_rate"] < THRESHOLD]
     if args.check and failing:
         print(f"below {THRESHOLD:.0%}: {', '.join(failing)}", file=sys.stderr)
