@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# The generated reward against the expert's on pick-and-place at the settings the task trains at
+# now (log-std -2.0, PPO 3e-5, the script-cloned place skill). best_reward.py is the reward
+# `itskill learn "Pick up the nut and place it on the bolt"` chose on seed 0 with the default
+# budget (2026-12-05, a new skill space). 2026-12-05, the project machine (2 vCPUs), two runs at a
+# time; expert seed 1 ran beside the learn run first, and the benchmark resumed it as finished.
+set -euo pipefail
+ITSKILL_HOME=runs/home_rab python benchmarks/reward_at_budget.py \
+  --reward results/reward_search/pickplace_nut_m12_itn/current_settings/best_reward.py \
+  --seeds 1 2 3 --workers 2 --out runs/rab \
+  --results results/reward_search/pickplace_nut_m12_itn/current_settings
+# lr1e5_partial/: the same with --hyperparams lr1e5_partial/hyperparams.toml (PPO 1e-5 for the
+# task) --out runs/rab_lr1e5; stopped after the generated reward's seeds 1 and 2, whose curves
+# showed no gain, to free the cores for the log-std runs.
