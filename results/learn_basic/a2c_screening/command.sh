@@ -33,7 +33,7 @@ python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 
   --eval-every 20000 --eval-episodes 50 --workers 2 \
   --hyperparams results/learn_basic/a2c_screening/adam_const/hyperparams.toml --out runs/a2c_screening/adam_const
 # 2026-12-05, fifth session: more initial action noise (log-std 0.0 instead of -0.5), since less
-# (-1.0, logstd1/) left A2C without the exploration it needs. Stopped at 160k (seed 0) and 140k
+# (-1.0, logstd1/) left A2C without the exploration it needs. Stopped at 180k (seed 0) and 140k
 # (seed 1): 0-14% where the packaged settings are at 38-50% by 140k.
 python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 --steps 300000 \
   --eval-every 20000 --eval-episodes 50 --workers 2 \
