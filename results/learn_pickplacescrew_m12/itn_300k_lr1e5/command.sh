@@ -12,3 +12,10 @@ for seed in 0 1; do
   itskill eval pickplacescrew_nut_m12 --policy runs/pps_itn_lr1e5/expert_seed$seed/best \
     --episodes 100 --seed 10000 --num-envs 25 --json > "$out/expert_seed${seed}_heldout.json"
 done
+# Seed 2, 2026-12-05 (fifth session), with 1e-5 packaged since (so no --hyperparams), beside a
+# clean-clone test run:
+itskill transfer train pickplacescrew_nut_m12 --method itn --sources auto --reward expert \
+  --algo ppo --steps 300000 --seed 2 --eval-every 20000 --eval-episodes 50 --num-envs 16 \
+  --k 3 --out runs/pps_itn_lr1e5/expert_seed2
+itskill eval pickplacescrew_nut_m12 --policy runs/pps_itn_lr1e5/expert_seed2/best \
+  --episodes 100 --seed 10000 --num-envs 25 --json > "$out/expert_seed2_heldout.json"
