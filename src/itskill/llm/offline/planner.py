@@ -1,18 +1,20 @@
 """The offline task planner: a command matched to a catalogue task by rule.
 
 1. Objects are grounded from the words of the command against the catalogue's object names
-   (``nut_m12`` is "M12 nut", ``peg_rect_16mm`` "rectangular peg"); a bare "the nut" means the
-   M12 nut and a bare "the peg" the round peg, and the plan's notes say so; plural "nuts" means
-   every nut. Fixture words (bolt, hole) must match the task's fixtures.
+   (``nut_m12`` is "M12 nut", ``peg_rect_16mm`` "rectangular peg"); sizes may be written "M16",
+   "16 mm" or "16mm", and the size written next to a part is that part's. A bare "the nut" means
+   the M12 nut and a bare "the peg" the round peg, and the plan's notes say so; "big"/"small"
+   pick the largest/smallest; "nuts", "both", "each" or two sizes named mean every one named.
+   Fixture words (bolt, hole) must match the task's fixtures.
 2. The command is split into clauses ("pick up X", "place it on Y", "screw it down", ...); each
    clause's verb adds the actions that distinguish it (``pick`` -> grasp, lift; ``insert`` ->
-   [place], insert; ...). "approach" (and "carry") are implied everywhere and not compared.
+   [place], insert; ...); a verb repeating the previous one's actions need not add them again.
+   "approach" (and "carry") are implied everywhere and not compared.
 3. A catalogue task matches if its objects are the grounded ones and its distinguishing actions
    are exactly the clauses' (optional ones may be absent). Among matches, the one whose own
-   command shares most words with the user's wins, less one per optional action it lacks (this
-   tells "pull the peg out of the hole" from "pick up the peg", and "lift the nut" from a pick).
-   A tie goes to the task whose command carries (carry, bring, ...) if the user's does, and to
-   one whose command does not otherwise ("reach for the nut" is not the carry task).
+   command shares most words with the user's wins, less one per optional action it lacks; ties
+   are broken as :func:`plan` explains (the part named, carrying or not, the verbs shared, the
+   words added).
 """
 
 from __future__ import annotations
@@ -23,23 +25,54 @@ from dataclasses import dataclass
 
 BACKEND = "offline rule-based backend"
 
-_CARRY_VERB = r"\bcarry\w*|\btransport\w*|\bbring\w*|\bhold\w*"
-# verb phrase -> distinguishing actions; a "?" suffix marks an action that may be absent.
+# What a verb acts on: "it", "them" or "the" and up to three words ("the held M12 nut").
+_OBJ = r"(?:it |them |the (?:\w+ ){0,3})?"
+_CARRY_VERB = (
+    r"\bcarry\w*|\btransport\w*|\bbring\w*|\bhold\w*"
+    r"|\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?) (?:over|above|to)\b"
+)
+# verb phrase -> distinguishing actions; a "?" suffix marks an action that may be absent. Earlier
+# patterns claim their words first: "position the gripper" is a move, not a place.
 _VERBS: list[tuple[str, tuple[str, ...]]] = [
-    (r"\bunscrew\w*|\bloosen\w*", ("unscrew",)),
-    (r"\bscrew\w*|\btighten\w*|\bfasten\w*", ("screw",)),
-    (r"\binsert\w*|\bplug\w*", ("place?", "insert")),
+    (r"\bposition\w* (?:the |your )?(?:gripper|hand|arm|end effector)\b", ()),
+    (r"\bget (?:close|closer|near|next|to)\b", ()),
     (
-        r"\bpull\w*|\bremov\w*|\btake\w* (?:it |them )?(?:out|off)\b|\bextract\w*",
-        ("grasp", "lift?"),
+        r"\bunscrew\w*|\bloosen\w*|\bunfasten\w*|\buntighten\w*|\bunthread\w*"
+        rf"|\bscrew\w* {_OBJ}off\b",
+        ("unscrew",),
     ),
-    (r"\bpick\w*|\bgrab\w*|\btake\w*|\bfetch\w*", ("grasp", "lift?")),
-    (r"\bgrasp\w*|\bclamp\w*|\bclose\w* (?:the )?(?:fingers|gripper|hand)\b", ("grasp",)),
+    (
+        # "thread" but not "threaded", which describes the nut of grasp_nut_*_bolt.
+        r"\bscrew\w*|\btighten\w*|\bfasten\w*|\btwist\w*|\bthread(?:s|ing)?\b"
+        r"|\b(?:turn|rotat)\w* (?:it|the (?:m\d+ )?nut)\b",
+        ("place?", "screw"),
+    ),
+    (
+        r"\binsert\w*|\bplug\w*|\bstick\w*|\bfit\b"
+        rf"|\b(?:put|push|slide|press)\w* {_OBJ}(?:into\b|in\b(?! place\b))",
+        ("place?", "insert"),
+    ),
+    (
+        rf"\bpull\w*|\bremov\w*|\btake\w* {_OBJ}(?:out|off)\b|\bextract\w*",
+        ("unscrew?", "grasp", "lift?"),
+    ),
+    (r"\bpick\w*|\bgrab\w*|\btake\w*|\bfetch\w*|\bget\b", ("grasp", "lift?")),
+    (
+        # "grip" but not "gripper"; holding something in the hand grasps it, holding it over a
+        # fixture carries it.
+        r"\bgrasp\w*|\bclamp\w*|\bclose\w* (?:the )?(?:fingers|gripper|hand)\b"
+        rf"|\bgrip(?:s|ped|ping)?\b|\bhold\w* {_OBJ}(?:in|with) (?:the |your )?"
+        r"(?:gripper|hand|fingers)\b",
+        ("grasp",),
+    ),
     (r"\blift\w*|\braise\w*", ("grasp?", "lift")),
-    (r"\bplace\w*|\bput\w*|\bset\w*|\bmount\w*|\bdrop\w*|\bposition\w*", ("place|align?",)),
-    (r"\balign\w*|\borient\w*", ("align",)),
+    (
+        r"\bplace\w*|\bput\w*|\bset\w*|\bmount\w*|\bdrop\w*|\bposition\w*|\blower\w*",
+        ("place|align?",),
+    ),
+    (rf"\balign\w*|\borient\w*|\bline\w* {_OBJ}up\b", ("align",)),
     (r"\bpush\w*|\bslide\w*|\bshove\w*|\bnudge\w*", ("push",)),
-    (r"\breach\w*|\bmove\w*|\bgo\b|\btouch\w*|\bapproach\w*", ()),
+    (r"\breach\w*|\bmove\w*|\bgo\b|\btouch\w*|\bapproach\w*|\bhover\w*", ()),
     (_CARRY_VERB, ()),
 ]
 _IMPLIED = {"approach", "carry"}
@@ -47,6 +80,8 @@ _ORDINALS = ["First", "Second", "Third", "Fourth", "Fifth", "Sixth", "Seventh", 
              "Tenth", "Eleventh", "Twelfth"]  # fmt: skip
 _SHAPES = {"round": "round", "cylindrical": "round", "circular": "round", "rect": "rect",
            "rectangular": "rect", "square": "rect", "box": "rect", "flat": "rect"}  # fmt: skip
+_SMALL = {"small", "smaller", "smallest", "little", "thin", "thinner"}
+_LARGE = {"big", "bigger", "biggest", "large", "larger", "largest", "thick", "thicker"}
 _STOP = {"the", "a", "an", "it", "them", "and", "then", "of", "to", "on", "onto", "into", "in",
          "up", "its", "with", "please", "robot"}  # fmt: skip
 
@@ -59,13 +94,15 @@ class Part:
     kind: str
     size: str  # "m12", "m16" or ""
     shape: str  # "round", "rect" or ""
+    width: int  # millimetres: 12 for "m12", 16 for "16mm"; 0 if the name gives none
 
     @classmethod
     def from_name(cls, name: str) -> Part:
         tokens = name.lower().split("_")
         size = next((t for t in tokens if re.fullmatch(r"m\d+", t)), "")
         shape = next((_SHAPES[t] for t in tokens if t in _SHAPES), "")
-        return cls(name, tokens[0], size, shape)
+        width = next((int(m[1]) for t in tokens if (m := re.fullmatch(r"m?(\d+)(?:mm)?", t))), 0)
+        return cls(name, tokens[0], size, shape, width)
 
     @property
     def label(self) -> str:
@@ -81,6 +118,25 @@ def _words(text: str) -> list[str]:
     return re.findall(r"[a-z0-9]+", text.lower())
 
 
+_SIZE = r"\b(?:m ?(\d+)|(\d+) ?mm)\b"  # "M16", "m 16", "16mm" and "16 mm" are 16 mm
+
+
+def _widths(command: str, kind: str) -> set[int]:
+    """The sizes a command gives a part of ``kind``, in millimetres: those within four words
+    before or two after the kind's word ("the M16 nut on the M12 bolt" gives the nut 16), else
+    any it names."""
+    words = _words(command)
+    near = [
+        " ".join(words[max(0, k - 4) : k + 3])
+        for k, word in enumerate(words)
+        if word in (kind, f"{kind}s")
+    ]
+    found = [f for window in near for f in re.findall(_SIZE, window)] or re.findall(
+        _SIZE, " ".join(words)
+    )
+    return {int(n) for groups in found for n in groups if n}
+
+
 def _ground_objects(command: str, parts: list[Part]) -> tuple[list[Part], list[str]]:
     """The objects the command names, and notes on the assumptions made."""
     words = _words(command)
@@ -92,14 +148,20 @@ def _ground_objects(command: str, parts: list[Part]) -> tuple[list[Part], list[s
         if kind not in words and not plural:
             continue
         of_kind = [p for p in parts if p.kind == kind]
-        sizes = {p.size for p in of_kind if p.size and p.size in words}
+        sizes = {p.width for p in of_kind if p.width in _widths(command, kind)}
+        # "the M12 nut and the M16 nut", "each nut": every one it names, not a default.
+        plural = plural or len(sizes) > 1 or bool({"each", "every", "two"} & set(words))
         shapes = {
             p.shape for p in of_kind if p.shape and any(_SHAPES.get(w) == p.shape for w in words)
         }
         chosen = [
             p for p in of_kind
-            if (not sizes or p.size in sizes) and (not shapes or p.shape in shapes)
+            if (not sizes or p.width in sizes) and (not shapes or p.shape in shapes)
         ]  # fmt: skip
+        relative = {w for w in words if w in _SMALL or w in _LARGE}
+        if not plural and len(chosen) > 1 and relative:
+            # "the big nut": the largest of those the command could mean.
+            chosen = [sorted(chosen, key=lambda p: p.width, reverse=bool(relative & _LARGE))[0]]
         if not plural and len(chosen) > 1:
             default = sorted(chosen, key=lambda p: (p.size or "~", p.shape != "round", p.name))[0]
             notes.append(
@@ -123,7 +185,21 @@ def _clauses(command: str) -> list[tuple[str, ...]]:
                 continue  # "unscrew" already matched; do not read "screw" in it again
             taken.append(span)
             hits.append((span[0], actions))
-    return [actions for _, actions in sorted(hits)]
+    clauses: list[tuple[str, ...]] = []
+    for _, actions in sorted(hits):
+        # "Grab the peg and pull it out" grasps once: a verb repeating the previous one's
+        # actions may add them again, but need not.
+        before = {a.rstrip("?") for a in clauses[-1]} if clauses else set()
+        clauses.append(
+            tuple(a + "?" if a in before and not a.endswith("?") else a for a in actions)
+        )
+    return clauses
+
+
+def _verb_groups(command: str) -> set[int]:
+    """The :data:`_VERBS` entries a command uses."""
+    text = command.lower()
+    return {k for k, (pattern, _) in enumerate(_VERBS) if re.search(pattern, text)}
 
 
 def _carries(command: str) -> bool:
@@ -170,8 +246,12 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             "unscrew, insert, pull out, push, lift, move to)"
         }
     carries = _carries(command)
+    verb_groups = _verb_groups(command)
     named_fixtures = {p.kind for p in fixture_parts if p.kind in words or f"{p.kind}s" in words}
     per_object = [a for clause in clauses for a in clause]
+    if len(grounded) > 1 and per_object and per_object[0].startswith("place"):
+        # "Put each nut on its bolt": the nuts start on the table, so putting them is a pick first.
+        per_object = ["grasp?", "lift?", *per_object]
     pattern = per_object * (len(grounded) if len(grounded) > 1 else 1)
     wanted = {p.name for p in grounded}
     candidates = []
@@ -183,11 +263,23 @@ def plan(command: str, catalogue: list[dict]) -> dict:
         distinctive = [a for a in entry["actions"] if a not in _IMPLIED]
         skipped = _skipped(pattern, distinctive)
         if skipped is not None:
-            overlap = len((words - _STOP) & (set(_words(entry["command"])) - _STOP))
-            # Reaching a part and carrying it over its fixture are both one approach, so "reach
-            # for the nut" would tie with the carry task on shared words alone.
+            own = set(_words(entry["command"]))
+            overlap = len((words - _STOP) & (own - _STOP))
+            # Ties on shared words, in this order: a task whose command does not name its part
+            # (hovering over the bolt) loses to one that does ("move the nut over the bolt"
+            # carries it); reaching and carrying are both one approach, so "reach for the nut"
+            # goes to the task that carries only if the user's command does; then the task whose
+            # command uses more of the user's verbs ("lift the nut" is a lift, not a pick); then
+            # the one adding fewer words the user did not say ("lift the peg" off the table,
+            # not "lift the held peg out of its hole").
+            unnamed = not by_fixture and not any(
+                Part.from_name(o).kind in own for o in entry["objects"]
+            )
             carry_mismatch = _carries(entry["command"]) != carries
-            candidates.append((skipped - overlap, carry_mismatch, skipped, entry["task"], entry))
+            shared_verbs = len(verb_groups & _verb_groups(entry["command"]))
+            unsaid = len(own - _STOP - words)
+            key = (skipped - overlap, unnamed, carry_mismatch, -shared_verbs, unsaid, skipped)
+            candidates.append((*key, entry["task"], entry))
     if not candidates:
         labels = " and ".join(p.label for p in grounded)
         read = ", ".join(a.rstrip("?") for a in pattern)
@@ -195,7 +287,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             "error": f"no catalogue task does what the command asks with the {labels} "
             f"(actions read from the command: {read or 'move to'})"
         }
-    entry = min(candidates, key=lambda c: c[:4])[4]
+    entry = min(candidates, key=lambda c: c[:-1])[-1]
     notes.append(f"planned by the {BACKEND} (not a language model): matched catalogue task "
                  f"{entry['task']!r}")  # fmt: skip
     return {
