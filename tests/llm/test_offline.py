@@ -128,6 +128,22 @@ def test_planner_understands_paraphrases(command: str, task: str) -> None:
     assert plan(command)["task"] == task
 
 
+PARAPHRASES = Path(__file__).parent / "data" / "paraphrases.tsv"
+
+
+def test_planner_maps_a_users_paraphrases_of_every_task() -> None:
+    """375 commands in users' words, 3-12 per task: each wrong task is a run that trains the robot
+    for something the user did not ask."""
+    rows = [
+        line.split("\t")
+        for line in PARAPHRASES.read_text().splitlines()
+        if line and not line.startswith("#")
+    ]
+    assert {t for tasks, _ in rows for t in tasks.split("|")} >= {e["task"] for e in CATALOGUE}
+    got = {command: plan(command).get("task") for _, command in rows}
+    assert [(c, got[c], tasks) for tasks, c in rows if got[c] not in tasks.split("|")] == []
+
+
 def test_planner_says_which_nut_it_assumed() -> None:
     reply = plan("Pick up the nut")
     assert reply["task"] == "pick_nut_m12"
