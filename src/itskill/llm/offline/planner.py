@@ -67,7 +67,8 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
     ),
     (r"\blift\w*|\braise\w*", ("grasp?", "lift")),
     (
-        r"\bplace\w*|\bput\w*|\bset\w*|\bmount\w*|\bdrop\w*|\bposition\w*|\blower\w*",
+        r"\bplace\w*|\bput\w*|\bset\w*|\bmount\w*|\bdrop\w*|\bposition\w*|\blower\w*"
+        rf"|\bmove\w* {_OBJ}onto\b",
         ("place|align?",),
     ),
     (rf"\balign\w*|\borient\w*|\bline\w* {_OBJ}up\b", ("align",)),
