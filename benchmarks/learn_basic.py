@@ -38,7 +38,7 @@ import numpy as np
 
 from itskill.executors import EXECUTORS, run_jobs
 from itskill.experiments.analysis import Curve, read_curve, time_to_threshold
-from itskill.files import write_json
+from itskill.files import replaced_whole, write_json
 from itskill.rl.train import train
 from itskill.stats import mean_interval
 
@@ -168,7 +168,8 @@ def plot(task: str, curves_by_algo: dict[str, list[dict]], path: Path) -> None:
     ax.set(xlabel="env-steps", ylabel="deterministic success", title=task, ylim=(0, 1.02))
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with replaced_whole(path) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)
 
 

@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from itskill.experiments.analysis import Band
+from itskill.files import replaced_whole
 
 # One colour per method, fixed so a method looks the same in every figure.
 METHOD_COLOURS = {
@@ -94,8 +95,9 @@ def plot_attention(
 
 def _save(fig: plt.Figure, out: Path) -> Path:
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(out)
+    # Whole or not at all: a report must not embed a figure an interruption cut short.
+    with replaced_whole(out) as tmp:
+        fig.savefig(tmp, format=out.suffix.lstrip(".") or "png")
     plt.close(fig)
     return out
