@@ -144,6 +144,20 @@ def test_planner_maps_a_users_paraphrases_of_every_task() -> None:
     assert [(c, got[c], tasks) for tasks, c in rows if got[c] not in tasks.split("|")] == []
 
 
+@pytest.mark.parametrize(
+    ("command", "task", "fixture"),
+    [
+        ("Pick up the M16 nut and put it on the M12 bolt", "pickplace_nut_m16", "M16 bolt"),
+        ("Insert the round peg into the rectangular hole", "insert_peg_round", "round hole"),
+    ],
+)
+def test_planner_says_when_the_named_fixture_is_not_the_tasks(command, task, fixture) -> None:
+    reply = plan(command)
+    assert reply["task"] == task
+    assert f"is not this task's: it uses the {fixture}" in reply["notes"]
+    assert "names no size or shape" not in reply["notes"]  # the part's own words name it
+
+
 def test_planner_says_which_nut_it_assumed() -> None:
     reply = plan("Pick up the nut")
     assert reply["task"] == "pick_nut_m12"

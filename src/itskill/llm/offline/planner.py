@@ -2,10 +2,11 @@
 
 1. Objects are grounded from the words of the command against the catalogue's object names
    (``nut_m12`` is "M12 nut", ``peg_rect_16mm`` "rectangular peg"); sizes may be written "M16",
-   "16 mm" or "16mm", and the size written next to a part is that part's. A bare "the nut" means
+   "16 mm" or "16mm", and the size or shape written next to a part is that part's. A bare "the nut" means
    the M12 nut and a bare "the peg" the round peg, and the plan's notes say so; "big"/"small"
    pick the largest/smallest; "nuts", "both", "each" or two sizes named mean every one named.
-   Fixture words (bolt, hole) must match the task's fixtures.
+   Fixture words (bolt, hole) must match the task's fixtures; a size or shape the command gives
+   one that the chosen task's lacks is noted.
 2. The command is split into clauses ("pick up X", "place it on Y", "screw it down", ...); each
    clause's verb adds the actions that distinguish it (``pick`` -> grasp, lift; ``insert`` ->
    [place], insert; ...); a verb repeating the previous one's actions need not add them again.
@@ -122,20 +123,25 @@ def _words(text: str) -> list[str]:
 _SIZE = r"\b(?:m ?(\d+)|(\d+) ?mm)\b"  # "M16", "m 16", "16mm" and "16 mm" are 16 mm
 
 
-def _widths(command: str, kind: str) -> set[int]:
-    """The sizes a command gives a part of ``kind``, in millimetres: those within four words
-    before or two after the kind's word ("the M16 nut on the M12 bolt" gives the nut 16), else
-    any it names."""
+def _described(command: str, kind: str) -> tuple[set[int], set[str]]:
+    """The sizes (in millimetres) and shapes a command gives a part of ``kind``: those written
+    within four words before or two after the kind's word ("the M16 nut on the M12 bolt" gives
+    the nut 16, "the round peg into the rectangular hole" the peg round), else any it names."""
     words = _words(command)
     near = [
-        " ".join(words[max(0, k - 4) : k + 3])
-        for k, word in enumerate(words)
-        if word in (kind, f"{kind}s")
+        words[max(0, k - 4) : k + 3] for k, word in enumerate(words) if word in (kind, f"{kind}s")
     ]
-    found = [f for window in near for f in re.findall(_SIZE, window)] or re.findall(
-        _SIZE, " ".join(words)
+
+    def sizes(ws: list[str]) -> set[int]:
+        return {int(n) for groups in re.findall(_SIZE, " ".join(ws)) for n in groups if n}
+
+    def shapes(ws: list[str]) -> set[str]:
+        return {_SHAPES[w] for w in ws if w in _SHAPES}
+
+    return (
+        set().union(*(sizes(w) for w in near)) or sizes(words),
+        set().union(*(shapes(w) for w in near)) or shapes(words),
     )
-    return {int(n) for groups in found for n in groups if n}
 
 
 def _ground_objects(command: str, parts: list[Part]) -> tuple[list[Part], list[str]]:
@@ -149,12 +155,11 @@ def _ground_objects(command: str, parts: list[Part]) -> tuple[list[Part], list[s
         if kind not in words and not plural:
             continue
         of_kind = [p for p in parts if p.kind == kind]
-        sizes = {p.width for p in of_kind if p.width in _widths(command, kind)}
+        named_sizes, named_shapes = _described(command, kind)
+        sizes = {p.width for p in of_kind if p.width in named_sizes}
         # "the M12 nut and the M16 nut", "each nut": every one it names, not a default.
         plural = plural or len(sizes) > 1 or bool({"each", "every", "two"} & set(words))
-        shapes = {
-            p.shape for p in of_kind if p.shape and any(_SHAPES.get(w) == p.shape for w in words)
-        }
+        shapes = {p.shape for p in of_kind if p.shape in named_shapes}
         chosen = [
             p for p in of_kind
             if (not sizes or p.width in sizes) and (not shapes or p.shape in shapes)
@@ -289,6 +294,17 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             f"(actions read from the command: {read or 'move to'})"
         }
     entry = min(candidates, key=lambda c: c[:-1])[-1]
+    for fixture in (Part.from_name(f) for f in entry["fixtures"]):
+        if fixture.kind not in named_fixtures:
+            continue
+        named_sizes, named_shapes = _described(command, fixture.kind)
+        if (named_sizes and fixture.width not in named_sizes) or (
+            named_shapes and fixture.shape not in named_shapes
+        ):
+            # "the M16 nut on the M12 bolt": a part goes into the fixture it fits.
+            notes.append(f"the {fixture.kind} the command names is not this task's: it uses the "
+                         f"{fixture.label}")  # fmt: skip
+
     notes.append(f"planned by the {BACKEND} (not a language model): matched catalogue task "
                  f"{entry['task']!r}")  # fmt: skip
     return {
