@@ -2,9 +2,10 @@
 
 1. Objects are grounded from the words of the command against the catalogue's object names
    (``nut_m12`` is "M12 nut", ``peg_rect_16mm`` "rectangular peg"); sizes may be written "M16",
-   "16 mm" or "16mm", and the size or shape written next to a part is that part's. A bare "the nut" means
-   the M12 nut and a bare "the peg" the round peg, and the plan's notes say so; "big"/"small"
-   pick the largest/smallest; "nuts", "both", "each" or two sizes named mean every one named.
+   "16 mm" or "16mm", and the size or shape written next to a part is that part's. A bare "the
+   nut" means the M12 nut and a bare "the peg" the round peg, and the plan's notes say so;
+   "big"/"small" pick the largest/smallest; "nuts", "both", "each" or two sizes named mean every
+   one named.
    Fixture words (bolt, hole) must match the task's fixtures; a size or shape the command gives
    one that the chosen task's lacks is noted.
 2. The command is split into clauses ("pick up X", "place it on Y", "screw it down", ...); each
