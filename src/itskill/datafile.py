@@ -2,11 +2,14 @@
 
 Every loader reports a problem the same way: the file, where in it, and what was expected, so a
 user can fix the file without reading our code. Each loader has its own subclass of
-:class:`DataFileError` so callers can tell which kind of file was wrong.
+:class:`DataFileError` so callers can tell which kind of file was wrong. The value tests
+(:func:`is_number`, :func:`is_count`) serve the JSON records too (checkpoints, the skill
+manifest), which their readers check field by field the same way.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -25,6 +28,17 @@ class DataFileError(PicklableError, ValueError):
     def __init__(self, path: str | Path, where: str, problem: str) -> None:
         super().__init__(f"{path}: {where}: {problem}")
         self.path, self.where, self.problem = str(path), where, problem
+
+
+def is_number(value: Any) -> bool:
+    """Whether ``value`` is a finite int or float, not a bool: TOML and JSON readers also give
+    booleans (an int to Python), ``nan`` and ``inf``, which no length, rate or time can be."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def is_count(value: Any) -> bool:
+    """Whether ``value`` is a whole number of 0 or more, not a bool."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
 def read_toml(path: str | Path, error: type[DataFileError] = DataFileError) -> dict[str, Any]:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
-import math
 import platform
 import shutil
 import signal
@@ -41,6 +40,7 @@ from safetensors.torch import load_file, save_file
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecNormalize
 
+from itskill.datafile import is_count, is_number
 from itskill.executors import STOP_SIGNALS
 from itskill.files import replaced_whole, write_text
 from itskill.rl.clock import EVAL_WALL_KEY, TRAIN_WALL_KEY
@@ -58,26 +58,12 @@ FORMAT_VERSION = 1
 REQUIRED_META = ("format", "task", "algo", "seed", "num_timesteps", "obs_size", "policy")
 
 
-def _is_count(value: Any) -> bool:
-    # JSON true and false load as bool, which Python counts as an int.
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
-def _is_seconds(value: Any) -> bool:
-    return (
-        isinstance(value, int | float)
-        and not isinstance(value, bool)
-        and math.isfinite(value)
-        and value >= 0
-    )
-
-
 FieldCheck = tuple[str, Callable[[Any], bool]]
 """What a record's field must hold, in words for the error, and the test of it."""
-_COUNT: FieldCheck = ("an integer of 0 or more", _is_count)
+_COUNT: FieldCheck = ("an integer of 0 or more", is_count)
 STRING: FieldCheck = ("a string", lambda v: isinstance(v, str))
 OBJECT: FieldCheck = ("an object", lambda v: isinstance(v, dict))
-_SECONDS: FieldCheck = ("a finite number of 0 or more", _is_seconds)
+_SECONDS: FieldCheck = ("a finite number of 0 or more", lambda v: is_number(v) and v >= 0)
 META_FIELDS: dict[str, FieldCheck] = {
     "format": _COUNT,
     "task": STRING,

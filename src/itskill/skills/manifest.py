@@ -27,6 +27,7 @@ from typing import Any
 
 from filelock import FileLock
 
+from itskill.datafile import is_count, is_number
 from itskill.files import write_text
 from itskill.skills.admission import InadmissibleSkillError, check_admissible
 from itskill.skills.store import (
@@ -179,12 +180,7 @@ def _number(value: Any, key: str, where: str, minimum: float = -math.inf) -> flo
     and so are NaN and Infinity, which Python's JSON reader takes."""
     if value is None:
         return None
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value < minimum
-    ):
+    if not is_number(value) or value < minimum:
         at_least = "" if minimum == -math.inf else f" of at least {minimum:g}"
         raise ManifestError(f"{where}: {key}: expected a finite number{at_least}, got {value!r}")
     return float(value)
@@ -194,7 +190,7 @@ def _count(value: Any, key: str, where: str) -> int | None:
     """``value`` as a whole number of at least 0 (None: not recorded)."""
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+    if not is_count(value):
         raise ManifestError(f"{where}: {key}: expected a whole number of at least 0, got {value!r}")
     return value
 

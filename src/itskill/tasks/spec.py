@@ -16,7 +16,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, read_toml
+from itskill.datafile import DataFileError, is_number, read_toml
 from itskill.errors import PicklableError
 from itskill.sim.context import max_grip_offset
 from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec, PlacedFixture
@@ -120,12 +120,6 @@ class TaskSpec:
 
 
 # ---------------------------------------------------------------------- validation helpers
-def _is_number(value: Any) -> bool:
-    """Whether ``value`` is a finite int or float, not a bool: TOML also reads ``nan`` and ``inf``,
-    which no length, angle or share can be (the simulator fails on them at its first reset)."""
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
 class _Reader:
     """Typed access to one table of a TOML file, with errors that say where."""
 
@@ -163,7 +157,7 @@ class _Reader:
     def range(self, key: str, default: tuple[float, float]) -> Range:
         raw = self.table.get(key, list(default))
         value = [raw, raw] if isinstance(raw, int | float) and not isinstance(raw, bool) else raw
-        if not isinstance(value, list) or len(value) != 2 or not all(map(_is_number, value)):
+        if not isinstance(value, list) or len(value) != 2 or not all(map(is_number, value)):
             raise self._fail(
                 key, f"expected a finite number or [low, high] of finite numbers, got {raw!r}"
             )
@@ -201,7 +195,7 @@ def load_parts(path: Path) -> dict[str, Any]:
                     reader.get(key, float)
             if "rgba" in values:
                 rgba = reader.get("rgba", list)
-                if len(rgba) != 4 or not all(map(_is_number, rgba)):
+                if len(rgba) != 4 or not all(map(is_number, rgba)):
                     raise TaskFileError(
                         path,
                         f"{kind}.{name}.rgba",
@@ -245,7 +239,7 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         fr = _Reader(path, f"task {task_id!r}.fixtures[{k}]", fx)
         fr.check_keys({"part", "xy", "yaw"})
         xy = fr.get("xy", list)
-        if len(xy) != 2 or not all(map(_is_number, xy)):
+        if len(xy) != 2 or not all(map(is_number, xy)):
             raise TaskFileError(
                 path, fr.where + ".xy", f"expected [x, y] of finite numbers, got {xy!r}"
             )
