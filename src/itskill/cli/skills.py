@@ -15,7 +15,6 @@ from rich.markup import escape
 from rich.table import Table
 
 from itskill.cli.common import (
-    USAGE_ERROR,
     JsonOpt,
     console,
     episodes_option,
@@ -23,6 +22,7 @@ from itskill.cli.common import (
     print_json,
     run_dir_option,
     seed_option,
+    usage_error,
     user_errors,
 )
 from itskill.stats import format_rate_interval
@@ -46,8 +46,7 @@ def _skill_errors() -> Iterator[None]:
     try:
         yield
     except (SkillSpaceError, UnknownTaskError, TaskFileError, ExecutorError) as err:
-        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
-        raise typer.Exit(USAGE_ERROR) from err
+        raise usage_error(str(err)) from err
 
 
 def _skill_table(rows: list[tuple[Any, float | None]], title: str) -> Table:
