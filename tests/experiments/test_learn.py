@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 
 from itskill.cli import app
 from itskill.experiments.learn import BudgetError, load_budgets
+from itskill.reward import load_search_config
 
 runner = CliRunner()
 COMMAND = "Pick up the nut and place it on the bolt"
@@ -264,6 +265,22 @@ def test_packaged_budgets_load_and_tiny_is_smallest():
     assert budgets["full"].search_config().iterations == 5  # the paper's 5 x 10 samples
     assert budgets["full"].search_config().samples == 10
     assert budgets["default"].min_success == 0.5 and budgets["tiny"].min_success == 0.0
+
+
+@pytest.mark.parametrize("name", ["tiny", "default", "full"])
+def test_each_learn_seed_searches_rewards_on_seeds_of_its_own(name):
+    budget = load_budgets()[name]
+
+    def trained_on(seed: int) -> set[int]:
+        config = budget.search_config(seed)
+        selection = config.select_seed_list if config.select_top else []
+        return {*config.seeds, *config.final_seed_list, *selection}
+
+    # Seed 0 keeps the configured seeds, so its runs are the ones measured before.
+    assert budget.search_config(0).seeds == load_search_config(overrides=budget.reward).seeds
+    runs = [trained_on(seed) for seed in range(4)]
+    for i, seeds in enumerate(runs):
+        assert all(seeds.isdisjoint(other) for other in runs[i + 1 :])
 
 
 def test_a_budget_without_algo_trains_ppo(tmp_path):

@@ -30,7 +30,7 @@ def _train(
 ) -> object:
     table = {"learning_rate": 1e-9, "critic_episodes": 16, **(init_table or {})}
     return train(
-        TASK, "ppo", steps, seed=0, out=out, num_envs=4, logger=QUIET, eval_every=steps,
+        TASK, "ppo", steps, seed=0, out=out, num_envs=4, logger=QUIET, eval_every=32,
         eval_episodes=8, init=init, overrides={**STILL, "init": table, **ov},
     )  # fmt: skip
 

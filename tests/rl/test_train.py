@@ -155,6 +155,27 @@ def test_a_run_whose_evaluation_file_was_emptied_resumes(
     assert [line.split(",")[0] for line in lines[1:]] == ["128", "192"]
 
 
+def test_resume_refuses_other_evaluation_settings(tmp_path: Path, reach_reward: Path) -> None:
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64, eval_every=64, eval_episodes=2)
+    before = (out / "eval.csv").read_text()
+    with pytest.raises(ResumeMismatchError, match="over 2 episodes.*every 64 over 3"):
+        _train(out, reach_reward, 128, eval_every=64, eval_episodes=3)
+    with pytest.raises(ResumeMismatchError, match="every 32 over 2"):
+        _train(out, reach_reward, 128, eval_every=32, eval_episodes=2)
+    assert (out / "eval.csv").read_text() == before
+    # A session without evaluations adds no rows and keeps the record for the next one.
+    _train(out, reach_reward, 128)
+    assert (out / "eval.csv").read_text() == before
+    with pytest.raises(ResumeMismatchError, match="every 64 over 3"):
+        _train(out, reach_reward, 192, eval_every=64, eval_episodes=3)
+    result = _train(out, reach_reward, 192, eval_every=64, eval_episodes=2)
+    assert result.num_timesteps == 192
+    steps = [line.split(",")[0] for line in (out / "eval.csv").read_text().splitlines()[1:]]
+    # The policy trained without evaluations is evaluated where the session resumed from.
+    assert steps == ["64", "128", "192"]
+
+
 def test_a_run_without_evaluations_keeps_no_best_policy(tmp_path: Path, reach_reward: Path) -> None:
     out = tmp_path / "run"
     result = _train(out, reach_reward, 64)

@@ -84,11 +84,17 @@ class LearnBudget:
     compare_expert: bool = True
     description: str = ""
 
-    def search_config(self) -> Any:
-        """The reward search settings (validated by the reward package)."""
+    def search_config(self, seed: int = 0) -> Any:
+        """The reward search settings (validated by the reward package) of the run with ``seed``.
+
+        Seed 0 trains the candidates on the configured seeds; seed ``s`` shifts every seed the
+        search trains on by ``s`` times their span, so runs with other seeds sample the whole
+        method, the reward search included, and no two share a training seed."""
         from itskill.reward import load_search_config
 
-        return load_search_config(overrides=self.reward)
+        config = load_search_config(overrides=self.reward)
+        span = config.last_seed + 1
+        return replace(config, seeds=tuple(s + seed * span for s in config.seeds))
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -415,7 +421,7 @@ def _reward(
     cached = steps.cached("reward.json")
     was_cached = cached is not None
     if cached is None:
-        config = b.search_config()
+        config = b.search_config(seed)
         network = search_network(
             task,
             b.transfer.method,

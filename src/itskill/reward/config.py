@@ -169,7 +169,7 @@ class RewardSearchConfig:
             )
         check_seeds(where, "seeds", self.seeds, SearchConfigError)
         # The final (and selection) retraining train on the seeds after the largest one.
-        last = (self.select_seed_list if self.select_top else self.final_seed_list)[-1]
+        last = self.last_seed
         if last > SEED_MAX:
             raise SearchConfigError(
                 where,
@@ -200,6 +200,11 @@ class RewardSearchConfig:
         so neither the choice nor the final comparison reuses a seed the other saw."""
         first = max(self.seeds) + 1 + self.final_seeds
         return [first + s for s in range(self.select_seeds)]
+
+    @property
+    def last_seed(self) -> int:
+        """The largest seed the search trains on (its final or selection retraining)."""
+        return (self.select_seed_list if self.select_top else self.final_seed_list)[-1]
 
     @property
     def final_seed_list(self) -> list[int]:

@@ -266,6 +266,16 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
             f"{run_dir}: holds a run trained with other hyper-parameters ({'; '.join(changed)}); "
             "resume with the same --num-envs and hyper-parameter file, or use another --out"
         )
+    # A run resumed without evaluations adds none; one with others would put rows of another
+    # episode count (or grid) into one curve and choose its best policy across them.
+    have_eval, want_eval = meta.get("evaluation"), want.get("evaluation")
+    if have_eval and want_eval and have_eval != want_eval:
+        raise ResumeMismatchError(
+            f"{run_dir}: holds a run evaluated every {have_eval['every']:,} env-steps over "
+            f"{have_eval['episodes']} episodes, this call asks for every "
+            f"{want_eval['every']:,} over {want_eval['episodes']}; resume with the same "
+            "--eval-every and --eval-episodes, or use another --out"
+        )
 
 
 _RESUMABLE_CHANGES = ("checkpoint_every",)
@@ -344,9 +354,21 @@ def train(
     evaluated at env-step 0, so the best policy kept is never worse than the one it started from.
     """
     setup = check_training(
-        task, algo, steps, seed, reward, out, num_envs, hyperparams, overrides, policy_class, init
+        task,
+        algo,
+        steps,
+        seed,
+        reward,
+        out,
+        num_envs,
+        hyperparams,
+        overrides,
+        policy_class,
+        init,
+        eval_every,
+        eval_episodes,
     )
-    return run_training(setup, policy_kwargs, logger, n_threads, console, eval_every, eval_episodes)
+    return run_training(setup, policy_kwargs, logger, n_threads, console)
 
 
 @dataclass(frozen=True)
@@ -366,6 +388,8 @@ class TrainSetup:
     policy_class: type[ActorCriticPolicy]
     previous: dict[str, Any] | None
     """The checkpoint metadata of the run resumed from ``run_dir``; None for a new run."""
+    eval_every: int | None = None
+    eval_episodes: int = 50
 
 
 def check_training(
@@ -380,6 +404,8 @@ def check_training(
     overrides: Mapping[str, Any] | None = None,
     policy_class: type[ActorCriticPolicy] = StagedActorCriticPolicy,
     init: str | Path | None = None,
+    eval_every: int | None = None,
+    eval_episodes: int = 50,
 ) -> TrainSetup:
     """Everything :func:`train` checks before it builds or writes anything (its arguments are
     :func:`train`'s): the settings, the reward (a reward file is probed, see :func:`load_reward`)
@@ -436,6 +462,8 @@ def check_training(
     }
     if init is not None:
         meta["init"] = describe_init(init)
+    if eval_every:
+        meta["evaluation"] = {"every": eval_every, "episodes": eval_episodes}
     previous = None
     if (run_dir / "checkpoint.json").exists():
         try:
@@ -443,9 +471,25 @@ def check_training(
         except CheckpointError as err:
             raise CheckpointError(err.path, err.problem + CANNOT_RESUME) from err
         _check_resume(previous, meta, run_dir)
+        if "evaluation" in previous:
+            # A session without evaluations keeps the record for the sessions after it.
+            meta.setdefault("evaluation", previous["evaluation"])
         if not (run_dir / MODEL_FILE).is_file():
             raise CheckpointError(run_dir / MODEL_FILE, "missing" + CANNOT_RESUME)
-    return TrainSetup(spec, algo, steps, seed, run_dir, hp, reward_fn, meta, policy_class, previous)
+    return TrainSetup(
+        spec,
+        algo,
+        steps,
+        seed,
+        run_dir,
+        hp,
+        reward_fn,
+        meta,
+        policy_class,
+        previous,
+        eval_every,
+        eval_episodes,
+    )
 
 
 def run_training(
@@ -454,12 +498,11 @@ def run_training(
     logger: LoggerConfig | None = None,
     n_threads: int | None = None,
     console: Console | None = None,
-    eval_every: int | None = None,
-    eval_episodes: int = 50,
 ) -> TrainResult:
     """Train the run :func:`check_training` accepted; the other arguments are :func:`train`'s."""
     torch.set_num_threads(1)
     spec, hp, meta, run_dir = setup.spec, setup.hp, setup.meta, setup.run_dir
+    eval_every, eval_episodes = setup.eval_every, setup.eval_episodes
     algo, seed, steps = setup.algo, setup.seed, setup.steps
     resuming, old = setup.previous is not None, setup.previous or {}
     resumed_from = int(old["num_timesteps"]) if resuming else 0

@@ -350,6 +350,8 @@ def train_transfer(
         hyperparams,
         overrides,
         policy_class=meth.policy_class,
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
     )
     record = prepare_transfer(target, method, sources, seed, algo, out, client, config, space)
     _, policy_kwargs = transfer_network(record, config)
@@ -363,8 +365,6 @@ def train_transfer(
         logger=logger or LoggerConfig(progress=progress),
         n_threads=n_threads,
         console=console,
-        eval_every=eval_every,
-        eval_episodes=eval_episodes,
     )
     if result.best is not None:
         # The kept best policy describes itself like the run does (method, sources, prior).
