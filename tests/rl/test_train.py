@@ -159,7 +159,7 @@ def test_resume_refuses_other_evaluation_settings(tmp_path: Path, reach_reward: 
     out = tmp_path / "run"
     _train(out, reach_reward, 64, eval_every=64, eval_episodes=2)
     before = (out / "eval.csv").read_text()
-    with pytest.raises(ResumeMismatchError, match="over 2 episodes.*every 64 over 3"):
+    with pytest.raises(ResumeMismatchError, match=r"over 2 episodes.*every 64 over 3"):
         _train(out, reach_reward, 128, eval_every=64, eval_episodes=3)
     with pytest.raises(ResumeMismatchError, match="every 32 over 2"):
         _train(out, reach_reward, 128, eval_every=32, eval_episodes=2)

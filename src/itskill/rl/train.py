@@ -389,6 +389,7 @@ class TrainSetup:
     previous: dict[str, Any] | None
     """The checkpoint metadata of the run resumed from ``run_dir``; None for a new run."""
     eval_every: int | None = None
+    """Env-steps between the deterministic evaluations (None: none)."""
     eval_episodes: int = 50
 
 
