@@ -262,7 +262,7 @@ def _read_back(run_dir: Path, record: dict) -> dict:
 @pytest.mark.parametrize(
     ("edit", "problem"),
     [
-        (lambda r: r.pop("method"), "missing field method"),
+        (lambda r: r.pop("method"), "missing field(s) method"),
         (lambda r: r.update(sources=["pick_nut_m12"]), "field sources: expected a list of objects"),
         (lambda r: r.update(contribution=[[1.0]]), "field contribution: expected an object"),
         (lambda r: r.update(source_specs=None), "field source_specs: expected a list of objects"),

@@ -29,7 +29,7 @@ import platform
 import shutil
 import signal
 import threading
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -202,6 +202,27 @@ def check_fields(
             )
 
 
+def read_record(
+    path: Path, required: Iterable[str], fields: Mapping[str, FieldCheck], prefix: str = ""
+) -> dict[str, Any]:
+    """The JSON object in ``path``, with each of ``required`` and each field of the kind
+    ``fields`` says; otherwise :class:`CheckpointError` on ``path`` (not JSON, not UTF-8, not an
+    object, fields missing or of the wrong kind), ``prefix`` before the problem."""
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        raise CheckpointError(path, f"{prefix}not valid JSON ({err})") from err
+    except UnicodeDecodeError as err:
+        raise CheckpointError(path, f"{prefix}not UTF-8 text (byte {err.start})") from err
+    if not isinstance(record, dict):
+        raise CheckpointError(path, f"{prefix}expected a JSON object, got {json.dumps(record)}")
+    missing = [k for k in required if k not in record]
+    if missing:
+        raise CheckpointError(path, f"{prefix}missing field(s) {', '.join(missing)}")
+    check_fields(path, record, fields, prefix)
+    return record
+
+
 def read_meta(run_dir: str | Path) -> dict[str, Any]:
     """``checkpoint.json`` of ``run_dir``, checked; :class:`CheckpointError` says what is wrong."""
     run_dir = Path(run_dir)
@@ -214,16 +235,7 @@ def read_meta(run_dir: str | Path) -> dict[str, Any]:
         raise CheckpointError(
             path, "missing: the directory holds no finished checkpoint (train into it first)"
         )
-    try:
-        meta = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise CheckpointError(path, f"corrupt metadata, not valid JSON: {err}") from err
-    if not isinstance(meta, dict):
-        raise CheckpointError(path, "corrupt metadata: expected a JSON object")
-    missing = [k for k in REQUIRED_META if k not in meta]
-    if missing:
-        raise CheckpointError(path, f"corrupt metadata: missing field(s) {', '.join(missing)}")
-    check_fields(path, meta, META_FIELDS, "corrupt metadata: ")
+    meta = read_record(path, REQUIRED_META, META_FIELDS, "corrupt metadata: ")
     if meta["format"] != FORMAT_VERSION:
         raise CheckpointError(
             path, f"checkpoint format {meta['format']!r}, this version reads {FORMAT_VERSION}"

@@ -12,7 +12,6 @@ describes itself.
 
 from __future__ import annotations
 
-import json
 import shutil
 import time
 from collections.abc import Sequence
@@ -31,8 +30,8 @@ from itskill.rl.checkpoint import (
     STRING,
     CheckpointError,
     FieldCheck,
-    check_fields,
     class_path,
+    read_record,
 )
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import (
@@ -117,19 +116,8 @@ def read_transfer(run_dir: str | Path) -> dict[str, Any]:
     path = Path(run_dir) / TRANSFER_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing (not a directory written by train_transfer)")
-    try:
-        record = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as err:
-        raise CheckpointError(path, f"not valid JSON ({err})") from err
-    except UnicodeDecodeError as err:
-        raise CheckpointError(path, f"not UTF-8 text (byte {err.start})") from err
-    if not isinstance(record, dict):
-        raise CheckpointError(path, f"expected a JSON object, got {json.dumps(record)}")
-    for key in _RECORD_FIELDS:
-        if key not in record and key not in _OPTIONAL_FIELDS:
-            raise CheckpointError(path, f"missing field {key}")
-    check_fields(path, record, _RECORD_FIELDS)
-    return record
+    required = [key for key in _RECORD_FIELDS if key not in _OPTIONAL_FIELDS]
+    return read_record(path, required, _RECORD_FIELDS)
 
 
 # Settings a run directory written before they existed was trained with: its network had no
