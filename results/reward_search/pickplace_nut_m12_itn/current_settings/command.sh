@@ -12,3 +12,9 @@ ITSKILL_HOME=runs/home_rab python benchmarks/reward_at_budget.py \
 # lr1e5_partial/: the same with --hyperparams lr1e5_partial/hyperparams.toml (PPO 1e-5 for the
 # task) --out runs/rab_lr1e5; stopped after the generated reward's seeds 1 and 2, whose curves
 # showed no gain, to free the cores for the log-std runs.
+# seeds45/: seeds 4 and 5 of the same comparison, 2026-12-05 (a later session, the same code
+# for training, test runs beside it part of the time), from a clean worktree:
+ITSKILL_HOME=runs/home_rab python benchmarks/reward_at_budget.py \
+  --reward results/reward_search/pickplace_nut_m12_itn/current_settings/best_reward.py \
+  --seeds 4 5 --workers 2 --out runs/rab \
+  --results results/reward_search/pickplace_nut_m12_itn/current_settings/seeds45
