@@ -364,6 +364,8 @@ BROKEN_REWARDS = {
         "return ctx['time_frac'] * 0.0, None",
         "components must be a dict; got NoneType",
     ),
+    # SystemExit is no Exception: it ended `itskill train` silently, with the file's exit code.
+    "exits": ("raise SystemExit(0)", "compute_reward raised SystemExit: 0"),
 }
 
 
@@ -381,6 +383,48 @@ def test_a_broken_reward_file_is_refused_before_training(tmp_path: Path, case: s
         _train(tmp_path / "run", reward, 64)
     assert str(err.value) == f"{reward}: {problem}"
     assert not (tmp_path / "run").exists()  # refused before anything was built or written
+
+
+def test_a_reward_file_exiting_as_it_loads_is_refused(tmp_path: Path) -> None:
+    reward = tmp_path / "my_reward.py"
+    reward.write_text("import sys\nsys.exit(3)\n")
+    with pytest.raises(RewardLoadError) as err:
+        _train(tmp_path / "run", reward, 64)
+    assert str(err.value) == f"{reward}: failed to run: SystemExit: 3"
+
+
+def test_a_new_run_refuses_a_directory_that_is_not_a_run(tmp_path: Path, reach_reward: Path):
+    # A user's folder with a best/ in it: a new run deletes best/ and overwrites the metrics.
+    out = tmp_path / "photos"
+    (out / "best").mkdir(parents=True)
+    (out / "best" / "wedding.jpg").write_text("irreplaceable")
+    (out / "metrics.csv").write_text("mine")
+    with pytest.raises(ResumeMismatchError, match=r"holds best/wedding\.jpg, which no training"):
+        _train(out, reach_reward, 64)
+    assert (out / "best" / "wedding.jpg").read_text() == "irreplaceable"
+    assert (out / "metrics.csv").read_text() == "mine"
+    (out / "notes.txt").write_text("x")
+    with pytest.raises(ResumeMismatchError, match=r"holds notes\.txt, best/wedding\.jpg"):
+        _train(out, reach_reward, 64)
+    file = tmp_path / "a_file"
+    file.write_text("x")
+    with pytest.raises(ResumeMismatchError, match="a file, not a directory"):
+        _train(file, reach_reward, 64)
+
+
+def test_a_new_run_starts_again_where_a_killed_one_left_files(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    # Killed before its first checkpoint: rows, an evaluation, a best policy and a half-written
+    # temporary file, but no checkpoint.json to resume from.
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64, eval_every=64, eval_episodes=2)
+    for name in ("checkpoint.json", "model.zip"):
+        (out / name).unlink()
+    (out / ".checkpoint.json.123.tmp").write_text("{")
+    result = _train(out, reach_reward, 64, eval_every=64, eval_episodes=2)
+    assert result.resumed_from == 0 and result.num_timesteps == 64
+    assert [row["step"] for row in read_metrics(out)][-1] == 64
 
 
 def test_a_reward_file_failing_during_training_names_the_file(tmp_path: Path) -> None:

@@ -12,7 +12,7 @@ import hashlib
 import json
 import runpy
 import shutil
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,7 +33,10 @@ from itskill.files import write_json
 from itskill.reward_contract import RewardOutputError, check_reward_output
 from itskill.rl.checkpoint import (
     BEST_DIR,
+    META_FILE,
     MODEL_FILE,
+    POLICY_FILE,
+    REWARD_NORM_FILE,
     STAGED_POLICY_CLASS,
     class_path,
     read_meta,
@@ -44,6 +47,7 @@ from itskill.rl.clock import TRAIN_WALL_KEY, WallClock
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, default_path, load_hyperparams
 from itskill.rl.demos import DEMOS_FILE, warm_start
 from itskill.rl.eval_callback import (
+    EVAL_FILE,
     DeterministicEvalCallback,
     last_evaluated,
     read_selection,
@@ -81,7 +85,45 @@ class RewardLoadError(PicklableError, ValueError):
 
 
 class ResumeMismatchError(ValueError):
-    """``out`` holds a run of a different task, algorithm, seed or reward than requested."""
+    """``out`` cannot take the run requested: it holds a run of a different task, algorithm,
+    seed, reward or settings, or files that are not a training run's."""
+
+
+RUN_ENTRIES = frozenset(
+    {
+        MODEL_FILE,
+        POLICY_FILE,
+        META_FILE,
+        REWARD_NORM_FILE,
+        EVAL_FILE,
+        DEMOS_FILE,
+        CRITIC_WARM_UP_FILE,
+        BEST_DIR,
+        "metrics.csv",
+        "metrics.jsonl",
+        "tb",
+    }
+)
+"""What training writes into its run directory (and its ``best/``). A run killed before its first
+checkpoint leaves some of them, which a new run there starts again: ``best/`` is deleted and the
+metrics truncated."""
+
+
+def _foreign_entries(run_dir: Path, own: frozenset[str]) -> list[str]:
+    """Entries of ``run_dir``, and of its ``best/``, that neither training nor its caller
+    (``own``) writes; a temporary file an interrupted atomic write left is the run's own."""
+    allowed = RUN_ENTRIES | own
+
+    def foreign(folder: Path) -> list[str]:
+        return sorted(
+            str(entry.relative_to(run_dir))
+            for entry in folder.iterdir()
+            if entry.name not in allowed
+            and not (entry.name.startswith(".") and entry.name.endswith(".tmp"))
+        )
+
+    best = run_dir / BEST_DIR
+    return foreign(run_dir) + (foreign(best) if best.is_dir() else [])
 
 
 @dataclass(frozen=True)
@@ -163,7 +205,8 @@ def load_reward(
     source = path.read_bytes()
     try:
         namespace = runpy.run_path(str(path), run_name="itskill_reward")
-    except Exception as err:
+    # sys.exit() in the file would otherwise end the command silently, with its exit code.
+    except (Exception, SystemExit) as err:
         raise RewardLoadError(path, f"failed to run: {type(err).__name__}: {err}") from err
     fn = namespace.get("compute_reward")
     if not callable(fn):
@@ -184,7 +227,7 @@ class _FileReward:
     def __call__(self, ctx: Context) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         try:
             result = self.fn(ctx)
-        except Exception as err:
+        except (Exception, SystemExit) as err:
             raise RewardLoadError(
                 self.path, f"compute_reward raised {type(err).__name__}: {err}"
             ) from err
@@ -407,6 +450,7 @@ def check_training(
     init: str | Path | None = None,
     eval_every: int | None = None,
     eval_episodes: int = 50,
+    own_files: Collection[str] = (),
 ) -> TrainSetup:
     """Everything :func:`train` checks before it builds or writes anything (its arguments are
     :func:`train`'s): the settings, the reward (a reward file is probed, see :func:`load_reward`)
@@ -414,7 +458,9 @@ def check_training(
     (:class:`ResumeMismatchError`) and resumable (:class:`CheckpointError`).
 
     It only reads, so a refused run leaves ``out`` as it was: a caller that writes into ``out``
-    before training (a transfer run's record) checks first.
+    before training (a transfer run's record) checks first, and names its files in
+    ``own_files``. A new run is refused an ``out`` that holds anything else (a user's folder, a
+    run of another kind), since it would delete ``best/`` and overwrite the metrics there.
     """
     if algo not in ALGO_CLASSES:
         raise HyperparamError("algo", "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
@@ -477,6 +523,16 @@ def check_training(
             meta.setdefault("evaluation", previous["evaluation"])
         if not (run_dir / MODEL_FILE).is_file():
             raise CheckpointError(run_dir / MODEL_FILE, "missing" + CANNOT_RESUME)
+    elif run_dir.exists():
+        if not run_dir.is_dir():
+            raise ResumeMismatchError(f"{run_dir}: a file, not a directory; give a directory")
+        foreign = _foreign_entries(run_dir, frozenset(own_files))
+        if foreign:
+            more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+            raise ResumeMismatchError(
+                f"{run_dir}: holds {', '.join(foreign[:3])}{more}, which no training run "
+                "writes, and no checkpoint to resume; train into a new or empty directory"
+            )
     return TrainSetup(
         spec,
         algo,

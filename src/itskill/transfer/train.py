@@ -340,6 +340,7 @@ def train_transfer(
         policy_class=meth.policy_class,
         eval_every=eval_every,
         eval_episodes=eval_episodes,
+        own_files=(TRANSFER_FILE,),
     )
     record = prepare_transfer(target, method, sources, seed, algo, out, client, config, space)
     _, policy_kwargs = transfer_network(record, config)
