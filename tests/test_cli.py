@@ -177,6 +177,49 @@ def test_eval_takes_a_skill_of_the_skill_space_by_name(tmp_path, monkeypatch):
     assert "not a Stable-Baselines3 checkpoint" in flat(zipped.output)
 
 
+def test_eval_takes_a_checkpoint_file_as_the_skill_space_lists_it(tmp_path, monkeypatch):
+    # `skills show` gives RUN/policy.safetensors as a skill's checkpoint; --policy refused it
+    # as "not a Stable-Baselines3 checkpoint (not a zip archive)".
+    from itskill.skills.store import SHIPPED_LIBRARY
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    run = tmp_path / "run"
+    shutil.copytree(SHIPPED_LIBRARY / "reach_nut_m12", run)
+    args = ["eval", "reach_nut_m12", "--policy", str(run / "policy.safetensors"),
+            "--episodes", "2", "--num-envs", "2", "--json"]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["successes"] >= 1  # shipped at 99.8%
+
+
+def test_eval_of_a_skill_whose_checkpoint_was_deleted_says_so(tmp_path, monkeypatch):
+    from itskill.skills import open_skill_space
+    from itskill.skills.store import SHIPPED_LIBRARY, Skill
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    run = tmp_path / "r2"
+    shutil.copytree(SHIPPED_LIBRARY / "reach_nut_m12", run)
+    with open_skill_space() as space:
+        checkpoint = str(run / "policy.safetensors")
+        space.add(Skill("r2", "reach_nut_m12", "reach", ("approach",), checkpoint))
+    shutil.rmtree(run)
+    result = runner.invoke(app, ["eval", "reach_nut_m12", "--policy", "skill:r2"])
+    assert result.exit_code == 2
+    assert f"skill:r2: the checkpoint of skill 'r2' is missing: no file {checkpoint}" in flat(
+        result.output
+    )
+
+
+def test_an_empty_policy_is_a_usage_error_not_the_current_directory(tmp_path, monkeypatch):
+    # Read as ".", it failed on "checkpoint.json: missing" (a variable that expanded to nothing).
+    monkeypatch.chdir(tmp_path)
+    for args in (["eval", "reach_nut_m12"], ["render", "reach_nut_m12", "--out", "v.mp4"]):
+        result = runner.invoke(app, [*args, "--policy", ""])
+        assert result.exit_code == 2, result.output
+        assert "a policy is required" in flat(result.output)
+        assert "checkpoint.json" not in result.output
+
+
 def test_eval_scripted_json():
     args = ["eval", "reach_nut_m12", "--episodes", "3", "--num-envs", "2", "--json"]
     result = runner.invoke(app, args)
@@ -270,7 +313,7 @@ def test_unusable_paths_and_damaged_run_files_are_one_line_errors(tmp_path, monk
     (damaged / "learn.json").write_text('{"command": "pick up the nut", ')
     cases = [
         (["train", "reach_nut_m12", "--steps", "64", "--num-envs", "2", "--out", str(a_file)],
-         f"cannot use {a_file}"),
+         f"{a_file}: a file, not a directory"),
         (["learn", "pick up the nut", "--out", str(damaged), "--resume"], "not valid JSON"),
         (["render", "pick_nut_m12", "--policy", "scripted", "--out", str(tmp_path / "v.txt")],
          "must be a .mp4 file"),

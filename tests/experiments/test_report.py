@@ -190,6 +190,75 @@ def test_a_report_written_elsewhere_can_be_written_again_from_its_own_directory(
     assert body(second, out) == body(first, run)
 
 
+def snapshot(directory: Path) -> dict[str, bytes | None]:
+    """Every file's bytes and every directory (None) under ``directory``, by relative path."""
+    return {
+        str(p.relative_to(directory)): p.read_bytes() if p.is_file() else None
+        for p in directory.rglob("*")
+    }
+
+
+def another_run(run: Path, where: Path) -> Path:
+    """A copy of ``run`` recorded as another run: its first session is another command's."""
+    import shutil
+
+    shutil.copytree(run, where)
+    provenance = json.loads((where / "provenance.json").read_text())
+    provenance["sessions"][0].update(
+        command="itskill experiment run other.toml", started="2020-01-01T00:00:00+00:00"
+    )
+    write_json(where / "provenance.json", provenance)
+    return where
+
+
+def test_report_out_refuses_a_directory_of_another_run_or_the_users_files(run, tmp_path):
+    # `report RUN --out OTHER` overwrote OTHER's records with RUN's and copied RUN's cells in.
+    import shutil
+
+    other_run = another_run(run, tmp_path / "other_run")
+    other_copy = tmp_path / "other_copy"
+    experiment_report(other_run, other_copy, video=False)
+    clone = tmp_path / "clone"  # the same run's directory: weights beside the cells' records
+    shutil.copytree(run, clone)
+    own = tmp_path / "own"
+    own.mkdir()
+    (own / "config.json").write_text('{"mine": true}\n')
+    (own / "report.md").write_text("my notes\n")
+    for out, what in [
+        (other_run, "another experiment run"),
+        (other_copy, "another experiment run"),
+        (clone, "an experiment run directory"),
+        (own, "files the report writes (report.md, config.json)"),
+    ]:
+        before = snapshot(out)
+        with pytest.raises(ReportError, match="which the report would overwrite") as err:
+            experiment_report(run, out, video=False)
+        assert str(err.value).startswith(f"{out}: holds {what}")
+        assert snapshot(out) == before, out
+
+
+def test_report_out_writes_the_same_runs_report_again(run, tmp_path):
+    # Regenerating the report of a run into its results folder, beside the user's own notes.
+    out = tmp_path / "results"
+    out.mkdir()
+    (out / "README.md").write_text("notes\n")
+    first = experiment_report(run, out, video=False)
+    first.markdown.write_text("stale\n")
+    again = experiment_report(run, out, video=False)
+    assert "# Experiment report: synthetic" in again.markdown.read_text()
+    assert (out / "README.md").read_text() == "notes\n"
+    assert (out / "config.json").read_bytes() == (run / "config.json").read_bytes()
+    # A copy taken while the run's first session was going: its record of that session ends
+    # differently, it starts the same.
+    provenance = json.loads((run / "provenance.json").read_text())
+    provenance["sessions"][0].update(finished=None, wall_s=None, status=None)
+    write_json(out / "provenance.json", provenance)
+    experiment_report(run, out, video=False)
+    assert (out / "provenance.json").read_bytes() == (run / "provenance.json").read_bytes()
+    # And the copy reported from itself, into itself.
+    assert not experiment_report(out, video=False).notes
+
+
 def test_a_damaged_result_is_not_counted_and_says_how_to_finish_it(run, tmp_path):
     import shutil
 

@@ -32,12 +32,21 @@ USAGE_ERROR = 2
 TaskArg = Annotated[str, typer.Argument(help="Task id (see `itskill tasks list`).")]
 
 
+def _a_policy(value: str) -> str:
+    # An empty --policy (a variable that expanded to nothing) would be read as the current
+    # directory and fail on its missing checkpoint.json, a message about the wrong thing.
+    if not value:
+        raise typer.BadParameter("a policy is required: 'scripted', skill:NAME or a checkpoint")
+    return value
+
+
 PolicyOpt = Annotated[
     str,
     typer.Option(
         help="'scripted', 'skill:NAME' (a skill of the skill space), a training run directory "
-        "(itskill train --out; its last checkpoint, RUN/best for its best evaluated policy) "
-        "or an SB3 .zip."
+        "(itskill train --out; its last checkpoint, RUN/best for its best evaluated policy), "
+        "its policy.safetensors or an SB3 .zip.",
+        callback=_a_policy,
     ),
 ]
 
@@ -148,18 +157,37 @@ SKILL_PREFIX = "skill:"
 
 
 def policy_ref(policy: str) -> Any:
-    """``skill:NAME`` (a skill of the skill space) or a training run directory becomes its
-    checkpoint's policy; other references pass through."""
+    """``skill:NAME`` (a skill of the skill space), a training run directory or a checkpoint file
+    (its ``policy.safetensors``, as the skill space lists it, or an SB3 ``.zip``) becomes its
+    checkpoint's policy; other references (``scripted``, a path that does not exist) pass
+    through, to be refused with their own message."""
     from itskill.rl.checkpoint import as_policy, policy_location
 
     if policy.startswith(SKILL_PREFIX):
-        from itskill.skills import open_skill_space
-        from itskill.skills.store import SkillSpaceError
+        policy_file = _skill_checkpoint(policy[len(SKILL_PREFIX) :])
+    elif Path(policy).is_file():
+        policy_file = Path(policy)
+    else:
+        return as_policy(policy)
+    return as_policy(policy_location(policy_file))
 
-        try:
-            with open_skill_space() as space:
-                policy_file = space.checkpoint_path(space.get(policy[len(SKILL_PREFIX) :]))
-        except SkillSpaceError as err:
-            raise CheckpointError(policy, str(err)) from err
-        return as_policy(policy_location(policy_file))
-    return as_policy(policy)
+
+def _skill_checkpoint(name: str) -> Path:
+    """The checkpoint file of skill ``name``; :class:`CheckpointError` if the skill is unknown or
+    its checkpoint is gone (the space keeps a skill whose files were deleted or moved)."""
+    from itskill.skills import open_skill_space
+    from itskill.skills.store import SkillSpaceError
+
+    ref = SKILL_PREFIX + name
+    try:
+        with open_skill_space() as space:
+            policy_file = space.checkpoint_path(space.get(name))
+    except SkillSpaceError as err:
+        raise CheckpointError(ref, str(err)) from err
+    if not policy_file.is_file():
+        raise CheckpointError(
+            ref,
+            f"the checkpoint of skill {name!r} is missing: no file {policy_file} (deleted or "
+            f"moved; `itskill skills remove {name}` drops the skill)",
+        )
+    return policy_file

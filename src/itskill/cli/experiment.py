@@ -94,7 +94,11 @@ def experiment_run(
 def report_cmd(
     run: Annotated[Path, typer.Argument(help="An experiment run directory.")],
     out: Annotated[
-        Path | None, typer.Option(help="Where to write the report (default: inside RUN).")
+        Path | None,
+        typer.Option(
+            help="Where to write the report, with a copy of RUN's small files (default: inside "
+            "RUN): a new or empty directory, or an earlier report of RUN to write again."
+        ),
     ] = None,
     video: Annotated[
         bool, typer.Option("--video/--no-video", help="Render a rollout of the best policy.")

@@ -49,6 +49,7 @@ from itskill.experiments.document import (
 from itskill.experiments.plots import method_label, plot_attention, plot_learning_curves
 from itskill.experiments.provenance import Sessions, machine_facts, now
 from itskill.experiments.runner import (
+    CELLS_DIR,
     CONFIG_FILE,
     ERROR_FILE,
     EXPERIMENT_FILE,
@@ -80,6 +81,8 @@ CELL_FILES = (
 """What a report reads from a run and its cells, weights aside: a report written elsewhere copies
 these beside itself, so it can be written again from its own directory (without the video). The
 rl and transfer layers' names are spelled out: importing them would load torch for every report."""
+OUT_NAMES = (REPORT_MD, REPORT_HTML, FIGURES_DIR, VIDEOS_DIR, *RUN_FILES, CELLS_DIR)
+"""What a report written outside its run puts in its directory."""
 
 
 class ReportError(ValueError):
@@ -224,7 +227,13 @@ def experiment_report(
     """Write ``report.md`` and ``report.html`` (and ``figures/``, ``videos/``) for a run.
 
     With ``out`` outside the run, the run's small files (:data:`RUN_FILES`, :data:`CELL_FILES`,
-    no weights) are copied there as well: the directory to commit to ``results/``.
+    no weights) are copied there as well: the directory to commit to ``results/``. Such an
+    ``out`` must hold none of :data:`OUT_NAMES`, or be an earlier report copy of the same run,
+    written again: its ``provenance.json`` starts with the same session (command and start
+    time, which stay as the run is resumed, moved or copied; two runs of one file differ) and
+    its cells hold only :data:`CELL_FILES` (a run directory also holds weights and logs there).
+    Anything else (another run, a run directory, the user's own ``report.md``) is refused with
+    :class:`ReportError` before anything is written.
     """
     run_dir = Path(run_dir)
     if not (run_dir / CONFIG_FILE).is_file():
@@ -233,6 +242,8 @@ def experiment_report(
             "run `itskill experiment run FILE.toml` first"
         )
     out = Path(out) if out else run_dir
+    if out.resolve() != run_dir.resolve():
+        _check_out(run_dir, out)
     figures, videos = out / FIGURES_DIR, out / VIDEOS_DIR
     try:
         config = read_run_config(run_dir)
@@ -286,6 +297,37 @@ def experiment_report(
     if out.resolve() != run_dir.resolve():
         _copy_results(config, run_dir, out)
     return ReportFiles(md, html_path, tuple(notes))
+
+
+def _check_out(run_dir: Path, out: Path) -> None:
+    """Refuse an ``out`` outside the run whose files the report would overwrite, unless it is
+    an earlier report copy of this run (see :func:`experiment_report`)."""
+    found = [name for name in OUT_NAMES if (out / name).exists()]
+    if not found:
+        return
+    origin = _first_session(out)
+    if origin is None:
+        what = f"files the report writes ({', '.join(found)})"
+    elif origin != _first_session(run_dir):
+        what = f"another experiment run (its {PROVENANCE_FILE} starts with another session)"
+    elif any(p.name not in CELL_FILES for p in (out / CELLS_DIR).glob("*/*/*/*")):
+        what = "an experiment run directory (its cells hold weights or logs)"
+    else:
+        return
+    raise ReportError(
+        f"{out}: holds {what}, which the report would overwrite; give --out a new or empty "
+        f"directory, or an earlier report of {run_dir}"
+    )
+
+
+def _first_session(run_dir: Path) -> tuple[str, str] | None:
+    """The command and start time of the run's first session, what tells one run from another;
+    None without a readable record."""
+    try:
+        first = read_json(run_dir / PROVENANCE_FILE)["sessions"][0]
+        return first["command"], first["started"]
+    except (OSError, CorruptFileError, LookupError, TypeError):
+        return None
 
 
 def _copy_results(config: ExperimentConfig, run_dir: Path, out: Path) -> None:
