@@ -97,6 +97,7 @@ def test_gives_up_after_the_last_retry_with_advice() -> None:
             c.complete(MESSAGES, purpose="reward")
     assert len(server.requests) == FAST.max_retries + 1
     assert "rate-limited" in str(err.value) and "--llm offline" in str(err.value)
+    assert "try again later" in str(err.value) and "OPENAI_BASE_URL" not in str(err.value)
 
 
 def test_closed_port_is_a_clear_unavailable_error_quickly() -> None:
@@ -111,6 +112,7 @@ def test_closed_port_is_a_clear_unavailable_error_quickly() -> None:
     assert time.monotonic() - start < 5
     message = str(err.value)
     assert f"cannot reach openai:llama3 at {url}" in message
+    assert "check that a server answers there" in message
     assert "OPENAI_BASE_URL" in message and "--llm offline" in message
 
 

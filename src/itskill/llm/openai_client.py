@@ -237,11 +237,15 @@ def _retry_after(err: Exception) -> float | None:
 def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnavailableError:
     if isinstance(err, openai.RateLimitError):
         what = f"rate-limited by {client.base_url}"
+        advice = "try again later"
     elif isinstance(err, openai.APIStatusError):
         what = f"server error {err.status_code} from {client.base_url}"
+        advice = "try again later"
     else:
         what = f"cannot reach {client.name} at {client.base_url}"
+        # The address is often already set (OPENAI_BASE_URL), just to a server that is down.
+        advice = "check that a server answers there (OPENAI_BASE_URL sets the address)"
     return LLMUnavailableError(
         f"{what}: {_detail(err)} (gave up after {attempts} attempts); "
-        "set OPENAI_BASE_URL or use --llm offline"
+        f"{advice}, or use --llm offline"
     )
