@@ -365,6 +365,11 @@ def test_eval_of_a_policy_on_another_task_runs_with_a_note(tmp_path, monkeypatch
     )
     same = runner.invoke(app, ["eval", "reach_nut_m12", *args[2:]])
     assert same.exit_code == 0 and "note:" not in same.output
+    # Its checkpoint file, as `itskill skills show` lists it, gets the same note.
+    weights = reach / "policy.safetensors"
+    by_file = runner.invoke(app, ["eval", "pick_nut_m12", "--policy", str(weights), *args[4:]])
+    assert by_file.exit_code == 0, by_file.output
+    assert f"note: {weights} was trained on reach_nut_m12" in flat(by_file.output)
 
 
 def test_plan_of_a_task_id_needs_no_model_but_refuses_a_mistyped_one(monkeypatch):

@@ -99,11 +99,13 @@ def eval_cmd(
 def _note_another_task(policy: str, spec: TaskSpec) -> None:
     """Evaluating a policy on a task it was not trained on is a fair question (a source on its
     target), so it runs; the note keeps a mistyped task from passing for the policy's result."""
-    from itskill.rl.checkpoint import META_FILE, read_meta
+    from itskill.rl.checkpoint import META_FILE, policy_location, read_meta
 
-    if not (Path(policy) / META_FILE).is_file():
+    # A checkpoint file (policy.safetensors) is read from its directory, as policy_ref does.
+    run_dir = policy_location(Path(policy)) if Path(policy).is_file() else Path(policy)
+    if not (run_dir / META_FILE).is_file():
         return
-    trained = read_meta(policy)["task"]
+    trained = read_meta(run_dir)["task"]
     if trained != spec.id:
         note = f"{policy} was trained on {trained}; evaluated on {spec.id}"
         err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)
