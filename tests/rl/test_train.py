@@ -447,6 +447,14 @@ def test_cli_reports_a_broken_reward_file_in_one_line(tmp_path: Path) -> None:
     assert "Traceback" not in result.output
 
 
+def test_cli_says_a_budget_ends_on_a_whole_rollout(tmp_path: Path, reach_reward: Path) -> None:
+    args = ["train", TASK, "--algo", "a2c", "--steps", "40", "--num-envs", "4"]
+    args += ["--reward", str(reach_reward), "--out", str(tmp_path / "run")]
+    result = CliRunner().invoke(app, args)  # A2C: rollouts of 4 environments x 8 steps
+    assert result.exit_code == 0, result.output
+    assert "64 env-steps in total (whole rollouts: 40 asked)" in " ".join(result.output.split())
+
+
 def test_cli_train_and_eval_run_directory(tmp_path: Path, reach_reward: Path) -> None:
     out = tmp_path / "run"
     runner = CliRunner()

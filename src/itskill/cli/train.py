@@ -83,4 +83,4 @@ def train_cmd(
         raise usage_error(str(err)) from err
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
-    print_trained(f"{task} with {algo}", result)
+    print_trained(f"{task} with {algo}", result, steps)

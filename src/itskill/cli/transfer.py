@@ -149,7 +149,7 @@ def transfer_train(
             )
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
-    print_trained(f"{target} with {method} ({algo})", result)
+    print_trained(f"{target} with {method} ({algo})", result, steps)
 
 
 @transfer_app.command("analyze")
