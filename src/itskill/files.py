@@ -10,10 +10,13 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Iterator
+import reprlib
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+
+from itskill.datafile import is_count, is_number
 
 
 @contextmanager
@@ -66,6 +69,48 @@ def read_json(path: Path) -> Any:
         return json.loads(Path(path).read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise CorruptFileError(f"{path}: not valid JSON ({err})") from err
+
+
+_KINDS: dict[type, tuple[str, Callable[[Any], bool]]] = {
+    str: ("a string", lambda v: isinstance(v, str)),
+    bool: ("true or false", lambda v: isinstance(v, bool)),
+    int: ("a whole number", is_count),
+    float: ("a number", is_number),
+    dict: ("a JSON object", lambda v: isinstance(v, dict)),
+    list: ("a list", lambda v: isinstance(v, list)),
+}
+
+
+def check_shape(path: Path, value: Any, shape: Any, field: str = "") -> None:
+    """Raise :class:`CorruptFileError` naming ``path`` and the first ``field`` of ``value`` (the
+    file's JSON) that is missing or not of ``shape``.
+
+    A shape is a type (``str``, ``bool``, ``dict``, ``list``; ``float`` is any finite number,
+    ``int`` a whole number of 0 or more), a dict of an object's fields (a "?" ends one that may be
+    absent), a one-item list (a list of items of that shape) or a ``(shape, None)`` pair (that,
+    or null)."""
+    nullable = isinstance(shape, tuple)
+    if nullable:
+        if value is None:
+            return
+        shape = shape[0]
+    kind = dict if isinstance(shape, dict) else list if isinstance(shape, list) else shape
+    what, fits = _KINDS[kind]
+    if not fits(value):
+        where = f"{path}: {field}" if field else str(path)
+        null = " or null" if nullable else ""
+        raise CorruptFileError(f"{where}: expected {what}{null}, got {reprlib.repr(value)}")
+    if isinstance(shape, dict):
+        for key, inner in shape.items():
+            name = key.rstrip("?")
+            named = f"{field}.{name}" if field else name
+            if name in value:
+                check_shape(path, value[name], inner, named)
+            elif not key.endswith("?"):
+                raise CorruptFileError(f"{path}: {named}: missing")
+    elif isinstance(shape, list):
+        for k, item in enumerate(value):
+            check_shape(path, item, shape[0], f"{field}[{k}]")
 
 
 def path_error_message(err: OSError) -> str:

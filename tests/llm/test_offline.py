@@ -177,6 +177,22 @@ def test_planner_refuses_what_it_cannot_ground(command: str, why: str) -> None:
     assert set(reply) == {"error"} and why in reply["error"]
 
 
+@pytest.mark.parametrize(
+    ("command", "outcome"),
+    [
+        # Each clause is one more step of the pattern the catalogue's actions are matched to.
+        ("Pick up the nut " * 625, "pick_nut_m12"),
+        ("Pick up the nut and lift it " * 360 + "then push it", "no catalogue task"),
+        # A size of thousands of digits is no size, not a number int() refuses.
+        ("Pick up the M" + "1" * 10_000 + " nut", "pick_nut_m12"),
+    ],
+)
+def test_planner_answers_a_command_of_ten_thousand_characters(command: str, outcome) -> None:
+    assert len(command) >= 10_000
+    reply = plan(command)
+    assert reply.get("task") == outcome or outcome in reply.get("error", "")
+
+
 # ------------------------------------------------------------------------------ synthesiser
 def describe(task: str) -> str:
     spec = get_task(task)

@@ -297,8 +297,8 @@ def show_cmd(
         print_json(data)
         return
     config, summary, usage = data["config"], data["summary"], data["usage"]
-    llm = config.get("llm", "?")
-    console.print(f"[bold]{escape(str(run))}[/bold]: target {escape(config.get('target', '?'))}")
+    llm = config["llm"]
+    console.print(f"[bold]{escape(str(run))}[/bold]: target {escape(config['target'])}")
     if config.get("offline"):
         console.print(f"replies by {llm}: {OFFLINE_NOTE}", style="yellow", markup=False)
     else:
@@ -370,7 +370,11 @@ def show_cmd(
         console.print(
             f"chosen: iteration {best['iteration'] + 1}, sample {best['sample']} "
             f"(search success {format_rate(best['success'])}"
-            + (f", over every seed {format_rate(best['selected_success'])}" if selection else "")
+            + (
+                f", over every seed {format_rate(best['selected_success'])}"
+                if "selected_success" in best
+                else ""
+            )
             + f"); figure: {Path(run) / 'fig6.png'}",
             highlight=False,
             markup=False,

@@ -42,7 +42,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 import itskill
 from itskill.executors import JobResult, check_executor, default_workers, run_jobs
-from itskill.files import read_json, write_json, write_text
+from itskill.files import check_shape, read_json, write_json, write_text
 from itskill.llm.client import LLMClient, Message, make_client
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
 from itskill.reward.candidate import (
@@ -242,6 +242,12 @@ def _job_line(job: CandidateJob, result: dict[str, Any]) -> str:
     )
 
 
+def _is_search(config: Any) -> bool:
+    """Whether ``config`` (a run's config.json) is a reward search's: an experiment run and a
+    training run have a config.json too."""
+    return isinstance(config, dict) and config.get("kind") == RUN_KIND
+
+
 def _check_resume(out: Path, header: dict[str, Any]) -> dict[str, Any]:
     path = out / CONFIG_FILE
     if not path.is_file():
@@ -253,8 +259,8 @@ def _check_resume(out: Path, header: dict[str, Any]) -> dict[str, Any]:
         stored = read_json(path)
     except ValueError as err:
         raise RewardSearchError(str(err)) from err
-    if not isinstance(stored, dict) or stored.get("kind") != RUN_KIND:
-        raise RewardSearchError(f"{path}: not a reward search run (kind {stored.get('kind')!r})")
+    if not _is_search(stored):
+        raise RewardSearchError(f"{path}: not a reward search run")
     if stored.get("format") != RUN_FORMAT:
         raise RewardSearchError(
             f"{path}: run format {stored.get('format')!r}, this version reads {RUN_FORMAT}"
@@ -455,6 +461,16 @@ def generate_reward(
             console.print(f"{out}: the search has already finished", highlight=False)
             return load_search(out)
     elif (out / CONFIG_FILE).exists():
+        try:
+            ours = _is_search(read_json(out / CONFIG_FILE))
+        except ValueError:  # not JSON: not a search this version wrote either
+            ours = False
+        if not ours:
+            # --resume would refuse it too: the only way on is another directory.
+            raise RewardSearchError(
+                f"{out} holds another kind of run, or files that are not a reward search (its "
+                f"{CONFIG_FILE} is not a reward search's): choose another --out"
+            )
         raise RewardSearchError(
             f"{out} already holds a reward search: continue it with --resume {out} "
             "or choose another --out"
@@ -717,10 +733,73 @@ def load_search(run_dir: str | Path) -> RewardSearchResult:
     )
 
 
+# What the readers of a run (``itskill reward show``, :func:`load_search`, ``--resume``) take from
+# its files, so that a file edited into another shape is refused by name rather than failing in
+# whichever reader first trips on it (shapes as :func:`itskill.files.check_shape` reads them).
+_RATE = (float, None)
+_BAND = {"seeds": [int], "mean": _RATE, "ci_low": _RATE, "ci_high": _RATE}
+_ITERATION = {
+    "iteration": int,
+    "samples": list,
+    "accepted": int,
+    "trained": int,
+    "best_sample": (int, None),
+    "best_success": _RATE,
+    "best_correlation?": _RATE,
+    "best_so_far": _RATE,
+}
+_CONFIG = {
+    "target": str,
+    "llm": str,
+    "compare_expert": bool,
+    "offline?": bool,
+    "network?": ({"label": str}, None),
+    "settings?": dict,
+    "config?": dict,
+}
+_USAGE = {
+    "total": {
+        "requests": int,
+        "prompt_tokens": int,
+        "completion_tokens": int,
+        "cache_hits": int,
+        "cost_usd": float,
+        "wall_s": float,
+    },
+    "sessions": list,
+}
+_SUMMARY = {
+    "plan": dict,  # and what TaskPlan.from_dict reads
+    "llm": str,
+    "offline": bool,
+    "iterations": [_ITERATION],
+    "best": {"iteration": int, "sample": int, "success": float, "selected_success?": float},
+    "selection?": (
+        {
+            "seeds": [int],
+            "candidates": [
+                {
+                    "iteration": int,
+                    "sample": int,
+                    "search_success": float,
+                    "select_success": [_RATE],
+                    "mean": float,
+                }
+            ],
+        },
+        None,
+    ),
+    "final": {"steps": int, "generated": _BAND, "expert": (_BAND, None)},
+    "best_success": _RATE,
+    "expert_success": _RATE,
+}
+
+
 def read_run(run_dir: str | Path) -> dict[str, Any]:
     """Everything on disk about a search, finished or not: ``config``, ``plan`` (or None),
     ``iterations`` (the iteration summaries written so far), ``summary`` (None until it finishes),
-    ``usage`` and ``best_code`` (or None)."""
+    ``usage`` and ``best_code`` (or None). :class:`RewardSearchError` naming the file and field
+    for a file that is not valid JSON or not of the shape the search writes."""
     run_dir = Path(run_dir)
     path = run_dir / CONFIG_FILE
     if not run_dir.is_dir():
@@ -730,25 +809,36 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
         raise RewardSearchError(f"{run_dir}: not a reward search run (no {CONFIG_FILE})")
     try:
         config = read_json(path)
-        if not isinstance(config, dict) or config.get("kind") != RUN_KIND:
+        if not _is_search(config):
             raise RewardSearchError(f"{path}: not a reward search run")
+        check_shape(path, config, _CONFIG)
 
-        def optional(name: str) -> Any:
-            return read_json(run_dir / name) if (run_dir / name).is_file() else None
+        def checked(file: Path, shape: Any) -> Any:
+            data = read_json(file)
+            check_shape(file, data, shape)
+            return data
+
+        def optional(name: str, shape: Any) -> Any:
+            return checked(run_dir / name, shape) if (run_dir / name).is_file() else None
 
         iterations = []
         i = 0
         while (run_dir / f"iter_{i}" / SUMMARY_FILE).is_file():
-            iterations.append(read_json(run_dir / f"iter_{i}" / SUMMARY_FILE))
+            iterations.append(checked(run_dir / f"iter_{i}" / SUMMARY_FILE, _ITERATION))
             i += 1
-        plan = optional(PLAN_FILE)
+        plan = optional(PLAN_FILE, dict)
+        if plan is not None:
+            TaskPlan.from_dict(plan, where=str(run_dir / PLAN_FILE))
+        summary = optional(SUMMARY_FILE, _SUMMARY)
+        if summary is not None:
+            TaskPlan.from_dict(summary["plan"], where=f"{run_dir / SUMMARY_FILE}: plan")
         return {
             "run_dir": str(run_dir),
             "config": config,
             "plan": plan,
             "iterations": iterations,
-            "summary": optional(SUMMARY_FILE),
-            "usage": optional(USAGE_FILE),
+            "summary": summary,
+            "usage": optional(USAGE_FILE, _USAGE),
             "best_code": (run_dir / BEST_FILE).read_text()
             if (run_dir / BEST_FILE).is_file()
             else None,

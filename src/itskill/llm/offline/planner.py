@@ -121,7 +121,9 @@ def _words(text: str) -> list[str]:
     return re.findall(r"[a-z0-9]+", text.lower())
 
 
-_SIZE = r"\b(?:m ?(\d+)|(\d+) ?mm)\b"  # "M16", "m 16", "16mm" and "16 mm" are 16 mm
+# "M16", "m 16", "16mm" and "16 mm" are 16 mm. A longer number is no part's size in millimetres,
+# and int() refuses one of thousands of digits.
+_SIZE = r"\b(?:m ?(\d{1,4})|(\d{1,4}) ?mm)\b"
 
 
 def _described(command: str, kind: str) -> tuple[set[int], set[str]]:
@@ -216,18 +218,22 @@ def _carries(command: str) -> bool:
 def _skipped(pattern: list[str], actions: list[str]) -> int | None:
     """How few optional elements ``actions`` must skip to fit ``pattern`` (``a?`` optional,
     ``a|b`` alternatives); None if they do not fit."""
-    if not pattern:
-        return None if actions else 0
-    head, rest = pattern[0], pattern[1:]
-    options = head.rstrip("?").split("|")
-    best = None
-    if actions and actions[0] in options:
-        best = _skipped(rest, actions[1:])
-    if head.endswith("?"):
-        skip = _skipped(rest, actions)
-        if skip is not None and (best is None or skip + 1 < best):
-            best = skip + 1
-    return best
+    # fewest[j]: the fewest skips fitting the pattern's tail read so far to actions[j:]. Filled
+    # from the pattern's end, one element at a time, so a pattern of any length (a long command
+    # repeats its clauses) takes len(pattern) * len(actions) steps and no recursion.
+    fewest: list[int | None] = [None] * len(actions) + [0]
+    for head in reversed(pattern):
+        options = head.rstrip("?").split("|")
+        optional = head.endswith("?")
+        row: list[int | None] = []
+        for j in range(len(actions) + 1):
+            best = fewest[j + 1] if j < len(actions) and actions[j] in options else None
+            skip = fewest[j]
+            if optional and skip is not None and (best is None or skip + 1 < best):
+                best = skip + 1
+            row.append(best)
+        fewest = row
+    return fewest[0]
 
 
 def plan(command: str, catalogue: list[dict]) -> dict:

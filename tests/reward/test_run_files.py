@@ -1,0 +1,138 @@
+"""A reward search's run directory as the commands read it back: `itskill reward show` on files
+edited into another shape, and `itskill reward generate --out` on a directory holding another
+kind of run."""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from conftest import tiny_config
+from rich.console import Console
+from typer.testing import CliRunner
+
+from itskill.cli import app
+from itskill.reward import RewardSearchError, generate_reward, load_search, search_client
+
+# The files `show` reads; the trainings' directories are left behind when a test copies the run.
+RUN_FILES = ["config.json", "plan.json", "usage.json", "summary.json", "best_reward.py",
+             "iter_0/summary.json"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished search with a selection and the expert's comparison, at the smallest budget."""
+    run = tmp_path_factory.mktemp("search") / "run"
+    generate_reward(
+        "pick_nut_m12",
+        search_client(run, "offline"),
+        run,
+        tiny_config(samples=1, select_top=1),
+        console=Console(file=io.StringIO()),
+    )
+    return run
+
+
+def _copy(run: Path, to: Path) -> Path:
+    for name in RUN_FILES:
+        (to / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(run / name, to / name)
+    return to
+
+
+def _show(run: Path) -> tuple[int, str]:
+    result = CliRunner().invoke(app, ["reward", "show", str(run)], env={"COLUMNS": "200"})
+    return result.exit_code, " ".join(result.output.split())
+
+
+def _set(*keys: Any, value: Any) -> Callable[[Any], Any]:
+    """An edit setting the field at ``keys`` to ``value``."""
+
+    def edit(data: Any) -> Any:
+        inner = data
+        for key in keys[:-1]:
+            inner = inner[key]
+        inner[keys[-1]] = value
+        return data
+
+    return edit
+
+
+def _drop(*keys: str) -> Callable[[Any], Any]:
+    """An edit removing the field at ``keys``."""
+
+    def edit(data: Any) -> Any:
+        inner = data
+        for key in keys[:-1]:
+            inner = inner[key]
+        del inner[keys[-1]]
+        return data
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    ("file", "edit", "message"),
+    [
+        ("summary.json", lambda _: {}, "summary.json: plan: missing"),
+        ("summary.json", _drop("final"), "summary.json: final: missing"),
+        ("summary.json", _set("final", "generated", "mean", value="high"),
+         "summary.json: final.generated.mean: expected a number or null, got 'high'"),
+        ("summary.json", _set("selection", "candidates", 0, "select_success", value=[None, "x"]),
+         "summary.json: selection.candidates[0].select_success[1]: expected a number or null"),
+        ("summary.json", _set("plan", "subtasks", value="lift it"),
+         "summary.json: plan.subtasks: expected a list of strings"),
+        ("usage.json", lambda _: {"total": {}}, "usage.json: total.requests: missing"),
+        ("usage.json", lambda _: [], "usage.json: expected a JSON object, got []"),
+        ("usage.json", _set("sessions", value=2), "usage.json: sessions: expected a list, got 2"),
+        ("iter_0/summary.json", _set("accepted", value="2"),
+         "iter_0/summary.json: accepted: expected a whole number, got '2'"),
+        ("plan.json", _drop("task"), "plan.json.task: expected a string, got None"),
+        ("config.json", _drop("target"), "config.json: target: missing"),
+    ],
+)  # fmt: skip
+def test_a_run_file_of_another_shape_is_a_one_line_error_naming_it(
+    finished_run: Path, tmp_path: Path, file: str, edit, message: str
+) -> None:
+    # Each was valid JSON that show or load_search then failed on with a KeyError or TypeError.
+    run = _copy(finished_run, tmp_path)
+    assert _show(run)[0] == 0  # the search's own files are read as written
+    path = run / file
+    path.write_text(json.dumps(edit(json.loads(path.read_text()))))
+    code, output = _show(run)
+    assert code == 2 and output.startswith("error: ") and message in output, output
+    assert "Traceback" not in output
+    with pytest.raises(RewardSearchError, match=re.escape(message)):
+        load_search(run)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        '{"tasks": ["pick_nut_m12"], "methods": ["scratch"], "seeds": [0]}',  # an experiment's
+        '{"kind": "itskill-training", "task": "pick_nut_m12"}',
+        "not JSON",
+    ],
+)
+def test_a_directory_holding_another_kind_of_run_is_not_offered_to_resume(
+    tmp_path: Path, config: str
+) -> None:
+    # It said "already holds a reward search: continue it with --resume", and --resume then
+    # refused it as not a reward search run.
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(config)
+    with pytest.raises(RewardSearchError) as err:
+        generate_reward("pick_nut_m12", search_client(run, "offline"), run, tiny_config())
+    assert str(err.value) == (
+        f"{run} holds another kind of run, or files that are not a reward search (its "
+        "config.json is not a reward search's): choose another --out"
+    )
+    assert [p.name for p in run.iterdir()] == ["config.json"]
+    assert (run / "config.json").read_text() == config
