@@ -115,7 +115,8 @@ def test_a_run_made_on_a_cluster_resumes_here_without_its_address(tmp_path) -> N
     cluster = load_search_config(overrides={"executor": "ray", "ray_address": "10.0.0.5:6379"})
     run = tmp_path / "run"
     run.mkdir()
-    (run / CONFIG_FILE).write_text(json.dumps({"kind": RUN_KIND, "config": cluster.to_dict()}))
+    stored = {"kind": RUN_KIND, "target": "pick_nut_m12", "llm": "offline", "compare_expert": True}
+    (run / CONFIG_FILE).write_text(json.dumps({**stored, "config": cluster.to_dict()}))
     here = config_from_run(run, {"executor": "local"})
     assert (here.executor, here.ray_address) == ("local", None)
     again = config_from_run(run, {})
