@@ -271,6 +271,16 @@ def test_reward_search_on_a_network_without_sources_is_refused(tmp_path, method,
     assert not (out / "config.json").exists()
 
 
+def test_a_bad_reward_search_flag_is_named(tmp_path):
+    # The settings reader called it "overrides": "overrides: executor: expected one of ...".
+    out = tmp_path / "run"
+    args = ["reward", "generate", "reach_nut_m12", "--executor", "foo", "--out", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    assert "Invalid value for --executor: expected one of" in flat(result.output)
+    assert "overrides" not in result.output and not out.exists()
+
+
 def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
     # A batch scheduler or `kill` sends SIGTERM: it ended the process on the spot and lost the
     # training since the last checkpoint (50k env-steps apart by default).

@@ -7,7 +7,7 @@ pay for them.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
@@ -220,14 +220,14 @@ def generate_cmd(
                 raise typer.BadParameter("a resumed run keeps its network", param_hint="--transfer")
             if stored.get("network") is not None:
                 transfer = _network_method(resume / NETWORK_DIR)
-            config = config_from_run(resume, overrides)
+            config = _flags_named(overrides, lambda: config_from_run(resume, overrides))
             run_dir = resume
         else:
             if target is None:
                 raise typer.BadParameter(
                     "give a task id or a command (or --resume RUN)", param_hint="TARGET"
                 )
-            config = load_search_config(config_file, overrides)
+            config = _flags_named(overrides, lambda: load_search_config(config_file, overrides))
             run_dir = out or Path("runs/reward") / _slug(target)
         client = search_client(run_dir, llm, base_url)
         network = plan = None
@@ -255,6 +255,20 @@ def generate_cmd(
     console.print(
         f"best reward: {result.best_path}; details: itskill reward show {run_dir}", markup=False
     )
+
+
+def _flags_named(overrides: dict[str, Any], load: Callable[[], Any]) -> Any:
+    """``load()``'s search settings; a value a flag gave that does not validate is a usage error
+    naming that flag (the settings reader calls the flags "overrides")."""
+    from itskill.reward.config import SearchConfigError
+
+    try:
+        return load()
+    except SearchConfigError as err:
+        if err.path == "overrides" and err.where in overrides:
+            flag = "--" + err.where.replace("_", "-")
+            raise typer.BadParameter(err.problem, param_hint=flag) from err
+        raise
 
 
 def _network_method(record_dir: Path) -> str:
