@@ -9,7 +9,9 @@ reward, the final training evaluation and the held-out success per seed, their m
 intervals and the env-steps to 80%; it writes ``summary.json``, ``curves.png`` and each run's
 ``eval.csv`` and held-out result to ``--results``. Runs go to ``--out`` (rerunning resumes them).
 ``--hyperparams FILE.toml`` trains both rewards with a hyper-parameter file of the packaged
-file's shape instead (to compare rewards at another learning rate, say).
+file's shape instead (to compare rewards at another learning rate, say). ``--with-earlier``
+pools the seeds whose runs earlier calls of the same settings kept in ``--results`` with this
+call's (``--seeds`` may then be empty, to summarise the kept seeds again).
 
 Target (issue 4): generated reward success >= the expert's.
 
@@ -41,7 +43,7 @@ from itskill.experiments.analysis import (
 )
 from itskill.experiments.learn import EVAL_SEED
 from itskill.experiments.plots import plot_learning_curves
-from itskill.files import replaced_whole, write_json
+from itskill.files import read_json, replaced_whole, write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy
 from itskill.rl.eval_callback import EVAL_FILE
 from itskill.stats import format_rate_interval
@@ -50,6 +52,7 @@ from itskill.tasks.evaluate import evaluate
 from itskill.transfer import train_transfer
 
 THRESHOLD = 0.8
+HELDOUT_FILE = "heldout_eval.json"
 
 
 def train_one(task: str, method: str, reward: str, seed: int, steps: int, every: int,
@@ -73,12 +76,38 @@ def _format_band(band: dict[str, float]) -> str:
     return format_rate_interval(band["mean"], band["ci_low"], band["ci_high"])
 
 
+def _earlier_seeds(results: Path, settings: dict[str, Any], seeds: list[int]) -> list[int]:
+    """The seeds besides ``seeds`` whose runs an earlier call kept in ``results`` (each
+    reward's ``seed_N/`` with its curve and held-out result), if ``results/summary.json`` says
+    they were made with the same ``settings``: runs of other settings cannot be pooled."""
+    path = results / "summary.json"
+    if not path.is_file():
+        return []
+    before = read_json(path)
+    changed = [k for k, v in settings.items() if before.get(k) != v]
+    if changed:
+        raise SystemExit(
+            f"{path}: made with other settings ({', '.join(changed)}); --with-earlier pools "
+            "only runs of the same settings"
+        )
+
+    def kept(seed_dir: Path) -> bool:
+        return (seed_dir / EVAL_FILE).is_file() and (seed_dir / HELDOUT_FILE).is_file()
+
+    found = {int(d.name.removeprefix("seed_")) for d in results.glob("generated/seed_*")}
+    return sorted(
+        s
+        for s in found - set(seeds)
+        if kept(results / "generated" / f"seed_{s}") and kept(results / "expert" / f"seed_{s}")
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="pickplace_nut_m12")
     parser.add_argument("--reward", type=Path, required=True, help="the generated reward (.py)")
     parser.add_argument("--method", default="itn")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--seeds", type=int, nargs="*", default=[1, 2, 3])
     parser.add_argument("--steps", type=int, default=300_000)
     parser.add_argument("--eval-every", type=int, default=20_000)
     parser.add_argument("--eval-episodes", type=int, default=50)
@@ -89,9 +118,33 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--hyperparams", type=Path, help="a hyper-parameter file instead of the packaged one"
     )
+    parser.add_argument(
+        "--with-earlier",
+        action="store_true",
+        help="also count the seeds whose runs earlier calls of the same settings kept in --results "
+        "(their eval.csv and held-out result), so seeds added later join one summary",
+    )
     args = parser.parse_args(argv)
     if not args.reward.is_file():
         parser.error(f"no reward file {args.reward}")
+
+    settings: dict[str, Any] = {
+        "task": args.task,
+        "method": args.method,
+        "reward": str(args.reward),
+        "algo": "ppo",
+        "hyperparams": str(args.hyperparams) if args.hyperparams else "packaged",
+        "steps": args.steps,
+        "eval_every": args.eval_every,
+        "eval_episodes": args.eval_episodes,
+        "heldout_episodes": args.held_out,
+        "heldout_seed": EVAL_SEED,
+    }
+    # Checked before training: a summary that cannot be pooled is known now, not hours later.
+    earlier = _earlier_seeds(args.results, settings, args.seeds) if args.with_earlier else []
+    seeds = sorted([*earlier, *args.seeds])
+    if not seeds:
+        parser.error("no seeds: give --seeds, or --with-earlier where a summary is kept")
 
     rewards = {"generated": str(args.reward), "expert": "expert"}
     runs = {(r, s): args.out / f"{r}_seed{s}" for r in rewards for s in args.seeds}
@@ -109,20 +162,12 @@ def main(argv: list[str] | None = None) -> int:
     if failed:
         return 1
     train_s = time.perf_counter() - t0
-
     spec = get_task(args.task)
+
     summary: dict[str, Any] = {
-        "task": args.task,
-        "method": args.method,
-        "reward": str(args.reward),
-        "algo": "ppo",
-        "hyperparams": str(args.hyperparams) if args.hyperparams else "packaged",
-        "steps": args.steps,
-        "eval_every": args.eval_every,
-        "eval_episodes": args.eval_episodes,
-        "heldout_episodes": args.held_out,
-        "heldout_seed": EVAL_SEED,
+        **settings,
         "machine": f"{os.cpu_count()} CPUs ({platform.machine()}), {args.workers} runs at a time",
+        "earlier_seeds": earlier,
         "rewards": {},
     }
     bands = {}
@@ -130,24 +175,30 @@ def main(argv: list[str] | None = None) -> int:
           f"held-out episodes (seed {EVAL_SEED})")  # fmt: skip
     for name in rewards:
         curves, heldout, stage_steps = [], [], []
-        for s in args.seeds:
+        for s in seeds:
+            keep = args.results / name / f"seed_{s}"
+            if s in earlier:
+                curves.append(read_curve(keep, args.steps))
+                kept = read_json(keep / HELDOUT_FILE)
+                heldout.append(kept["success_rate"])
+                stage_steps.append(kept["stage_steps"])
+                continue
             run_dir = runs[name, s]
             curves.append(read_curve(run_dir, args.steps))
             res = evaluate(spec, as_policy(run_dir / BEST_DIR), args.held_out,
                            seed=EVAL_SEED, num_envs=25)  # fmt: skip
             heldout.append(res.success_rate)
             stage_steps.append(res.stage_steps)
-            keep = args.results / name / f"seed_{s}"
             # Copied to a temporary file replacing the target whole: an interrupted copy must not
             # leave a truncated curve that a later analysis would read as a short run.
             with replaced_whole(keep / EVAL_FILE) as tmp:
                 shutil.copyfile(run_dir / EVAL_FILE, tmp)
-            write_json(keep / "heldout_eval.json", res.to_dict())
+            write_json(keep / HELDOUT_FILE, res.to_dict())
         reached = time_to_threshold(curves, THRESHOLD)
         final = [float(c.success[-1]) for c in curves]
         bands[name] = mean_band(curves, common_grid(curves))
         summary["rewards"][name] = {
-            "seeds": args.seeds,
+            "seeds": seeds,
             "final": final,
             "best": [float(np.max(c.success)) for c in curves],
             "heldout": heldout,

@@ -143,19 +143,14 @@ def test_reward_search_reports_the_best_and_the_last_evaluation() -> None:
     assert interval({"success": [], "final_success": []}, "success") == "-"
 
 
-def test_reward_at_budget_prints_the_final_and_held_out_means(
-    tmp_path, monkeypatch, capsys
-) -> None:
-    """Training and held-out evaluation replaced by hand-made curves and rates: the final
-    training evaluation's mean is printed beside the held-out one, and each run's eval.csv is
-    kept whole."""
+def _fake_reward_at_budget(monkeypatch, out: Path, finals: dict, heldout: list[float]):
+    """reward_at_budget with training and held-out evaluation replaced by hand-made curves
+    (final success ``finals[reward, seed]``) and held-out rates, in the order evaluated."""
     from types import SimpleNamespace
 
     from itskill.executors import JobResult
 
     module = _load("reward_at_budget")
-    out, results = tmp_path / "runs", tmp_path / "results"
-    finals = {("generated", 1): 0.6, ("generated", 2): 0.8, ("expert", 1): 0.4, ("expert", 2): 0.4}
     for (reward, seed), final in finals.items():
         run_dir = out / f"{reward}_seed{seed}"
         run_dir.mkdir(parents=True)
@@ -166,16 +161,29 @@ def test_reward_at_budget_prints_the_final_and_held_out_means(
     def fake_run_jobs(fn, jobs, workers):
         yield from (JobResult(k, value=job[3]) for k, job in enumerate(jobs))
 
-    heldout = iter([0.5, 0.7, 0.3, 0.3])
+    rates = iter(heldout)
     monkeypatch.setattr(module, "run_jobs", fake_run_jobs)
     monkeypatch.setattr(module, "as_policy", lambda path: None)
     monkeypatch.setattr(
         module,
         "evaluate",
         lambda *a, **k: SimpleNamespace(
-            success_rate=next(heldout), stage_steps=[1.0], to_dict=lambda: {}
+            success_rate=(rate := next(rates)),
+            stage_steps=[1.0],
+            to_dict=lambda: {"success_rate": rate, "stage_steps": [1.0]},
         ),
     )
+    return module
+
+
+def test_reward_at_budget_prints_the_final_and_held_out_means(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    """The final training evaluation's mean is printed beside the held-out one, and each run's
+    eval.csv is kept whole."""
+    out, results = tmp_path / "runs", tmp_path / "results"
+    finals = {("generated", 1): 0.6, ("generated", 2): 0.8, ("expert", 1): 0.4, ("expert", 2): 0.4}
+    module = _fake_reward_at_budget(monkeypatch, out, finals, [0.5, 0.7, 0.3, 0.3])
     reward = tmp_path / "reward.py"
     reward.write_text("")
     argv = ["--reward", str(reward), "--seeds", "1", "2", "--steps", "200"]
@@ -187,6 +195,30 @@ def test_reward_at_budget_prints_the_final_and_held_out_means(
     kept = results / "generated" / "seed_2" / "eval.csv"
     assert kept.read_bytes() == (out / "generated_seed2" / "eval.csv").read_bytes()
     assert [p.name for p in kept.parent.iterdir() if p.name.startswith(".")] == []
+
+
+def test_reward_at_budget_pools_seeds_added_later(tmp_path, monkeypatch, capsys) -> None:
+    """Seeds run in a later call join the earlier call's in one summary, from the files it kept
+    in --results (its run directories may be gone); a summary of other settings is refused."""
+    results, reward = tmp_path / "results", tmp_path / "reward.py"
+    reward.write_text("")
+    argv = ["--reward", str(reward), "--steps", "200", "--results", str(results)]
+    first = {("generated", 1): 0.6, ("expert", 1): 0.4}
+    module = _fake_reward_at_budget(monkeypatch, tmp_path / "a", first, [0.5, 0.3])
+    assert module.main([*argv, "--seeds", "1", "--out", str(tmp_path / "a")]) == 0
+    second = {("generated", 2): 0.8, ("expert", 2): 0.2}
+    module = _fake_reward_at_budget(monkeypatch, tmp_path / "b", second, [0.7, 0.1])
+    later = [*argv, "--seeds", "2", "--out", str(tmp_path / "b"), "--with-earlier"]
+    capsys.readouterr()
+    assert module.main(later) == 0
+    printed = capsys.readouterr().out
+    assert "generated: final 60%, 80%, mean 70% [" in printed and "held-out 50%, 70%" in printed
+    assert "expert: final 40%, 20%, mean 30% [" in printed and "held-out 30%, 10%" in printed
+    summary = json.loads((results / "summary.json").read_text())
+    assert summary["rewards"]["generated"]["seeds"] == [1, 2]
+    assert summary["earlier_seeds"] == [1]
+    with pytest.raises(SystemExit, match="other settings \\(steps\\)"):
+        module.main([*later[:3], "300", *later[4:]])
 
 
 def test_library_success_refuses_to_write_figures_of_other_episodes(tmp_path, capsys) -> None:

@@ -12,9 +12,13 @@ ITSKILL_HOME=runs/home_rab python benchmarks/reward_at_budget.py \
 # lr1e5_partial/: the same with --hyperparams lr1e5_partial/hyperparams.toml (PPO 1e-5 for the
 # task) --out runs/rab_lr1e5; stopped after the generated reward's seeds 1 and 2, whose curves
 # showed no gain, to free the cores for the log-std runs.
-# seeds45/: seeds 4 and 5 of the same comparison, 2026-12-05 (a later session, the same code
-# for training, test runs beside it part of the time), from a clean worktree:
+# Seeds 4 and 5 of the same comparison, 2026-12-05 (a later session, the same code for
+# training, test runs beside it part of the time), kept in a directory of their own and moved
+# here (generated/seed_4 ...), then summarised with seeds 1-3 from the kept files:
 ITSKILL_HOME=runs/home_rab python benchmarks/reward_at_budget.py \
   --reward results/reward_search/pickplace_nut_m12_itn/current_settings/best_reward.py \
-  --seeds 4 5 --workers 2 --out runs/rab \
-  --results results/reward_search/pickplace_nut_m12_itn/current_settings/seeds45
+  --seeds 4 5 --workers 2 --out runs/rab --results runs/rab_seeds45
+python benchmarks/reward_at_budget.py \
+  --reward results/reward_search/pickplace_nut_m12_itn/current_settings/best_reward.py \
+  --seeds --with-earlier --results results/reward_search/pickplace_nut_m12_itn/current_settings
+# (today the first call would take --results .../current_settings --with-earlier directly)
