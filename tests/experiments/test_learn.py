@@ -237,6 +237,20 @@ def test_empty_command_is_one_short_line(tmp_path, budgets, out):
     assert not (tmp_path / "run").exists()
 
 
+def test_a_seed_the_shifted_reward_search_cannot_take_is_refused_first(tmp_path, budgets):
+    # It failed at the reward step with a traceback naming a seed the user never typed, after
+    # the plan and the analysis (paid requests with a model) were made.
+    top = load_budgets(budgets)["test"].max_seed
+    out = tmp_path / "run"
+    result = learn("pick up the nut", "--budgets", str(budgets), "--budget", "test",
+                   "--seed", str(top + 1), "--out", str(out))  # fmt: skip
+    assert result.exit_code == 2, result.output
+    assert f"--seed must be between 0 and {top:,} with the 'test' budget" in flat(result.output)
+    assert not out.exists()
+    config = load_budgets(budgets)["test"].search_config(top)
+    assert max(config.final_seed_list) <= 2**32 - 1
+
+
 def test_unreachable_llm_is_one_clear_line(tmp_path, budgets, monkeypatch):
     from itskill.llm import openai_client
 

@@ -259,6 +259,24 @@ def test_report_out_writes_the_same_runs_report_again(run, tmp_path):
     assert not experiment_report(out, video=False).notes
 
 
+def test_a_report_cut_short_into_a_new_out_can_be_written_again(run, tmp_path, monkeypatch):
+    # Interrupted after its figures (Ctrl-C in the video): out held figures/ but no record of
+    # the run, so every later report into it was refused as overwriting files of another.
+    from itskill.experiments import report
+
+    out = tmp_path / "results"
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(report, "write_document", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            experiment_report(run, out, video=False)
+    assert (out / "figures").is_dir() and not (out / "report.md").exists()
+    assert "# Experiment report" in experiment_report(run, out, video=False).markdown.read_text()
+
+
 def test_a_damaged_result_is_not_counted_and_says_how_to_finish_it(run, tmp_path):
     import shutil
 

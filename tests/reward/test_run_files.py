@@ -93,7 +93,7 @@ def _drop(*keys: str) -> Callable[[Any], Any]:
         ("usage.json", _set("sessions", value=2), "usage.json: sessions: expected a list, got 2"),
         ("iter_0/summary.json", _set("accepted", value="2"),
          "iter_0/summary.json: accepted: expected a whole number, got '2'"),
-        ("plan.json", _drop("task"), "plan.json.task: expected a string, got None"),
+        ("plan.json", _drop("task"), "plan.json: plan.task: expected a string, got None"),
         ("config.json", _drop("target"), "config.json: target: missing"),
     ],
 )  # fmt: skip

@@ -78,6 +78,12 @@ def test_an_export_cut_short_leaves_the_old_policy_whole(tmp_path, monkeypatch) 
         ("reward", None, "reward: expected an object, got null"),
         ("policy", [256, 256], "policy: expected an object, got [256, 256]"),
         ("task", 12, "task: expected a string, got 12"),
+        (
+            "evaluation",
+            {"every": 64},
+            "evaluation: expected an object of two whole numbers of 1 or more, every and "
+            'episodes, got {"every": 64}',
+        ),
     ],
 )
 def test_a_resume_from_metadata_of_the_wrong_type_names_the_field(

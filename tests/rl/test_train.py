@@ -415,16 +415,28 @@ def test_a_new_run_refuses_a_directory_that_is_not_a_run(tmp_path: Path, reach_r
 def test_a_new_run_starts_again_where_a_killed_one_left_files(
     tmp_path: Path, reach_reward: Path
 ) -> None:
-    # Killed before its first checkpoint: rows, an evaluation, a best policy and a half-written
-    # temporary file, but no checkpoint.json to resume from.
+    # Killed before its first checkpoint: rows, TensorBoard logs, an evaluation, a best policy
+    # and a half-written temporary file, but no checkpoint.json to resume from. Every file a run
+    # writes must count as the run's, or such a run could never be started again.
     out = tmp_path / "run"
-    _train(out, reach_reward, 64, eval_every=64, eval_episodes=2)
+    logger = LoggerConfig(progress=False, tensorboard=True, min_steps_per_row=1)
+    train(
+        TASK, "ppo", 64, seed=1, reward=reach_reward, out=out, num_envs=4, overrides=FAST_PPO,
+        logger=logger, eval_every=64, eval_episodes=2,
+    )  # fmt: skip
+    assert (out / "tb").is_dir() and (out / "best").is_dir()
     for name in ("checkpoint.json", "model.zip"):
         (out / name).unlink()
     (out / ".checkpoint.json.123.tmp").write_text("{")
+    (out / ".DS_Store").write_bytes(b"")  # a file browser showed the folder
     result = _train(out, reach_reward, 64, eval_every=64, eval_episodes=2)
     assert result.resumed_from == 0 and result.num_timesteps == 64
     assert [row["step"] for row in read_metrics(out)][-1] == 64
+    # A user's own temporary file is not one of the run's.
+    (out / "checkpoint.json").unlink()
+    (out / ".notes.tmp").write_text("mine")
+    with pytest.raises(ResumeMismatchError, match=r"holds \.notes\.tmp"):
+        _train(out, reach_reward, 64)
 
 
 def test_a_reward_file_failing_during_training_names_the_file(tmp_path: Path) -> None:

@@ -96,6 +96,15 @@ class LearnBudget:
         span = config.last_seed + 1
         return replace(config, seeds=tuple(s + seed * span for s in config.seeds))
 
+    @property
+    def max_seed(self) -> int:
+        """The largest seed whose shifted reward search (:meth:`search_config`) still trains on
+        seeds training takes."""
+        from itskill.rl.train import SEED_MAX
+
+        last = self.search_config().last_seed
+        return (SEED_MAX - last) // (last + 1)
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
@@ -296,6 +305,13 @@ def learn(
         if not 0.0 <= min_success <= 1.0:
             raise LearnError(f"--min-success must be between 0 and 1, got {min_success}")
         b = replace(b, min_success=min_success)
+    if not 0 <= seed <= b.max_seed:
+        # Checked before any step: the reward search, step 4, would refuse the shifted seeds
+        # after the plan and the analysis (paid requests with a model) were made.
+        raise LearnError(
+            f"--seed must be between 0 and {b.max_seed:,} with the {budget!r} budget (its reward "
+            "search trains on seeds shifted by the run's seed)"
+        )
     command = command.strip()
     run_dir = Path(out) if out else Path("runs/learn") / slugify(command)
     created = not run_dir.exists()
@@ -413,7 +429,7 @@ def _reward(
     record written to ``transfer/`` now, so both see the same sources and prior). The search is
     given the run's plan: asked again, a model could ground the command in another task."""
     from itskill.reward import TaskPlan, generate_reward
-    from itskill.reward.search import CONFIG_FILE
+    from itskill.reward.search import CONFIG_FILE, config_from_run
     from itskill.transfer import search_network
 
     task = plan["task"]
@@ -421,7 +437,11 @@ def _reward(
     cached = steps.cached("reward.json")
     was_cached = cached is not None
     if cached is None:
-        config = b.search_config(seed)
+        out = run_dir / "reward"
+        # A search already begun keeps its settings: one a release before the shifted seeds
+        # started would otherwise be refused as made with other seeds.
+        begun = (out / CONFIG_FILE).is_file()
+        config = config_from_run(out, {}) if begun else b.search_config(seed)
         network = search_network(
             task,
             b.transfer.method,
@@ -431,7 +451,6 @@ def _reward(
             algo=b.transfer.algo,
             client=client,
         )
-        out = run_dir / "reward"
         res = generate_reward(
             command,
             client,
@@ -439,7 +458,7 @@ def _reward(
             config,
             # Not "the directory is not empty": a search killed before its first file was
             # complete left only a temporary, and is started again.
-            resume=(out / CONFIG_FILE).is_file(),
+            resume=begun,
             compare_expert=b.compare_expert,
             console=console,
             network=network,

@@ -242,13 +242,18 @@ def experiment_report(
             "run `itskill experiment run FILE.toml` first"
         )
     out = Path(out) if out else run_dir
-    if out.resolve() != run_dir.resolve():
+    outside = out.resolve() != run_dir.resolve()
+    if outside:
         _check_out(run_dir, out)
     figures, videos = out / FIGURES_DIR, out / VIDEOS_DIR
     try:
         config = read_run_config(run_dir)
     except ExperimentRunError as err:
         raise ReportError(str(err)) from err
+    if outside:
+        # Before the figures: a report cut short then leaves an out that the next one knows
+        # as this run's by its provenance.json, instead of figures it would refuse to replace.
+        _copy_results(config, run_dir, out)
     curves, pending, broken = _curves(config, run_dir)
     notes: list[str] = list(broken)
     sources = read_json(run_dir / SOURCES_FILE) if (run_dir / SOURCES_FILE).is_file() else {}
@@ -294,8 +299,6 @@ def experiment_report(
         doc.add(Heading("Notes"), Bullets(tuple(notes)))
     md, html_path = out / REPORT_MD, out / REPORT_HTML
     write_document(doc, md, html_path)
-    if out.resolve() != run_dir.resolve():
-        _copy_results(config, run_dir, out)
     return ReportFiles(md, html_path, tuple(notes))
 
 
@@ -331,6 +334,7 @@ def _first_session(run_dir: Path) -> tuple[str, str] | None:
 
 
 def _copy_results(config: ExperimentConfig, run_dir: Path, out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
     for name in RUN_FILES:
         if (run_dir / name).is_file():
             shutil.copyfile(run_dir / name, out / name)

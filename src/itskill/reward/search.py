@@ -828,7 +828,7 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
             i += 1
         plan = optional(PLAN_FILE, dict)
         if plan is not None:
-            TaskPlan.from_dict(plan, where=str(run_dir / PLAN_FILE))
+            TaskPlan.from_dict(plan, where=f"{run_dir / PLAN_FILE}: plan")
         summary = optional(SUMMARY_FILE, _SUMMARY)
         if summary is not None:
             TaskPlan.from_dict(summary["plan"], where=f"{run_dir / SUMMARY_FILE}: plan")

@@ -109,17 +109,27 @@ checkpoint leaves some of them, which a new run there starts again: ``best/`` is
 metrics truncated."""
 
 
+_BROWSER_FILES = frozenset({".DS_Store", "Thumbs.db", "desktop.ini"})
+"""What a file browser leaves in a folder it showed: not the user's files."""
+
+
 def _foreign_entries(run_dir: Path, own: frozenset[str]) -> list[str]:
     """Entries of ``run_dir``, and of its ``best/``, that neither training nor its caller
-    (``own``) writes; a temporary file an interrupted atomic write left is the run's own."""
+    (``own``) writes; the temporary file of an atomic write of one of them, cut short, is the
+    run's own (:func:`itskill.files.replaced_whole` names it ``.NAME.PID.tmp``)."""
     allowed = RUN_ENTRIES | own
+
+    def ours(name: str) -> bool:
+        if name in allowed or name in _BROWSER_FILES:
+            return True
+        if not (name.startswith(".") and name.endswith(".tmp")):
+            return False
+        stem, _, pid = name[1:].removesuffix(".tmp").rpartition(".")
+        return pid.isdigit() and stem in allowed
 
     def foreign(folder: Path) -> list[str]:
         return sorted(
-            str(entry.relative_to(run_dir))
-            for entry in folder.iterdir()
-            if entry.name not in allowed
-            and not (entry.name.startswith(".") and entry.name.endswith(".tmp"))
+            str(entry.relative_to(run_dir)) for entry in folder.iterdir() if not ours(entry.name)
         )
 
     best = run_dir / BEST_DIR
