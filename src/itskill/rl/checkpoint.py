@@ -66,8 +66,9 @@ OBJECT: FieldCheck = ("an object", lambda v: isinstance(v, dict))
 _SECONDS: FieldCheck = ("a finite number of 0 or more", lambda v: is_number(v) and v >= 0)
 _EVALUATION: FieldCheck = (
     "an object of two whole numbers of 1 or more, every and episodes",
-    lambda v: isinstance(v, dict)
-    and all(is_count(v.get(k)) and v[k] >= 1 for k in ("every", "episodes")),
+    lambda v: (
+        isinstance(v, dict) and all(is_count(v.get(k)) and v[k] >= 1 for k in ("every", "episodes"))
+    ),
 )
 META_FIELDS: dict[str, FieldCheck] = {
     "format": _COUNT,
