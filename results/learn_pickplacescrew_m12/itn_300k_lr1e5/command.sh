@@ -19,3 +19,8 @@ itskill transfer train pickplacescrew_nut_m12 --method itn --sources auto --rewa
   --k 3 --out runs/pps_itn_lr1e5/expert_seed2
 itskill eval pickplacescrew_nut_m12 --policy runs/pps_itn_lr1e5/expert_seed2/best \
   --episodes 100 --seed 10000 --num-envs 25 --json > "$out/expert_seed2_heldout.json"
+# seeds34/: seeds 3 and 4 of both rewards, 2026-12-05 (evening), the packaged settings (1e-5),
+# the generated reward of the learn run of seed 0, two runs at a time beside test runs:
+python benchmarks/reward_at_budget.py --task pickplacescrew_nut_m12 \
+  --reward results/learn_pickplacescrew_m12/lr1e5_learn/seed0/reward/best_reward.py \
+  --seeds 3 4 --workers 2 --out runs/pps_rab --results results/learn_pickplacescrew_m12/itn_300k_lr1e5/seeds34
