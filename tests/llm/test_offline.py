@@ -162,6 +162,8 @@ def test_planner_says_which_nut_it_assumed() -> None:
     reply = plan("Pick up the nut")
     assert reply["task"] == "pick_nut_m12"
     assert "assumed the M12 nut" in reply["notes"]
+    # A length written after the part is no size of it.
+    assert plan("Lift the nut 30 mm")["task"] == "lift_nut_m12"
 
 
 @pytest.mark.parametrize(
@@ -170,6 +172,11 @@ def test_planner_says_which_nut_it_assumed() -> None:
         ("make me a sandwich", "names no object of this scene"),
         ("the M12 nut", "no action this robot can do"),
         ("screw the round peg into the bolt", "no catalogue task"),
+        # A size the scene does not have was planned as "the nut", with a note that it named
+        # no size.
+        ("Pick up the M20 nut", "no 20 mm nut: its nuts are M12 nut, M16 nut"),
+        ("Pick up the 20 mm nut", "no 20 mm nut"),
+        ("Put the M16 nut on the M20 bolt", "no 20 mm bolt: its bolts are M12 bolt, M16 bolt"),
     ],
 )
 def test_planner_refuses_what_it_cannot_ground(command: str, why: str) -> None:

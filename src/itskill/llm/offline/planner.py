@@ -135,16 +135,36 @@ def _described(command: str, kind: str) -> tuple[set[int], set[str]]:
         words[max(0, k - 4) : k + 3] for k, word in enumerate(words) if word in (kind, f"{kind}s")
     ]
 
-    def sizes(ws: list[str]) -> set[int]:
-        return {int(n) for groups in re.findall(_SIZE, " ".join(ws)) for n in groups if n}
-
     def shapes(ws: list[str]) -> set[str]:
         return {_SHAPES[w] for w in ws if w in _SHAPES}
 
     return (
-        set().union(*(sizes(w) for w in near)) or sizes(words),
+        set().union(*(_sizes(w) for w in near)) or _sizes(words),
         set().union(*(shapes(w) for w in near)) or shapes(words),
     )
+
+
+def _sizes(words: list[str]) -> set[int]:
+    """The sizes in millimetres written in ``words``."""
+    return {int(n) for groups in re.findall(_SIZE, " ".join(words)) for n in groups if n}
+
+
+def _missing_size(command: str, parts: list[Part]) -> str | None:
+    """Why the command cannot be grounded if it asks for a part in a size the scene does not
+    have ("the M20 nut"): written just before the part's word, where it can only be the part's
+    size ("lift the nut 30 mm" is a height); None otherwise."""
+    words = _words(command)
+    for kind in sorted({p.kind for p in parts if p.width}):
+        written = set().union(
+            *(_sizes(words[max(0, k - 2) : k]) for k, w in enumerate(words) if w == kind)
+        )
+        have = sorted((p for p in parts if p.kind == kind), key=lambda p: p.width)
+        if written and not written & {p.width for p in have}:
+            asked = " or ".join(f"{w} mm" for w in sorted(written))
+            return f"this scene has no {asked} {kind}: its {kind}s are " + ", ".join(
+                p.label for p in have
+            )
+    return None
 
 
 def _ground_objects(command: str, parts: list[Part]) -> tuple[list[Part], list[str]]:
@@ -242,6 +262,9 @@ def plan(command: str, catalogue: list[dict]) -> dict:
     fixtures = {name for entry in catalogue for name in entry["fixtures"]}
     parts = [Part.from_name(n) for n in sorted(objects)]
     fixture_parts = [Part.from_name(n) for n in sorted(fixtures)]
+    missing = _missing_size(command, parts + fixture_parts)
+    if missing:
+        return {"error": missing}
     grounded, notes = _ground_objects(command, parts)
     # A command may name only a fixture ("move the gripper over the M12 bolt"): match tasks on
     # their fixtures then.
