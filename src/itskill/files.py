@@ -10,9 +10,9 @@ from __future__ import annotations
 import json
 import math
 import os
-import reprlib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +48,12 @@ def write_json(path: Path, data: Any) -> None:
 
 
 class CorruptFileError(ValueError):
-    """A run's or library's file that exists but cannot be read back (edited or damaged)."""
+    """A run's or library's file that exists but cannot be read back (edited or damaged): names
+    the file and the problem."""
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path, self.problem = str(path), problem
 
 
 UNUSABLE_PATH_ERRORS: tuple[type[OSError], ...] = (
@@ -68,16 +73,25 @@ def read_json(path: Path) -> Any:
     try:
         return json.loads(Path(path).read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise CorruptFileError(f"{path}: not valid JSON ({err})") from err
+        raise CorruptFileError(path, f"not valid JSON ({err})") from err
 
 
-_KINDS: dict[type, tuple[str, Callable[[Any], bool]]] = {
-    str: ("a string", lambda v: isinstance(v, str)),
-    bool: ("true or false", lambda v: isinstance(v, bool)),
-    int: ("a whole number", is_count),
-    float: ("a number", is_number),
-    dict: ("a JSON object", lambda v: isinstance(v, dict)),
-    list: ("a list", lambda v: isinstance(v, list)),
+@dataclass(frozen=True)
+class Check:
+    """A value a JSON field must hold: ``what`` it is, in words for the error, and the
+    ``test`` of it (a shape of :func:`check_shape` that a type cannot say)."""
+
+    what: str
+    test: Callable[[Any], bool]
+
+
+_KINDS: dict[type, Check] = {
+    str: Check("a string", lambda v: isinstance(v, str)),
+    bool: Check("true or false", lambda v: isinstance(v, bool)),
+    int: Check("a whole number", is_count),
+    float: Check("a number", is_number),
+    dict: Check("a JSON object", lambda v: isinstance(v, dict)),
+    list: Check("a list", lambda v: isinstance(v, list)),
 }
 
 
@@ -86,20 +100,20 @@ def check_shape(path: Path, value: Any, shape: Any, field: str = "") -> None:
     file's JSON) that is missing or not of ``shape``.
 
     A shape is a type (``str``, ``bool``, ``dict``, ``list``; ``float`` is any finite number,
-    ``int`` a whole number of 0 or more), a dict of an object's fields (a "?" ends one that may be
-    absent), a one-item list (a list of items of that shape) or a ``(shape, None)`` pair (that,
-    or null)."""
+    ``int`` a whole number of 0 or more), a :class:`Check`, a dict of an object's fields (a "?"
+    ends one that may be absent), a one-item list (a list of items of that shape) or a
+    ``(shape, None)`` pair (that, or null)."""
     nullable = isinstance(shape, tuple)
     if nullable:
         if value is None:
             return
         shape = shape[0]
     kind = dict if isinstance(shape, dict) else list if isinstance(shape, list) else shape
-    what, fits = _KINDS[kind]
-    if not fits(value):
-        where = f"{path}: {field}" if field else str(path)
+    check = shape if isinstance(shape, Check) else _KINDS[kind]
+    if not check.test(value):
         null = " or null" if nullable else ""
-        raise CorruptFileError(f"{where}: expected {what}{null}, got {reprlib.repr(value)}")
+        problem = f"expected {check.what}{null}, got {_shown(value)}"
+        raise CorruptFileError(path, f"{field}: {problem}" if field else problem)
     if isinstance(shape, dict):
         for key, inner in shape.items():
             name = key.rstrip("?")
@@ -107,10 +121,16 @@ def check_shape(path: Path, value: Any, shape: Any, field: str = "") -> None:
             if name in value:
                 check_shape(path, value[name], inner, named)
             elif not key.endswith("?"):
-                raise CorruptFileError(f"{path}: {named}: missing")
+                raise CorruptFileError(path, f"{named}: missing")
     elif isinstance(shape, list):
         for k, item in enumerate(value):
             check_shape(path, item, shape[0], f"{field}[{k}]")
+
+
+def _shown(value: Any) -> str:
+    """``value`` as the file spells it, cut short if long."""
+    text = json.dumps(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def path_error_message(err: OSError) -> str:

@@ -106,6 +106,6 @@ def test_a_resume_from_metadata_of_the_wrong_type_names_the_field(
     args = ["train", "pick_nut_m12", "--steps", "256", "--num-envs", "2", "--out", str(run)]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2, result.output
-    message = f"{run / 'checkpoint.json'}: corrupt metadata: field {expected}"
+    message = f"{run / 'checkpoint.json'}: corrupt metadata: {expected}"
     assert "".join(message.split()) in "".join(result.output.split())  # rich wraps long lines
     assert "Traceback" not in result.output

@@ -132,7 +132,7 @@ def test_a_damaged_transfer_record_is_one_line_naming_the_file(home: Path, tmp_p
     null_config = json.dumps({**json.loads(record.read_text()), "config": None}).encode()
     damages = [
         (b"[]", "expected a JSON object, got []"),
-        (null_config, "field config: expected an object, got null"),
+        (null_config, "config: expected an object, got null"),
         (b"\xff\xfe{", "not UTF-8 text"),
     ]
     for damage, problem in damages:

@@ -263,9 +263,9 @@ def _read_back(run_dir: Path, record: dict) -> dict:
     ("edit", "problem"),
     [
         (lambda r: r.pop("method"), "missing field(s) method"),
-        (lambda r: r.update(sources=["pick_nut_m12"]), "field sources: expected a list of objects"),
-        (lambda r: r.update(contribution=[[1.0]]), "field contribution: expected an object"),
-        (lambda r: r.update(source_specs=None), "field source_specs: expected a list of objects"),
+        (lambda r: r.update(sources=["pick_nut_m12"]), "sources: expected a list of objects"),
+        (lambda r: r.update(contribution=[[1.0]]), "contribution: expected an object"),
+        (lambda r: r.update(source_specs=None), "source_specs: expected a list of objects"),
     ],
 )
 def test_a_record_with_a_field_its_readers_cannot_use_is_refused(

@@ -29,7 +29,7 @@ import platform
 import shutil
 import signal
 import threading
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +42,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from itskill.datafile import is_count, is_number
 from itskill.executors import STOP_SIGNALS
-from itskill.files import replaced_whole, write_text
+from itskill.files import Check, CorruptFileError, check_shape, replaced_whole, write_text
 from itskill.rl.clock import EVAL_WALL_KEY, TRAIN_WALL_KEY
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
 from itskill.sim.layout import OBSERVATION_LAYOUT
@@ -58,19 +58,17 @@ FORMAT_VERSION = 1
 REQUIRED_META = ("format", "task", "algo", "seed", "num_timesteps", "obs_size", "policy")
 
 
-FieldCheck = tuple[str, Callable[[Any], bool]]
-"""What a record's field must hold, in words for the error, and the test of it."""
-_COUNT: FieldCheck = ("an integer of 0 or more", is_count)
-STRING: FieldCheck = ("a string", lambda v: isinstance(v, str))
-OBJECT: FieldCheck = ("an object", lambda v: isinstance(v, dict))
-_SECONDS: FieldCheck = ("a finite number of 0 or more", lambda v: is_number(v) and v >= 0)
-_EVALUATION: FieldCheck = (
+_COUNT = Check("an integer of 0 or more", is_count)
+STRING = Check("a string", lambda v: isinstance(v, str))
+OBJECT = Check("an object", lambda v: isinstance(v, dict))
+_SECONDS = Check("a finite number of 0 or more", lambda v: is_number(v) and v >= 0)
+_EVALUATION = Check(
     "an object of two whole numbers of 1 or more, every and episodes",
     lambda v: (
         isinstance(v, dict) and all(is_count(v.get(k)) and v[k] >= 1 for k in ("every", "episodes"))
     ),
 )
-META_FIELDS: dict[str, FieldCheck] = {
+META_FIELDS: dict[str, Check] = {
     "format": _COUNT,
     "task": STRING,
     "algo": STRING,
@@ -196,21 +194,8 @@ def restore_reward_norm(env: VecNormalize, run_dir: Path) -> None:
         raise CheckpointError(path, f"corrupt reward-normalisation statistics: {err}") from err
 
 
-def check_fields(
-    path: Path, record: Mapping[str, Any], fields: Mapping[str, FieldCheck], prefix: str = ""
-) -> None:
-    """Raise :class:`CheckpointError` on ``path`` for the first field of ``record`` that
-    ``fields`` says it cannot hold (a field ``record`` lacks is not checked), ``prefix`` before
-    the problem."""
-    for key, (expected, valid) in fields.items():
-        if key in record and not valid(record[key]):
-            raise CheckpointError(
-                path, f"{prefix}field {key}: expected {expected}, got {json.dumps(record[key])}"
-            )
-
-
 def read_record(
-    path: Path, required: Iterable[str], fields: Mapping[str, FieldCheck], prefix: str = ""
+    path: Path, required: Iterable[str], fields: Mapping[str, Check], prefix: str = ""
 ) -> dict[str, Any]:
     """The JSON object in ``path``, with each of ``required`` and each field of the kind
     ``fields`` says; otherwise :class:`CheckpointError` on ``path`` (not JSON, not UTF-8, not an
@@ -226,7 +211,10 @@ def read_record(
     missing = [k for k in required if k not in record]
     if missing:
         raise CheckpointError(path, f"{prefix}missing field(s) {', '.join(missing)}")
-    check_fields(path, record, fields, prefix)
+    try:
+        check_shape(path, record, {f"{key}?": check for key, check in fields.items()})
+    except CorruptFileError as err:
+        raise CheckpointError(path, prefix + err.problem) from err
     return record
 
 

@@ -21,7 +21,7 @@ from typing import Any
 from rich.console import Console
 from stable_baselines3.common.policies import ActorCriticPolicy
 
-from itskill.files import write_json
+from itskill.files import Check, write_json
 from itskill.llm.client import LLMClient
 from itskill.reward.candidate import CandidateNetwork
 from itskill.rl.checkpoint import (
@@ -29,7 +29,6 @@ from itskill.rl.checkpoint import (
     OBJECT,
     STRING,
     CheckpointError,
-    FieldCheck,
     class_path,
     read_record,
 )
@@ -95,14 +94,14 @@ def _is_contribution(value: Any) -> bool:
     return value is None or (isinstance(value, dict) and isinstance(value.get("matrix"), list))
 
 
-_RECORD_FIELDS: dict[str, FieldCheck] = {
+_RECORD_FIELDS: dict[str, Check] = {
     "target": STRING,
     "method": STRING,
     "config": OBJECT,
-    "sources": ("a list of objects with a string name", _is_sources),
-    "source_specs": ("a list of objects", _is_objects),
-    "contribution": ("an object with a matrix, or null", _is_contribution),
-    "performers": ("a list or null", lambda v: v is None or isinstance(v, list)),
+    "sources": Check("a list of objects with a string name", _is_sources),
+    "source_specs": Check("a list of objects", _is_objects),
+    "contribution": Check("an object with a matrix, or null", _is_contribution),
+    "performers": Check("a list or null", lambda v: v is None or isinstance(v, list)),
 }
 """What each ``transfer.json`` field its readers index must hold: :func:`read_transfer` checks
 them, so a hand-edited or damaged record is refused with its file named, not by a TypeError
