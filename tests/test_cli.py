@@ -271,6 +271,18 @@ def test_reward_search_on_a_network_without_sources_is_refused(tmp_path, method,
     assert not (out / "config.json").exists()
 
 
+def test_reward_search_on_a_network_refuses_another_run_before_building_into_it(tmp_path):
+    # The network (its transfer.json, the analyzer's reply cache) was built into the directory
+    # before the search found it held another kind of run.
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "config.json").write_text('{"tasks": ["pick_nut_m12"]}')
+    args = ["reward", "generate", "pickplace_nut_m12", "--transfer", "itn", "--out", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and "holds another kind of run" in flat(result.output)
+    assert [p.name for p in out.iterdir()] == ["config.json"]
+
+
 def test_a_bad_reward_search_flag_is_named(tmp_path):
     # The settings reader called it "overrides": "overrides: executor: expected one of ...".
     out = tmp_path / "run"

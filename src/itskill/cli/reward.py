@@ -189,6 +189,7 @@ def generate_cmd(
     compare it with the expert reward (Fig. 6). Rerun with --resume RUN after an interruption."""
     from itskill.reward.search import (
         NETWORK_DIR,
+        check_new_run,
         config_from_run,
         generate_reward,
         load_search_config,
@@ -229,6 +230,9 @@ def generate_cmd(
                 )
             config = _flags_named(overrides, lambda: load_search_config(config_file, overrides))
             run_dir = out or Path("runs/reward") / _slug(target)
+        if resume is None:
+            # Before the network is built into it: a directory of another run is refused as is.
+            check_new_run(run_dir)
         client = search_client(run_dir, llm, base_url)
         network = plan = None
         if transfer is not None:

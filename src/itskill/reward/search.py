@@ -248,6 +248,28 @@ def _is_search(config: Any) -> bool:
     return isinstance(config, dict) and config.get("kind") == RUN_KIND
 
 
+def check_new_run(out: Path) -> None:
+    """Raise :class:`RewardSearchError` if ``out`` cannot take a new search: it holds one (to
+    continue with ``--resume``) or another kind of run. A caller that writes into ``out`` before
+    the search (the candidates' network) checks first."""
+    if not (out / CONFIG_FILE).exists():
+        return
+    try:
+        ours = _is_search(read_json(out / CONFIG_FILE))
+    except ValueError:  # not JSON: not a search this version wrote either
+        ours = False
+    if not ours:
+        # --resume would refuse it too: the only way on is another directory.
+        raise RewardSearchError(
+            f"{out} holds another kind of run, or files that are not a reward search (its "
+            f"{CONFIG_FILE} is not a reward search's): choose another --out"
+        )
+    raise RewardSearchError(
+        f"{out} already holds a reward search: continue it with --resume {out} "
+        "or choose another --out"
+    )
+
+
 def _check_resume(out: Path, header: dict[str, Any]) -> dict[str, Any]:
     path = out / CONFIG_FILE
     if not path.is_file():
@@ -460,21 +482,8 @@ def generate_reward(
             # recorded duration.
             console.print(f"{out}: the search has already finished", highlight=False)
             return load_search(out)
-    elif (out / CONFIG_FILE).exists():
-        try:
-            ours = _is_search(read_json(out / CONFIG_FILE))
-        except ValueError:  # not JSON: not a search this version wrote either
-            ours = False
-        if not ours:
-            # --resume would refuse it too: the only way on is another directory.
-            raise RewardSearchError(
-                f"{out} holds another kind of run, or files that are not a reward search (its "
-                f"{CONFIG_FILE} is not a reward search's): choose another --out"
-            )
-        raise RewardSearchError(
-            f"{out} already holds a reward search: continue it with --resume {out} "
-            "or choose another --out"
-        )
+    else:
+        check_new_run(out)
     run = _Run(out, client, console)  # its clock starts here, so the planning counts
     # Planned before anything is written: a command the planner refuses must leave no run behind,
     # or the same --out would be refused as taken and --resume would fail on it again.
