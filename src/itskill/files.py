@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from itskill.datafile import is_count, is_number
+from itskill.errors import PicklableError
 
 
 @contextmanager
@@ -47,7 +48,7 @@ def write_json(path: Path, data: Any) -> None:
     write_text(path, json.dumps(_finite(data), indent=2) + "\n")
 
 
-class CorruptFileError(ValueError):
+class CorruptFileError(PicklableError, ValueError):
     """A run's or library's file that exists but cannot be read back (edited or damaged): names
     the file and the problem."""
 
