@@ -522,7 +522,7 @@ def check_training(
     if eval_every:
         meta["evaluation"] = {"every": eval_every, "episodes": eval_episodes}
     previous = None
-    if (run_dir / "checkpoint.json").exists():
+    if (run_dir / META_FILE).exists():
         try:
             previous = read_meta(run_dir)
         except CheckpointError as err:
