@@ -143,6 +143,24 @@ def test_resume_refuses_other_training_settings(toy, tmp_path):
         run_experiment(longer, run, "local", 1, resume=True, console=quiet())
 
 
+def test_resume_refuses_a_reports_copy_of_the_run(toy, tmp_path):
+    # The copy (`itskill report RUN --out DIR`, the folder committed to results/) was resumed:
+    # its cells failed for want of weights, and new ones trained into the results folder.
+    from itskill.experiments.report import experiment_report
+
+    config, _ = toy
+    run, copy = tmp_path / "run", tmp_path / "results"
+    small = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
+    run_experiment(small, run, "local", 1, console=quiet())
+    experiment_report(run, copy, video=False)
+    before = sorted(p.relative_to(copy) for p in copy.rglob("*"))
+    more = type(config)(**{**small.__dict__, "seeds": (0, 1)})
+    with pytest.raises(ExperimentRunError, match="a report's copy of a run"):
+        run_experiment(more, copy, "local", 1, resume=True, console=quiet())
+    assert sorted(p.relative_to(copy) for p in copy.rglob("*")) == before
+    run_experiment(more, run, "local", 1, resume=True, console=quiet())  # the run itself goes on
+
+
 def test_resume_needs_a_run_and_records_every_sessions_cells(toy, tmp_path):
     config, _ = toy
     run = tmp_path / "run"

@@ -158,6 +158,7 @@ def _run_record(config: ExperimentConfig, run_dir: Path, resume: bool) -> Experi
                 "or choose another --out"
             )
         _check_same_training(old, config, run_dir)
+        _not_a_copy(run_dir)
         record = _union(old, config)
     elif resume:
         what = "is not an experiment run directory" if run_dir.exists() else "does not exist"
@@ -166,6 +167,19 @@ def _run_record(config: ExperimentConfig, run_dir: Path, resume: bool) -> Experi
             "or leave out --resume to start a new run"
         )
     return record
+
+
+def _not_a_copy(run_dir: Path) -> None:
+    """Refuse to resume ``run_dir`` if a cell holds a checkpoint's record without its weights:
+    what ``itskill report RUN --out DIR`` copies, whose cells cannot train on, and whose results
+    folder the new cells would fill."""
+    for record in sorted((run_dir / CELLS_DIR).glob("*/*/seed_*/checkpoint.json")):
+        if not (record.parent / "model.zip").is_file():
+            raise ExperimentRunError(
+                f"{run_dir}: its cell {record.parent.relative_to(run_dir)} has a checkpoint "
+                "record but no weights: a report's copy of a run (or a run whose weights were "
+                "deleted) cannot be resumed; resume the run itself"
+            )
 
 
 def read_run_config(run_dir: Path) -> ExperimentConfig:
