@@ -72,9 +72,11 @@ line naming the path."""
 def read_json(path: Path) -> Any:
     """The JSON in ``path``; :class:`CorruptFileError` naming the file if it is not valid JSON."""
     try:
-        return json.loads(Path(path).read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
         raise CorruptFileError(path, f"not valid JSON ({err})") from err
+    except UnicodeDecodeError as err:
+        raise CorruptFileError(path, f"not UTF-8 text (byte {err.start})") from err
 
 
 @dataclass(frozen=True)

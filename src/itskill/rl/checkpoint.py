@@ -42,7 +42,14 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from itskill.datafile import is_count, is_number
 from itskill.executors import STOP_SIGNALS
-from itskill.files import Check, CorruptFileError, check_shape, replaced_whole, write_text
+from itskill.files import (
+    Check,
+    CorruptFileError,
+    check_shape,
+    read_json,
+    replaced_whole,
+    write_text,
+)
 from itskill.rl.clock import EVAL_WALL_KEY, TRAIN_WALL_KEY
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
 from itskill.sim.layout import OBSERVATION_LAYOUT
@@ -201,17 +208,11 @@ def read_record(
     ``fields`` says; otherwise :class:`CheckpointError` on ``path`` (not JSON, not UTF-8, not an
     object, fields missing or of the wrong kind), ``prefix`` before the problem."""
     try:
-        record = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as err:
-        raise CheckpointError(path, f"{prefix}not valid JSON ({err})") from err
-    except UnicodeDecodeError as err:
-        raise CheckpointError(path, f"{prefix}not UTF-8 text (byte {err.start})") from err
-    if not isinstance(record, dict):
-        raise CheckpointError(path, f"{prefix}expected a JSON object, got {json.dumps(record)}")
-    missing = [k for k in required if k not in record]
-    if missing:
-        raise CheckpointError(path, f"{prefix}missing field(s) {', '.join(missing)}")
-    try:
+        record = read_json(path)
+        check_shape(path, record, dict)
+        missing = [k for k in required if k not in record]
+        if missing:
+            raise CorruptFileError(path, f"missing field(s) {', '.join(missing)}")
         check_shape(path, record, {f"{key}?": check for key, check in fields.items()})
     except CorruptFileError as err:
         raise CheckpointError(path, prefix + err.problem) from err
