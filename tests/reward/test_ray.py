@@ -6,9 +6,9 @@ import json
 from pathlib import Path
 
 import pytest
-from conftest import tiny_config
 from fake_openai import FakeOpenAIServer
 from replies import CONSTANT, GOOD
+from search_helpers import tiny_config
 
 from itskill.reward import generate_reward, search_client
 

@@ -10,9 +10,9 @@ import sys
 import time
 from pathlib import Path
 
-from conftest import TINY_TOML
 from fake_openai import FakeOpenAIServer
 from replies import CONSTANT, GOOD
+from search_helpers import TINY_TOML
 from typer.testing import CliRunner
 
 from itskill.cli import app

@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import tiny_config
 from rich.console import Console
+from search_helpers import tiny_config
 from typer.testing import CliRunner
 
 from itskill.cli import app

@@ -7,7 +7,6 @@ import re
 from pathlib import Path
 
 import pytest
-from conftest import tiny_config
 from fake_openai import FakeOpenAIServer
 from replies import (
     CONSTANT,
@@ -19,6 +18,7 @@ from replies import (
     RAISES_LATER,
     SYNTAX_ERROR,
 )
+from search_helpers import tiny_config
 
 from itskill.llm import LLMUnavailableError
 from itskill.llm.openai_client import RetryConfig
