@@ -79,6 +79,10 @@ def test_planner_maps_every_catalogue_command_to_its_own_task() -> None:
     ("command", "task"),
     [
         ("Pick up the nut, place it on the bolt and screw it down", "pickplacescrew_nut_m12"),
+        # The order the words give, not the order they are written in.
+        ("lift up the peg after grasping it", "pick_peg_round"),
+        ("Before lifting the round peg, grasp it", "pick_peg_round"),
+        ("After you pick up the nut, screw it onto the bolt", "pickplacescrew_nut_m12"),
         ("grab the M16 nut and put it onto the bolt", "pickplace_nut_m16"),
         ("Take the square peg and plug it into its hole", "pickplaceinsert_peg_rect"),
         ("pull the round peg out of the hole", "remove_peg_round"),

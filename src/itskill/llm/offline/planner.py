@@ -11,6 +11,7 @@
 2. The command is split into clauses ("pick up X", "place it on Y", "screw it down", ...); each
    clause's verb adds the actions that distinguish it (``pick`` -> grasp, lift; ``insert`` ->
    [place], insert; ...); a verb repeating the previous one's actions need not add them again.
+   Clauses go in the order they are done: "after grasping it" comes before the verb it follows.
    "approach" (and "carry") are implied everywhere and not compared.
 3. A catalogue task matches if its objects are the grounded ones and its distinguishing actions
    are exactly the clauses' (optional ones may be absent). Among matches, the one whose own
@@ -79,6 +80,8 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
     (_CARRY_VERB, ()),
 ]
 _IMPLIED = {"approach", "carry"}
+# A word that puts the verb right after it out of the command's order ("after grasping it").
+_ORDER_WORD = r"\b(after|before)\s+(?:you\s+(?:have\s+)?|having\s+)?$"
 _ORDINALS = ["First", "Second", "Third", "Fourth", "Fifth", "Sixth", "Seventh", "Eighth", "Ninth",
              "Tenth", "Eleventh", "Twelfth"]  # fmt: skip
 _SHAPES = {"round": "round", "cylindrical": "round", "circular": "round", "rect": "rect",
@@ -203,7 +206,7 @@ def _ground_objects(command: str, parts: list[Part]) -> tuple[list[Part], list[s
 
 
 def _clauses(command: str) -> list[tuple[str, ...]]:
-    """The distinguishing actions of each verb in the command, in the order they appear."""
+    """The distinguishing actions of each verb in the command, in the order they are done."""
     text = command.lower()
     hits: list[tuple[int, tuple[str, ...]]] = []
     taken: list[tuple[int, int]] = []
@@ -214,8 +217,19 @@ def _clauses(command: str) -> list[tuple[str, ...]]:
                 continue  # "unscrew" already matched; do not read "screw" in it again
             taken.append(span)
             hits.append((span[0], actions))
+    hits.sort()
+    ordered = [actions for _, actions in hits]
+    # "lift the peg after grasping it" grasps first, and so does "before lifting the peg, grasp
+    # it": a verb introduced by "after" swaps with the verb before it, and a first verb introduced
+    # by "before" with the one after it.
+    for k, (start, _) in enumerate(hits):
+        marker = re.search(_ORDER_WORD, text[:start])
+        if marker and marker[1] == "after" and k > 0:
+            ordered[k - 1], ordered[k] = ordered[k], ordered[k - 1]
+        elif marker and marker[1] == "before" and k == 0 and len(ordered) > 1:
+            ordered[0], ordered[1] = ordered[1], ordered[0]
     clauses: list[tuple[str, ...]] = []
-    for _, actions in sorted(hits):
+    for actions in ordered:
         # "Grab the peg and pull it out" grasps once: a verb repeating the previous one's
         # actions may add them again, but need not.
         before = {a.rstrip("?") for a in clauses[-1]} if clauses else set()
