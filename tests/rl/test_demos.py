@@ -79,6 +79,8 @@ def test_returns_bootstrap_the_last_reward_past_the_time_limit() -> None:
         discounted_returns(demos, gamma=0.5),
         [0.0 + 0.5 * 2.0, 1.0 + 0.5 * 2.0, 2.0 + 0.5 * 4.0, 0.0 + 0.5 * 8.0, 4.0 + 0.5 * 8.0],
     )
+    # Undiscounted, the tail has no finite value: the returns stop at the episode's end.
+    np.testing.assert_allclose(discounted_returns(demos, gamma=1.0), [1.0, 1.0, 6.0, 4.0, 4.0])
 
 
 def test_cloning_the_script_makes_a_policy_that_reaches(tmp_path: Path) -> None:

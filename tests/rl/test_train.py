@@ -140,6 +140,29 @@ def test_the_learning_curves_clock_goes_on_across_a_resume_without_the_evaluatio
     meta = json.loads((out / "checkpoint.json").read_text())
     assert meta["eval_wall_s"] >= 4 * 0.5
     assert walls[-1] <= meta["train_wall_s"] - meta["eval_wall_s"] + 0.01
+    # metrics.csv keeps the same clock: its rows after the resume go on from the first session's.
+    metric_walls = [row["wall_s"] for row in read_metrics(out)]
+    assert metric_walls == sorted(metric_walls)
+    assert metric_walls[-1] <= meta["train_wall_s"] - meta["eval_wall_s"] + 0.01
+
+
+def test_a_run_with_the_largest_seed_resumes(tmp_path: Path, reach_reward: Path) -> None:
+    # The resumed session's random state is drawn from the seed and the steps done: their sum
+    # passed the 2**32 numpy accepts, so such a run trained once and never resumed.
+    out = tmp_path / "run"
+    kw = {"num_envs": 2, "overrides": FAST_PPO, "logger": QUIET, "reward": reach_reward}
+    train(TASK, "ppo", 32, seed=2**32 - 1, out=out, **kw)
+    assert train(TASK, "ppo", 64, seed=2**32 - 1, out=out, **kw).resumed_from == 32
+
+
+@pytest.mark.parametrize("bad", [{"eval_every": 0}, {"eval_every": -5}, {"eval_episodes": 0}])
+def test_evaluation_settings_below_one_are_refused_before_training(
+    tmp_path: Path, reach_reward: Path, bad: dict
+) -> None:
+    # The checkpoint would record settings its reader refuses: a run nothing could resume.
+    with pytest.raises(ValueError, match="must be at least 1"):
+        _train(tmp_path / "run", reach_reward, 64, **{"eval_every": 32, **bad})
+    assert not (tmp_path / "run").exists()
 
 
 def test_a_run_whose_evaluation_file_was_emptied_resumes(

@@ -174,7 +174,7 @@ def _save_checkpoint(
         **meta,
         "num_timesteps": int(model.num_timesteps),
         "obs_size": OBSERVATION_LAYOUT.size,
-        "action_size": 5,
+        "action_size": int(action_space().shape[0]),
         "policy": model.policy.config.to_dict(),
         "versions": versions(),
     }

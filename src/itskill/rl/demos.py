@@ -169,12 +169,13 @@ def discounted_returns(demos: Demonstrations, gamma: float) -> np.ndarray:
 
     Scripted episodes end on the time limit with the task done and the hand holding still, and
     the trainer bootstraps at time limits, so the value past the end is taken as the last reward
-    kept up for ever: ``r_last / (1 - gamma)``.
+    kept up for ever: ``r_last / (1 - gamma)``. Undiscounted (``gamma`` 1) that tail has no finite
+    value, so the returns then stop at the episode's end.
     """
     returns = []
     for rewards in demos.episode_rewards():
         out = np.empty_like(rewards)
-        g = rewards[-1] / (1.0 - gamma)
+        g = rewards[-1] / (1.0 - gamma) if gamma < 1.0 else 0.0
         for t in range(len(rewards) - 1, -1, -1):
             g = rewards[t] + gamma * g
             out[t] = g

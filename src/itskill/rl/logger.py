@@ -31,6 +31,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
 
 from itskill.files import write_text
+from itskill.rl.clock import WallClock
 from itskill.sim.vec_env import BatchEnv
 
 FIXED_COLUMNS = (
@@ -184,9 +185,11 @@ class MetricsCallback(BaseCallback):
         total_steps: int,
         config: LoggerConfig | None = None,
         console: Console | None = None,
+        clock: WallClock | None = None,
     ) -> None:
         super().__init__()
         self.env = env
+        self.clock = clock or WallClock()
         self.config = config or LoggerConfig()
         self.writer = MetricsWriter(run_dir)
         self.run_dir = run_dir
@@ -211,7 +214,6 @@ class MetricsCallback(BaseCallback):
 
     # ------------------------------------------------------------------ SB3 hooks
     def _on_training_start(self) -> None:
-        self._t_start = time.perf_counter()
         self._reset_window(self.num_timesteps)
         if self.config.tensorboard:
             tb_dir = self.run_dir / "tb"
@@ -270,7 +272,7 @@ class MetricsCallback(BaseCallback):
         n_ep = len(self._successes)
         row: dict[str, Any] = {
             "step": int(self.num_timesteps),
-            "wall_s": round(now - self._t_start, 3),
+            "wall_s": round(self.clock.training_s(), 3),
             "updates": self._updates,
             "episodes": n_ep,
             "success_rate": float(np.mean(self._successes)) if n_ep else float("nan"),
@@ -298,6 +300,7 @@ class MetricsCallback(BaseCallback):
         return row
 
     def close(self) -> None:
+        """Stop the progress bar and close the TensorBoard file; safe to call again."""
         if self._progress is not None:
             self._progress.update(self._task_id, completed=self.num_timesteps)
             self._progress.stop()

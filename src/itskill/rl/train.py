@@ -155,7 +155,8 @@ class RewardSource:
 
 @dataclass(frozen=True)
 class TrainResult:
-    """What :func:`train` did: where, how many env-steps in total, whether it was interrupted.
+    """What :func:`train` did: where, and how many env-steps in total (an interrupted run raises
+    ``KeyboardInterrupt`` after saving its checkpoint instead of returning).
 
     ``wall_s`` is the run's training wall time over every session (a resumed run adds the time
     recorded in its checkpoint; work after the last checkpoint of a crashed session is not
@@ -165,7 +166,6 @@ class TrainResult:
     run_dir: Path
     num_timesteps: int
     resumed_from: int
-    interrupted: bool
     wall_s: float
     session_wall_s: float
     last_metrics: dict[str, Any] | None
@@ -478,6 +478,9 @@ def check_training(
         raise ValueError(f"steps must be positive, got {steps}")
     if not 0 <= seed <= SEED_MAX:
         raise ValueError(f"seed must be between 0 and {SEED_MAX}, got {seed}")
+    for name, value in (("eval_every", eval_every), ("eval_episodes", eval_episodes)):
+        if value is not None and value < 1:
+            raise ValueError(f"{name} must be at least 1, got {value}")
     spec = get_task(task)
     run_dir = Path(out)
     ov = dict(overrides or {})
@@ -618,7 +621,7 @@ def run_training(
                 )
                 resumed_from = int(model.num_timesteps)
                 _save(model, run_dir, meta, clock)
-            set_random_seed(seed + resumed_from)
+            set_random_seed(env_seed)  # seed + resumed_from may pass the 2**32 numpy takes
         else:
             set_random_seed(seed)
             model = cls(
@@ -679,7 +682,6 @@ def run_training(
                 run_dir,
                 model.num_timesteps,
                 resumed_from,
-                False,
                 clock.prior_s,
                 0.0,
                 None,
@@ -695,7 +697,7 @@ def run_training(
             MetricsWriter(run_dir).truncate_after(-1)
             truncate_evaluations(run_dir, -1)
             shutil.rmtree(run_dir / BEST_DIR, ignore_errors=True)
-        metrics = MetricsCallback(env, run_dir, steps, logger, console)
+        metrics = MetricsCallback(env, run_dir, steps, logger, console, clock)
         checkpoints = CheckpointCallback(run_dir, hp.checkpoint_every, meta, clock)
         callbacks: list[BaseCallback] = [metrics, checkpoints]
         if eval_every:
@@ -718,8 +720,12 @@ def run_training(
                 log_interval=None,  # type: ignore[arg-type]
                 reset_num_timesteps=False,
             )
-        except KeyboardInterrupt:
+        except BaseException as err:
+            # An error stops the progress bar and flushes TensorBoard (the callback does at a
+            # normal end); Ctrl-C also saves the checkpoint.
             metrics.close()
+            if not isinstance(err, KeyboardInterrupt):
+                raise
             # Counting the cut-short rollout would have the resumed run collect whole rollouts on
             # top and stop past `steps`, with that rollout's steps never learned from.
             model.num_timesteps = checkpoints.trained
@@ -736,7 +742,6 @@ def run_training(
             run_dir,
             int(model.num_timesteps),
             resumed_from,
-            False,
             total_s,
             session_s,
             metrics.last_row,
