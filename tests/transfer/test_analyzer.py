@@ -56,7 +56,7 @@ BAD_REPLIES = {
     "negative": (fenced([[1, -0.5], [0, 1]]), r"entry \[0\]\[1\] is -0.5.*non-negative"),
     "nan": ('```json\n{"matrix": [[NaN, 1], [0, 1]]}\n```', "finite"),
     "zero-row": (fenced([[0, 0], [0, 1]]), "row 0 is all zeros"),
-    "not-json": ("The pick skill matters most for grasping.", "not a JSON object"),
+    "not-json": ("The pick skill matters most for grasping.", "no valid JSON object"),
     "no-matrix": (fenced([[1, 0], [0, 1]]).replace("matrix", "weights"), 'no "matrix"'),
     "text-entry": (fenced([["high", 0], [0, 1]]), "not a number"),
     "integer-beyond-float": (fenced([[10**400, 1], [0, 1]]), "not a rectangular table"),
@@ -88,7 +88,7 @@ def test_a_corrected_reply_is_accepted() -> None:
     client = ScriptedClient(["no idea", fenced([[1, 0], [0, 1]])])
     result = analyze(TARGET, SOURCES, client, retries=1)
     np.testing.assert_array_equal(result.matrix, np.eye(2))
-    assert "not a JSON object" in client.requests[1][-1]["content"]
+    assert "no valid JSON object" in client.requests[1][-1]["content"]
     with pytest.raises(AnalyzerError):
         analyze(TARGET, SOURCES, ScriptedClient(["no idea"]), retries=0)
 
@@ -108,3 +108,24 @@ def test_offline_analyzer_for_pick_and_place() -> None:
     pick, place = result.matrix[:, 0], result.matrix[:, 1]
     assert pick[1] > place[1] and pick[2] > place[2]  # grasp, lift: the pick skill
     assert place[4] > pick[4]  # place: the place skill
+
+
+ACCEPTED_FORMS = {
+    "upper-case-fence": '```JSON\n{"matrix": [[1, 3], [1, 1]], "reasoning": "because"}\n```',
+    "prose-around": 'Here it is: {"matrix": [[1, 3], [1, 1]], "reasoning": "because"} Thanks.',
+}
+
+
+@pytest.mark.parametrize("reply", ACCEPTED_FORMS.values(), ids=ACCEPTED_FORMS.keys())
+def test_a_reply_the_planner_accepts_needs_no_retry(reply: str) -> None:
+    client = ScriptedClient([reply])
+    result = analyze(TARGET, SOURCES, client, retries=0)
+    np.testing.assert_allclose(result.matrix, [[0.25, 0.75], [0.5, 0.5]])
+    assert result.reasoning == "because" and len(client.requests) == 1
+
+
+def test_a_cut_off_reply_is_reasked_as_cut_off() -> None:
+    client = ScriptedClient(['{"matrix": [[1, 0], [0,', fenced([[1, 0], [0, 1]])])
+    result = analyze(TARGET, SOURCES, client, retries=1)
+    np.testing.assert_array_equal(result.matrix, np.eye(2))
+    assert "not closed (cut off?)" in client.requests[1][-1]["content"]

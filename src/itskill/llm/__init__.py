@@ -2,7 +2,8 @@
 
 ``make_client(spec)`` gives an :class:`LLMClient`: ``"offline"`` (the embedded rule-based backend,
 the default) or ``"openai:MODEL"`` (any OpenAI-compatible endpoint). Prompts are text templates in
-``itskill/llm/prompts/``, filled by the builders of :mod:`itskill.llm.prompts`.
+``itskill/llm/prompts/``, filled by the builders of :mod:`itskill.llm.prompts`;
+:func:`parse_json_reply` reads the JSON object out of a reply.
 """
 
 from itskill.llm.client import (
@@ -24,9 +25,11 @@ from itskill.llm.prompts import (
     reward_messages,
     task_description,
 )
+from itskill.llm.replies import JSONReplyError, parse_json_reply
 
 __all__ = [
     "PURPOSES",
+    "JSONReplyError",
     "LLMClient",
     "LLMError",
     "LLMUnavailableError",
@@ -37,6 +40,7 @@ __all__ = [
     "analyzer_messages",
     "execution_error_feedback",
     "make_client",
+    "parse_json_reply",
     "planner_messages",
     "policy_feedback",
     "reward_messages",

@@ -13,8 +13,6 @@ A task id needs no model: :func:`plan_for_task` writes the plan straight from th
 from __future__ import annotations
 
 import difflib
-import json
-import re
 import sys
 from dataclasses import asdict, dataclass
 from functools import cache
@@ -23,6 +21,7 @@ from typing import Any
 
 from itskill.llm.client import LLMClient, Message
 from itskill.llm.prompts import planner_messages, task_description
+from itskill.llm.replies import JSONReplyError, parse_json_reply
 from itskill.sim.parts import BoltSpec, NutSpec
 from itskill.tasks import all_tasks, get_task
 from itskill.tasks.spec import TaskSpec
@@ -208,7 +207,7 @@ def plan_command(command: str, client: LLMClient, attempts: int = PLAN_ATTEMPTS)
                     + known_text(command)
                 )
             return validate_plan(command, data)
-        except _InvalidPlan as err:
+        except (JSONReplyError, _InvalidPlan) as err:
             problem = str(err)
         messages = [
             *messages,
@@ -223,27 +222,6 @@ def plan_command(command: str, client: LLMClient, attempts: int = PLAN_ATTEMPTS)
 
 class _InvalidPlan(ValueError):
     """A planner reply that does not validate; its message is sent back to the model."""
-
-
-_FENCE = re.compile(r"```[ \t]*(?:json)?[ \t]*\n(.*?)```", re.DOTALL | re.IGNORECASE)
-
-
-def parse_json_reply(reply: str) -> dict[str, Any]:
-    """The JSON object in a reply: inside a ```json fence, or the outermost braces."""
-    match = _FENCE.search(reply)
-    text = match.group(1) if match else reply
-    if not match and "{" in text:
-        start, end = text.index("{"), text.rfind("}")
-        if end < start:
-            raise _InvalidPlan("the reply's JSON object is not closed (cut off?)")
-        text = text[start : end + 1]
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise _InvalidPlan(f"the reply holds no valid JSON object ({err})") from err
-    if not isinstance(data, dict):
-        raise _InvalidPlan(f"expected a JSON object, got {type(data).__name__}")
-    return data
 
 
 def validate_plan(command: str, data: dict[str, Any]) -> TaskPlan:

@@ -3,16 +3,14 @@
 The matrix has one row per segment of the target task (its stages, in order) and one column per
 source skill; entry ``(i, j)`` is how much source ``j`` should contribute while the target is in
 segment ``i``. The reply must be a JSON object ``{"matrix": [[...], ...], "reasoning": "..."}``
-(in a ```json fence or bare). It is validated (shape, finite, non-negative, no zero row) and each
-row is normalised to sum to 1, since a language model's rows are rarely exact. A reply that fails
-is sent back with the problem (:file:`data/analyzer_retry.txt`) up to ``retries`` times; then
-:class:`AnalyzerError` says what was wrong with the last one.
+(in a ```json fence, or bare with prose around it). It is validated (shape, finite, non-negative,
+no zero row) and each row is normalised to sum to 1, since a language model's rows are rarely
+exact. A reply that fails is sent back with the problem (:file:`data/analyzer_retry.txt`) up to
+``retries`` times; then :class:`AnalyzerError` says what was wrong with the last one.
 """
 
 from __future__ import annotations
 
-import json
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
@@ -22,8 +20,7 @@ import numpy as np
 
 from itskill.llm.client import LLMClient, Message
 from itskill.llm.prompts import analyzer_messages
-
-_FENCE = re.compile(r"```(?:json)?\s*\n?(.*?)```", re.DOTALL)
+from itskill.llm.replies import JSONReplyError, parse_json_reply
 
 
 class AnalyzerError(ValueError):
@@ -107,15 +104,11 @@ def parse_reply(
     reply: str, segments: Sequence[str], sources: Sequence[str]
 ) -> tuple[np.ndarray, str]:
     """The validated ``(matrix, reasoning)`` of one reply; ``ValueError`` says what is wrong."""
-    blocks = _FENCE.findall(reply)
-    text = blocks[0] if blocks else reply
     try:
-        data = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise ValueError(
-            f"the reply is not a JSON object in a ```json fence ({err.msg} at line {err.lineno})"
-        ) from err
-    if not isinstance(data, dict) or "matrix" not in data:
+        data = parse_json_reply(reply)
+    except JSONReplyError as err:
+        raise ValueError(str(err)) from err
+    if "matrix" not in data:
         raise ValueError('the JSON object has no "matrix" field')
     rows = data["matrix"]
     if not isinstance(rows, list) or not all(isinstance(r, list) for r in rows):

@@ -1,0 +1,38 @@
+"""The JSON-reply parser: the fences and prose models put around an object, and clear refusals."""
+
+from __future__ import annotations
+
+import pytest
+
+from itskill.llm import JSONReplyError, parse_json_reply
+
+OBJECT = '{"matrix": [[1.0]], "note": "a } in a string"}'
+EXPECTED = {"matrix": [[1.0]], "note": "a } in a string"}
+
+ACCEPTED = {
+    "json-fence": f"Here:\n```json\n{OBJECT}\n```\nDone.",
+    "upper-case-fence": f"```JSON\n{OBJECT}\n```",
+    "untagged-fence": f"```\n{OBJECT}\n```",
+    "one-line-fence": f"```json {OBJECT}```",
+    "bare": OBJECT,
+    "prose-around": f"Here it is: {OBJECT} Hope this helps.",
+}
+
+
+@pytest.mark.parametrize("reply", ACCEPTED.values(), ids=ACCEPTED.keys())
+def test_the_object_is_found_however_it_is_wrapped(reply: str) -> None:
+    assert parse_json_reply(reply) == EXPECTED
+
+
+REFUSED = {
+    "no-json": ("Sure! Here is the plan.", "no valid JSON object"),
+    "cut-off": ('Here: {"matrix": [[1.0], [', r"not closed \(cut off\?\)"),
+    "invalid": ("{'matrix': [[1.0]]}", "no valid JSON object"),
+    "not-an-object": ("```json\n[[1.0]]\n```", "expected a JSON object, got list"),
+}
+
+
+@pytest.mark.parametrize("reply,problem", REFUSED.values(), ids=REFUSED.keys())
+def test_a_reply_without_an_object_says_why(reply: str, problem: str) -> None:
+    with pytest.raises(JSONReplyError, match=problem):
+        parse_json_reply(reply)
