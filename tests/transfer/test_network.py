@@ -12,7 +12,7 @@ from stable_baselines3 import A2C
 from torch import nn
 from transfer_helpers import TINY, make_source
 
-from itskill.rl.checkpoint import load_policy
+from itskill.rl.checkpoint import load_policy, policy_sha256
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import train
 from itskill.sim.layout import OBSERVATION_LAYOUT
@@ -214,6 +214,28 @@ def test_a_saved_itn_is_self_contained(tiny_sources, tmp_path: Path, performers)
     np.testing.assert_array_equal(again, expected)
     zipped, _ = A2C.load(moved / "model.zip", device="cpu").policy.predict(obs, deterministic=True)
     np.testing.assert_array_equal(zipped, expected)
+
+
+def test_a_source_retrained_in_place_is_not_mixed_into_a_network_made_before(
+    tiny_sources, tmp_path: Path
+) -> None:
+    sources = [{**s, "weights_sha256": policy_sha256(s["run_dir"])} for s in tiny_sources]
+    out = tmp_path / "run"
+    kwargs = {"sources": sources, "prior": PRIOR, "stages": TINY}
+    quiet = LoggerConfig(progress=False, tensorboard=False)
+    run = {"num_envs": 2, "logger": quiet, "policy_class": ITNPolicy, "policy_kwargs": kwargs}
+    train("pickplace_nut_m12", "a2c", 16, 0, "expert", out, **run)
+    trained_with = source_params(load_policy(out))
+    # The first skill is retrained in place, wider: the files no longer match the spec.
+    shutil.rmtree(sources[0]["run_dir"])
+    make_source(Path(sources[0]["run_dir"]), seed=7, stages=(16, 16, 16))
+    # A new network from the old spec refuses to act instead of taking the new weights...
+    with pytest.raises(RuntimeError, match="changed since the network was specified"):
+        build(ITNPolicy, sources).predict(obs_at(0).numpy())
+    # ...and the run resumes on the weights it trained with (it was refused before).
+    assert train("pickplace_nut_m12", "a2c", 32, 0, "expert", out, **run).resumed_from == 16
+    resumed = source_params(load_policy(out))
+    assert all(torch.equal(trained_with[k], resumed[k]) for k in trained_with)
 
 
 def test_a_policy_without_source_weights_refuses_to_act(tiny_sources) -> None:

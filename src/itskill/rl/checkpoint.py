@@ -23,6 +23,7 @@ both) calls ``as_policy`` before handing a policy reference down.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import importlib
 import json
 import platform
@@ -251,6 +252,12 @@ def policy_location(checkpoint_file: str | Path) -> Path:
     is."""
     path = Path(checkpoint_file)
     return path.parent if path.suffix == ".safetensors" else path
+
+
+def policy_sha256(run_dir: str | Path) -> str:
+    """The SHA-256 of a run's ``policy.safetensors``: what tells one set of its weights from
+    another (a skill retrained in place keeps its directory)."""
+    return hashlib.sha256((Path(run_dir) / POLICY_FILE).read_bytes()).hexdigest()
 
 
 def best_policy_dir(run_dir: str | Path) -> Path:

@@ -20,7 +20,6 @@ went from 93% to 99% of its held-out episodes in 100k env-steps more; docs/skill
 
 from __future__ import annotations
 
-import hashlib
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -38,6 +37,7 @@ from itskill.rl.checkpoint import (
     STAGED_POLICY_CLASS,
     best_policy_dir,
     load_policy,
+    policy_sha256,
     read_meta,
 )
 from itskill.rl.demos import DemoConfig, collect_episodes, critic_targets, pretrain_policy
@@ -89,7 +89,7 @@ def describe_init(source: str | Path) -> dict[str, Any]:
         "path": str(source_dir.resolve()),
         "task": meta["task"],
         "num_timesteps": int(meta["num_timesteps"]),
-        "sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
+        "sha256": policy_sha256(source_dir),
     }
 
 

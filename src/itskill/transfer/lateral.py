@@ -59,7 +59,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import PyTorchObs
 from torch import nn
 
-from itskill.rl.checkpoint import META_FILE, policy_from_meta
+from itskill.rl.checkpoint import META_FILE, policy_from_meta, policy_sha256
 from itskill.rl.policy import ACTIVATIONS, PolicyConfig, RunningNormalizer, StagedTrunk
 from itskill.sim.layout import MAX_STAGES
 from itskill.sim.vec_env import action_space, observation_space
@@ -69,8 +69,9 @@ from itskill.transfer.fusion import IncompatibleSourceError
 from itskill.transfer.sources import freeze, load_source
 
 NOT_READY = (
-    "the transfer policy's source weights were never loaded: build it with existing source run "
-    "directories, or load a saved transfer checkpoint into it"
+    "the transfer policy's source weights were never loaded: a source's run directory is gone, or "
+    "its weights changed since the network was specified (a skill retrained or replaced); build "
+    "it from the current skills, or load a saved transfer checkpoint into it"
 )
 
 
@@ -117,11 +118,25 @@ def _build_source(spec: Mapping[str, Any]) -> tuple[ActorCriticPolicy, bool]:
     for key in ("name", "policy_class", "policy"):
         if key not in spec:
             raise ValueError(f"a source entry lacks {key!r}: {dict(spec)!r}")
-    run_dir = spec.get("run_dir")
-    if run_dir and (Path(run_dir) / META_FILE).is_file():
+    if _weights_on_disk(spec):
         return load_source(dict(spec)), True
+    # Gone, or retrained since the network was specified: built as recorded, so that the saved
+    # checkpoint a resumed run or an evaluation loads next brings the weights it trained with.
     where = f"source {spec['name']!r}"
     return freeze(policy_from_meta(spec["policy_class"], spec["policy"], where)), False
+
+
+def _weights_on_disk(spec: Mapping[str, Any]) -> bool:
+    """Whether the source's run directory holds the weights ``spec`` was made with (a spec
+    written before it recorded their hash takes whatever is there)."""
+    run_dir = spec.get("run_dir")
+    if not run_dir or not (Path(run_dir) / META_FILE).is_file():
+        return False
+    recorded = spec.get("weights_sha256")
+    try:
+        return recorded is None or policy_sha256(run_dir) == recorded
+    except OSError:
+        return False
 
 
 def _stage_table(rows: Sequence[int], width: int) -> torch.Tensor:

@@ -16,7 +16,6 @@ load as a source; named, such a skill is an error.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,10 +24,10 @@ from typing import Any
 from stable_baselines3.common.policies import ActorCriticPolicy
 
 from itskill.rl.checkpoint import (
-    POLICY_FILE,
     STAGED_POLICY_CLASS,
     load_policy,
     policy_location,
+    policy_sha256,
     read_meta,
 )
 from itskill.sim.vec_env import action_space
@@ -74,7 +73,7 @@ class SourceSkill:
             "run_dir": str(self.run_dir),
             "success_rate": self.success_rate,
             "score": self.score,
-            "weights_sha256": weights_sha256(self.run_dir),
+            "weights_sha256": policy_sha256(self.run_dir),
         }
 
     def spec(self) -> dict[str, Any]:
@@ -85,15 +84,12 @@ class SourceSkill:
             "run_dir": str(self.run_dir),
             "policy_class": self.policy_class,
             "policy": self.policy,
+            "weights_sha256": policy_sha256(self.run_dir),
         }
 
     def analyzer_entry(self) -> dict[str, Any]:
         """The ``{id, description, actions}`` the analyzer prompt takes."""
         return {"id": self.name, "description": self.description, "actions": list(self.actions)}
-
-
-def weights_sha256(run_dir: Path) -> str:
-    return hashlib.sha256((Path(run_dir) / POLICY_FILE).read_bytes()).hexdigest()
 
 
 def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSkill:

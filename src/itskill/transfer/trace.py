@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from itskill.files import CorruptFileError, read_json, write_json
-from itskill.rl.checkpoint import POLICY_FILE, load_policy, read_meta
+from itskill.rl.checkpoint import POLICY_FILE, load_policy, policy_sha256, read_meta
 from itskill.tasks import get_task, make_batch_env
 from itskill.transfer.attention import STAGE_SLICE
 from itskill.transfer.lateral import TransferPolicy
@@ -86,7 +85,7 @@ def recorded_attention_trace(run_dir: str | Path) -> dict[str, Any]:
     """
     run_dir = Path(run_dir)
     path, weights = run_dir / TRACE_FILE, run_dir / POLICY_FILE
-    digest = hashlib.sha256(weights.read_bytes()).hexdigest() if weights.is_file() else None
+    digest = policy_sha256(run_dir) if weights.is_file() else None
     if path.is_file():
         try:
             saved = read_json(path)
