@@ -61,21 +61,6 @@ def test_normaliser_saved_and_restored_in_state_dict() -> None:
     torch.testing.assert_close(clone.stage_outputs(obs)[2], policy.stage_outputs(obs)[2])
 
 
-def test_frozen_submodule_stays_in_eval_mode() -> None:
-    policy = make()
-    policy.freeze("mlp_extractor.actor")
-    policy.set_training_mode(True)
-    assert policy.training and policy.mlp_extractor.critic.training
-    assert not policy.mlp_extractor.actor.training
-    assert not any(p.requires_grad for p in policy.mlp_extractor.actor.parameters())
-    source = policy.frozen_copy()
-    source.train()
-    assert not any(m.training for m in source.modules())
-    assert not source.update_obs_stats
-    source(torch.randn(4, OBSERVATION_LAYOUT.size))
-    assert source.obs_norm.count.item() == 0
-
-
 def test_every_sb3_path_normalises_once() -> None:
     policy = make()
     policy(torch.randn(64, OBSERVATION_LAYOUT.size) * 4 + 2)  # non-trivial statistics

@@ -131,6 +131,13 @@ def test_resume_continues_without_asking_the_analyzer_again(home: Path, tmp_path
     with pytest.raises(ResumeMismatchError, match="sources_request"):
         train_transfer(TARGET, "itn", "pick_nut_m12", steps=64, algo="a2c", out=out, num_envs=2,
                        logger=QUIET)  # fmt: skip
+    # The same skills written another way, and other analyzer retries (the record keeps its
+    # matrix), are the same run.
+    again = train_transfer(
+        TARGET, "itn", [" pick_nut_m12", "place_nut_m12"], seed=0, steps=64, algo="a2c", out=out,
+        num_envs=2, client=client, logger=QUIET, config=TransferConfig(analyzer_retries=5),
+    )  # fmt: skip
+    assert again.resumed_from == 48 and client.calls == 0
 
 
 def test_a_run_from_before_the_residual_resumes_without_it(home: Path, tmp_path: Path) -> None:

@@ -17,14 +17,13 @@ Design choices:
   collected observation during rollouts, and only while ``update_obs_stats`` is true; evaluation
   (``predict``), the training loss (``evaluate_actions``) and :meth:`stage_outputs` never update
   them. A loaded or frozen policy has ``update_obs_stats = False``.
-- **Frozen sub-modules stay in eval mode**: SB3 switches the whole policy between train and eval
-  mode around every update; :meth:`freeze` records sub-modules that must stay frozen and
-  :meth:`train` puts them back into eval mode each time.
+- **A frozen source stays frozen**: the transfer network freezes each source it loads
+  (:func:`itskill.transfer.sources.freeze`) and keeps them in eval mode through SB3's switches
+  between train and eval mode around every update (``TransferPolicy.train``).
 """
 
 from __future__ import annotations
 
-import copy
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -198,7 +197,6 @@ class StagedActorCriticPolicy(ActorCriticPolicy):
         obs_size = int(gym.spaces.flatdim(observation_space))
         self.obs_norm = RunningNormalizer(obs_size, clip=obs_clip) if normalize_obs else None
         self.update_obs_stats = normalize_obs
-        self._frozen: list[str] = []
 
     # ------------------------------------------------------------------ construction
     def _build_mlp_extractor(self) -> None:
@@ -254,34 +252,3 @@ class StagedActorCriticPolicy(ActorCriticPolicy):
             net = self.mlp_extractor.critic or self.mlp_extractor.actor
             return net.stage_outputs(features)
         raise ValueError(f"trunk must be 'actor' or 'critic', got {trunk!r}")
-
-    def freeze(self, *names: str) -> None:
-        """Freeze sub-modules by name (``""`` or nothing: the whole policy).
-
-        Frozen parameters get ``requires_grad = False`` and the modules stay in eval mode through
-        every later ``train()``/``set_training_mode()`` call. Freezing the whole policy (or its
-        normaliser) also stops the normaliser's statistics from updating.
-        """
-        for name in names or ("",):
-            module = self.get_submodule(name)
-            for p in module.parameters():
-                p.requires_grad_(False)
-            module.eval()
-            if name not in self._frozen:
-                self._frozen.append(name)
-            if name in ("", "obs_norm"):
-                self.update_obs_stats = False
-
-    def train(self, mode: bool = True) -> StagedActorCriticPolicy:
-        frozen = getattr(self, "_frozen", [])
-        super().train(mode and "" not in frozen)
-        for name in frozen:
-            if name:
-                self.get_submodule(name).eval()
-        return self
-
-    def frozen_copy(self) -> StagedActorCriticPolicy:
-        """A deep copy with every parameter frozen, in eval mode, statistics fixed."""
-        clone = copy.deepcopy(self)
-        clone.freeze()
-        return clone

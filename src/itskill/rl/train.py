@@ -12,7 +12,7 @@ import hashlib
 import json
 import runpy
 import shutil
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -291,15 +291,27 @@ class CheckpointCallback(BaseCallback):
             self._last = self.num_timesteps
 
 
+def require_same(
+    have: Mapping[str, Any],
+    want: Mapping[str, Any],
+    keys: Iterable[str],
+    run_dir: Path,
+    kind: str = "run",
+) -> None:
+    """Raise :class:`ResumeMismatchError` naming the first of ``keys`` on which the run
+    ``run_dir`` holds (``have``) differs from what this call asks for (``want``)."""
+    for key in keys:
+        if have.get(key) != want[key]:
+            raise ResumeMismatchError(
+                f"{run_dir}: holds a {kind} with {key}={have.get(key)!r}, this call asks for "
+                f"{key}={want[key]!r}; use another --out directory or the same settings"
+            )
+
+
 def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> None:
     # Checkpoints written before the policy class was recorded all hold the staged policy.
     meta = {"policy_class": STAGED_POLICY_CLASS, **meta}
-    for key in ("task", "algo", "seed", "policy_class"):
-        if meta.get(key) != want[key]:
-            raise ResumeMismatchError(
-                f"{run_dir}: holds a run with {key}={meta.get(key)!r}, this call asks for "
-                f"{key}={want[key]!r}; use another --out directory or the same settings"
-            )
+    require_same(meta, want, ("task", "algo", "seed", "policy_class"), run_dir)
     have_init, want_init = meta.get("init") or {}, want.get("init") or {}
     if have_init.get("sha256") != want_init.get("sha256"):
         raise ResumeMismatchError(

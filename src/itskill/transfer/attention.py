@@ -49,8 +49,7 @@ class StagePrior(nn.Module):
 class IntelligentAttention(nn.Module):
     """Learned raw weights from the sources' actions, corrected by the analyzer's stage prior.
 
-    ``forward`` returns ``(raw, W)``; both are also kept (detached) as ``last_raw`` and
-    ``last_weights`` for plots of the attention over an episode.
+    ``forward`` returns ``(raw, W)``.
     """
 
     def __init__(
@@ -73,8 +72,6 @@ class IntelligentAttention(nn.Module):
                 f"the prior has {self.prior.table.shape[1]} columns for {n_sources} sources"
             )
         self.prior_weight = float(prior_weight)
-        self.last_raw: torch.Tensor | None = None
-        self.last_weights: torch.Tensor | None = None
 
     def forward(
         self, obs: torch.Tensor, source_actions: list[torch.Tensor]
@@ -84,7 +81,6 @@ class IntelligentAttention(nn.Module):
         )
         raw = torch.softmax(self.mix(h), dim=-1)
         weights = (1.0 - self.prior_weight) * raw + self.prior_weight * self.prior(obs)
-        self.last_raw, self.last_weights = raw.detach(), weights.detach()
         return raw, weights
 
 
@@ -94,12 +90,8 @@ class FixedContribution(nn.Module):
     def __init__(self, prior: np.ndarray) -> None:
         super().__init__()
         self.prior = StagePrior(prior)
-        self.last_raw: torch.Tensor | None = None
-        self.last_weights: torch.Tensor | None = None
 
     def forward(
         self, obs: torch.Tensor, source_actions: list[torch.Tensor]
     ) -> tuple[None, torch.Tensor]:
-        weights = self.prior(obs)
-        self.last_weights = weights.detach()
-        return None, weights
+        return None, self.prior(obs)

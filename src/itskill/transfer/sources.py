@@ -125,7 +125,9 @@ def _loads_as_source(space: SkillSpace, skill: Skill) -> bool:
     return policy_location(path) != path
 
 
-def _parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
+def parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
+    """The skills a source list names, in order: serial numbers as ints, names as strings
+    (``"3, pick_nut_m12"`` and ``[3, "pick_nut_m12"]`` alike)."""
     items = sources.split(",") if isinstance(sources, str) else list(sources)
     keys: list[int | str] = []
     for item in items:
@@ -243,7 +245,7 @@ def resolve_sources(
                     "`itskill skills install`)"
                 )
         else:
-            keys = _parse_keys(sources)
+            keys = parse_keys(sources)
             if not keys:
                 raise SourceError("no source skills given (expected 'auto' or ids/names)")
             try:

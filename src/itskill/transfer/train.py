@@ -36,10 +36,10 @@ from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import (
     CANNOT_RESUME,
     EXPERT,
-    ResumeMismatchError,
     RewardSource,
     TrainResult,
     check_training,
+    require_same,
     run_training,
 )
 from itskill.skills import SkillSpace
@@ -48,7 +48,7 @@ from itskill.tasks.spec import TaskSpec
 from itskill.transfer.analyzer import ContributionMatrix, analyze
 from itskill.transfer.config import TransferConfig, load_transfer_config
 from itskill.transfer.methods import Method, get_method
-from itskill.transfer.sources import AUTO, SourceSkill, resolve_sources
+from itskill.transfer.sources import AUTO, SourceSkill, parse_keys, resolve_sources
 from itskill.transfer.stages import fill_performers, stage_map, stage_performers
 
 TRANSFER_FILE = "transfer.json"
@@ -126,12 +126,19 @@ _LEGACY_CONFIG = {"residual": False}
 
 def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
     old = {**old, "config": {**_LEGACY_CONFIG, **old["config"]}}
-    for key in ("target", "method", "algo", "seed", "sources_request", "k", "config"):
-        if old.get(key) != new[key]:
-            raise ResumeMismatchError(
-                f"{out}: holds a transfer run with {key}={old.get(key)!r}, this call asks for "
-                f"{key}={new[key]!r}; use another --out directory or the same settings"
-            )
+    keys = ("target", "method", "algo", "seed", "sources_request", "k", "config")
+    require_same(_as_compared(old), _as_compared(new), keys, out, "transfer run")
+
+
+def _as_compared(settings: dict[str, Any]) -> dict[str, Any]:
+    """The settings as a resume compares them: the sources as the skills they name, however
+    the list was written ("a,b" on the command line, a list from Python), and without the
+    analyzer's retries (the record holds its matrix, so the analyzer is not asked again)."""
+    request = settings.get("sources_request")
+    if request is not None and request != AUTO:
+        request = parse_keys(request)
+    config = {k: v for k, v in settings["config"].items() if k != "analyzer_retries"}
+    return {**settings, "sources_request": request, "config": config}
 
 
 def _settings(
