@@ -168,6 +168,8 @@ def test_planner_says_which_nut_it_assumed() -> None:
     assert "assumed the M12 nut" in reply["notes"]
     # A length written after the part is no size of it.
     assert plan("Lift the nut 30 mm")["task"] == "lift_nut_m12"
+    # A part the command gives no shape takes the one written for its fixture.
+    assert plan("Insert the peg into the rectangular hole")["task"] == "insert_peg_rect"
 
 
 @pytest.mark.parametrize(
@@ -181,6 +183,11 @@ def test_planner_says_which_nut_it_assumed() -> None:
         ("Pick up the M20 nut", "no 20 mm nut: its nuts are M12 nut, M16 nut"),
         ("Pick up the 20 mm nut", "no 20 mm nut"),
         ("Put the M16 nut on the M20 bolt", "no 20 mm bolt: its bolts are M12 bolt, M16 bolt"),
+        # Each part keeps its own size and shape: the peg was dropped (16 mm, and round, is no
+        # peg), and two shapes named were read as "the peg" with a note that it named none.
+        ("Pick up the M16 nut and the round peg", "with the M16 nut and round peg"),
+        ("Grasp the rectangular peg and the round peg", "with the rectangular peg and round peg"),
+        ("Pick up the round 16 mm peg", "no peg of this scene is as the command describes it"),
     ],
 )
 def test_planner_refuses_what_it_cannot_ground(command: str, why: str) -> None:

@@ -2,10 +2,10 @@
 
 1. Objects are grounded from the words of the command against the catalogue's object names
    (``nut_m12`` is "M12 nut", ``peg_rect_16mm`` "rectangular peg"); sizes may be written "M16",
-   "16 mm" or "16mm", and the size or shape written next to a part is that part's. A bare "the
+   "16 mm" or "16mm", and a size or shape belongs to the part word nearest it. A bare "the
    nut" means the M12 nut and a bare "the peg" the round peg, and the plan's notes say so;
-   "big"/"small" pick the largest/smallest; "nuts", "both", "each" or two sizes named mean every
-   one named.
+   "big"/"small" pick the largest/smallest; "nuts", "both", "each" or two sizes or shapes named
+   mean every one named.
    Fixture words (bolt, hole) must match the task's fixtures; a size or shape the command gives
    one that the chosen task's lacks is noted.
 2. The command is split into clauses ("pick up X", "place it on Y", "screw it down", ...); each
@@ -129,21 +129,47 @@ def _words(text: str) -> list[str]:
 _SIZE = r"\b(?:m ?(\d{1,4})|(\d{1,4}) ?mm)\b"
 
 
-def _described(command: str, kind: str) -> tuple[set[int], set[str]]:
-    """The sizes (in millimetres) and shapes a command gives a part of ``kind``: those written
-    within four words before or two after the kind's word ("the M16 nut on the M12 bolt" gives
-    the nut 16, "the round peg into the rectangular hole" the peg round), else any it names."""
+def _descriptors(command: str, kinds: set[str]) -> dict[str | None, tuple[set[int], set[str]]]:
+    """The sizes (in millimetres) and shapes the command writes, by the part kind each describes:
+    the kind whose word is nearest, the one after it on a tie ("the M16 nut and the round peg":
+    16 is the nut's, round the peg's). Under None, those written with no kind word in the command.
+    """
     words = _words(command)
-    near = [
-        words[max(0, k - 4) : k + 3] for k, word in enumerate(words) if word in (kind, f"{kind}s")
-    ]
+    found: list[tuple[int, int | None, str | None]] = []  # (position, size, shape)
+    for i, word in enumerate(words):
+        nxt = words[i + 1] if i + 1 < len(words) else ""
+        if m := re.fullmatch(r"m(\d{1,4})|(\d{1,4})mm", word):
+            found.append((i, int(m[1] or m[2]), None))
+        elif (word == "m" and re.fullmatch(r"\d{1,4}", nxt)) or (
+            re.fullmatch(r"\d{1,4}", word) and nxt == "mm"
+        ):
+            found.append((i, int(nxt if word == "m" else word), None))
+        elif word in _SHAPES:
+            found.append((i, None, _SHAPES[word]))
+    places = [(j, w.removesuffix("s")) for j, w in enumerate(words) if w.removesuffix("s") in kinds]
+    out: dict[str | None, tuple[set[int], set[str]]] = {}
+    for i, size, shape in found:
+        owner = min(places, key=lambda p: (abs(p[0] - i), p[0] < i))[1] if places else None
+        sizes, shapes = out.setdefault(owner, (set(), set()))
+        if size is not None:
+            sizes.add(size)
+        if shape is not None:
+            shapes.add(shape)
+    return out
 
-    def shapes(ws: list[str]) -> set[str]:
-        return {_SHAPES[w] for w in ws if w in _SHAPES}
 
+def _described(
+    command: str, kind: str, kinds: set[str], rivals: set[str]
+) -> tuple[set[int], set[str]]:
+    """The sizes and shapes a command gives a part of ``kind`` (see :func:`_descriptors`). One it
+    gives no size (or shape) takes those written for kinds other than ``rivals``: "the peg into
+    the rectangular hole" is the rectangular peg, "the M16 nut and the peg" not the 16 mm peg."""
+    table = _descriptors(command, kinds)
+    own_sizes, own_shapes = table.get(kind, (set(), set()))
+    lent = [v for k, v in table.items() if k != kind and k not in rivals]
     return (
-        set().union(*(_sizes(w) for w in near)) or _sizes(words),
-        set().union(*(shapes(w) for w in near)) or shapes(words),
+        own_sizes or set().union(*(sizes for sizes, _ in lent)),
+        own_shapes or set().union(*(shapes for _, shapes in lent)),
     )
 
 
@@ -170,10 +196,14 @@ def _missing_size(command: str, parts: list[Part]) -> str | None:
     return None
 
 
-def _ground_objects(command: str, parts: list[Part]) -> tuple[list[Part], list[str]]:
-    """The objects the command names, and notes on the assumptions made."""
+def _ground_objects(
+    command: str, parts: list[Part], scene_kinds: set[str]
+) -> tuple[list[Part], list[str]]:
+    """The objects the command names, and notes on the assumptions made; :class:`PlanningError`
+    if it describes one that no part of its kind fits ("the round 16 mm peg")."""
     words = _words(command)
     kinds = sorted({p.kind for p in parts})
+    words_set = set(words)
     notes: list[str] = []
     grounded: list[Part] = []
     for kind in kinds:
@@ -181,15 +211,21 @@ def _ground_objects(command: str, parts: list[Part]) -> tuple[list[Part], list[s
         if kind not in words and not plural:
             continue
         of_kind = [p for p in parts if p.kind == kind]
-        named_sizes, named_shapes = _described(command, kind)
+        named_sizes, named_shapes = _described(command, kind, scene_kinds, set(kinds))
         sizes = {p.width for p in of_kind if p.width in named_sizes}
-        # "the M12 nut and the M16 nut", "each nut": every one it names, not a default.
-        plural = plural or len(sizes) > 1 or bool({"each", "every", "two"} & set(words))
         shapes = {p.shape for p in of_kind if p.shape in named_shapes}
+        # "the M12 nut and the M16 nut", "each nut": every one it names, not a default.
+        counted = bool({"each", "every", "two"} & words_set)
+        plural = plural or len(sizes) > 1 or len(shapes) > 1 or counted
         chosen = [
             p for p in of_kind
             if (not sizes or p.width in sizes) and (not shapes or p.shape in shapes)
         ]  # fmt: skip
+        if not chosen:
+            raise PlanningError(
+                f"no {kind} of this scene is as the command describes it: its {kind}s are "
+                + ", ".join(p.label for p in of_kind)
+            )
         relative = {w for w in words if w in _SMALL or w in _LARGE}
         if not plural and len(chosen) > 1 and relative:
             # "the big nut": the largest of those the command could mean.
@@ -279,12 +315,16 @@ def plan(command: str, catalogue: list[dict]) -> dict:
     missing = _missing_size(command, parts + fixture_parts)
     if missing:
         return {"error": missing}
-    grounded, notes = _ground_objects(command, parts)
-    # A command may name only a fixture ("move the gripper over the M12 bolt"): match tasks on
-    # their fixtures then.
-    by_fixture = not grounded
-    if by_fixture:
-        grounded, notes = _ground_objects(command, fixture_parts)
+    scene_kinds = {p.kind for p in parts + fixture_parts}
+    try:
+        grounded, notes = _ground_objects(command, parts, scene_kinds)
+        # A command may name only a fixture ("move the gripper over the M12 bolt"): match tasks
+        # on their fixtures then.
+        by_fixture = not grounded
+        if by_fixture:
+            grounded, notes = _ground_objects(command, fixture_parts, scene_kinds)
+    except PlanningError as err:
+        return {"error": str(err)}
     words = set(_words(command))
     if not grounded:
         # The caller's error line goes on with the objects and fixtures it knows.
@@ -341,7 +381,9 @@ def plan(command: str, catalogue: list[dict]) -> dict:
     for fixture in (Part.from_name(f) for f in entry["fixtures"]):
         if fixture.kind not in named_fixtures:
             continue
-        named_sizes, named_shapes = _described(command, fixture.kind)
+        named_sizes, named_shapes = _described(
+            command, fixture.kind, scene_kinds, {p.kind for p in fixture_parts}
+        )
         if (named_sizes and fixture.width not in named_sizes) or (
             named_shapes and fixture.shape not in named_shapes
         ):
