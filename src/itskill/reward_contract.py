@@ -11,6 +11,19 @@ from typing import Any
 
 import numpy as np
 
+LOG_COLUMNS = (
+    "step",
+    "wall_s",
+    "updates",
+    "episodes",
+    "success_rate",
+    "ep_return",
+    "ep_length",
+    "steps_per_s",
+)
+"""The training log's own columns (``metrics.csv``), which a reward component beside them may
+not be named: ``step`` is what a resumed run truncates the log by."""
+
 
 class RewardOutputError(ValueError):
     """A reward callable's result that breaks the contract; the message says how."""
@@ -47,5 +60,9 @@ def check_reward_output(result: Any, n: int) -> tuple[np.ndarray, dict[str, np.n
     for key, value in components.items():
         if not isinstance(key, str):
             raise RewardOutputError(f"component names must be strings; got {key!r}")
+        if key in LOG_COLUMNS:
+            raise RewardOutputError(
+                f"component name {key!r} is taken by the training log; use another name"
+            )
         checked[key] = _finite_vector(value, n, f"components[{key!r}]")
     return total, checked

@@ -136,3 +136,14 @@ def test_a_directory_holding_another_kind_of_run_is_not_offered_to_resume(
     )
     assert [p.name for p in run.iterdir()] == ["config.json"]
     assert (run / "config.json").read_text() == config
+
+
+def test_a_finished_search_without_its_chosen_reward_says_where_it_is(
+    finished_run: Path, tmp_path: Path
+) -> None:
+    # load_search (and so `generate --resume` on a finished run) read the file without a check:
+    # a FileNotFoundError traceback.
+    run = _copy(finished_run, tmp_path / "run")
+    (run / "best_reward.py").unlink()
+    with pytest.raises(RewardSearchError, match=r"best_reward.py: missing.*sample_<k>/reward.py"):
+        load_search(run)

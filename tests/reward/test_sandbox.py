@@ -169,6 +169,9 @@ ESCAPES = {
     "chained_repeat_bomb": ("x = 'a' * 10**6 * 10**6", "too large"),
     "float_size_bomb": ("x = np.arange(1e12)", "too large"),
     "keyword_size_bomb": ("x = np.zeros(shape=(10**5, 10**5))", "too large"),
+    # The allowlist checks np.NAME: through an alias, a method name reached numpy's own.
+    "numpy_alias": ("n = np\nd = n.dtype", "'np' may only be used as np.NAME"),
+    "numpy_as_argument": ("x = max(np, 1)", "'np' may only be used as np.NAME"),
 }
 
 
@@ -284,6 +287,7 @@ def test_the_context_is_read_only() -> None:
         ("z, {'a': np.zeros((3, 2))}", "components['a'] has shape (3, 2)"),
         ("z, {'a': z * np.nan}", "components['a'] has 3 non-finite"),
         ("z, {1: z}", "component names must be strings"),
+        ("z, {'step': z}", "component name 'step' is taken by the training log"),
         ("z, {'a': 'text'}", "not numeric"),
     ],
 )
@@ -416,3 +420,5 @@ def test_the_cause_of_a_dead_worker_process_is_named() -> None:
     assert "out of memory" in death_cause(-int(signal.SIGKILL), limits, process)
     assert f"{process} was killed by SIGSEGV" == death_cause(-int(signal.SIGSEGV), limits, process)
     assert f"{process} exited with code 1" in death_cause(1, limits, process)
+    # A real-time signal has no name: it was a ValueError out of the worker.
+    assert f"{process} was killed by signal 40" == death_cause(-40, limits, process)

@@ -32,7 +32,7 @@ from itskill.reward import (
 from itskill.reward.generator import Attempt, Sample, extract_code, fenced
 from itskill.reward.plan import PlanError
 from itskill.reward.sandbox import compile_reward
-from itskill.reward.search import _feedback, _rank, _write_sample, plan_target
+from itskill.reward.search import _feedback, _rank, _tagged, _write_sample, plan_target
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.tasks import UnknownTaskError
 
@@ -277,8 +277,10 @@ def test_the_choice_is_made_on_more_seeds_than_the_search_saw(tmp_path: Path, qu
     planted = {
         "iter_0/sample_0": _fake_result(0.6, 0.9),
         "iter_0/sample_1": _fake_result(0.5, 0.9),
-        "select/iter_0_sample_0_seed2": _fake_result(0.1, 0.9),
-        "select/iter_0_sample_1_seed2": _fake_result(0.5, 0.9),
+        f"select/{_tagged('reward', extract_code(GOOD))}_seed2": _fake_result(0.1, 0.9),
+        f"select/{_tagged('reward', extract_code(CONSTANT))}_seed2": _fake_result(0.5, 0.9),
+        # Another reward's result where the chosen one's final run goes: not taken for it.
+        "final/generated_seed1": _fake_result(0.99, 0.99),
     }
     for where, result in planted.items():
         (run / where).mkdir(parents=True)
@@ -295,6 +297,7 @@ def test_the_choice_is_made_on_more_seeds_than_the_search_saw(tmp_path: Path, qu
     assert [(c["sample"], c["mean"]) for c in selection["candidates"]] == [(0, 0.35), (1, 0.5)]
     assert (result.best["sample"], result.best["selected_success"]) == (1, 0.5)
     assert result.best_code.strip() == extract_code(CONSTANT).strip()
-    final = json.loads((run / "final" / "generated_seed1" / "result.json").read_text())
+    final_dir = run / "final" / f"{_tagged('generated', result.best_code.strip())}_seed1"
+    final = json.loads((final_dir / "result.json").read_text())
     assert final["status"] == "ok"  # the chosen reward, trained for real on the final seed
     assert final["sha256"] == compile_reward(result.best_code.strip(), config.sandbox).sha256

@@ -49,6 +49,12 @@ def test_user_file(tmp_path: Path) -> None:
     config = load_search_config(path)
     assert config.samples == 3
     assert config.sandbox.memory_limit_mb == 2048
+    # What a user's file leaves out of [sandbox] keeps the packaged limits: it ran generated
+    # code with no CPU or memory limit at all.
+    packaged = load_search_config().sandbox
+    assert config.sandbox.cpu_limit_s == packaged.cpu_limit_s is not None
+    path.write_text("[search]\nsamples = 3\n")
+    assert load_search_config(path).sandbox == packaged
 
 
 @pytest.mark.parametrize(

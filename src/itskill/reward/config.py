@@ -94,8 +94,10 @@ def _sandbox(source: str | Path, table: Any, base: SandboxConfig | None = None) 
     return replace(base or SandboxConfig(), **values)
 
 
-def _read(path: Path) -> dict[str, Any]:
-    """The fields a search file sets, type-checked (values are range-checked by the dataclass)."""
+def _read(path: Path, sandbox: SandboxConfig | None = None) -> dict[str, Any]:
+    """The fields a search file sets, type-checked (values are range-checked by the dataclass);
+    its ``[sandbox]`` table over ``sandbox`` (a user's file: the packaged limits, so that a file
+    which leaves them out does not run generated code without them)."""
     data = read_toml(path, SearchConfigError)
     unknown = sorted(set(data) - {"search", "sandbox"})
     if unknown:
@@ -110,7 +112,7 @@ def _read(path: Path) -> dict[str, Any]:
                 path, f"search.{key}", f"unknown field; expected one of {', '.join(_KINDS)}"
             )
         values[key] = _coerce(path, f"search.{key}", value, _KINDS[key], key in _OPTIONAL)
-    values["sandbox"] = _sandbox(path, data.get("sandbox", {}))
+    values["sandbox"] = _sandbox(path, data.get("sandbox", {}), sandbox)
     return values
 
 
@@ -238,7 +240,7 @@ def load_search_config(
     ``overrides`` may set any field; ``sandbox`` may be a :class:`SandboxConfig` or a dict of some
     of its fields. ``None`` values are ignored (a command-line option that was not given).
     """
-    values = _read(Path(path)) if path is not None else {}
+    values = _read(Path(path), _defaults()["sandbox"]) if path is not None else {}
     try:
         base = RewardSearchConfig(**values)
     except SearchConfigError as err:

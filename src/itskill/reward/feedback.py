@@ -13,8 +13,8 @@ import math
 from collections.abc import Iterable
 from pathlib import Path
 
+from itskill.reward_contract import LOG_COLUMNS
 from itskill.rl.eval_callback import EVAL_FILE
-from itskill.rl.logger import FIXED_COLUMNS
 
 EPISODE_RETURN = "episode_return"
 """Key of the total reward (return per episode) in the statistics, beside the components."""
@@ -46,7 +46,7 @@ def component_stats(run_dirs: Iterable[Path]) -> dict[str, dict[str, float]]:
         for row in _rows(Path(run_dir) / "metrics.csv"):
             for column, text in row.items():
                 name = EPISODE_RETURN if column == "ep_return" else column
-                if column in FIXED_COLUMNS and column != "ep_return":
+                if column in LOG_COLUMNS and column != "ep_return":
                     continue
                 value = _float(text)
                 if value is not None:

@@ -264,6 +264,7 @@ def _elements(node: ast.AST) -> int | None:
 class _Checker(ast.NodeVisitor):
     def __init__(self, local_names: set[str]) -> None:
         self.local_names = local_names
+        self._module_bases: set[int] = set()  # the np/math Name nodes that head an attribute
 
     def generic_visit(self, node: ast.AST) -> None:
         if not isinstance(node, _ALLOWED_NODES):
@@ -321,8 +322,14 @@ class _Checker(ast.NodeVisitor):
             and node.id not in ("np", "math")
         ):
             raise _violation(node, f"name {node.id!r} is not allowed (not a safe builtin)")
+        if node.id in ("np", "math") and id(node) not in self._module_bases:
+            # The allowlists are checked on np.NAME and math.NAME: an alias (n = np) would
+            # reach any numpy function through a method name.
+            raise _violation(node, f"{node.id!r} may only be used as {node.id}.NAME")
 
     def visit_Attribute(self, node: ast.Attribute) -> None:
+        if isinstance(node.value, ast.Name):
+            self._module_bases.add(id(node.value))
         if not isinstance(node.ctx, ast.Load):
             # np.linalg.norm = ... would change numpy for the whole process: the host's own
             # success checks included.
@@ -602,7 +609,10 @@ def _cap_malloc_arenas() -> None:
 def death_cause(exitcode: int | None, config: SandboxConfig, process: str) -> str:
     """Why ``process`` (a worker under :func:`apply_process_limits`) ended with ``exitcode``."""
     if exitcode is not None and exitcode < 0:
-        sig = signal.Signals(-exitcode)
+        try:
+            sig = signal.Signals(-exitcode)
+        except ValueError:  # a real-time signal has no name
+            return f"{process} was killed by signal {-exitcode}"
         if sig == signal.SIGXCPU:
             return f"CPU time limit of {config.cpu_limit_s} s exceeded (killed by SIGXCPU)"
         if sig == signal.SIGKILL:

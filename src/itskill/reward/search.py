@@ -28,6 +28,7 @@ continues from its last checkpoint).
 from __future__ import annotations
 
 import ast
+import hashlib
 import json
 import math
 import shutil
@@ -381,6 +382,13 @@ def _reuse_results(
     return reused
 
 
+def _tagged(kind: str, code: str | None) -> str:
+    """A retraining's directory name: its kind, and for generated code the code's hash. A search
+    resumed after a crash or a reply replayed differently may choose another reward, and a
+    result found under a name without the hash would be another reward's."""
+    return kind if code is None else f"{kind}_{hashlib.sha256(code.encode()).hexdigest()[:12]}"
+
+
 def _job(
     config: RewardSearchConfig,
     task: str,
@@ -609,7 +617,14 @@ def generate_reward(
         final_seeds = config.final_seed_list
         kinds = [("generated", best["code"])] + ([("expert", None)] if compare_expert else [])
         jobs = [
-            _job(config, plan.task, out / "final" / f"{kind}_seed{s}", code, (s,), network)
+            _job(
+                config,
+                plan.task,
+                out / "final" / f"{_tagged(kind, code)}_seed{s}",
+                code,
+                (s,),
+                network,
+            )
             for kind, code in kinds
             for s in final_seeds
         ]
@@ -674,7 +689,7 @@ def _select(
     top = list(distinct.values())[: config.select_top]
     seeds = config.select_seed_list
     jobs = [
-        _job(config, task, out / "select" / f"iter_{c['iteration']}_sample_{c['sample']}_seed{s}",
+        _job(config, task, out / "select" / f"{_tagged('reward', c['code'])}_seed{s}",
              c["code"], (s,), network)
         for c in top
         for s in seeds
@@ -727,10 +742,16 @@ def load_search(run_dir: str | Path) -> RewardSearchResult:
             f"itskill reward generate --resume {run_dir}"
         )
     best_path = run_dir / BEST_FILE
+    if data["best_code"] is None:
+        raise RewardSearchError(
+            f"{best_path}: missing, though {SUMMARY_FILE} says the search finished; the chosen "
+            f"reward is {run_dir}/iter_<i>/sample_<k>/reward.py, with the iteration (from 1) and "
+            f"sample {SUMMARY_FILE}'s best names"
+        )
     return RewardSearchResult(
         run_dir=run_dir,
         plan=TaskPlan.from_dict(summary["plan"], where=f"{run_dir / SUMMARY_FILE}: plan"),
-        best_code=best_path.read_text(),
+        best_code=data["best_code"],
         best_path=best_path,
         best_success=summary["best_success"],
         expert_success=summary["expert_success"],

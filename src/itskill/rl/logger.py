@@ -31,19 +31,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
 
 from itskill.files import write_text
+from itskill.reward_contract import LOG_COLUMNS
 from itskill.rl.clock import WallClock
 from itskill.sim.vec_env import BatchEnv
-
-FIXED_COLUMNS = (
-    "step",
-    "wall_s",
-    "updates",
-    "episodes",
-    "success_rate",
-    "ep_return",
-    "ep_length",
-    "steps_per_s",
-)
 
 
 @dataclass(frozen=True)
@@ -119,7 +109,7 @@ class MetricsWriter:
 
 def _columns_for(row: dict[str, Any]) -> list[str]:
     """The CSV header a first row fixes: the fixed columns, then its reward components by name."""
-    return [*FIXED_COLUMNS, *sorted(k for k in row if k not in FIXED_COLUMNS)]
+    return [*LOG_COLUMNS, *sorted(k for k in row if k not in LOG_COLUMNS)]
 
 
 def drop_rows_after(path: Path, step: int) -> int:
@@ -287,7 +277,7 @@ class MetricsCallback(BaseCallback):
             for key, value in row.items():
                 if key in ("step",) or (isinstance(value, float) and not math.isfinite(value)):
                     continue
-                prefix = "rollout" if key in FIXED_COLUMNS else "reward"
+                prefix = "rollout" if key in LOG_COLUMNS else "reward"
                 self._tb.record(f"{prefix}/{key}", value)
             self._tb.dump(self.num_timesteps)
         if self._progress is not None:

@@ -71,7 +71,7 @@ def record(
         # Found out only after the rollout otherwise, as an encoder's cryptic error.
         raise RenderError(f"{out}: the video must be a .mp4 file path")
     out.parent.mkdir(parents=True, exist_ok=True)
-    env = make_batch_env(spec.id, num_envs=1, seed=seed, n_threads=1)
+    env = make_batch_env(spec, num_envs=1, seed=seed, n_threads=1)
     fps = round(1 / env.sim.control_dt)
     renderer = None
     frames, successes = 0, []
