@@ -96,6 +96,13 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
             (("steps = 1000", f"steps = 1000\nname = {name!r}"), "name", "expected a plain")
             for name in ("../..", "..", ".", "", "  ", "a/b", "runs\\x")
         ),
+        # These passed, and training ended at mkdir with an OSError or a ValueError.
+        *(
+            (("steps = 1000", f'steps = 1000\nname = "{name}"'), "name", "printable characters")
+            for name in ("a\\u0000b", "a\\nb")
+        ),
+        (("steps = 1000", f"steps = 1000\nname = '{'x' * 300}'"), "name", "300 bytes (UTF-8)"),
+        (("steps = 1000", f"steps = 1000\nname = '{'é' * 60}'"), "name", "120 bytes (UTF-8)"),
         (
             ("every = 500", 'every = 500\n[report]\nbaseline = "pst"'),
             "report.baseline",
@@ -107,6 +114,21 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
             "increasing",
         ),
         (("every = 500", "every = 500\n[report]\nthreshold = 80"), "report.threshold", "(0, 1]"),
+        # The report died of MemoryError after all the training.
+        (
+            ("every = 500", "every = 500\n[report]\ngrid_points = 100000000000"),
+            "report.grid_points",
+            "expected 2 to 100,000 points",
+        ),
+        # A percent was reported as "7222.00%"; nan was dropped.
+        *(
+            (
+                ("every = 500", f"every = 500\n[report]\npaper_gain = {{pick_nut_m12 = {gain}}}"),
+                "report.paper_gain.pick_nut_m12",
+                "expected a fraction below 1 (0.7222 for 72.22%)",
+            )
+            for gain in ("72.22", "1", "nan", "-inf")
+        ),
         (
             ("every = 500", 'every = 500\n[execution]\nexecutor = "slurm"'),
             "execution.executor",

@@ -190,6 +190,18 @@ def test_a_report_written_elsewhere_can_be_written_again_from_its_own_directory(
     assert body(second, out) == body(first, run)
 
 
+def test_a_reports_copy_gets_its_report_with_a_note_for_the_video(run, tmp_path):
+    # The copy's cells keep checkpoint.json but not the weights: `report COPY` failed on them
+    # unless --no-video was given.
+    out = tmp_path / "results"
+    experiment_report(run, out, video=False)
+    files = experiment_report(out)
+    md = files.markdown.read_text()
+    assert "Success at fractions of the budget (Table II)" in md
+    assert "No video: the policy is not in the run directory" in md
+    assert any(n.startswith("no video:") and str(out) in n for n in files.notes)
+
+
 def snapshot(directory: Path) -> dict[str, bytes | None]:
     """Every file's bytes and every directory (None) under ``directory``, by relative path."""
     return {

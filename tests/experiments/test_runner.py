@@ -105,11 +105,13 @@ def test_partial_cell_resumes_from_its_checkpoint(toy, tmp_path):
         cell.task, cell.method, seed=0, steps=128, algo="a2c", out=cell.dir(run), num_envs=2,
         eval_every=128, eval_episodes=2, n_threads=1, progress=False,
     )  # fmt: skip
-    run_dir_config = run / "config.json"
-    assert not run_dir_config.exists()
+    # Cells without config.json are no run to resume, nor a directory a new run may fill.
     with pytest.raises(ExperimentRunError, match="not an experiment run directory"):
         run_experiment(config, run, "local", 1, resume=True, console=quiet())
-    summary = run_experiment(config, run, "local", 1, console=quiet())
+    with pytest.raises(ExperimentRunError, match=r"holds cells .* new or empty directory"):
+        run_experiment(config, run, "local", 1, console=quiet())
+    (run / "config.json").write_text(json.dumps(config.to_dict()))  # the run's record
+    summary = run_experiment(config, run, "local", 1, resume=True, console=quiet())
     assert summary.resumed == [cell] and summary.finished == [cell]
     result = json.loads((cell.dir(run) / RESULT_FILE).read_text())
     assert result["resumed_from"] == 128 and result["num_timesteps"] >= 256
@@ -230,3 +232,93 @@ def test_a_file_made_for_a_cluster_runs_here_with_executor_local(toy, tmp_path):
     )
     summary = run_experiment(small, tmp_path / "run", "local", 1, console=quiet())
     assert [c.seed for c in summary.finished] == [0]
+
+
+def test_a_resume_keeps_the_runs_name_and_writes_only_what_changes(tmp_path):
+    # Resuming with another file recorded that file's name (and copied it over the run's), even
+    # with nothing to train; the run's own copy, or a file inside the run, failed to copy onto
+    # itself (SameFileError) half-way through.
+    run = tmp_path / "exp"
+    run.mkdir()
+    own = run / "experiment.toml"  # no name: the run is named after the file, "experiment"
+    text = TOY.replace('name = "toy"\n', "").replace('["itn", "no_transfer"]', '["no_transfer"]')
+    own.write_text(text.replace("seeds = 2", "seeds = [0]"))
+    run_experiment(load_experiment(own), run, "local", 1, source_file=own, console=quiet())
+    files = ("config.json", "experiment.toml", "sources.json", "provenance.json")
+    before = {name: (run / name).read_bytes() for name in files}
+
+    other = tmp_path / "other.toml"
+    other.write_text(f'name = "other"\ndescription = "not this run"\n{own.read_text()}')
+    summary = run_experiment(
+        load_experiment(other), run, "local", 1, resume=True, source_file=other, console=quiet()
+    )
+    assert summary.finished == [] and len(summary.skipped) == 1
+    assert {name: (run / name).read_bytes() for name in files} == before
+
+    # New report settings are recorded, though nothing trains; the run keeps its name.
+    own.write_text(own.read_text() + "[report]\nthreshold = 0.5\n")
+    run_experiment(
+        load_experiment(own), run, "local", 1, resume=True, source_file=own, console=quiet()
+    )
+    recorded = json.loads((run / "config.json").read_text())
+    assert recorded["name"] == "experiment" and recorded["description"] == ""
+    assert recorded["report"]["threshold"] == 0.5
+    assert (run / "provenance.json").read_bytes() == before["provenance.json"]
+
+
+def test_a_new_run_refuses_a_directory_of_the_users_files(toy, tmp_path):
+    # Their experiment.toml was overwritten, their provenance.json read as the run's.
+    config, path = toy
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "experiment.toml").write_text("# my notes\n")
+    (mine / "provenance.json").write_text('{"mine": true}\n')
+    with pytest.raises(ExperimentRunError) as err:
+        run_experiment(config, mine, "local", 1, source_file=path, console=quiet())
+    assert str(err.value).startswith(f"{mine}: holds experiment.toml, provenance.json")
+    assert "give --out a new or empty directory" in str(err.value)
+    assert sorted(p.name for p in mine.iterdir()) == ["experiment.toml", "provenance.json"]
+    assert (mine / "experiment.toml").read_text() == "# my notes\n"
+    (mine / "experiment.toml").unlink()
+    (mine / "provenance.json").unlink()
+    (mine / "notes").write_text("x")
+    with pytest.raises(ExperimentRunError, match="not a directory"):
+        run_experiment(config, mine / "notes", "local", 1, console=quiet())
+
+
+def test_an_experiment_without_transfer_needs_no_skills(toy, tmp_path, monkeypatch):
+    # Every task's sources were resolved whatever the methods: an empty skill space refused it.
+    from itskill.skills import store
+    from itskill.transfer.sources import SourceError
+
+    monkeypatch.setattr(store, "SHIPPED_LIBRARY", tmp_path / "no_library")
+    config, _ = toy
+    with pytest.raises(SourceError):  # ITN does need them
+        run_experiment(config, tmp_path / "itn", "local", 1, console=quiet())
+    alone = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
+    summary = run_experiment(alone, tmp_path / "run", "local", 1, console=quiet())
+    assert [c.method for c in summary.finished] == ["no_transfer"], summary.failed
+
+
+@pytest.mark.parametrize("recorded", [False, True])
+def test_ctrl_c_says_how_to_go_on_only_where_there_is_a_run(toy, tmp_path, monkeypatch, recorded):
+    # Stopped before the run existed, the hint gave a --resume that was refused.
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+    from itskill.experiments import runner
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    # Training starts once the run is recorded; the sources are resolved before.
+    monkeypatch.setattr(runner, "run_jobs" if recorded else "resolve_all_sources", interrupted)
+    _, path = toy
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["experiment", "run", str(path), "--out", str(out)])
+    assert result.exit_code == 130, result.output
+    output = " ".join(result.output.split())
+    assert (f"continue with: itskill experiment run {path} --out {out} --resume" in output) is (
+        recorded
+    )
+    assert ("no run was recorded yet; run the same command again" in output) is not recorded

@@ -49,7 +49,7 @@ def experiment_run(
     from itskill.executors import EXECUTORS, ExecutorError
     from itskill.experiments.config import ExperimentConfigError, load_experiment
     from itskill.experiments.report import experiment_report
-    from itskill.experiments.runner import ExperimentRunError, run_experiment
+    from itskill.experiments.runner import CONFIG_FILE, ExperimentRunError, run_experiment
     from itskill.llm import LLMError
     from itskill.skills import SkillSpaceError
     from itskill.transfer.sources import SourceError
@@ -74,11 +74,12 @@ def experiment_run(
     ) as err:
         raise usage_error(str(err)) from err
     except KeyboardInterrupt:
-        where = f" --out {run_dir}" if run_dir is not None else ""
-        err_console.print(
-            f"interrupted; continue with: itskill experiment run {file}{where} --resume",
-            markup=False,
-        )
+        # Only a recorded run (its config.json) can be resumed: --resume before that is refused.
+        if run_dir is not None and (run_dir / CONFIG_FILE).is_file():
+            hint = f"continue with: itskill experiment run {file} --out {run_dir} --resume"
+        else:
+            hint = "no run was recorded yet; run the same command again"
+        err_console.print(f"interrupted; {hint}", markup=False)
         raise typer.Exit(130) from None
     console.print(
         f"{len(summary.finished)} cells trained, {len(summary.skipped)} already done, "

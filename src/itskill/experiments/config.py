@@ -22,6 +22,7 @@ Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,10 @@ ALGOS = ("a2c", "ppo")
 EXPERT = "expert"
 AUTO = "auto"
 MAX_SEED_COUNT = 1000
+MAX_NAME_BYTES = 100
+"""Well inside the file systems' 255 bytes per directory name, and a path one can still read."""
+MAX_GRID_POINTS = 100_000
+"""A figure's curves have no use for more points; each method's band is seeds × points floats."""
 
 
 class ExperimentConfigError(DataFileError):
@@ -176,13 +181,24 @@ def _name(path: Path, value: Any) -> str:
     """The experiment's name, which names its run directory (``runs/experiments/<name>``): one
     plain directory name, so that no name puts the run outside that folder or over the cwd."""
     name = _typed(path, "name", value, str)
-    if not name.strip() or name == "." or any(bad in name for bad in ("/", "\\", "..")):
+    if (
+        not name.strip()
+        or name == "."
+        or not name.isprintable()  # NUL makes no directory name, a control character a bad one
+        or any(bad in name for bad in ("/", "\\", ".."))
+    ):
         raise ExperimentConfigError(
             path,
             "name",
-            f"expected a plain, non-empty name (it names the run directory) without '/', '\\' "
-            f"or '..', got {name!r}",
+            f"expected a plain, non-empty name (it names the run directory) of printable "
+            f"characters without '/', '\\' or '..', got {name!r}",
         )
+    size = len(name.encode("utf-8"))
+    if size > MAX_NAME_BYTES:
+        raise ExperimentConfigError(
+            path, "name", f"too long for a directory name: {size} bytes (UTF-8), at most "
+            f"{MAX_NAME_BYTES}"
+        )  # fmt: skip
     return name
 
 
@@ -345,11 +361,23 @@ def _parse_report(
             path, "report.baseline", f"{baseline!r} is not one of the methods {list(methods)}"
         )
     points = _typed(path, "report.grid_points", rep.get("grid_points", default.grid_points), int)
-    if points < 2:
-        raise ExperimentConfigError(path, "report.grid_points", f"expected ≥ 2, got {points}")
+    if not 2 <= points <= MAX_GRID_POINTS:
+        raise ExperimentConfigError(
+            path, "report.grid_points", f"expected 2 to {MAX_GRID_POINTS:,} points, got {points:,}"
+        )
     paper = _table(path, "report.paper_gain", rep.get("paper_gain", {}), set(tasks))
-    paper_gain = {t: _typed(path, f"report.paper_gain.{t}", g, float) for t, g in paper.items()}
+    paper_gain = {t: _gain(path, f"report.paper_gain.{t}", g) for t, g in paper.items()}
     return ReportSettings(threshold, fractions, baseline, points, paper_gain)
+
+
+def _gain(path: Path, where: str, value: Any) -> float:
+    """A time-efficiency gain, 1 − method/baseline: a fraction below 1 (negative when slower)."""
+    gain = _typed(path, where, value, float)
+    if not math.isfinite(gain) or gain >= 1:
+        raise ExperimentConfigError(
+            path, where, f"expected a fraction below 1 (0.7222 for 72.22%), got {value}"
+        )
+    return gain
 
 
 def _parse_execution(path: Path, value: Any) -> ExecutionSettings:

@@ -186,14 +186,13 @@ def video_section(
 
     out = videos / f"{task}_{label}.mp4"
     try:
-        policy = as_policy(run_dir)
+        # as_policy reads only checkpoint.json; missing weights are found once record loads them.
+        res = record(get_task(task), as_policy(run_dir), out, episodes=1, seed=0)
     except CheckpointError as err:
         # Committed results keep curves and results, not policies: the report still gets written.
         notes.append(f"no video: {err}")
         doc.add(Paragraph(f"No video: the policy is not in the run directory ({err})."))
         return
-    try:
-        res = record(get_task(task), policy, out, episodes=1, seed=0)
     except RenderError as err:
         notes.append(f"no video: {err}")
         doc.add(Paragraph(f"No video: offscreen rendering is not available here ({err})."))

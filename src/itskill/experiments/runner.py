@@ -13,10 +13,12 @@ Run directory layout::
 A cell with ``result.json`` is done and skipped; a cell with only a checkpoint resumes from it
 (the trainer continues the step count); the others start. Each ``result.json`` is written by the
 worker that trained the cell, atomically, so a killed run loses only the cells in flight.
+``config.json`` is what makes a directory a run: it is written before anything else of the run.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -142,15 +144,16 @@ class RunSummary:
     failed: dict[Cell, str] = field(default_factory=dict)
 
 
-def _run_record(config: ExperimentConfig, run_dir: Path, resume: bool) -> ExperimentConfig:
-    """Check ``run_dir`` against ``config``; the configuration to record there.
+def _recorded_run(
+    config: ExperimentConfig, run_dir: Path, resume: bool, source_file: Path | None
+) -> ExperimentConfig | None:
+    """The configuration ``run_dir`` records, once this call may use it; None for a new run.
 
-    A resumed run records the union of its sessions' tasks, methods and seeds, so the report
-    covers every cell trained in the directory, not only those of the latest file.
+    It only reads, so a refused call leaves ``run_dir`` as it was. A new run is refused a
+    directory that holds anything but ``source_file`` itself (the experiment file may live in
+    the folder of its run): the run would overwrite the user's files or mix with them.
     """
-    config_path = run_dir / CONFIG_FILE
-    record = config
-    if config_path.is_file():
+    if (run_dir / CONFIG_FILE).is_file():
         old = read_run_config(run_dir)  # another kind of run is named as such, first
         if not resume:
             raise ExperimentRunError(
@@ -159,14 +162,35 @@ def _run_record(config: ExperimentConfig, run_dir: Path, resume: bool) -> Experi
             )
         _check_same_training(old, config, run_dir)
         _not_a_copy(run_dir)
-        record = _union(old, config)
-    elif resume:
+        return old
+    if resume:
         what = "is not an experiment run directory" if run_dir.exists() else "does not exist"
         raise ExperimentRunError(
             f"nothing to resume: {run_dir} {what} (no {CONFIG_FILE}); give the run's --out, "
             "or leave out --resume to start a new run"
         )
-    return record
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ExperimentRunError(
+            f"{run_dir}: not a directory; give --out a new or empty directory for the run"
+        )
+    if run_dir.is_dir():
+        foreign = sorted(
+            p.name
+            for p in run_dir.iterdir()
+            if source_file is None or not _same_file(p, source_file)
+        )
+        if foreign:
+            more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+            raise ExperimentRunError(
+                f"{run_dir}: holds {', '.join(foreign[:3])}{more} and is not an experiment run "
+                f"(no {CONFIG_FILE}); a new run would overwrite or mix with them: give --out a "
+                "new or empty directory"
+            )
+    return None
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    return a.exists() and b.exists() and os.path.samefile(a, b)
 
 
 def _not_a_copy(run_dir: Path) -> None:
@@ -215,37 +239,45 @@ def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: 
             )
 
 
-def _union(old: ExperimentConfig, new: ExperimentConfig) -> ExperimentConfig:
+def _union(old: ExperimentConfig, new: ExperimentConfig, trains: bool) -> ExperimentConfig:
+    """What a run resumed with ``new`` records: see :func:`run_experiment`."""
+
     def merged(a: tuple, b: tuple) -> tuple:
         return tuple(dict.fromkeys((*a, *b)))
 
     return replace(
         new,
+        name=old.name,
+        description=old.description,
         tasks=merged(old.tasks, new.tasks),
         methods=merged(old.methods, new.methods),
         seeds=merged(old.seeds, new.seeds),
         reward={**old.reward, **new.reward},
         sources={**old.sources, **new.sources},
+        execution=new.execution if trains else old.execution,
     )
 
 
 def resolve_all_sources(config: ExperimentConfig, run_dir: Path) -> dict[str, list[str]]:
-    """Each task's source skills (names), resolved once and stored so every cell uses the same.
+    """Each task's source skills (names): those ``run_dir`` stores, the others resolved now. They
+    are resolved once and stored (by :func:`run_experiment`) so that every cell uses the same.
 
-    A resumed run keeps the stored ones: the skill space may have grown since.
+    A resumed run keeps the stored ones: the skill space may have grown since. Nothing is
+    resolved while no method uses sources (No_Transfer alone needs no skill space).
     """
-    from itskill.transfer import resolve_sources
+    from itskill.transfer import get_method, resolve_sources
 
     path = run_dir / SOURCES_FILE
-    stored: dict[str, list[str]] = read_json(path) if path.is_file() else {}
+    found: dict[str, list[str]] = read_json(path) if path.is_file() else {}
+    if not any(get_method(m).uses_sources for m in config.methods):
+        return found
     for task in config.tasks:
-        if task in stored:
+        if task in found:
             continue
         wanted = config.sources.get(task, AUTO)
-        found = resolve_sources(task, wanted if wanted == AUTO else list(wanted), k=config.k)
-        stored[task] = [s.name for s in found]
-    write_json(path, stored)
-    return stored
+        chosen = resolve_sources(task, wanted if wanted == AUTO else list(wanted), k=config.k)
+        found[task] = [s.name for s in chosen]
+    return found
 
 
 def run_experiment(
@@ -262,6 +294,15 @@ def run_experiment(
 
     ``executor``, ``workers`` and ``ray_address`` default to the file's ``[execution]`` table.
     A cell that fails is reported (and its error saved in ``error.txt``); the others go on.
+
+    A run resumed with another experiment file (``resume``) keeps its name and description (its
+    identity, what its report is titled with) and the training settings, which must match. It
+    records the union of every session's tasks, methods and seeds (and their rewards and
+    sources), so the report covers every cell in the directory, and the file's report settings;
+    its ``[execution]`` only when cells train (nothing ran with it otherwise). Whenever the run's
+    files are written, ``source_file`` is copied to ``experiment.toml``: the file of the latest
+    session that trained or changed what is recorded. A call refused, or with nothing to train
+    and nothing new to record, writes nothing.
     """
     console = console or Console(stderr=True, emoji=False)
     run_dir = Path(run_dir)
@@ -274,12 +315,9 @@ def run_experiment(
         ray_address = config.execution.ray_address
     # Before the run is recorded: settings that cannot run leave no run to --resume.
     check_executor(ex, workers, ray_address)
-    record = _run_record(config, run_dir, resume)
+    old = _recorded_run(config, run_dir, resume, source_file)
     # Before the run is recorded: a source that cannot be found leaves no run to --resume.
     sources = resolve_all_sources(config, run_dir)
-    write_json(run_dir / CONFIG_FILE, record.to_dict())
-    if source_file is not None:
-        shutil.copyfile(source_file, run_dir / EXPERIMENT_FILE)
     summary = RunSummary(run_dir)
     todo: list[Cell] = []
     for cell in cells(config):
@@ -289,9 +327,22 @@ def run_experiment(
             continue
         if (out / "checkpoint.json").is_file():
             summary.resumed.append(cell)
-        # A failure of an earlier session is retried now: the report must not call it failed.
-        (out / ERROR_FILE).unlink(missing_ok=True)
         todo.append(cell)
+    record = config if old is None else _union(old, config, trains=bool(todo))
+    if old is not None and config.name != old.name:
+        console.print(
+            f"note: the run in {escape(str(run_dir))} keeps its name "
+            f"{escape(repr(old.name))} (the experiment file says {escape(repr(config.name))})"
+        )
+    if todo or record != old:
+        # config.json first: from then on the directory is a run, which --resume completes.
+        write_json(run_dir / CONFIG_FILE, record.to_dict())
+        write_json(run_dir / SOURCES_FILE, sources)
+        if source_file is not None and not _same_file(source_file, run_dir / EXPERIMENT_FILE):
+            shutil.copyfile(source_file, run_dir / EXPERIMENT_FILE)
+    for cell in todo:
+        # A failure of an earlier session is retried now: the report must not call it failed.
+        (cell.dir(run_dir) / ERROR_FILE).unlink(missing_ok=True)
     jobs = [
         (
             cell,
@@ -300,7 +351,7 @@ def run_experiment(
                 steps=config.steps,
                 num_envs=config.num_envs,
                 reward=config.reward[cell.task],
-                sources=tuple(sources[cell.task]),
+                sources=tuple(sources.get(cell.task, ())),
                 llm=config.llm,
                 eval_every=config.eval.every,
                 eval_episodes=config.eval.episodes,
@@ -312,7 +363,7 @@ def run_experiment(
         for cell in todo
     ]
     console.print(
-        f"experiment [bold]{escape(config.name)}[/bold]: {len(summary.skipped) + len(todo)} cells, "
+        f"experiment [bold]{escape(record.name)}[/bold]: {len(summary.skipped) + len(todo)} cells, "
         f"{len(summary.skipped)} done, {len(summary.resumed)} to resume, "
         f"{len(todo) - len(summary.resumed)} to start → {escape(str(run_dir))}"
     )
