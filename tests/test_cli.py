@@ -41,6 +41,13 @@ def test_tasks_list_table_and_markdown():
     assert len(lines) == 2 + len(all_tasks())
 
 
+def test_tasks_list_refuses_json_and_markdown_together():
+    # It printed JSON, silently ignoring --markdown.
+    result = runner.invoke(app, ["tasks", "list", "--json", "--markdown"])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert "give --json or --markdown, not both" in flat(result.output)
+
+
 def test_tasks_show_json_is_complete():
     result = runner.invoke(app, ["tasks", "show", "screw_nut_m12", "--json"])
     assert result.exit_code == 0, result.output
@@ -374,6 +381,29 @@ def test_out_of_range_numbers_and_the_current_directory_are_refused_before_any_w
     assert list(tmp_path.iterdir()) == []  # nothing written, not even the skill space
 
 
+def test_paths_too_long_to_use_are_one_line_errors_naming_them_cut_short(tmp_path, monkeypatch):
+    # OSError: [Errno 36] File name too long, as a traceback.
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    too_long = str(tmp_path / ("a" * 300))
+    for args in (
+        ["eval", "reach_nut_m12", "--policy", too_long],
+        ["train", "reach_nut_m12", "--steps", "64", "--out", too_long],
+    ):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, (args, result.output)
+        assert result.output.startswith(f"error: cannot use {too_long[:40]}"), result.output
+        assert "characters): File name too long" in result.output
+        assert len(result.output.splitlines()) == 1 and "a" * 300 not in result.output
+
+
+def test_a_skill_number_past_sqlites_integers_is_an_unknown_skill(tmp_path, monkeypatch):
+    # OverflowError: Python int too large to convert to SQLite INTEGER, exit 1.
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    result = runner.invoke(app, ["eval", "reach_nut_m12", "--policy", "skill:" + "9" * 20])
+    assert result.exit_code == 2, result.output
+    assert f"unknown skill '{'9' * 20}'" in result.output
+
+
 def test_eval_of_a_policy_on_another_task_runs_with_a_note(tmp_path, monkeypatch):
     from itskill.skills.store import SHIPPED_LIBRARY
 
@@ -392,6 +422,14 @@ def test_eval_of_a_policy_on_another_task_runs_with_a_note(tmp_path, monkeypatch
     by_file = runner.invoke(app, ["eval", "pick_nut_m12", "--policy", str(weights), *args[4:]])
     assert by_file.exit_code == 0, by_file.output
     assert f"note: {weights} was trained on reach_nut_m12" in flat(by_file.output)
+    # So does the skill of that checkpoint (it printed no note).
+    by_skill = runner.invoke(
+        app, ["eval", "pick_nut_m12", "--policy", "skill:reach_nut_m12", *args[4:]]
+    )
+    assert by_skill.exit_code == 0, by_skill.output
+    assert "note: skill:reach_nut_m12 was trained on reach_nut_m12; evaluated on pick_nut_m12" in (
+        flat(by_skill.output)
+    )
 
 
 def test_plan_of_a_task_id_needs_no_model_but_refuses_a_mistyped_one(monkeypatch):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from itskill.files import write_text
+from itskill.files import is_unusable_path, path_error_message, write_text
 
 
 def test_a_write_that_fails_keeps_the_old_file_and_leaves_no_temporary(
@@ -25,3 +25,23 @@ def test_a_write_that_fails_keeps_the_old_file_and_leaves_no_temporary(
         write_text(path, "new")
     # A leftover temporary made `learn --resume` take an empty run for a started one.
     assert path.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == [path.name]
+
+
+def test_a_path_too_long_or_looping_is_the_paths_fault_and_named_cut_short(tmp_path: Path) -> None:
+    # ENAMETOOLONG and ELOOP are plain OSErrors: the commands printed them as tracebacks.
+    too_long = tmp_path / ("a" * 300)
+    with pytest.raises(OSError) as long_err:
+        too_long.mkdir()
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    with pytest.raises(OSError) as loop_err:
+        loop.read_text()
+    assert is_unusable_path(long_err.value) and is_unusable_path(loop_err.value)
+    message = path_error_message(long_err.value)
+    assert message.startswith(f"cannot use {str(too_long)[:40]}")
+    assert message.endswith(f"aaa ({len(str(too_long))} characters): File name too long")
+    assert len(message) < 200
+    assert path_error_message(loop_err.value) == (
+        f"cannot use {loop}: Too many levels of symbolic links"
+    )
+    assert not is_unusable_path(OSError(errno.ENOSPC, "No space left on device"))

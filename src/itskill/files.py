@@ -7,6 +7,7 @@ can trust every file it finds: a ``result.json`` that exists is a finished candi
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -45,7 +46,7 @@ def write_text(path: Path, text: str) -> None:
 
 def write_json(path: Path, data: Any) -> None:
     """Write ``data`` as indented JSON, atomically; non-finite floats become ``null``."""
-    write_text(path, json.dumps(_finite(data), indent=2) + "\n")
+    write_text(path, json.dumps(json_safe(data), indent=2) + "\n")
 
 
 class CorruptFileError(PicklableError, ValueError):
@@ -65,8 +66,18 @@ UNUSABLE_PATH_ERRORS: tuple[type[OSError], ...] = (
     PermissionError,
 )
 """What a user-given path that cannot be written or read raises (a file where a directory should
-be, a read-only place, a directory that cannot be created, ...): the commands report it as one
-line naming the path."""
+be, a directory that cannot be created, no permission, ...). With :data:`UNUSABLE_PATH_ERRNOS`,
+what :func:`is_unusable_path` takes for the path's fault."""
+
+UNUSABLE_PATH_ERRNOS = frozenset({errno.ENAMETOOLONG, errno.ELOOP, errno.EROFS})
+"""The path's faults that Python raises as a plain OSError, told apart only by ``errno``: a name
+too long, a loop of symbolic links, a read-only file system."""
+
+
+def is_unusable_path(err: OSError) -> bool:
+    """Whether ``err`` is the fault of the path it names, which the commands report as one line
+    (:func:`path_error_message`) rather than as a traceback."""
+    return isinstance(err, UNUSABLE_PATH_ERRORS) or err.errno in UNUSABLE_PATH_ERRNOS
 
 
 def read_json(path: Path) -> Any:
@@ -136,17 +147,28 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+PATH_SHOWN_MAX = 120
+"""The most characters of a path an error message shows: a path too long to use (thousands of
+characters) would otherwise fill the terminal."""
+
+
 def path_error_message(err: OSError) -> str:
-    """``err`` (one of :data:`UNUSABLE_PATH_ERRORS`) as a line naming the path and the problem."""
-    where = err.filename if err.filename is not None else "a path"
+    """``err`` (one that :func:`is_unusable_path` takes) as a line naming the path, cut short
+    in the middle if long (its start and its last name tell where it is), and the problem."""
+    where = "a path" if err.filename is None else str(err.filename)
+    if len(where) > PATH_SHOWN_MAX:
+        half = (PATH_SHOWN_MAX - 3) // 2
+        where = f"{where[:half]}...{where[-half:]} ({len(where):,} characters)"
     return f"cannot use {where}: {err.strerror or err}"
 
 
-def _finite(data: Any) -> Any:
+def json_safe(data: Any) -> Any:
+    """``data`` with its non-finite floats as None: ``json.dumps`` writes them as ``NaN`` and
+    ``Infinity``, which no JSON reader but Python's takes."""
     if isinstance(data, float) and not math.isfinite(data):
         return None
     if isinstance(data, dict):
-        return {str(k): _finite(v) for k, v in data.items()}
+        return {str(k): json_safe(v) for k, v in data.items()}
     if isinstance(data, list | tuple):
-        return [_finite(v) for v in data]
+        return [json_safe(v) for v in data]
     return data

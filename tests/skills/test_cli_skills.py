@@ -72,6 +72,31 @@ def test_unknown_skill_exits_2_with_close_names(home):
     assert "unknown skill" in result.output and "pick_nut_m12" in result.output
 
 
+@pytest.mark.parametrize("command", [["show"], ["remove", "--json"]])
+def test_a_serial_number_past_sqlites_integers_is_an_unknown_skill(home, command):
+    # OverflowError: Python int too large to convert to SQLite INTEGER, exit 1.
+    result = runner.invoke(app, ["skills", command[0], "9" * 23, *command[1:]])
+    assert result.exit_code == 2, result.output
+    assert f"unknown skill '{'9' * 23}'" in result.output and result.stdout == ""
+
+
+def test_add_of_a_checkpoint_path_too_long_to_use_is_a_one_line_error(home, tmp_path):
+    too_long = tmp_path / ("a" * 300) / "policy.safetensors"
+    result = add(too_long, "reach_nut_m12")
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith(f"error: cannot use {str(too_long)[:40]}")
+    assert "characters): File name too long" in result.output
+    assert len(result.output.splitlines()) == 1 and "a" * 300 not in result.output
+
+
+def test_list_refuses_json_and_markdown_together(home):
+    # It printed JSON, silently ignoring --markdown.
+    result = runner.invoke(app, ["skills", "list", "--json", "--markdown"])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert "give--jsonor--markdown,notboth" in _flat(result.output)
+    assert not home.exists()  # refused before the skill space was opened
+
+
 def test_add_needs_existing_checkpoint_and_known_task(home, tmp_path, checkpoint):
     missing = runner.invoke(
         app, ["skills", "add", "--task", "pick_nut_m12", "--checkpoint", str(tmp_path / "no.zip")]
@@ -168,6 +193,25 @@ def test_add_refuses_an_interval_whose_low_is_above_its_high(home, checkpoint):
     )
     assert result.exit_code == 2 and "--ci-low" in _flat(result.output)
     assert "low0.9isabovehigh0.1" in _flat(result.output)
+
+
+@pytest.mark.parametrize(
+    ("options", "option", "problem"),
+    [
+        (["--wall-s", "inf"], "--wall-s", "infisnotafinitenumberofseconds"),
+        (
+            ["--success", "0.1", "--ci-low", "0.9", "--ci-high", "0.99"],
+            "--success",
+            "0.1isoutsideitsowninterval[0.9,0.99]",
+        ),
+    ],
+)
+def test_add_refuses_measurements_no_run_gives(home, checkpoint, options, option, problem):
+    # `--wall-s inf` was stored and `skills show --json` printed Infinity, which is not JSON.
+    result = add(checkpoint, "reach_nut_m12", *options)
+    assert result.exit_code == 2 and result.stdout == ""
+    assert f"Invalidvaluefor{option}:{problem}" in _flat(result.output)
+    assert not home.exists()  # refused before the skill space was opened
 
 
 @pytest.mark.parametrize("name", ["", "  ", " pick"])

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import math
 import multiprocessing as mp
 import sqlite3
 from pathlib import Path
@@ -23,6 +24,7 @@ from itskill.skills.store import (
     MIGRATIONS,
     SCHEMA_VERSION,
     SHIPPED_LIBRARY,
+    InvalidMeasurementError,
     InvalidSkillNameError,
     MigrationError,
 )
@@ -179,6 +181,45 @@ def test_only_ascii_digits_read_as_a_serial_number(home, checkpoint):
         assert space.get("①").name == "①"
         with pytest.raises(UnknownSkillError, match="unknown skill '²'"):
             space.get("²")
+
+
+def test_a_serial_number_past_sqlites_integers_names_no_skill(home, checkpoint):
+    # Binding it to the query raised OverflowError (`skills show 99999999999999999999999`).
+    with SkillSpace() as space:
+        space.add(make_skill("a", Path(checkpoint)))
+        for key in ("9" * 23, 2**70, -(2**70), "9" * 5000, str(2**63)):
+            with pytest.raises(UnknownSkillError, match="unknown skill"):
+                space.get(key)
+        with pytest.raises(UnknownSkillError):
+            space.remove("9" * 23)
+        assert space.get("0" * 30 + "1").name == "a"  # leading zeros still read as 1
+
+
+@pytest.mark.parametrize(
+    ("measurements", "problem"),
+    [
+        ({"train_wall_s": math.inf}, "train_wall_s: inf is not a finite number of seconds"),
+        ({"train_wall_s": math.nan}, "train_wall_s: nan is not a finite number of seconds"),
+        ({"train_wall_s": -1.0}, "train_wall_s: -1.0 is not a finite number of seconds"),
+        ({"train_steps": -5}, "train_steps: -5 is not a whole number of env-steps"),
+        (
+            {"success_rate": 0.1, "success_ci": (0.9, 0.99)},
+            "success: 0.1 is outside its own interval [0.9, 0.99]",
+        ),
+    ],
+)
+def test_every_write_refuses_measurements_no_run_gives(home, checkpoint, measurements, problem):
+    # An infinite wall time was stored and `skills show --json` printed Infinity, which is not
+    # JSON; a rate outside its own interval was stored as measured.
+    with SkillSpace() as space:
+        with pytest.raises(InvalidMeasurementError) as added:
+            space.add(make_skill("a", Path(checkpoint), **measurements))
+        assert str(added.value).startswith(problem) and len(space) == 0
+        space.add(make_skill("a", Path(checkpoint)))
+        with pytest.raises(InvalidMeasurementError) as updated:
+            space.update("a", **measurements)
+        assert str(updated.value).startswith(problem)
+        assert space.get("a").train_wall_s is None and space.get("a").success_rate is None
 
 
 def test_a_removed_skills_serial_number_is_never_given_again(home, checkpoint):

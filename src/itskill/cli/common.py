@@ -12,7 +12,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from itskill.files import UNUSABLE_PATH_ERRORS, CorruptFileError, path_error_message
+from itskill.files import CorruptFileError, is_unusable_path, json_safe, path_error_message
 from itskill.rl.train import SEED_MAX
 from itskill.tasks import TaskFileError, UnknownTaskError, render
 from itskill.tasks.evaluate import CheckpointError
@@ -73,6 +73,16 @@ def run_dir_option(help: str) -> Any:
 
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
+
+
+MarkdownOpt = Annotated[bool, typer.Option("--markdown", help="Print a Markdown table.")]
+
+
+def check_one_format(as_json: bool, markdown: bool) -> None:
+    """Refuse ``--json`` with ``--markdown``: a command prints one format, and choosing one
+    silently hands whoever wanted the other the wrong output."""
+    if as_json and markdown:
+        raise typer.BadParameter("give --json or --markdown, not both", param_hint="--markdown")
 
 
 CameraOpt = Annotated[str, typer.Option(help="Camera: front or closeup.")]
@@ -148,32 +158,43 @@ def user_errors() -> Iterator[None]:
         CorruptFileError,
     ) as err:
         raise usage_error(str(err)) from err
-    except UNUSABLE_PATH_ERRORS as err:
+    except OSError as err:
+        if not is_unusable_path(err):
+            raise
         raise usage_error(path_error_message(err)) from err
 
 
 def print_json(data: Any) -> None:
+    """Print ``data`` as indented JSON that any reader takes (a non-finite number, as a skill
+    space written before its measurements were checked may hold, as null)."""
     # Plain stdout, not rich: JSON must not be wrapped or coloured.
-    typer.echo(json.dumps(data, indent=2))
+    typer.echo(json.dumps(json_safe(data), indent=2))
 
 
 SKILL_PREFIX = "skill:"
 
 
-def policy_ref(policy: str) -> Any:
-    """``skill:NAME`` (a skill of the skill space), a training run directory or a checkpoint file
-    (its ``policy.safetensors``, as the skill space lists it, or an SB3 ``.zip``) becomes its
-    checkpoint's policy; other references (``scripted``, a path that does not exist) pass
-    through, to be refused with their own message."""
-    from itskill.rl.checkpoint import as_policy, policy_location
+def policy_source(policy: str) -> str | Path:
+    """Where the policy ``policy`` names loads from: for ``skill:NAME`` (a skill of the skill
+    space), a training run directory or a checkpoint file (its ``policy.safetensors``, as the
+    skill space lists it, or an SB3 ``.zip``), the checkpoint's directory or ``.zip``; other
+    references (``scripted``, a path that does not exist) as given, to be refused with their own
+    message."""
+    from itskill.rl.checkpoint import policy_location
 
     if policy.startswith(SKILL_PREFIX):
-        policy_file = _skill_checkpoint(policy[len(SKILL_PREFIX) :])
-    elif Path(policy).is_file():
-        policy_file = Path(policy)
-    else:
-        return as_policy(policy)
-    return as_policy(policy_location(policy_file))
+        return policy_location(_skill_checkpoint(policy[len(SKILL_PREFIX) :]))
+    if Path(policy).is_file():
+        return policy_location(policy)
+    return policy
+
+
+def policy_ref(policy: str) -> Any:
+    """The policy ``policy`` names (:func:`policy_source`) as the evaluators take it: a
+    checkpoint's directory becomes a policy factory (:func:`itskill.rl.checkpoint.as_policy`)."""
+    from itskill.rl.checkpoint import as_policy
+
+    return as_policy(policy_source(policy))
 
 
 def _skill_checkpoint(name: str) -> Path:

@@ -20,6 +20,7 @@ from itskill.cli.common import (
     episodes_option,
     err_console,
     policy_ref,
+    policy_source,
     print_json,
     user_errors,
 )
@@ -64,10 +65,13 @@ def eval_cmd(
     as_json: JsonOpt = False,
 ) -> None:
     """Evaluate a policy: success rate over N episodes with its 95% interval."""
+    from itskill.rl.checkpoint import as_policy
+
     with user_errors():
-        ref = policy_ref(policy)
+        source = policy_source(policy)
+        ref = as_policy(source)
         spec = get_task(task)
-        _note_another_task(policy, spec)
+        _note_another_task(policy, source, spec)
         if starts is None:
             result = evaluate(spec, ref, episodes=episodes, seed=seed, num_envs=num_envs)
             _print_eval(result, spec, as_json)
@@ -96,16 +100,16 @@ def eval_cmd(
     console.print(table)
 
 
-def _note_another_task(policy: str, spec: TaskSpec) -> None:
+def _note_another_task(policy: str, source: str | Path, spec: TaskSpec) -> None:
     """Evaluating a policy on a task it was not trained on is a fair question (a source on its
-    target), so it runs; the note keeps a mistyped task from passing for the policy's result."""
-    from itskill.rl.checkpoint import META_FILE, policy_location, read_meta
+    target), so it runs; the note keeps a mistyped task from passing for the policy's result.
+    ``source`` is where ``policy`` loads from (:func:`policy_source`): a checkpoint's directory
+    records the task it was trained on, whether named as a run, its weights or a skill."""
+    from itskill.rl.checkpoint import META_FILE, read_meta
 
-    # A checkpoint file (policy.safetensors) is read from its directory, as policy_ref does.
-    run_dir = policy_location(Path(policy)) if Path(policy).is_file() else Path(policy)
-    if not (run_dir / META_FILE).is_file():
+    if not (Path(source) / META_FILE).is_file():
         return
-    trained = read_meta(run_dir)["task"]
+    trained = read_meta(source)["task"]
     if trained != spec.id:
         note = f"{policy} was trained on {trained}; evaluated on {spec.id}"
         err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)

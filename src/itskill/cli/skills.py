@@ -16,6 +16,8 @@ from rich.table import Table
 
 from itskill.cli.common import (
     JsonOpt,
+    MarkdownOpt,
+    check_one_format,
     console,
     episodes_option,
     err_console,
@@ -96,9 +98,10 @@ def skills_markdown(skills: Sequence[Any]) -> str:
 @skills_app.command("list")
 def skills_list(
     as_json: JsonOpt = False,
-    markdown: Annotated[bool, typer.Option("--markdown", help="Print a Markdown table.")] = False,
+    markdown: MarkdownOpt = False,
 ) -> None:
     """List every skill in the skill space ($ITSKILL_HOME/skills.sqlite)."""
+    check_one_format(as_json, markdown)
     from itskill.skills import open_skill_space
 
     with _skill_errors(), open_skill_space() as space:
@@ -157,6 +160,15 @@ def skills_search(
     console.print(_skill_table(list(hits), f"top {len(hits)} for {query!r}"))
 
 
+_MEASUREMENT_OPTIONS = {
+    "success": "--success",
+    "success_ci": "--ci-low",
+    "train_steps": "--steps",
+    "train_wall_s": "--wall-s",
+}
+"""The ``skills add`` option of each :class:`~itskill.skills.Skill` field the space checks."""
+
+
 @skills_app.command("add")
 def skills_add(
     task: Annotated[str, typer.Option(help="Task id the skill solves.")],
@@ -191,33 +203,23 @@ def skills_add(
     from itskill.skills.store import (
         InvalidMeasurementError,
         InvalidSkillNameError,
+        check_measurements,
         check_skill_name,
-        check_success,
     )
 
     if (ci_low is None) != (ci_high is None):
         raise typer.BadParameter("give both --ci-low and --ci-high, or neither")
-    ci = None if ci_low is None or ci_high is None else (ci_low, ci_high)
-    try:
-        check_success(success, ci)
-        if name is not None:
+    if name is not None:
+        try:
             check_skill_name(name)  # before the policy loads, which takes seconds
-    except InvalidMeasurementError as err:
-        hint = "--success" if err.field == "success" else "--ci-low"
-        raise typer.BadParameter(err.problem, param_hint=hint) from err
-    except InvalidSkillNameError as err:
-        raise typer.BadParameter(str(err), param_hint="--name") from err
-    checkpoint = checkpoint.expanduser().resolve()
-    if checkpoint.is_dir():
-        checkpoint = best_policy_dir(checkpoint) / POLICY_FILE
-    with _skill_errors():
+        except InvalidSkillNameError as err:
+            raise typer.BadParameter(str(err), param_hint="--name") from err
+    with user_errors(), _skill_errors():  # a --checkpoint too long to look up, ...
+        checkpoint = checkpoint.expanduser().resolve()
+        if checkpoint.is_dir():
+            checkpoint = best_policy_dir(checkpoint) / POLICY_FILE
         spec = get_task(task)
         acts = spec.actions if actions is None else tuple(a.strip() for a in actions.split(","))
-        try:
-            check_admissible(spec.id, checkpoint, acts)
-        except InadmissibleSkillError as err:
-            hint = "--checkpoint" if checkpoint.exists() and any(acts) else "--actions"
-            raise typer.BadParameter(str(err), param_hint=hint) from err
         skill = Skill(
             name=name or spec.id,
             task_id=spec.id,
@@ -226,12 +228,23 @@ def skills_add(
             # Absolute: a path relative to the shell's directory means nothing to other processes.
             checkpoint=str(checkpoint),
             success_rate=success,
-            success_ci=ci,
+            success_ci=None if ci_low is None or ci_high is None else (ci_low, ci_high),
             train_steps=steps,
             train_wall_s=wall_s,
             algo=algo,
             seed=seed,
         )
+        try:
+            # As the space will, but naming the option, and before the policy loads (seconds).
+            check_measurements(skill)
+        except InvalidMeasurementError as err:
+            hint = _MEASUREMENT_OPTIONS[err.field]
+            raise typer.BadParameter(err.problem, param_hint=hint) from err
+        try:
+            check_admissible(spec.id, checkpoint, acts)
+        except InadmissibleSkillError as err:
+            hint = "--checkpoint" if checkpoint.exists() and any(acts) else "--actions"
+            raise typer.BadParameter(str(err), param_hint=hint) from err
         with open_skill_space() as space:
             added = space.add(skill)
     if as_json:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict
-from typing import Annotated, Any
+from typing import Any
 
 import typer
 from rich.markup import escape
@@ -12,7 +12,9 @@ from rich.table import Table
 
 from itskill.cli.common import (
     JsonOpt,
+    MarkdownOpt,
     TaskArg,
+    check_one_format,
     console,
     print_json,
     user_errors,
@@ -72,9 +74,10 @@ def tasks_markdown() -> str:
 @tasks_app.command("list")
 def tasks_list(
     as_json: JsonOpt = False,
-    markdown: Annotated[bool, typer.Option("--markdown", help="Print a Markdown table.")] = False,
+    markdown: MarkdownOpt = False,
 ) -> None:
     """List every task: id, family, kind, Table I flag, command and stages."""
+    check_one_format(as_json, markdown)
     with user_errors():
         tasks = all_tasks()
         if as_json:

@@ -30,6 +30,7 @@ from typing import Any, Concatenate, Literal, ParamSpec, TypeVar
 
 import numpy as np
 
+from itskill.datafile import is_count, is_number
 from itskill.errors import PicklableError
 
 HOME_ENV = "ITSKILL_HOME"
@@ -113,8 +114,10 @@ class InvalidSkillNameError(SkillSpaceError):
 
 
 class InvalidMeasurementError(SkillSpaceError, ValueError):
-    """A success rate or interval that no evaluation gives: outside [0, 1], or low above high.
-    ``field`` is ``success`` or ``success_ci``; ``problem`` says what is wrong with it."""
+    """A measurement that no evaluation or training run gives: a rate or interval outside
+    [0, 1], an interval whose low is above its high or that leaves out its rate, a budget that is
+    negative or not finite. ``field`` is the :class:`Skill` field (``success`` for its
+    ``success_rate``); ``problem`` says what is wrong with it."""
 
     def __init__(self, field: str, problem: str) -> None:
         super().__init__(f"{field}: {problem}")
@@ -159,7 +162,9 @@ def check_skill_name(name: str) -> None:
 
 def check_success(success: float | None, ci: tuple[float, float] | None) -> None:
     """Raise :class:`InvalidMeasurementError` unless ``success`` and each end of ``ci`` (either
-    may be None: not measured) are rates in [0, 1] and ``ci`` is ``(low, high)`` in that order."""
+    may be None: not measured) are rates in [0, 1], ``ci`` is ``(low, high)`` in that order and,
+    where both are measured, ``success`` lies inside ``ci`` (an evaluation's interval is around
+    its own rate)."""
     if success is not None and not 0 <= success <= 1:  # also refuses NaN
         raise InvalidMeasurementError("success", f"{success} is not a rate in [0, 1]")
     if ci is None:
@@ -173,6 +178,31 @@ def check_success(success: float | None, ci: tuple[float, float] | None) -> None
         raise InvalidMeasurementError(
             "success_ci", f"low {low} is above high {high}; the interval is [low, high]"
         )
+    if success is not None and not low <= success <= high:
+        raise InvalidMeasurementError(
+            "success", f"{success} is outside its own interval [{low}, {high}]"
+        )
+
+
+def check_budget(steps: int | None, wall_s: float | None) -> None:
+    """Raise :class:`InvalidMeasurementError` unless ``steps`` is a whole number of 0 or more and
+    ``wall_s`` a finite number of 0 or more (either may be None: not recorded): no run takes
+    forever, and JSON has no infinity to list it with."""
+    if steps is not None and not is_count(steps):
+        raise InvalidMeasurementError(
+            "train_steps", f"{steps!r} is not a whole number of env-steps of 0 or more"
+        )
+    if wall_s is not None and not (is_number(wall_s) and wall_s >= 0):
+        raise InvalidMeasurementError(
+            "train_wall_s", f"{wall_s!r} is not a finite number of seconds of 0 or more"
+        )
+
+
+def check_measurements(skill: Skill) -> None:
+    """Raise :class:`InvalidMeasurementError` unless ``skill``'s success and training budget pass
+    :func:`check_success` and :func:`check_budget`: what every write to the space checks."""
+    check_success(skill.success_rate, skill.success_ci)
+    check_budget(skill.train_steps, skill.train_wall_s)
 
 
 UPDATABLE_FIELDS = (
@@ -330,6 +360,22 @@ def _row_to_skill(row: sqlite3.Row) -> Skill:
         embedding=None if blob is None else np.frombuffer(blob, dtype="<f4").copy(),
         embedding_model=row["embedding_model"],
     )
+
+
+SQLITE_INTEGER_MAX = 2**63 - 1
+"""SQLite's largest integer: ids are 64-bit, and binding a larger number raises OverflowError."""
+
+
+def _sqlite_integer(serial: int | str) -> int | None:
+    """``serial`` (an int, or a string of ASCII digits) as an int SQLite can hold, or None where
+    it is beyond SQLite's 64-bit integers and so no skill's id. A string's length is checked
+    first: ``int`` refuses more than 4,300 digits."""
+    if isinstance(serial, str):
+        digits = serial.lstrip("0") or "0"
+        if len(digits) > len(str(SQLITE_INTEGER_MAX)):
+            return None
+        serial = int(digits)
+    return serial if -SQLITE_INTEGER_MAX - 1 <= serial <= SQLITE_INTEGER_MAX else None
 
 
 def _blob(vec: np.ndarray | None) -> bytes | None:
@@ -549,9 +595,10 @@ class SkillSpace:
         """Add several skills in one transaction (all or none); returns those added.
 
         Raises :class:`MissingCheckpointError` if a checkpoint file does not exist,
-        :class:`InvalidSkillNameError` for a name :func:`check_skill_name` refuses and, where a
-        name is taken by the time the transaction runs (another process may have added it while
-        this one was embedding), what ``on_conflict`` says: ``error`` raises
+        :class:`InvalidSkillNameError` for a name :func:`check_skill_name` refuses,
+        :class:`InvalidMeasurementError` for measurements :func:`check_measurements` refuses and,
+        where a name is taken by the time the transaction runs (another process may have added it
+        while this one was embedding), what ``on_conflict`` says: ``error`` raises
         :class:`DuplicateSkillError`, ``skip`` leaves the skill out, ``replace`` deletes the old
         skill in the same transaction, so there is no moment without one and two processes
         replacing the same skill leave the later one.
@@ -559,6 +606,7 @@ class SkillSpace:
         skills = list(skills)
         for s in skills:
             check_skill_name(s.name)
+            check_measurements(s)
             self._require_checkpoint(s)
             # Before embedding, which takes seconds (the model loads first): a taken name is
             # known now. The check in the transaction still catches one taken meanwhile.
@@ -667,7 +715,8 @@ class SkillSpace:
         measurements (``success_rate``, ``success_ci``, ``train_steps``, ``train_wall_s``).
 
         A new description or action sequence clears the stored embedding, so the next search
-        embeds the new text instead of retrieving the skill by the old one.
+        embeds the new text instead of retrieving the skill by the old one. Measurements that
+        :func:`check_measurements` refuses raise :class:`InvalidMeasurementError`.
         """
         unknown = set(changes) - set(UPDATABLE_FIELDS)
         if unknown:
@@ -679,6 +728,7 @@ class SkillSpace:
         with self._write() as conn:
             skill = self._get(conn, key)
             new = replace(skill, **changes)
+            check_measurements(new)
             if (new.description, new.actions) != (skill.description, skill.actions):
                 new = replace(new, embedding=None, embedding_model=None)
             ci_low, ci_high = new.success_ci if new.success_ci else (None, None)
@@ -709,11 +759,15 @@ class SkillSpace:
         return self._get(self._conn, key)
 
     def _get(self, conn: sqlite3.Connection, key: int | str) -> Skill:
+        value: int | str | None
         if isinstance(key, int) or is_serial_number(key):
-            row = conn.execute(f"SELECT {_COLUMNS} FROM skills WHERE id = ?", (int(key),))
+            column, value = "id", _sqlite_integer(key)
         else:
-            row = conn.execute(f"SELECT {_COLUMNS} FROM skills WHERE name = ?", (key,))
-        found = row.fetchone()
+            column, value = "name", key
+        found = None
+        if value is not None:  # None: a number past SQLite's integers, which no skill has
+            query = f"SELECT {_COLUMNS} FROM skills WHERE {column} = ?"
+            found = conn.execute(query, (value,)).fetchone()
         if found is None:
             names = [r[0] for r in conn.execute("SELECT name FROM skills ORDER BY id")]
             raise UnknownSkillError(key, names)
