@@ -11,6 +11,10 @@ from typing import Any
 
 import numpy as np
 
+EXPERT = "expert"
+"""The reward name that picks the task's own human-designed reward
+(:func:`itskill.tasks.rewards.expert_reward`) wherever a reward file may be given."""
+
 LOG_COLUMNS = (
     "step",
     "wall_s",

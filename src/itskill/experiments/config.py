@@ -31,11 +31,11 @@ from itskill.datafile import DataFileError, read_toml
 from itskill.executors import EXECUTORS
 from itskill.llm.client import UnknownModelError, model_spec
 from itskill.reward.config import check_seeds
+from itskill.reward_contract import EXPERT
 from itskill.rl.train import RewardLoadError, load_reward
 from itskill.tasks import UnknownTaskError, get_task
 
 ALGOS = ("a2c", "ppo")
-EXPERT = "expert"
 AUTO = "auto"
 MAX_SEED_COUNT = 1000
 MAX_NAME_BYTES = 100

@@ -27,20 +27,21 @@ import traceback
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from itskill.files import read_json, write_json
 from itskill.reward.limited import ChildFailed, RemoteTraceback, run_limited
 from itskill.reward.sandbox import SandboxConfig, compile_reward
+from itskill.reward_contract import EXPERT
+
+if TYPE_CHECKING:  # the worker that only supervises the child imports no simulator
+    from itskill.sim.task import RewardFn
 
 RESULT_FILE = "result.json"
 TRAIN_DIR = "train"
-EXPERT = "expert"
 _CORRELATION_SEED = 30_000
-_EVAL_SEED = 20_000
-"""Seed of the evaluation episodes (with 25 environments): DeterministicEvalCallback's."""
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,7 @@ class CandidateNetwork:
     label: str
 
     def describe(self) -> dict[str, str]:
+        """The network as the run's ``config.json`` records it: class path and label."""
         from itskill.rl.checkpoint import class_path
 
         return {"policy_class": class_path(self.policy_class), "label": self.label}
@@ -87,6 +89,7 @@ class CandidateJob:
     network: CandidateNetwork | None = None
 
     def train_dir(self, seed: int) -> Path:
+        """Where seed ``seed``'s training run goes."""
         return Path(self.out) / TRAIN_DIR / f"seed_{seed}"
 
 
@@ -125,6 +128,7 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
     # Imported here, not at the top: the worker that only supervises the child needs none of it.
     from itskill.reward.feedback import component_stats, eval_curve, peak_success
     from itskill.rl.checkpoint import as_policy
+    from itskill.rl.eval_callback import EVAL_ENVS, EVAL_SEED
     from itskill.rl.logger import LoggerConfig
     from itskill.rl.train import RewardSource, train
     from itskill.tasks import get_task
@@ -166,7 +170,7 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
             # Interrupted between the last checkpoint and its evaluation: evaluate it now, with
             # the evaluation callback's episodes, so the final policy always counts.
             policy = as_policy(job.train_dir(seed))
-            final = evaluate(spec, policy, job.eval_episodes, _EVAL_SEED, num_envs=25)
+            final = evaluate(spec, policy, job.eval_episodes, EVAL_SEED, num_envs=EVAL_ENVS)
             curve.append((result.num_timesteps, final.success_rate))
         runs.append(
             {
@@ -192,7 +196,7 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
 
 
 def expert_correlation(
-    task: str, run_dir: Path, reward_fn: Any, expert_fn: Any, num_envs: int
+    task: str, run_dir: Path, reward_fn: RewardFn, expert_fn: RewardFn, num_envs: int
 ) -> float | None:
     """Pearson correlation of ``reward_fn``'s and ``expert_fn``'s totals on the states visited in
     one episode per environment of the trained policy in ``run_dir``, acting stochastically (the

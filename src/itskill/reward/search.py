@@ -879,7 +879,9 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
         raise RewardSearchError(str(err)) from err
 
 
-def config_from_run(run_dir: str | Path, overrides: dict[str, Any] | None = None):
+def config_from_run(
+    run_dir: str | Path, overrides: dict[str, Any] | None = None
+) -> RewardSearchConfig:
     """The settings a run was made with (for resuming it), ``overrides`` on top."""
     stored = read_run(run_dir)["config"].get("config", {})
     given = {k: v for k, v in (overrides or {}).items() if v is not None}

@@ -77,6 +77,13 @@ def read_selection(run_dir: str | Path) -> dict[str, Any] | None:
         return None
 
 
+EVAL_SEED = 20_000
+"""Seed of the evaluation episodes: the same every evaluation, so a curve compares policies on
+the same episodes."""
+EVAL_ENVS = 25
+"""Environments an evaluation steps together (the episodes drawn depend on it too)."""
+
+
 class DeterministicEvalCallback(BaseCallback):
     """Evaluate the deterministic policy every ``every`` env-steps over ``episodes`` episodes.
 
@@ -95,7 +102,7 @@ class DeterministicEvalCallback(BaseCallback):
         run_dir: Path,
         every: int,
         episodes: int = 50,
-        seed: int = 20_000,
+        seed: int = EVAL_SEED,
         meta: Mapping[str, Any] | None = None,
         at_start: bool = False,
         clock: WallClock | None = None,
@@ -144,7 +151,7 @@ class DeterministicEvalCallback(BaseCallback):
         self._last_evaluated = self.num_timesteps
         t0 = time.perf_counter()
         res = evaluate(
-            self.spec, PolicyActor(self.model.policy), self.episodes, self.seed, num_envs=25
+            self.spec, PolicyActor(self.model.policy), self.episodes, self.seed, num_envs=EVAL_ENVS
         )
         self.clock.add_eval(time.perf_counter() - t0)
         row = {

@@ -30,7 +30,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from itskill.datafile import read_toml
 from itskill.errors import PicklableError
 from itskill.files import write_json
-from itskill.reward_contract import RewardOutputError, check_reward_output
+from itskill.reward_contract import EXPERT, RewardOutputError, check_reward_output
 from itskill.rl.checkpoint import (
     BEST_DIR,
     META_FILE,
@@ -67,7 +67,6 @@ from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.spec import TaskSpec
 
 ALGO_CLASSES: dict[str, type[BaseAlgorithm]] = {"a2c": A2C, "ppo": PPO}
-EXPERT = "expert"
 SEED_MAX = 2**32 - 1
 """The largest seed a run takes: NumPy's legacy seeding, which Stable-Baselines3 uses, stops
 there."""

@@ -34,7 +34,7 @@ from itskill.sim.controller import (
 from itskill.sim.panda import HOME_QPOS
 from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec
 from itskill.sim.scene import build_scene, fixture_anchor
-from itskill.sim.task import HAND_MODES, InitSpec, ObjectInit, SimTask
+from itskill.sim.task import HAND_MODES, InitSpec, ObjectInit, SimTask, default_object_fixture
 from itskill.sim.thread import ThreadConfig, ThreadCoupling
 
 GRIPPER_OPEN_WIDTH = 0.08
@@ -82,8 +82,7 @@ class BatchSim:
         self._objects = task.scene.objects
         self._fixtures = task.scene.fixtures
         self._obj_fixture = np.array(
-            task.object_fixture
-            or [min(i, max(len(self._fixtures) - 1, 0)) for i in range(len(self._objects))]
+            task.object_fixture or default_object_fixture(len(self._objects), len(self._fixtures))
         )
         self._static_context()
         self._home_rot = self._home_rotation()

@@ -206,6 +206,7 @@ def build_nut(body: mujoco.MjsBody, nut: NutSpec) -> None:
 
 
 def build_peg(body: mujoco.MjsBody, peg: PegSpec) -> None:
+    """Add the geoms of ``peg`` (round or rectangular) to ``body``."""
     contact = CONTACT_PARTS | CONTACT_TABLE
     if peg.shape == "round":
         size = (peg.diameter / 2, peg.length / 2, 0)
@@ -216,6 +217,7 @@ def build_peg(body: mujoco.MjsBody, peg: PegSpec) -> None:
 
 
 def build_bolt(body: mujoco.MjsBody, bolt: BoltSpec) -> None:
+    """Add the geoms of ``bolt`` (head and threaded shaft) to ``body``."""
     hh = bolt.head_height / 2
     _part_geom(
         body, f"{body.name}_head", _CYL, (bolt.head_diameter / 2, hh, 0), (0, 0, hh), bolt.rgba
@@ -226,6 +228,7 @@ def build_bolt(body: mujoco.MjsBody, bolt: BoltSpec) -> None:
 
 
 def build_hole(body: mujoco.MjsBody, hole: HoleSpec) -> None:
+    """Add the geoms of ``hole`` (a block with a round or rectangular hole) to ``body``."""
     hz = hole.hole_depth / 2
     if hole.shape == "round":
         apothem = hole.diameter / 2 + hole.clearance

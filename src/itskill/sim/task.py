@@ -98,6 +98,12 @@ def check_start_shares(starts: tuple[TrainingStart, ...]) -> None:
         raise ValueError(f"training start shares must sum to less than 1, got {total:g}")
 
 
+def default_object_fixture(n_objects: int, n_fixtures: int) -> tuple[int, ...]:
+    """The fixture each object is meant for when a task does not say: the one of the same index,
+    the last fixture for objects beyond them, fixture 0 where there are none."""
+    return tuple(min(i, max(n_fixtures - 1, 0)) for i in range(n_objects))
+
+
 @dataclass(frozen=True)
 class SimTask:
     """A task as the simulator sees it.
@@ -105,7 +111,8 @@ class SimTask:
     ``stage_fn`` returns each environment's current subtask index (0-based, < ``n_stages``),
     ``success_fn`` whether it has succeeded, and ``reward_fn`` (optional) the reward; all take the
     reward context of the current state. ``object_fixture[i]`` names the fixture that object ``i``
-    is meant for (its offset to that fixture appears in observations). ``training_starts`` are
+    is meant for (its offset to that fixture appears in observations; empty:
+    :func:`default_object_fixture`). ``training_starts`` are
     drawn instead of ``init`` by environments built for training (see ``BatchEnv``).
     """
 

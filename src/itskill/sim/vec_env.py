@@ -21,10 +21,13 @@ from itskill.sim.task import RewardFn, SimTask, TrainingStart
 
 
 def observation_space() -> gym.spaces.Box:
+    """The observation space every task shares (:data:`OBSERVATION_LAYOUT`)."""
     return gym.spaces.Box(-np.inf, np.inf, shape=(OBSERVATION_LAYOUT.size,), dtype=np.float32)
 
 
 def action_space() -> gym.spaces.Box:
+    """The action space every task shares: end-effector x, y, z and yaw steps, and the
+    gripper (closed above 0), each in [-1, 1]."""
     return gym.spaces.Box(-1.0, 1.0, shape=(5,), dtype=np.float32)
 
 

@@ -32,6 +32,7 @@ from pathlib import Path
 
 from itskill.executors import Executor, run_jobs
 from itskill.files import read_json, write_json
+from itskill.reward_contract import EXPERT
 from itskill.rl.checkpoint import (
     POLICY_FILE,
     as_policy,
@@ -201,7 +202,7 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
             algo=config.algo,
             steps=config.steps,
             seed=seed,
-            reward="expert",
+            reward=EXPERT,
             out=Path(runs_dir) / task / f"seed{seed}",
             num_envs=config.num_envs,
             n_threads=1,

@@ -76,14 +76,18 @@ def seated(ctx: Context, i: int, tolerance: float) -> np.ndarray:
     return engaged(ctx, i) & (ctx["seat_gap"][:, i] <= tolerance)
 
 
-def inserted(ctx: Context, i: int, fraction: float = 0.5, yaw_tol: float = 0.1) -> np.ndarray:
-    """Object ``i`` is in its hole past ``fraction`` of the hole depth, axis and yaw aligned."""
+def hole_depth(ctx: Context, i: int) -> np.ndarray:
+    """The depth of object ``i``'s hole: from its entrance to its seat."""
     fix = ctx["obj_fixture"][:, i].astype(int)
     rows = np.arange(len(fix))
-    hole_depth = ctx["fix_pos"][rows, fix, 2] - ctx["seat_z"][rows, fix]
+    return ctx["fix_pos"][rows, fix, 2] - ctx["seat_z"][rows, fix]
+
+
+def inserted(ctx: Context, i: int, fraction: float = 0.5, yaw_tol: float = 0.1) -> np.ndarray:
+    """Object ``i`` is in its hole past ``fraction`` of the hole depth, axis and yaw aligned."""
     return (
         engaged(ctx, i)
-        & (ctx["insertion_depth"][:, i] >= fraction * hole_depth)
+        & (ctx["insertion_depth"][:, i] >= fraction * hole_depth(ctx, i))
         & (np.abs(ctx["yaw_error"][:, i]) <= yaw_tol)
         & (ctx["obj_tilt"][:, i] <= 0.1)
     )

@@ -35,7 +35,7 @@ import numpy as np
 from itskill.sim.context import min_grasp_width
 from itskill.sim.controller import ControllerConfig
 from itskill.sim.task import Context, RewardFn
-from itskill.tasks.predicates import fixture_offset
+from itskill.tasks.predicates import fixture_offset, hole_depth
 from itskill.tasks.spec import TaskSpec
 
 STAGE_BONUS = 1.0
@@ -227,10 +227,8 @@ def inserted_terms(ctx: Context, i: int, args: tuple[float, ...], t: Mapping[str
     already centred and still, so paying for its depth taught an insert skill to drop the peg:
     it worked from its own start and from none that a moving hand-over gives."""
     fraction = args[0] if args else 0.5
-    rows, fix = _fixture_of(ctx, i)
-    hole_depth = ctx["fix_pos"][rows, fix, 2] - ctx["seat_z"][rows, fix]
     lateral = np.linalg.norm(ctx["obj_to_fix"][:, i, :2], axis=-1)
-    depth = _fraction(ctx["insertion_depth"][:, i], fraction * hole_depth)
+    depth = _fraction(ctx["insertion_depth"][:, i], fraction * hole_depth(ctx, i))
     return {
         "centre": _closeness(lateral, t["fixture_fine"]),
         "centre_fine": _closeness(lateral, t["axis_fine"]),

@@ -606,27 +606,10 @@ class ScriptedPolicy:
 
 
 def run_episodes(task: str, episodes: int, num_envs: int = 16, seed: int = 0) -> list[bool]:
-    """Success of the first ``episodes`` episodes of ``task``'s script on ``num_envs`` envs."""
-    from itskill.tasks import get_task, make_batch_env
+    """Success of ``episodes`` episodes of ``task``'s script on ``num_envs`` envs: those
+    :func:`itskill.tasks.evaluate.evaluate` counts (a quota per environment, so the sample is not
+    biased towards short episodes, which end early on success)."""
+    from itskill.tasks import get_task
+    from itskill.tasks.evaluate import SCRIPTED, evaluate
 
-    env = make_batch_env(task, num_envs=num_envs, seed=seed)
-    policy = ScriptedPolicy(get_task(task), num_envs)
-    outcomes: list[bool] = []
-    # An environment stops counting once enough episodes have started, so that the sample is
-    # not biased towards short episodes (those that end early on success).
-    started = num_envs
-    counting = np.ones(num_envs, dtype=bool)
-    try:
-        env.reset()
-        policy.reset()
-        while len(outcomes) < episodes and counting.any():
-            _, _, dones, infos = env.step(policy(env.context()))
-            for e in np.flatnonzero(dones):
-                if counting[e]:
-                    outcomes.append(bool(infos[e]["is_success"]))
-                counting[e] = started < episodes
-                started += 1
-            policy.reset(np.flatnonzero(dones))
-    finally:
-        env.close()
-    return outcomes[:episodes]
+    return evaluate(get_task(task), SCRIPTED, episodes, seed, num_envs).outcomes

@@ -29,6 +29,7 @@ from itskill.sim.task import (
     SimTask,
     TrainingStart,
     check_start_shares,
+    default_object_fixture,
 )
 from itskill.tasks.predicates import Expression, PredicateError, parse
 
@@ -251,7 +252,7 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         fixtures.append(placed)
     if not 1 <= len(objects) <= 2 or len(fixtures) > 2:
         raise TaskFileError(path, f"task {task_id!r}", "expected 1-2 objects and 0-2 fixtures")
-    default_map = [min(i, max(len(fixtures) - 1, 0)) for i in range(len(objects))]
+    default_map = list(default_object_fixture(len(objects), len(fixtures)))
     object_fixture = tuple(r.get("object_fixture", list, default_map))
     if len(object_fixture) != len(objects) or any(
         not isinstance(f, int) or not 0 <= f < max(len(fixtures), 1) for f in object_fixture
@@ -511,6 +512,8 @@ def _changed_init(path: Path, where: str, own: dict[str, Any], changes: Any) -> 
 
 
 def load_task_file(path: Path, parts: dict[str, Any]) -> list[TaskSpec]:
+    """The tasks of one task file, built from ``parts`` (part name -> spec); a
+    :class:`TaskFileError` names the file and field of anything wrong."""
     data = _load_toml(path)
     unknown = set(data) - {"task"}
     if unknown:
