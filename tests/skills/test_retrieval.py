@@ -3,10 +3,12 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from skill_helpers import make_skill, random_unit
 
 from itskill.skills import Skill, SkillSpace, embeddings, search, skill_text
 from itskill.skills.retrieval import EmptyQueryError
@@ -111,6 +113,51 @@ def test_rows_without_embeddings_are_filled_once(home, checkpoint, monkeypatch):
         assert search(space, "Pick up the nut", k=1)[0][1] > 0.5
         assert search(space, "Pick up the nut", k=1)[0][0].embedding_model == embeddings.MODEL_ID
         assert calls == [1, 1, 1]  # The stale row once, then only queries.
+
+
+def fake_embed(texts: list[str]) -> np.ndarray:
+    """A stand-in for the encoder: a fixed random unit vector per text, so a test can tell which
+    text a stored vector was made from without loading the model."""
+    return np.stack([random_unit(zlib.crc32(t.encode())) for t in texts])
+
+
+def test_a_description_changed_while_embedding_is_not_stored_with_the_old_vector(
+    home, checkpoint, monkeypatch
+):
+    # Another process updated the skill while a search was embedding it: the search wrote the
+    # old text's vector under the current model id, and the row was never re-embedded.
+    old, new = "Pick up the M12 nut", "Insert the round peg into the round hole"
+    calls: list[list[str]] = []
+
+    def embed_while_updated(texts):
+        calls.append(list(texts))
+        if len(calls) == 1:
+            with SkillSpace() as other:
+                other.update("a", description=new)
+        return fake_embed(texts)
+
+    monkeypatch.setattr(embeddings, "embed", embed_while_updated)
+    with SkillSpace() as space:
+        stale = space.add(make_skill("a", checkpoint, description=old, embedding_model="old"))
+        hit, _ = search(space, "Pick up the nut", k=1)[0]
+        # This search ranks the skill as it read it, old text and its vector together.
+        assert hit.description == old
+        np.testing.assert_array_equal(hit.embedding, fake_embed([skill_text(stale)])[0])
+        row = space.get("a")
+        assert row.description == new
+        assert row.embedding is None, f"the old text's vector stored as {row.embedding_model}"
+
+        hit, _ = search(space, "Pick up the nut", k=1)[0]
+        row = space.get("a")
+        assert hit.description == row.description == new
+        assert row.embedding_model == embeddings.MODEL_ID
+        np.testing.assert_array_equal(row.embedding, fake_embed([skill_text(row)])[0])
+    assert calls == [
+        [skill_text(stale)],
+        ["Pick up the nut"],
+        [skill_text(row)],
+        ["Pick up the nut"],
+    ]
 
 
 def test_encoder_loads_without_network(tmp_path):

@@ -3,6 +3,7 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import sqlite3
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -255,6 +256,24 @@ def test_a_new_description_clears_the_embedding(home, checkpoint):
         assert space.get("a").embedding is None  # the next search embeds the new text
         with pytest.raises(TypeError, match="cannot update"):
             space.update("a", checkpoint="elsewhere")
+
+
+def test_an_embedding_is_stored_only_for_the_text_it_was_made_from(home, checkpoint):
+    # A search embeds rows outside any transaction; the text may change before it stores them.
+    with SkillSpace() as space:
+        read = space.add(make_skill("a", Path(checkpoint), embedding_model="old"))
+        space.add(make_skill("b", Path(checkpoint), embedding_model="old"))
+        space.update("a", actions=["approach", "place"])
+        vec = make_skill("x", Path(checkpoint), seed=7).embedding
+        space.set_embeddings(
+            [
+                replace(read, embedding=vec, embedding_model="m"),
+                replace(space.get("b"), embedding=vec, embedding_model="m"),
+            ]
+        )
+        assert (space.get("a").embedding, space.get("a").embedding_model) == (None, None)
+        np.testing.assert_array_equal(space.get("b").embedding, vec)
+        assert space.get("b").embedding_model == "m"
 
 
 def _open_fresh_space(home: str) -> int:

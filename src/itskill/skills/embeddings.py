@@ -60,13 +60,6 @@ def get_encoder() -> SentenceTransformer:
         return _encoder
 
 
-def reset_encoder() -> None:
-    """Forget the loaded encoder (tests; or to free its memory)."""
-    global _encoder
-    with _lock:
-        _encoder = None
-
-
 def embed(texts: list[str] | tuple[str, ...]) -> np.ndarray:
     """Unit-length float32 embeddings of ``texts``, shape ``(len(texts), 384)``.
 

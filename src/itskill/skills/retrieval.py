@@ -17,11 +17,13 @@ repeats kept, the exact multi-step task falls to 4th; with the command alone it 
 
 The query is embedded as given; stored skills are not re-embedded (their vectors are in the
 database), except rows that have no vector or one from another model, which are filled in once.
+A vector is stored only if the skill's text is still the one it was made from (see
+:meth:`SkillSpace.set_embeddings`); the search itself ranks every skill as it read it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -42,23 +44,35 @@ def skill_text(skill: Skill) -> str:
     return f"{text}. Actions: {', '.join(actions)}" if actions else text
 
 
-def _ensure_embeddings(space: SkillSpace, skills: list[Skill]) -> list[Skill]:
-    """Fill in vectors missing from old rows, or made by another model, and store them."""
-    stale = [
-        i
-        for i, s in enumerate(skills)
-        if s.embedding is None or s.embedding_model != embeddings.MODEL_ID
-    ]
-    if not stale:
-        return skills
-    vecs = embeddings.embed([skill_text(skills[i]) for i in stale])
-    space.set_embeddings(
-        [(skills[i].id, vecs[row]) for row, i in enumerate(stale)], embeddings.MODEL_ID
-    )
+def with_embeddings(skills: Sequence[Skill], needs: Callable[[Skill], bool]) -> list[Skill]:
+    """``skills``, each one for which ``needs`` is true with the vector of its
+    :func:`skill_text` from the current model (embedded in one batch), the others as given."""
+    todo = [i for i, s in enumerate(skills) if needs(s)]
     out = list(skills)
-    for row, i in enumerate(stale):
-        out[i] = replace(skills[i], embedding=vecs[row], embedding_model=embeddings.MODEL_ID)
+    if todo:
+        vecs = embeddings.embed([skill_text(skills[i]) for i in todo])
+        for row, i in enumerate(todo):
+            out[i] = replace(skills[i], embedding=vecs[row], embedding_model=embeddings.MODEL_ID)
     return out
+
+
+def _lacks_current_vector(skill: Skill) -> bool:
+    return skill.embedding is None or skill.embedding_model != embeddings.MODEL_ID
+
+
+def _ensure_embeddings(space: SkillSpace, skills: list[Skill]) -> list[Skill]:
+    """Fill in vectors missing from old rows, or made by another model, and store them.
+
+    The vectors are used for this search even where the store drops them because the skill's
+    text changed meanwhile: each skill is ranked by the text it is returned with, as of the
+    moment :func:`search` read the space, like every other field of the results. Re-reading
+    would narrow that window, not close it, and would mix two reads of the space.
+    """
+    filled = with_embeddings(skills, _lacks_current_vector)
+    fresh = [new for old, new in zip(skills, filled, strict=True) if _lacks_current_vector(old)]
+    if fresh:  # Most searches have none, and need not take the write lock.
+        space.set_embeddings(fresh)
+    return filled
 
 
 def check_search(query: str, exclude_tasks: Collection[str] = ()) -> None:

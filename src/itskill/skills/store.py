@@ -378,6 +378,11 @@ def _sqlite_integer(serial: int | str) -> int | None:
     return serial if -SQLITE_INTEGER_MAX - 1 <= serial <= SQLITE_INTEGER_MAX else None
 
 
+def _actions_json(actions: Sequence[str]) -> str:
+    # One serialisation for every write: set_embeddings matches rows on this text.
+    return json.dumps(list(actions))
+
+
 def _blob(vec: np.ndarray | None) -> bytes | None:
     if vec is None:
         return None
@@ -612,7 +617,12 @@ class SkillSpace:
             # known now. The check in the transaction still catches one taken meanwhile.
             if on_conflict == "error" and self._taken(self._conn, s.name):
                 raise DuplicateSkillError(s.name)
-        skills = self._with_embeddings(skills)  # Outside the transaction: the model is slow.
+        # Imported here: retrieval imports this module.
+        from itskill.skills.retrieval import with_embeddings
+
+        # Outside the transaction: the model is slow. A vector given with a skill is kept, even
+        # another model's: the first search replaces that one.
+        skills = with_embeddings(skills, lambda s: s.embedding is None)
         now = time.time()
         added: list[Skill] = []
         with self._write() as conn:
@@ -634,7 +644,7 @@ class SkillSpace:
                             s.name,
                             s.task_id,
                             s.description,
-                            json.dumps(list(s.actions)),
+                            _actions_json(s.actions),
                             s.checkpoint,
                             s.success_rate,
                             ci_low,
@@ -657,25 +667,31 @@ class SkillSpace:
     def _taken(conn: sqlite3.Connection, name: str) -> bool:
         return conn.execute("SELECT 1 FROM skills WHERE name = ?", (name,)).fetchone() is not None
 
-    def _with_embeddings(self, skills: list[Skill]) -> list[Skill]:
-        from itskill.skills import embeddings, retrieval
-
-        todo = [i for i, s in enumerate(skills) if s.embedding is None]
-        if not todo:
-            return skills
-        vecs = embeddings.embed([retrieval.skill_text(skills[i]) for i in todo])
-        out = list(skills)
-        for row, i in enumerate(todo):
-            out[i] = replace(skills[i], embedding=vecs[row], embedding_model=embeddings.MODEL_ID)
-        return out
-
     @_reporting_sqlite_errors
-    def set_embeddings(self, items: Sequence[tuple[int, np.ndarray]], model_id: str) -> None:
-        """Store embeddings for existing skills (used to fill rows that predate them)."""
+    def set_embeddings(self, skills: Iterable[Skill]) -> None:
+        """Store the ``embedding`` and ``embedding_model`` of existing skills (to fill rows that
+        have no vector, or another model's), each only where the row still has the skill's
+        description and actions.
+
+        Embedding takes seconds, and another process may change the text meanwhile (which clears
+        the row's vector, see :meth:`update`): the vector of the old text, stored under the
+        current model, would never be replaced, so it is dropped and the next search embeds the
+        new text. Ids are never reused, so a row removed meanwhile cannot match another skill.
+        """
         with self._write() as conn:
             conn.executemany(
-                "UPDATE skills SET embedding = ?, embedding_model = ? WHERE id = ?",
-                [(_blob(vec), model_id, skill_id) for skill_id, vec in items],
+                "UPDATE skills SET embedding = ?, embedding_model = ? "
+                "WHERE id = ? AND description = ? AND actions = ?",
+                [
+                    (
+                        _blob(s.embedding),
+                        s.embedding_model,
+                        s.id,
+                        s.description,
+                        _actions_json(s.actions),
+                    )
+                    for s in skills
+                ],
             )
 
     @_reporting_sqlite_errors
@@ -739,7 +755,7 @@ class SkillSpace:
                 (
                     new.task_id,
                     new.description,
-                    json.dumps(list(new.actions)),
+                    _actions_json(new.actions),
                     new.success_rate,
                     ci_low,
                     ci_high,
