@@ -172,3 +172,14 @@ def json_safe(data: Any) -> Any:
     if isinstance(data, list | tuple):
         return [json_safe(v) for v in data]
     return data
+
+
+def run_path(run_dir: Path, recorded: str, default: str) -> Path:
+    """A path a run's record names, found wherever the run now is: a relative one against
+    ``run_dir``; an absolute one (records written before paths were relative) as written if it
+    still exists, else at ``default``, its usual place relative to ``run_dir`` (the run was
+    moved, or copied to ``results/``)."""
+    path = Path(recorded)
+    if not path.is_absolute():
+        return run_dir / path
+    return path if path.exists() else run_dir / default

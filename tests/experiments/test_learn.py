@@ -117,7 +117,9 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(
     assert checkpoint.is_file() and str(home) in str(checkpoint)
     # The skill is the run's best evaluated policy, and the held-out evaluation measured it.
     chosen = summary["transfer"]["selection"]
-    assert summary["transfer"]["policy_dir"] == str(out / "transfer" / "best")
+    # Named relative to the run, which may be moved or copied to results/.
+    assert summary["transfer"]["policy_dir"] == "transfer/best"
+    assert summary["reward"]["best_path"] == "reward/best_reward.py"
     assert chosen["env_steps"] in (128, 256) and skill.train_steps == chosen["env_steps"]
     assert skill.train_wall_s == round(chosen["wall_s"], 1)  # the kept policy's, not the run's
     stored, best = load_policy(checkpoint.parent), load_policy(out / "transfer" / "best")
@@ -155,6 +157,36 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(
         assert [s.name for s in space.list(task_id="pickplace_nut_m12")] == [skill.name]
     assert json.loads((out / "skill.json").read_text())["name"] == skill.name
     assert not (out / "skill.pending.json").exists()
+
+    # The LLM usage adds up over the sessions (it was the last session's alone), and the reward
+    # search's own record holds its requests, not the plan's and the analyzer's before it.
+    usage = json.loads((out / "usage.json").read_text())
+    assert len(usage["sessions"]) == 3
+    assert json.loads((out / "summary.json").read_text())["usage"] == usage["total"]
+    first = usage["sessions"][0]
+    search = json.loads((out / "reward" / "usage.json").read_text())["sessions"][0]
+    assert first["requests"] - search["requests"] == 2  # the plan and the analysis
+
+    # Moved elsewhere, the run still has its report: its records name files relative to it.
+    moved = tmp_path / "moved"
+    out.rename(moved)
+    (moved / "report.md").unlink()
+    from itskill.experiments.report import learn_report
+
+    learn_report(moved, json.loads((moved / "summary.json").read_text()))
+    assert "## Generated reward" in (moved / "report.md").read_text()
+
+
+def test_a_new_run_refuses_a_folder_holding_other_files(tmp_path, budgets):
+    # A step takes the file of its name from an earlier session: another run's plan.json was
+    # kept as this run's ("kept from the previous session"), the user's files overwritten.
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "plan.json").write_text('{"task": "insert_peg_round"}')
+    result = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out))
+    assert result.exit_code == 2
+    assert "not empty and not a learn run" in flat(result.output)
+    assert sorted(p.name for p in out.iterdir()) == ["plan.json"]
 
 
 def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budgets, home):

@@ -62,8 +62,9 @@ def learn_cmd(
     ] = None,
 ) -> None:
     """Learn a new task from a command, end to end, and add it to the skill space."""  # fmt: skip
-    from itskill.experiments.learn import learn
+    from itskill.experiments.learn import learn, learn_dir
     from itskill.experiments.learn import user_errors as learn_errors
+    from itskill.experiments.learn_layout import LEARN_FILE
 
     try:
         with user_errors():  # a damaged run file, an unusable --out, ...
@@ -74,5 +75,10 @@ def learn_cmd(
     except learn_errors() as err:
         raise usage_error(str(err)) from None
     except KeyboardInterrupt:
-        err_console.print("interrupted; continue with the same command and --resume")
+        # Stopped before its plan, a new run leaves nothing (--resume would find no run).
+        if (learn_dir(command, out) / LEARN_FILE).is_file():
+            hint = "continue with the same command and --resume"
+        else:
+            hint = "nothing was kept; run the same command again"
+        err_console.print(f"interrupted; {hint}")
         raise typer.Exit(130) from None

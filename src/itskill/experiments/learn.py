@@ -37,11 +37,19 @@ from rich.markup import escape
 
 from itskill.datafile import DataFileError, read_toml
 from itskill.experiments.analysis import read_curve
+from itskill.experiments.learn_layout import (
+    LEARN_FILE,
+    REWARD_DIR,
+    TRANSFER_DIR,
+    USAGE_FILE,
+    best_reward_file,
+    policy_dir,
+)
 from itskill.experiments.provenance import Sessions
 from itskill.experiments.report import PROVENANCE_FILE, ReportFiles, learn_report
 from itskill.files import CorruptFileError, read_json, write_json
+from itskill.llm.usage_log import UsageLog
 
-LEARN_FILE = "learn.json"
 EVAL_SEED = 10_000
 """Seed of the final evaluation's episodes: other initial states than training's."""
 STEPS = ("plan", "sources", "analyze", "reward", "train", "evaluate", "skill", "report")
@@ -254,6 +262,13 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
                     f"{run_dir} was started with {key}={old.get(key)!r}, this call gives "
                     f"{value!r}; resume with the same settings or use another --out"
                 )
+    elif not resume and run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
+        # A step finds its files from an earlier session by name: another run's plan.json or
+        # sources.json there would be taken for this run's, and the user's files overwritten.
+        raise LearnError(
+            f"{run_dir}: not empty and not a learn run (no {LEARN_FILE}); a new run would read "
+            "or overwrite the files there: give --out a new or empty directory"
+        )
     elif resume:
         # Starting afresh instead would spend hours where a continuation was asked for: a
         # mistyped --out must be said, as `experiment run --resume` says it.
@@ -268,6 +283,11 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
             "--out, or leave out --resume to start a new run"
         )
     write_json(path, settings)
+
+
+def learn_dir(command: str, out: str | Path | None) -> Path:
+    """The run directory of ``itskill learn COMMAND [--out OUT]``."""
+    return Path(out) if out else Path("runs/learn") / slugify(command.strip())
 
 
 def learn(
@@ -313,21 +333,23 @@ def learn(
             "search trains on seeds shifted by the run's seed)"
         )
     command = command.strip()
-    run_dir = Path(out) if out else Path("runs/learn") / slugify(command)
+    run_dir = learn_dir(command, out)
     created = not run_dir.exists()
     client = make_client(llm, cache_dir=run_dir / "llm_cache")
     settings = {"command": command, "budget": b.to_dict(), "seed": seed, "llm": client.name}
     _check_run_dir(run_dir, settings, resume)
     sessions = Sessions(run_dir / PROVENANCE_FILE)
     sessions.start()
+    usage = UsageLog(run_dir / USAGE_FILE, client)
     try:
-        summary = _pipeline(command, b, seed, client, run_dir, video, console)
+        summary = _pipeline(command, b, seed, client, usage, run_dir, video, console)
     except BaseException as err:
         if created and not (run_dir / "plan.json").is_file():
             # Nothing was learned (an ungroundable command, no LLM): leave no directory that
             # a retry would have to --resume.
             shutil.rmtree(run_dir, ignore_errors=True)
         else:
+            usage.save()  # what this session paid for, though it did not finish
             failed = isinstance(err, Exception)
             sessions.finish(status=f"failed: {err}" if failed else "interrupted")
         raise
@@ -348,7 +370,14 @@ def learn(
 
 
 def _pipeline(
-    command: str, b: LearnBudget, seed: int, client: Any, run_dir: Path, video: bool, console
+    command: str,
+    b: LearnBudget,
+    seed: int,
+    client: Any,
+    usage: UsageLog,
+    run_dir: Path,
+    video: bool,
+    console: Console,
 ) -> dict[str, Any]:
     steps = _Steps(console, run_dir)
 
@@ -372,7 +401,7 @@ def _pipeline(
     transfer = _train(plan["task"], b, seed, sources, reward, client, run_dir, steps)
 
     steps.begin("evaluate", f"{b.eval_episodes} held-out episodes, deterministic policy")
-    evaluation = _evaluate(plan["task"], Path(transfer["policy_dir"]), b.eval_episodes, steps)
+    evaluation = _evaluate(plan["task"], policy_dir(run_dir, transfer), b.eval_episodes, steps)
 
     steps.begin("skill", "adding the new skill to the skill space")
     skill = _add_skill(command, plan, b, seed, transfer, evaluation, run_dir, steps)
@@ -390,7 +419,9 @@ def _pipeline(
         "evaluation": evaluation,
         "skill": skill,
         "video": video,
-        "usage": client.usage.to_dict(),
+        # Every session's requests, the reward search's included (its own usage.json has them
+        # again, as that step's share).
+        "usage": usage.save()["total"],
     }
     write_json(run_dir / "summary.json", summary)
     return summary
@@ -437,7 +468,7 @@ def _reward(
     cached = steps.cached("reward.json")
     was_cached = cached is not None
     if cached is None:
-        out = run_dir / "reward"
+        out = run_dir / REWARD_DIR
         # A search already begun keeps its settings: one a release before the shifted seeds
         # started would otherwise be refused as made with other seeds.
         begun = (out / CONFIG_FILE).is_file()
@@ -465,8 +496,9 @@ def _reward(
             plan=TaskPlan.from_dict(plan),
         )
         cached = {
-            "run_dir": str(res.run_dir),
-            "best_path": str(res.best_path),
+            # Relative to the learn run, which may be moved or copied to results/.
+            "run_dir": REWARD_DIR,
+            "best_path": str(res.best_path.relative_to(run_dir)),
             "best_success": res.best_success,
             "expert_success": res.expert_success,
             "iterations": config.iterations,
@@ -479,7 +511,7 @@ def _reward(
     steps.done(
         f"best reward {cached['best_success']:.0%} success"
         + (f" (expert {expert:.0%})" if expert is not None else "")
-        + f" → {cached['best_path']}"
+        + f" → {best_reward_file(run_dir, cached)}"
         + (f"; candidates trained {cached['network']}" if cached.get("network") else ""),
         was_cached,
     )
@@ -571,16 +603,17 @@ def _train(
     from itskill.tasks import get_task
     from itskill.transfer import prepare_transfer, read_transfer
 
-    out = run_dir / "transfer"
+    out = run_dir / TRANSFER_DIR
     t = b.transfer
     # The network's record (sources, the analyzer's matrix) is written before the child starts,
     # so the child never needs the LLM client.
     prepare_transfer(task, t.method, _source_request(sources), seed, t.algo, out, client)
     sandbox = b.search_config().sandbox
+    reward_file = best_reward_file(run_dir, reward)
     try:
         res = run_limited(
             _train_generated,
-            (task, t, seed, _source_request(sources), reward["best_path"], sandbox, out),
+            (task, t, seed, _source_request(sources), str(reward_file), sandbox, out),
             # A candidate's CPU-time limit is sized for a candidate's budget; this training is
             # bounded by its own, and every reward call keeps its time limit.
             sandbox=replace(sandbox, cpu_limit_s=None),
@@ -593,8 +626,7 @@ def _train(
             else "it failed before its first checkpoint; --resume starts it again"
         )
         raise LearnError(
-            f"the generated reward {reward['best_path']} failed in the final training: {err}\n"
-            + kept
+            f"the generated reward {reward_file} failed in the final training: {err}\n" + kept
         ) from err
     curve = read_curve(out, t.steps)
     wall = float(curve.wall_s[-1])
@@ -602,7 +634,7 @@ def _train(
     names = [s["name"] for s in record["sources"]]
     performers = record.get("performers")
     summary = {
-        "run_dir": str(out),
+        "run_dir": TRANSFER_DIR,
         "method": t.method,
         "algo": t.algo,
         "steps": int(res.num_timesteps),
@@ -618,7 +650,7 @@ def _train(
         ],
         "final_success": float(curve.success[-1]),
         # The policy evaluated and kept: the best of the evaluations during training.
-        "policy_dir": str(best_policy_dir(out)),
+        "policy_dir": str(best_policy_dir(out).relative_to(run_dir)),
         "selection": res.best,
     }
     resumed = f" (resumed from {res.resumed_from:,})" if res.resumed_from else ""
@@ -627,7 +659,7 @@ def _train(
         kept = f"; best {res.best['success']:.0%} at {int(res.best['env_steps']):,}, kept"
     steps.done(
         f"{res.num_timesteps:,} env-steps{resumed}, {wall / 60:.1f} min of training; last "
-        f"evaluation {curve.success[-1]:.0%}{kept} → {summary['policy_dir']}"
+        f"evaluation {curve.success[-1]:.0%}{kept} → {policy_dir(run_dir, summary)}"
     )
     return summary
 
@@ -708,7 +740,11 @@ def _add_skill(
     cached = steps.cached("skill.json")
     was_cached = cached is not None
     if cached is None and evaluation["success_rate"] < b.min_success:
-        cached = {"added": False, "min_success": b.min_success, "policy": transfer["policy_dir"]}
+        cached = {
+            "added": False,
+            "min_success": b.min_success,
+            "policy": str(policy_dir(run_dir, transfer)),
+        }
     elif cached is None:
         pending = steps.run_dir / "skill.pending.json"
         with open_skill_space() as space:
@@ -722,7 +758,7 @@ def _add_skill(
             store = itskill_home() / "learned" / name
             store.mkdir(parents=True, exist_ok=True)
             # The kept policy's directory describes itself (transfer.json included).
-            src = Path(transfer["policy_dir"])
+            src = policy_dir(run_dir, transfer)
             for file in (POLICY_FILE, META_FILE, "transfer.json"):
                 if (src / file).is_file():
                     shutil.copyfile(src / file, store / file)

@@ -46,6 +46,7 @@ from itskill.experiments.document import (
     Video,
     write_document,
 )
+from itskill.experiments.learn_layout import best_reward_file, policy_dir, transfer_dir
 from itskill.experiments.plots import method_label, plot_attention, plot_learning_curves
 from itskill.experiments.provenance import Sessions, machine_facts, now
 from itskill.experiments.runner import (
@@ -663,7 +664,7 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
             + f". Search run: {reward['run_dir']}."
         )
     )
-    doc.add(Code(Path(reward["best_path"]).read_text(), "python"))
+    doc.add(Code(best_reward_file(learn_dir, reward).read_text(), "python"))
     transfer = summary["transfer"]
     doc.add(Heading("Transfer"))
     doc.add(
@@ -696,11 +697,9 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
                 + ")."
             )
         )
-    run_dir = Path(transfer["run_dir"])
-    # Runs from before the best policy was kept evaluated their last checkpoint.
-    policy_dir = Path(transfer.get("policy_dir", run_dir))
+    kept = policy_dir(learn_dir, transfer)
     try:
-        curve = read_curve(run_dir, transfer["steps"])
+        curve = read_curve(transfer_dir(learn_dir, transfer), transfer["steps"])
         grid = common_grid([curve], 101)
         fig = plot_learning_curves(
             {transfer["method"]: mean_band([curve], grid)},
@@ -713,7 +712,7 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
         notes.append(str(err))
     if transfer["method"] != "no_transfer":
         doc.add(Heading("Attention over one episode", 3))
-        attention_section(doc, policy_dir, plan["task"], figures, notes)
+        attention_section(doc, kept, plan["task"], figures, notes)
     ev = summary["evaluation"]
     doc.add(Heading("Evaluation"))
     chosen = transfer.get("selection")
@@ -726,13 +725,13 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
         )
     doc.add(
         Paragraph(
-            f"Policy evaluated: {which}, {policy_dir}. Deterministic success "
+            f"Policy evaluated: {which}, {kept}. Deterministic success "
             f"{ev['success_rate']:.1%} over {ev['episodes']} held-out episodes (95% Wilson "
             f"interval {ev['ci_low']:.1%}–{ev['ci_high']:.1%})."
         )
     )
     if summary.get("video", True):
-        video_section(doc, plan["task"], policy_dir, "final", videos, notes)
+        video_section(doc, plan["task"], kept, "final", videos, notes)
     skill = summary.get("skill")
     if skill and skill.get("added", True):
         doc.add(Heading("Skill added to the skill space"))

@@ -41,15 +41,12 @@ class Usage:
     cost_usd: float = 0.0
 
     def to_dict(self) -> dict:
+        """The counts by name, JSON-ready."""
         return asdict(self)
 
-    def add(self, other: Usage) -> None:
-        """Accumulate ``other`` into this one (e.g. a run's total over several clients)."""
-        self.prompt_tokens += other.prompt_tokens
-        self.completion_tokens += other.completion_tokens
-        self.requests += other.requests
-        self.cache_hits += other.cache_hits
-        self.cost_usd += other.cost_usd
+    def since(self, earlier: Usage) -> Usage:
+        """What was consumed after ``earlier`` (a copy of this usage taken then)."""
+        return Usage(**{k: v - getattr(earlier, k) for k, v in asdict(self).items()})
 
 
 class LLMError(RuntimeError):

@@ -32,7 +32,6 @@ import hashlib
 import json
 import math
 import shutil
-import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -46,6 +45,7 @@ from itskill.executors import JobResult, check_executor, default_workers, run_jo
 from itskill.files import check_shape, read_json, write_json, write_text
 from itskill.llm.client import LLMClient, Message, make_client
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
+from itskill.llm.usage_log import UsageLog
 from itskill.reward.candidate import (
     RESULT_FILE,
     TRAIN_DIR,
@@ -145,12 +145,7 @@ class _Run:
 
     def __init__(self, out: Path, client: LLMClient, console: Console) -> None:
         self.out, self.client, self.console = out, client, console
-        self.started = time.monotonic()
-        self.sessions: list[dict[str, Any]] = []
-        path = out / USAGE_FILE
-        if path.is_file():
-            self.sessions = read_json(path).get("sessions", [])
-        self.session = {"started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+        self.usage = UsageLog(out / USAGE_FILE, client)
 
     def __enter__(self) -> _Run:
         return self
@@ -158,24 +153,7 @@ class _Run:
     def __exit__(self, *exc: object) -> None:
         # Ctrl-C or an error mid-iteration: the tokens already paid for are on record (a resumed
         # run replays those replies from the cache, where they count as free).
-        self.save_usage()
-
-    def save_usage(self) -> dict[str, Any]:
-        self.session.update(
-            wall_s=round(time.monotonic() - self.started, 1), **self.client.usage.to_dict()
-        )
-        sessions = [*self.sessions, self.session]
-        keys = ("prompt_tokens", "completion_tokens", "requests", "cache_hits", "cost_usd")
-        total = {k: sum(s.get(k, 0) for s in sessions) for k in keys}
-        total["wall_s"] = round(sum(s.get("wall_s", 0.0) for s in sessions), 1)
-        data = {
-            "llm": self.client.name,
-            "offline": self.client.offline,
-            "total": total,
-            "sessions": sessions,
-        }
-        write_json(self.out / USAGE_FILE, data)
-        return data
+        self.usage.save()
 
     def run_jobs(self, jobs: list[CandidateJob], config: RewardSearchConfig, label: str) -> dict:
         """Run the jobs without a ``result.json``; return every job's result by index.
@@ -519,7 +497,7 @@ def generate_reward(
         console.print(f"reward search in {out} with {backend}", highlight=False)
         if network is not None:
             console.print(f"candidates train {network.label}", highlight=False)
-        run.save_usage()
+        run.usage.save()
         console.print(f"plan: task {plan.task}; " + " ".join(plan.subtasks), highlight=False)
 
         contexts = probe_contexts(plan.task, config.probe_envs, config.probe_steps)
@@ -540,7 +518,7 @@ def generate_reward(
                 config.max_regenerations,
                 config.temperature,
             )
-            run.save_usage()
+            run.usage.save()
             it_dir = out / f"iter_{i}"
             for sample in samples:
                 _write_sample(it_dir / f"sample_{sample.index}", sample)
@@ -601,7 +579,7 @@ def generate_reward(
             )
 
         if best is None:
-            run.save_usage()
+            run.usage.save()
             raise RewardSearchError(
                 f"no candidate reward trained in {config.iterations} iteration(s): every sample "
                 f"was rejected or failed; see {out}/iter_*/sample_*/status.json and result.json"
@@ -638,7 +616,7 @@ def generate_reward(
             if compare_expert
             else None,
         }
-        usage = run.save_usage()
+        usage = run.usage.save()
         best_info = {k: v for k, v in best.items() if k not in ("code", "key", "stats")}
         best_info["path"] = BEST_FILE
         summary = {

@@ -1,0 +1,42 @@
+"""Where an ``itskill learn`` run keeps its steps' files, and how its records name them.
+
+Records name the files relative to the run directory, so a run still reads them once moved or
+copied to ``results/``; records of older runs hold absolute paths, found where the layout puts
+them when they no longer exist (:func:`itskill.files.run_path`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from itskill.files import run_path
+
+LEARN_FILE = "learn.json"
+USAGE_FILE = "usage.json"
+REWARD_DIR = "reward"
+"""The reward search's run directory."""
+TRANSFER_DIR = "transfer"
+"""The final training's run directory."""
+BEST_REWARD = f"{REWARD_DIR}/best_reward.py"
+"""The chosen reward (the search's ``best_reward.py``)."""
+BEST_POLICY = f"{TRANSFER_DIR}/best"
+"""The best evaluated policy of the final training (its ``best/``)."""
+
+
+def best_reward_file(run_dir: Path, reward: dict[str, Any]) -> Path:
+    """The chosen reward's file, from ``reward.json`` (``reward``)."""
+    return run_path(run_dir, reward["best_path"], BEST_REWARD)
+
+
+def transfer_dir(run_dir: Path, transfer: dict[str, Any]) -> Path:
+    """The final training's run directory, from the ``transfer`` part of ``summary.json``."""
+    return run_path(run_dir, transfer["run_dir"], TRANSFER_DIR)
+
+
+def policy_dir(run_dir: Path, transfer: dict[str, Any]) -> Path:
+    """The kept policy's directory, from the ``transfer`` part of ``summary.json`` (runs from
+    before the best policy was kept evaluated their last checkpoint, the training's own)."""
+    recorded = transfer.get("policy_dir", transfer["run_dir"])
+    usual = BEST_POLICY if Path(recorded).name == Path(BEST_POLICY).name else TRANSFER_DIR
+    return run_path(run_dir, recorded, usual)
