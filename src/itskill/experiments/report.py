@@ -297,6 +297,10 @@ def experiment_report(
         doc.add(Bullets(tuple(_pending_line(c, run_dir) for c in pending)))
     if notes:
         doc.add(Heading("Notes"), Bullets(tuple(notes)))
+    if outside:
+        # Again: the attention traces this report made (attention.json) go with the copy, which
+        # has no weights to trace them from when its own report is written.
+        _copy_results(config, run_dir, out)
     md, html_path = out / REPORT_MD, out / REPORT_HTML
     write_document(doc, md, html_path)
     return ReportFiles(md, html_path, tuple(notes))
