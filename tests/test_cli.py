@@ -517,3 +517,112 @@ def test_render_prints_the_video_path_as_typed(tmp_path):
     result = runner.invoke(app, ["render", "reach_nut_m12", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert unspaced(f"wrote {out} (") in unspaced(result.output) and out.is_file()
+
+
+def test_importing_the_cli_loads_no_torch():
+    # `itskill --help` and every command that trains nothing waited 3.4 s for PyTorch and
+    # Stable-Baselines3, imported for the bound of --seed alone.
+    import subprocess
+    import sys
+
+    code = "import itskill.cli, sys; print('torch' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "False"
+
+
+def test_user_errors_names_each_class_where_it_is_defined():
+    # The classes are looked up by module and name: one moved or renamed would silently stop
+    # being caught, and its message would become a traceback again.
+    import importlib
+
+    from itskill.cli.common import USER_ERRORS
+
+    for module, name in USER_ERRORS:
+        cls = getattr(importlib.import_module(module), name)
+        assert issubclass(cls, Exception) and cls.__module__ == module, (module, name)
+
+
+def _user_error_examples() -> list[Exception]:
+    """An error of each kind the user can act on, as the commands raise them."""
+    from itskill.executors import ExecutorError
+    from itskill.experiments.analysis import CurveError
+    from itskill.experiments.config import ExperimentConfigError
+    from itskill.experiments.learn import BudgetError, LearnError
+    from itskill.experiments.report import ReportError
+    from itskill.experiments.runner import ExperimentRunError
+    from itskill.files import CorruptFileError
+    from itskill.llm import LLMError
+    from itskill.llm.prompts import PromptError
+    from itskill.reward.config import SearchConfigError
+    from itskill.reward.plan import PlanError
+    from itskill.reward.search import RewardSearchError
+    from itskill.rl.config import HyperparamError
+    from itskill.rl.demos import DemoError
+    from itskill.rl.train import ResumeMismatchError, RewardLoadError
+    from itskill.skills import SkillSpaceError
+    from itskill.tasks.evaluate import CheckpointError
+    from itskill.tasks.render import RenderError
+    from itskill.tasks.scripted import ScriptError
+    from itskill.tasks.spec import TaskFileError, UnknownTaskError
+    from itskill.transfer import AnalyzerError, SourceError, TransferConfigError
+    from itskill.transfer.fusion import IncompatibleSourceError
+
+    return [
+        AnalyzerError("the reply's matrix has 2 rows; the target has 5 stages"),
+        BudgetError("learn.toml", "tiny.transfer.steps", "missing (required)"),
+        CheckpointError("runs/x", "no checkpoint.json"),
+        CorruptFileError("runs/x/learn.json", "not valid JSON"),
+        CurveError("runs/x/eval.csv", "no evaluations"),
+        DemoError("task 'x' has no script to demonstrate it; train without demos"),
+        ExecutorError("ray is not installed"),
+        ExperimentConfigError("exp.toml", "steps", "missing (required)"),
+        ExperimentRunError("runs/x already holds an experiment run; pass --resume"),
+        HyperparamError("hp.toml", "ppo.n_steps", "expected int"),
+        IncompatibleSourceError("source 0 observes 12 values; the target 14"),
+        LearnError("runs/x was run with another command"),
+        LLMError("openai:x at http://localhost/v1 rejected the request"),
+        PlanError("the plan names no task"),
+        PromptError("analyze.txt: no {segments} slot"),
+        RenderError("no OpenGL backend"),
+        ReportError("runs/x: not an experiment run directory"),
+        ResumeMismatchError("runs/x was trained with a2c, not ppo"),
+        RewardLoadError("reward.py", "no compute_reward(ctx)"),
+        RewardSearchError("runs/reward/x: not a reward search run"),
+        ScriptError("step 2: unknown action"),
+        SearchConfigError("search.toml", "samples", "must be positive"),
+        SkillSpaceError("skills.sqlite was written by a newer itskill"),
+        SourceError("no source skills for 'x'"),
+        TaskFileError("tasks/x.toml", "stages", "missing (required)"),
+        TransferConfigError("transfer.toml", "k", "must be positive"),
+        UnknownTaskError("pick_nut_m99", ["pick_nut_m12"]),
+    ]
+
+
+def _raised_in_a_command(err: Exception):
+    """What a user sees of ``err`` raised by a command inside :func:`user_errors`."""
+    import typer
+
+    from itskill.cli.common import user_errors
+
+    command = typer.Typer()
+
+    @command.command()
+    def fail() -> None:
+        with user_errors():
+            raise err
+
+    return runner.invoke(command, [])
+
+
+@pytest.mark.parametrize("err", _user_error_examples(), ids=lambda err: type(err).__name__)
+def test_every_error_the_user_can_act_on_is_one_line_and_exit_2(err):
+    # Each command caught its own list of these, and the lists had drifted apart: a broken
+    # prompt file was one line in `itskill plan` and a traceback in `itskill learn`.
+    result = _raised_in_a_command(err)
+    assert result.exit_code == 2, result.output
+    assert flat(result.output) == flat(f"error: {err}")
+
+
+def test_an_error_that_is_not_the_users_keeps_its_traceback():
+    result = _raised_in_a_command(ValueError("a bug"))
+    assert result.exit_code == 1 and isinstance(result.exception, ValueError)

@@ -204,6 +204,10 @@ def test_read_curve_errors_name_the_file_and_problem(tmp_path):
     (tmp_path / "eval.csv").write_text("env_steps,wall_s,success\n100,x,0.5\n")
     with pytest.raises(CurveError, match="not a number"):
         read_curve(tmp_path, 100)
+    # A run stopped before its first evaluation: read as an empty curve, the report failed.
+    (tmp_path / "eval.csv").write_text("env_steps,wall_s,success\n")
+    with pytest.raises(CurveError, match=r"eval\.csv: no evaluations"):
+        read_curve(tmp_path, 100)
     # A damaged byte: the report notes the cell's file instead of stopping with a traceback.
     (tmp_path / "eval.csv").write_bytes(b"env_steps,wall_s,success\n100,1,0.5\n\xff\xfe,2,0.6\n")
     with pytest.raises(CurveError, match=r"eval\.csv: not UTF-8 text \(byte 35\)"):

@@ -6,7 +6,9 @@ import json
 from pathlib import Path
 
 import pytest
+from typer.testing import CliRunner
 
+from itskill.cli import app
 from itskill.experiments.config import EvalSettings, ExperimentConfig, ReportSettings
 from itskill.experiments.provenance import Sessions
 from itskill.experiments.report import ReportError, experiment_report
@@ -380,3 +382,58 @@ def test_a_gain_neither_method_reached_is_explained_not_computed():
     thresholds = {m: time_to_threshold([never, never], 0.8) for m in ("itn", "no_transfer")}
     text = _gain_explanation(0.8, thresholds, 0.7222)
     assert "72.22%" in text and "neither reached 80% in any seed within the budget" in text
+
+
+def test_a_cell_stopped_before_its_first_evaluation_is_a_note_not_a_traceback(run, tmp_path):
+    # An eval.csv with its header alone was read as an empty curve: `itskill report` stopped
+    # with a traceback ("zero-size array").
+    import shutil
+
+    damaged = tmp_path / "damaged"
+    shutil.copytree(run, damaged)
+    eval_csv = Cell(TASK, "no_transfer", 2).dir(damaged) / "eval.csv"
+    eval_csv.write_text(eval_csv.read_text().splitlines()[0] + "\n")
+    result = CliRunner().invoke(app, ["report", str(damaged), "--no-video"])
+    assert result.exit_code == 0, result.output
+    assert f"note: {eval_csv}: no evaluations" in " ".join(result.output.split())
+    assert "5 of 8 runs finished" in (damaged / "report.md").read_text()
+
+
+EXPERIMENT = """
+name = "synthetic"
+tasks = ["pickplace_nut_m12"]
+methods = ["itn", "no_transfer"]
+steps = 1000
+[eval]
+every = 200
+episodes = 10
+"""
+
+
+def test_experiment_run_reports_as_itskill_report_does(run, tmp_path, monkeypatch):
+    # Its report's notes were not printed, and a run it could not report on was a traceback.
+    import shutil
+
+    from itskill.experiments import runner
+
+    kept = tmp_path / "kept"
+    shutil.copytree(run, kept)
+    for meta in kept.glob("cells/*/*/*/checkpoint.json"):
+        meta.unlink()  # no policy to film: the report says so in a note
+    experiment = tmp_path / "synthetic.toml"
+    experiment.write_text(EXPERIMENT)
+
+    def ran(run_dir: Path):  # the cells are trained already: what the report sees matters
+        monkeypatch.setattr(runner, "run_experiment", lambda *args: runner.RunSummary(run_dir))
+        args = ["experiment", "run", str(experiment), "--out", str(tmp_path / "out")]
+        return CliRunner().invoke(app, args)
+
+    reported = ran(kept)
+    assert reported.exit_code == 0, reported.output
+    assert "note: no video" in " ".join(reported.output.split())
+    # Rich folds the paths anywhere, even inside a name.
+    assert f"report:{kept / 'report.md'}" in "".join(reported.output.split())
+    refused = ran(tmp_path / "nothing")
+    assert refused.exit_code == 2, refused.output
+    assert "error: " in refused.output and "not an experiment run directory" in refused.output
+    assert "Traceback" not in refused.output

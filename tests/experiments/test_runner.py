@@ -322,3 +322,33 @@ def test_ctrl_c_says_how_to_go_on_only_where_there_is_a_run(toy, tmp_path, monke
         recorded
     )
     assert ("no run was recorded yet; run the same command again" in output) is not recorded
+
+
+def test_cells_that_ask_no_model_need_no_api_key(tmp_path, monkeypatch):
+    # Every cell built the analyzer's client: without a key, a No_Transfer cell and a resumed
+    # ITN cell (its transfer.json holds the matrix) failed with "no API key".
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+    from itskill.experiments.runner import resolve_all_sources
+
+    for name in ("OPENAI_API_KEY", "OPENAI_BASE_URL", "ITSKILL_LLM_MODEL"):
+        monkeypatch.delenv(name, raising=False)
+    path = tmp_path / "toy.toml"
+    path.write_text('llm = "openai:gpt-4o"\n' + TOY.replace("seeds = 2", "seeds = 1"))
+    config = load_experiment(path)
+    run = tmp_path / "run"
+    sources = resolve_all_sources(config, run)
+    itn = Cell("pickplace_nut_m12", "itn", 0)
+    train_transfer(
+        itn.task, itn.method, sources=sources[itn.task], seed=0, steps=128, algo="a2c",
+        out=itn.dir(run), num_envs=2, eval_every=128, eval_episodes=2, n_threads=1,
+        progress=False,
+    )  # fmt: skip  # its analyzer offline: a run interrupted, resumed where no key is set
+    (run / "config.json").write_text(json.dumps(config.to_dict()))
+    (run / "sources.json").write_text(json.dumps(sources))
+    args = ["experiment", "run", str(path), "--out", str(run), "--resume", "--no-report",
+            "--executor", "local", "--workers", "1"]  # fmt: skip
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "2 cells trained, 0 already done, 0 failed" in " ".join(result.output.split())

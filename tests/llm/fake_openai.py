@@ -30,10 +30,11 @@ from typing import Any, Literal
 
 @dataclass(frozen=True)
 class Status:
-    """A scripted HTTP error."""
+    """A scripted HTTP error; ``param`` is the request field it blames, as OpenAI names it."""
 
     code: int
     message: str = "scripted error"
+    param: str | None = None
 
 
 Item = str | Status | Callable[[dict], "str | Status"]
@@ -99,7 +100,8 @@ class FakeOpenAIServer:
                 item = self._next(body)
                 if isinstance(item, Status):
                     headers = {"retry-after": "0"} if item.code == 429 else {}
-                    return item.code, {"error": {"message": item.message}}, headers
+                    error = {"message": item.message, "param": item.param}
+                    return item.code, {"error": error}, headers
                 texts.append(item)
         prompt = sum(words(m.get("content", "")) for m in body.get("messages", []))
         completion = sum(words(t) for t in texts)

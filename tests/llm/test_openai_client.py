@@ -59,6 +59,34 @@ def test_falls_back_to_repeated_calls_when_n_is_not_served(mode: str) -> None:
     assert all("n" not in body for body in server.requests[1:])
 
 
+@pytest.mark.parametrize(
+    "refusal",
+    [
+        Status(400, "Only one completion choice is allowed"),  # llama.cpp
+        Status(400, "'n' must be 1 for this model"),
+        Status(400, "Unsupported value", param="n"),
+    ],
+)
+def test_a_refusal_of_n_falls_back_to_single_samples(refusal: Status) -> None:
+    with FakeOpenAIServer([refusal, "a", "b"]) as server:
+        c = client(server)
+        assert c.complete(MESSAGES, n=2, purpose="reward") == ["a", "b"]
+    assert c.n_supported is False and len(server.requests) == 3
+
+
+def test_a_bad_request_about_something_else_is_an_error_and_n_stays_in_use() -> None:
+    # Any refusal of a multi-sample request stopped asking for n for good, and the same request
+    # was sent again sample by sample only to be refused again.
+    refusal = Status(400, "This model's maximum context length is 8192 tokens", param="messages")
+    with FakeOpenAIServer([refusal, "a", "b"]) as server:
+        c = client(server)
+        with pytest.raises(LLMError, match=r"rejected the request: .*maximum context length"):
+            c.complete(MESSAGES, n=2, purpose="reward")
+        assert len(server.requests) == 1 and c.n_supported is not False
+        assert c.complete(MESSAGES, n=2, purpose="reward") == ["a", "b"]
+    assert server.requests[-1]["n"] == 2
+
+
 def test_a_reply_without_choices_is_an_error_not_a_paid_loop() -> None:
     # Some proxies answer 200 with no choices (a content filter): asking again pays for nothing.
     with FakeOpenAIServer(["never sent"], n_mode="empty") as server:
@@ -81,7 +109,7 @@ def test_a_server_that_is_not_openai_compatible_is_a_clear_error(answer: str, go
     assert len(server.requests) == 1  # not asked again
 
 
-@pytest.mark.parametrize("status", [429, 500, 503])
+@pytest.mark.parametrize("status", [408, 409, 429, 500, 503])
 def test_retries_rate_limits_and_server_errors_then_succeeds(status: int) -> None:
     with FakeOpenAIServer([Status(status), Status(status), "finally"]) as server:
         c = client(server)

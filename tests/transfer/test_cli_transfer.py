@@ -142,3 +142,50 @@ def test_a_damaged_transfer_record_is_one_line_naming_the_file(home: Path, tmp_p
             assert result.exit_code == 2, result.output
             assert f"error: {record}: {problem}" in result.output
             assert "Traceback" not in result.output
+
+
+@pytest.fixture
+def no_api_key(monkeypatch: pytest.MonkeyPatch) -> None:
+    for name in ("OPENAI_API_KEY", "OPENAI_BASE_URL", "ITSKILL_LLM_MODEL"):
+        monkeypatch.delenv(name, raising=False)
+
+
+@pytest.mark.parametrize("method", ["no_transfer", "dfs"])
+def test_a_method_that_asks_no_model_needs_no_api_key(
+    home: Path, tmp_path: Path, no_api_key: None, method: str
+) -> None:
+    # The analyzer's client was built for every method: "no API key" though none was needed.
+    res = runner.invoke(app, ["transfer", "train", "pick_nut_m12", "--method", method,
+                              "--llm", "openai:gpt-4o", "--algo", "a2c", "--steps", "16",
+                              "--num-envs", "2", "--out", str(tmp_path / "run")])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "16 env-steps" in res.output
+
+
+def test_a_resumed_run_asks_no_model_and_a_new_one_does(
+    home: Path, tmp_path: Path, no_api_key: None
+) -> None:
+    out = tmp_path / "run"
+    train = ["transfer", "train", "pick_nut_m12", "--sources", "pick_nut_m12,reach_nut_m12",
+             "--algo", "a2c", "--num-envs", "2", "--out", str(out)]  # fmt: skip
+    assert runner.invoke(app, [*train, "--steps", "16", "--llm", "offline"]).exit_code == 0
+    # Its transfer.json holds the matrix: the model is not asked again.
+    resumed = runner.invoke(app, [*train, "--steps", "32", "--llm", "openai:gpt-4o"])
+    assert resumed.exit_code == 0, resumed.output
+    assert "resumed from 16" in " ".join(resumed.output.split())
+    new = runner.invoke(app, [*train[:-1], str(tmp_path / "new"), "--steps", "16",
+                              "--llm", "openai:gpt-4o"])  # fmt: skip
+    assert new.exit_code == 2 and "no API key for openai:gpt-4o" in " ".join(new.output.split())
+
+
+@pytest.mark.parametrize("command", ["train", "analyze"])
+def test_k_with_named_sources_is_refused(home: Path, tmp_path: Path, command: str) -> None:
+    # -k was silently ignored: the named skills were the sources, however many -k asked for.
+    args = ["transfer", command, "pick_nut_m12", "--sources", "pick_nut_m12,reach_nut_m12",
+            "-k", "1"]  # fmt: skip
+    if command == "train":
+        args += ["--out", str(tmp_path / "run")]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert "-k sets how many skills --sources auto retrieves" in " ".join(res.output.split())
+    assert not (tmp_path / "run").exists()

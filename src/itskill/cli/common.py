@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -12,11 +13,8 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from itskill.files import CorruptFileError, is_unusable_path, json_safe, path_error_message
-from itskill.rl.train import SEED_MAX
-from itskill.tasks import TaskFileError, UnknownTaskError, render
-from itskill.tasks.evaluate import CheckpointError
-from itskill.tasks.scripted import ScriptError
+from itskill.files import is_unusable_path, json_safe, path_error_message
+from itskill.limits import SEED_MAX
 
 # No emoji codes: user text such as `skill:x:` must print as typed, and escape() leaves them.
 console = Console(emoji=False)
@@ -38,6 +36,12 @@ def _a_policy(value: str) -> str:
     if not value:
         raise typer.BadParameter("a policy is required: 'scripted', skill:NAME or a checkpoint")
     return value
+
+
+SCRIPTED = "scripted"
+"""The task's scripted controller, as ``--policy`` names it: the evaluators'
+:data:`itskill.tasks.evaluate.SCRIPTED`, whose module loads PyTorch, which a command imports only
+once it runs."""
 
 
 PolicyOpt = Annotated[
@@ -144,24 +148,61 @@ def usage_error(message: str) -> typer.Exit:
     return typer.Exit(USAGE_ERROR)
 
 
+USER_ERRORS: tuple[tuple[str, str], ...] = (
+    # Every data file (tasks, parts, hyper-parameters, search and transfer settings, experiments,
+    # learn budgets) reports through a subclass of this one.
+    ("itskill.datafile", "DataFileError"),
+    ("itskill.executors", "ExecutorError"),
+    ("itskill.experiments.analysis", "CurveError"),
+    ("itskill.experiments.learn", "LearnError"),
+    ("itskill.experiments.report", "ReportError"),
+    ("itskill.experiments.runner", "ExperimentRunError"),
+    ("itskill.files", "CorruptFileError"),
+    ("itskill.llm.client", "LLMError"),
+    ("itskill.llm.prompts", "PromptError"),
+    ("itskill.reward.plan", "PlanError"),
+    ("itskill.reward.search", "RewardSearchError"),
+    ("itskill.rl.demos", "DemoError"),
+    ("itskill.rl.train", "ResumeMismatchError"),
+    ("itskill.rl.train", "RewardLoadError"),
+    ("itskill.skills.store", "SkillSpaceError"),
+    ("itskill.tasks.evaluate", "CheckpointError"),
+    ("itskill.tasks.render", "RenderError"),
+    ("itskill.tasks.scripted", "ScriptError"),
+    ("itskill.tasks.spec", "UnknownTaskError"),
+    ("itskill.transfer.analyzer", "AnalyzerError"),
+    ("itskill.transfer.fusion", "IncompatibleSourceError"),
+    ("itskill.transfer.sources", "SourceError"),
+)
+"""The errors the user can act on (their input, files or environment), as (defining module,
+class name): :func:`user_errors` prints them as one line."""
+
+
+def _is_user_error(err: Exception) -> bool:
+    """Whether ``err`` is one of :data:`USER_ERRORS`."""
+    # Only classes of modules already imported: an error of a module never imported cannot have
+    # been raised, and importing them all to check (PyTorch, for itskill.rl.train) would make
+    # every such message, and every command, wait seconds.
+    classes = tuple(
+        getattr(sys.modules[module], name) for module, name in USER_ERRORS if module in sys.modules
+    )
+    return isinstance(err, classes)
+
+
 @contextmanager
 def user_errors() -> Iterator[None]:
-    """Turn errors caused by the user's input into a red message and exit code 2."""
+    """Turn errors the user can act on (:data:`USER_ERRORS`, a path that cannot be used) into a
+    red one-line message and exit code 2; any other error is a bug and keeps its traceback."""
     try:
         yield
-    except (
-        UnknownTaskError,
-        TaskFileError,
-        CheckpointError,
-        ScriptError,
-        render.RenderError,
-        CorruptFileError,
-    ) as err:
-        raise usage_error(str(err)) from err
     except OSError as err:
         if not is_unusable_path(err):
             raise
         raise usage_error(path_error_message(err)) from err
+    except Exception as err:
+        if not _is_user_error(err):
+            raise
+        raise usage_error(str(err)) from err
 
 
 def print_json(data: Any) -> None:
@@ -202,6 +243,7 @@ def _skill_checkpoint(name: str) -> Path:
     its checkpoint is gone (the space keeps a skill whose files were deleted or moved)."""
     from itskill.skills import open_skill_space
     from itskill.skills.store import SkillSpaceError
+    from itskill.tasks.evaluate import CheckpointError
 
     ref = SKILL_PREFIX + name
     try:

@@ -1,16 +1,21 @@
-"""`itskill eval`, `render` and `demo`: run a policy (scripted or trained) on a task."""
+"""`itskill eval`, `render` and `demo`: run a policy (scripted or trained) on a task.
+
+Imports of itskill.tasks stay inside the commands: they load PyTorch, which other commands and
+``itskill --help`` should not wait for.
+"""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
 from rich.table import Table
 
 from itskill.cli.common import (
+    SCRIPTED,
     CameraOpt,
     JsonOpt,
     PolicyOpt,
@@ -24,9 +29,10 @@ from itskill.cli.common import (
     print_json,
     user_errors,
 )
-from itskill.tasks import get_task, render
-from itskill.tasks.evaluate import SCRIPTED, EvalResult, evaluate
-from itskill.tasks.spec import TaskSpec, load_starts
+
+if TYPE_CHECKING:
+    from itskill.tasks.evaluate import EvalResult
+    from itskill.tasks.spec import TaskSpec
 
 
 def _print_eval(result: EvalResult, spec: TaskSpec, as_json: bool) -> None:
@@ -66,6 +72,9 @@ def eval_cmd(
 ) -> None:
     """Evaluate a policy: success rate over N episodes with its 95% interval."""
     from itskill.rl.checkpoint import as_policy
+    from itskill.tasks import get_task
+    from itskill.tasks.evaluate import evaluate
+    from itskill.tasks.spec import load_starts
 
     with user_errors():
         source = policy_source(policy)
@@ -124,6 +133,8 @@ def render_cmd(
     camera: CameraOpt = "front",
 ) -> None:
     """Film episodes of a policy to an MP4 file."""
+    from itskill.tasks import get_task, render
+
     _check_camera(camera)
     with user_errors():
         ref = policy_ref(policy)
@@ -135,6 +146,8 @@ def render_cmd(
 
 
 def _check_camera(camera: str) -> None:
+    from itskill.tasks import render
+
     if camera not in render.CAMERAS:
         raise typer.BadParameter(f"expected one of {render.CAMERAS}", param_hint="--camera")
 
@@ -150,6 +163,9 @@ def demo(
 
     Without an OpenGL backend the video is skipped with a warning; the evaluation still runs.
     """
+    from itskill.tasks import get_task, render
+    from itskill.tasks.evaluate import evaluate
+
     _check_camera(camera)
     with user_errors():
         spec = get_task(task)

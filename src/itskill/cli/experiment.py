@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 import typer
 from rich.markup import escape
 
-from itskill.cli.common import console, err_console, run_dir_option, usage_error, user_errors
-
-if TYPE_CHECKING:
-    from itskill.experiments.report import ReportFiles
+from itskill.cli.common import console, err_console, run_dir_option, user_errors
 
 experiment_app = typer.Typer(
     no_args_is_help=True,
@@ -46,13 +43,9 @@ def experiment_run(
     ] = True,
 ) -> None:
     """Train every task × method × seed cell of FILE, then write the report."""
-    from itskill.executors import EXECUTORS, ExecutorError
-    from itskill.experiments.config import ExperimentConfigError, load_experiment
-    from itskill.experiments.report import experiment_report
-    from itskill.experiments.runner import CONFIG_FILE, ExperimentRunError, run_experiment
-    from itskill.llm import LLMError
-    from itskill.skills import SkillSpaceError
-    from itskill.transfer.sources import SourceError
+    from itskill.executors import EXECUTORS
+    from itskill.experiments.config import load_experiment
+    from itskill.experiments.runner import CONFIG_FILE, run_experiment
 
     if executor is not None and executor not in EXECUTORS:
         raise typer.BadParameter(f"expected one of {list(EXECUTORS)}", param_hint="--executor")
@@ -64,15 +57,6 @@ def experiment_run(
             summary = run_experiment(
                 config, run_dir, executor, workers, ray_address, resume, file, console
             )
-    except (
-        ExperimentConfigError,
-        ExperimentRunError,
-        ExecutorError,
-        SourceError,
-        SkillSpaceError,
-        LLMError,
-    ) as err:
-        raise usage_error(str(err)) from err
     except KeyboardInterrupt:
         # Only a recorded run (its config.json) can be resumed: --resume before that is refused.
         if run_dir is not None and (run_dir / CONFIG_FILE).is_file():
@@ -87,7 +71,7 @@ def experiment_run(
         markup=False,
     )
     if report:
-        _print_report(experiment_report(summary.run_dir))
+        _write_report(summary.run_dir)
     if summary.failed:
         raise typer.Exit(1)
 
@@ -106,18 +90,17 @@ def report_cmd(
     ] = True,
 ) -> None:
     """Write report.md and report.html (figures, tables, video) for an experiment run."""
-    from itskill.experiments.report import ReportError, experiment_report
+    _write_report(run, out, video)
 
-    try:
-        with user_errors():
-            files = experiment_report(run, out, video=video)
-    except ReportError as err:
-        raise usage_error(str(err)) from err
+
+def _write_report(run: Path, out: Path | None = None, video: bool = True) -> None:
+    """Write the report of experiment run ``run`` and say where, after its notes (what it left
+    out and why); a directory it cannot report on is a one-line error."""
+    from itskill.experiments.report import experiment_report
+
+    with user_errors():
+        files = experiment_report(run, out, video=video)
     for note in files.notes:
         err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)
-    _print_report(files)
-
-
-def _print_report(files: ReportFiles) -> None:
     # Not markup: the paths are under the user's run directory ('runs/[v2]').
     console.print(f"report: {files.markdown} and {files.html}", markup=False)

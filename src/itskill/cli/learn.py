@@ -12,7 +12,6 @@ from itskill.cli.common import (
     err_console,
     run_dir_option,
     seed_option,
-    usage_error,
     user_errors,
 )
 
@@ -63,17 +62,14 @@ def learn_cmd(
 ) -> None:
     """Learn a new task from a command, end to end, and add it to the skill space."""  # fmt: skip
     from itskill.experiments.learn import learn, learn_dir
-    from itskill.experiments.learn import user_errors as learn_errors
     from itskill.experiments.learn_layout import LEARN_FILE
 
     try:
-        with user_errors():  # a damaged run file, an unusable --out, ...
+        with user_errors():
             learn(
                 command, budget, steps, llm, out, seed, resume, budgets, video, console,
                 min_success,
             )  # fmt: skip
-    except learn_errors() as err:
-        raise usage_error(str(err)) from None
     except KeyboardInterrupt:
         # Stopped before its plan, a new run leaves nothing (--resume would find no run).
         if (learn_dir(command, out) / LEARN_FILE).is_file():

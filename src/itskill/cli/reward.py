@@ -7,8 +7,7 @@ pay for them.
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -23,7 +22,6 @@ from itskill.cli.common import (
     err_console,
     print_json,
     run_dir_option,
-    usage_error,
     user_errors,
 )
 
@@ -46,30 +44,6 @@ BaseUrlOpt = Annotated[
 ]
 
 
-@contextmanager
-def _errors() -> Iterator[None]:
-    """What the user can fix (bad command, model unreachable, unusable run dir): exit code 2."""
-    from itskill.executors import ExecutorError
-    from itskill.llm.client import LLMError
-    from itskill.llm.prompts import PromptError
-    from itskill.reward.config import SearchConfigError
-    from itskill.reward.plan import PlanError
-    from itskill.reward.search import RewardSearchError
-
-    try:
-        with user_errors():
-            yield
-    except (
-        PlanError,
-        LLMError,
-        PromptError,
-        RewardSearchError,
-        SearchConfigError,
-        ExecutorError,
-    ) as err:
-        raise usage_error(str(err)) from err
-
-
 def plan_cmd(
     command: Annotated[
         str,
@@ -88,7 +62,7 @@ def plan_cmd(
     from itskill.reward.plan import plan_command, plan_for_task
     from itskill.reward.search import OFFLINE_NOTE, resolve_target
 
-    with _errors():
+    with user_errors():
         task = resolve_target(command)
         client = None
         if task is not None:
@@ -207,7 +181,7 @@ def generate_cmd(
         "select_top": select_top,
         "final_seeds": final_seeds,
     }
-    with _errors():
+    with user_errors():
         if resume is not None:
             if out is not None and out != resume:
                 raise typer.BadParameter("give --resume RUN or --out, not both", param_hint="--out")
@@ -284,7 +258,6 @@ def _network_method(record_dir: Path) -> str:
 def _network(target: str, method: str, out: Path, client: Any, algo: str) -> tuple[Any, Any]:
     """The target's plan, and the transfer network the candidates train over the skills
     retrieved for the planned task. The search is given that plan, so the model is asked once."""
-    from itskill.cli.transfer import transfer_errors
     from itskill.reward.search import plan_target
     from itskill.transfer import get_method, search_network
 
@@ -293,8 +266,7 @@ def _network(target: str, method: str, out: Path, client: Any, algo: str) -> tup
     except ValueError as err:
         raise typer.BadParameter(str(err), param_hint="--transfer") from err
     plan = plan_target(target, client)
-    with transfer_errors():
-        network = search_network(plan.task, method, out, algo=algo, client=client)
+    network = search_network(plan.task, method, out, algo=algo, client=client)
     if network is None:
         raise typer.BadParameter(f"{method} trains no source skills", param_hint="--transfer")
     return plan, network
@@ -309,7 +281,7 @@ def show_cmd(
     from itskill.reward.search import OFFLINE_NOTE, read_run
     from itskill.stats import format_rate
 
-    with _errors():
+    with user_errors():
         data = read_run(run)
     if as_json:
         print_json(data)

@@ -1,12 +1,12 @@
 """`itskill skills`: the skill space (list, show, search, add, remove, install, pretrain).
 
-Imports of itskill.skills stay inside the commands: the other commands should not pay for them.
+Imports of itskill.skills and itskill.tasks stay inside the functions: the other commands should
+not pay for them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -24,11 +24,8 @@ from itskill.cli.common import (
     print_json,
     run_dir_option,
     seed_option,
-    usage_error,
     user_errors,
 )
-from itskill.stats import format_rate_interval
-from itskill.tasks import TaskFileError, UnknownTaskError, get_task
 
 skills_app = typer.Typer(
     no_args_is_help=True, help="The skill space: learned skills, their checkpoints, retrieval."
@@ -36,19 +33,6 @@ skills_app = typer.Typer(
 
 
 SkillArg = Annotated[str, typer.Argument(help="Skill id or name (see `itskill skills list`).")]
-
-
-@contextmanager
-def _skill_errors() -> Iterator[None]:
-    """Unknown skill or task, unreadable or newer database, missing checkpoint, settings no
-    executor can run: exit code 2."""
-    from itskill.executors import ExecutorError
-    from itskill.skills import SkillSpaceError
-
-    try:
-        yield
-    except (SkillSpaceError, UnknownTaskError, TaskFileError, ExecutorError) as err:
-        raise usage_error(str(err)) from err
 
 
 def _skill_table(rows: list[tuple[Any, float | None]], title: str) -> Table:
@@ -70,6 +54,8 @@ def _skill_table(rows: list[tuple[Any, float | None]], title: str) -> Table:
 def skills_markdown(skills: Sequence[Any]) -> str:
     """Skills as a Markdown table: what each does, how well and what it cost to learn (the
     library table in docs/skills.md is this output on a new skill space)."""
+    from itskill.stats import format_rate_interval
+
     rows = [
         "| name | task | actions | success [95% CI] | env-steps | wall-min | algorithm, seed |",
         "|---|---|---|---|---|---|---|",
@@ -104,7 +90,7 @@ def skills_list(
     check_one_format(as_json, markdown)
     from itskill.skills import open_skill_space
 
-    with _skill_errors(), open_skill_space() as space:
+    with user_errors(), open_skill_space() as space:
         skills = space.list()
         path = space.path
     if as_json:
@@ -121,7 +107,7 @@ def skills_show(skill: SkillArg, as_json: JsonOpt = False) -> None:
     """Show one skill: its description, actions, checkpoint and metrics."""
     from itskill.skills import open_skill_space
 
-    with _skill_errors(), open_skill_space() as space:
+    with user_errors(), open_skill_space() as space:
         found = space.get(skill)
         ckpt = space.checkpoint_path(found)
     data = {**found.to_dict(), "checkpoint_path": str(ckpt), "checkpoint_exists": ckpt.is_file()}
@@ -150,7 +136,7 @@ def skills_search(
     from itskill.skills.retrieval import check_search
 
     exclude = set(exclude_task or ())
-    with _skill_errors():
+    with user_errors():
         check_search(query, exclude)  # before the space is opened, which may create it
         with open_skill_space() as space:
             hits = search(space, query, k=k, exclude_tasks=exclude)
@@ -206,6 +192,7 @@ def skills_add(
         check_measurements,
         check_skill_name,
     )
+    from itskill.tasks import get_task
 
     if (ci_low is None) != (ci_high is None):
         raise typer.BadParameter("give both --ci-low and --ci-high, or neither")
@@ -214,7 +201,7 @@ def skills_add(
             check_skill_name(name)  # before the policy loads, which takes seconds
         except InvalidSkillNameError as err:
             raise typer.BadParameter(str(err), param_hint="--name") from err
-    with user_errors(), _skill_errors():  # a --checkpoint too long to look up, ...
+    with user_errors():  # a --checkpoint too long to look up, ...
         checkpoint = checkpoint.expanduser().resolve()
         if checkpoint.is_dir():
             checkpoint = best_policy_dir(checkpoint) / POLICY_FILE
@@ -258,7 +245,7 @@ def skills_remove(skill: SkillArg, as_json: JsonOpt = False) -> None:
     """Remove a skill from the skill space (its checkpoint file is left in place)."""
     from itskill.skills import open_skill_space
 
-    with _skill_errors(), open_skill_space() as space:
+    with user_errors(), open_skill_space() as space:
         removed = space.remove(skill)
     if as_json:
         print_json(removed.to_dict())
@@ -274,7 +261,7 @@ def skills_install(
     """Register every skill of a library directory (skipping names already present)."""
     from itskill.skills import install_library, open_skill_space, read_manifest
 
-    with user_errors(), _skill_errors():
+    with user_errors():
         read_manifest(library)  # a bad manifest fails before the space opens, which may create it
         with open_skill_space() as space:
             added = install_library(space, library)
@@ -455,7 +442,7 @@ def skills_pretrain(
                     f"{run['steps']:,} env-steps, {run['wall_s'] / 60:.1f} min"
                 )
 
-    with user_errors(), _skill_errors():
+    with user_errors():
         # Before the space opens (which may create it) and pretrain makes the library directory.
         check_executor(executor, workers, ray_address)
         with open_skill_space() as space:

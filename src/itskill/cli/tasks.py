@@ -1,10 +1,14 @@
-"""`itskill tasks`: list the task suite, show one task."""
+"""`itskill tasks`: list the task suite, show one task.
+
+Imports of itskill.tasks stay inside the functions: they load PyTorch, which other commands and
+``itskill --help`` should not wait for.
+"""
 
 from __future__ import annotations
 
 import json
 from dataclasses import asdict
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.markup import escape
@@ -19,14 +23,17 @@ from itskill.cli.common import (
     print_json,
     user_errors,
 )
-from itskill.tasks import all_tasks, get_task
-from itskill.tasks.spec import TaskSpec, init_table
+
+if TYPE_CHECKING:
+    from itskill.tasks.spec import TaskSpec
 
 tasks_app = typer.Typer(no_args_is_help=True, help="The task suite: list tasks, show one.")
 
 
 def task_dict(spec: TaskSpec) -> dict[str, Any]:
     """Everything a task file says about ``spec``, as JSON-ready data."""
+    from itskill.tasks.spec import init_table
+
     return {
         "id": spec.id,
         "family": spec.family,
@@ -58,6 +65,8 @@ def task_dict(spec: TaskSpec) -> dict[str, Any]:
 
 def tasks_markdown() -> str:
     """The task list as a Markdown table (docs/tasks.md is this output)."""
+    from itskill.tasks import all_tasks
+
     rows = [
         "| id | family | kind | Table I | command | stages |",
         "|---|---|---|---|---|---|",
@@ -77,6 +86,8 @@ def tasks_list(
     markdown: MarkdownOpt = False,
 ) -> None:
     """List every task: id, family, kind, Table I flag, command and stages."""
+    from itskill.tasks import all_tasks
+
     check_one_format(as_json, markdown)
     with user_errors():
         tasks = all_tasks()
@@ -100,6 +111,8 @@ def tasks_list(
 @tasks_app.command("show")
 def tasks_show(task: TaskArg, as_json: JsonOpt = False) -> None:
     """Show everything about one task."""
+    from itskill.tasks import get_task
+
     with user_errors():
         data = task_dict(get_task(task))
     if as_json:

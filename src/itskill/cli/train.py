@@ -16,7 +16,6 @@ from itskill.cli.common import (
     print_trained,
     run_dir_option,
     seed_option,
-    usage_error,
     user_errors,
 )
 
@@ -56,9 +55,7 @@ def train_cmd(
     ] = None,
 ) -> None:
     """Train a policy with A2C or PPO; rerun the same command to resume from the last checkpoint."""
-    from itskill.rl.config import HyperparamError
-    from itskill.rl.demos import DemoError
-    from itskill.rl.train import ResumeMismatchError, RewardLoadError, train
+    from itskill.rl.train import train
 
     if algo not in ("a2c", "ppo"):
         raise typer.BadParameter("expected a2c or ppo", param_hint="--algo")
@@ -79,8 +76,6 @@ def train_cmd(
                 eval_episodes=eval_episodes,
                 init=init,
             )
-    except (HyperparamError, RewardLoadError, ResumeMismatchError, DemoError) as err:
-        raise usage_error(str(err)) from err
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
     print_trained(f"{task} with {algo}", result, steps)

@@ -5,10 +5,8 @@ Imports of itskill.transfer stay inside the commands: the other commands should 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
@@ -29,6 +27,9 @@ from itskill.cli.common import (
     usage_error,
     user_errors,
 )
+
+if TYPE_CHECKING:
+    from itskill.transfer import TransferConfig
 
 transfer_app = typer.Typer(
     no_args_is_help=True,
@@ -56,41 +57,20 @@ ConfigOpt = Annotated[
 ]
 
 
-@contextmanager
-def transfer_errors() -> Iterator[None]:
-    """Errors in the user's input or environment: a red one-line message and exit code 2."""
-    from itskill.llm.client import LLMError
-    from itskill.llm.prompts import PromptError
-    from itskill.rl.config import HyperparamError
-    from itskill.rl.train import ResumeMismatchError, RewardLoadError
-    from itskill.skills import SkillSpaceError
-    from itskill.transfer import AnalyzerError, SourceError, TransferConfigError
-    from itskill.transfer.fusion import IncompatibleSourceError
-
-    errors = (
-        AnalyzerError,
-        SourceError,
-        IncompatibleSourceError,
-        TransferConfigError,
-        SkillSpaceError,
-        LLMError,
-        PromptError,  # a skill added before skills had to name an action
-        HyperparamError,
-        RewardLoadError,
-        ResumeMismatchError,
-    )
-    try:
-        with user_errors():
-            yield
-    except errors as err:
-        raise usage_error(str(err)) from err
-
-
-def _config(path: Path | None, k: int | None):
+def _config(path: Path | None, k: int | None, sources: str) -> TransferConfig:
+    """The transfer settings of ``path`` (None: the packaged ones), with ``-k`` if given."""
     from dataclasses import replace
 
     from itskill.transfer import load_transfer_config
+    from itskill.transfer.sources import AUTO
 
+    if k is not None and sources.strip() != AUTO:
+        # Else ignored: the named skills are the sources, however many -k asks for.
+        raise typer.BadParameter(
+            f"-k sets how many skills --sources auto retrieves; --sources {sources!r} names "
+            "them: give one or the other",
+            param_hint="-k",
+        )
     config = load_transfer_config(path)
     return config if k is None else replace(config, k=k)
 
@@ -120,16 +100,19 @@ def transfer_train(
     hyperparams: HyperparamsOpt = None,
 ) -> None:
     """Train TARGET with a transfer method; rerun the same command to resume."""
+    from itskill.llm.client import make_client, model_spec
     from itskill.transfer import METHODS, train_transfer
+    from itskill.transfer.train import asks_analyzer
 
     if method not in METHODS:
         raise typer.BadParameter(f"expected one of {', '.join(METHODS)}", param_hint="--method")
     if algo not in ("a2c", "ppo"):
         raise typer.BadParameter("expected a2c or ppo", param_hint="--algo")
     try:
-        with transfer_errors():
-            from itskill.llm.client import make_client
-
+        with user_errors():
+            cfg = _config(config, k, sources)
+            model_spec(llm)  # a mistyped --llm is said even where no model is asked
+            client = make_client(llm) if asks_analyzer(method, out) else None
             result = train_transfer(
                 target,
                 method,
@@ -142,8 +125,8 @@ def transfer_train(
                 num_envs=num_envs,
                 eval_every=eval_every,
                 eval_episodes=eval_episodes,
-                client=make_client(llm),
-                config=_config(config, k),
+                client=client,
+                config=cfg,
                 console=console,
                 hyperparams=hyperparams,
             )
@@ -166,8 +149,8 @@ def transfer_analyze(
     from itskill.tasks import get_task
     from itskill.transfer import analyze, resolve_sources, target_entry
 
-    with transfer_errors():
-        cfg = _config(config, k)
+    with user_errors():
+        cfg = _config(config, k, sources)
         spec = get_task(target)
         chosen = resolve_sources(spec.id, sources, cfg.k, distinct_actions=cfg.distinct_actions)
         client = make_client(llm)

@@ -83,6 +83,9 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
         raw = [(float(r["env_steps"]), float(r["wall_s"]), float(r[column])) for r in rows]
     except (TypeError, ValueError) as err:
         raise CurveError(path, f"not a number: {err}") from err
+    if not raw:
+        # A run stopped before its first evaluation: no curve to plot or reach a threshold on.
+        raise CurveError(path, "no evaluations")
     kept: list[list[float]] = []  # [step, wall over the run, success]
     offset = 0.0
     for step, wall, success in raw:
@@ -91,7 +94,7 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
         if kept and wall + offset < kept[-1][1]:
             offset = kept[-1][1]  # a session of an older release, its clock restarted at zero
         kept.append([step, wall + offset, success])
-    data = np.asarray(kept, dtype=float).reshape(-1, 3)
+    data = np.asarray(kept, dtype=float)
     return Curve(data[:, 0], data[:, 2], data[:, 1], float(budget))
 
 

@@ -47,7 +47,7 @@ from itskill.experiments.learn_layout import (
 )
 from itskill.experiments.provenance import Sessions
 from itskill.experiments.report import PROVENANCE_FILE, ReportFiles, learn_report
-from itskill.files import CorruptFileError, read_json, write_json
+from itskill.files import read_json, write_json
 from itskill.llm.usage_log import UsageLog
 
 EVAL_SEED = 10_000
@@ -108,7 +108,7 @@ class LearnBudget:
     def max_seed(self) -> int:
         """The largest seed whose shifted reward search (:meth:`search_config`) still trains on
         seeds training takes."""
-        from itskill.rl.train import SEED_MAX
+        from itskill.limits import SEED_MAX
 
         last = self.search_config().last_seed
         return (SEED_MAX - last) // (last + 1)
@@ -800,22 +800,3 @@ def _add_skill(
         )
     steps.done(done, was_cached)
     return cached
-
-
-def user_errors() -> tuple[type[BaseException], ...]:
-    """The errors ``itskill learn`` reports as a one-line message (bad input, no LLM, ...)."""
-    from itskill.llm import LLMError
-    from itskill.reward import PlanError, RewardSearchError
-    from itskill.rl.train import ResumeMismatchError
-    from itskill.skills import SkillSpaceError
-    from itskill.tasks import TaskFileError, UnknownTaskError
-    from itskill.tasks.evaluate import CheckpointError
-    from itskill.transfer.analyzer import AnalyzerError
-    from itskill.transfer.config import TransferConfigError
-    from itskill.transfer.sources import SourceError
-
-    return (
-        LearnError, BudgetError, LLMError, PlanError, RewardSearchError, ResumeMismatchError,
-        SkillSpaceError, TaskFileError, UnknownTaskError, CheckpointError, AnalyzerError,
-        TransferConfigError, SourceError, CorruptFileError,
-    )  # fmt: skip

@@ -93,8 +93,14 @@ def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
     """Train one cell into ``out`` (resuming a partial run) and write its ``result.json``."""
     from itskill.llm import make_client
     from itskill.transfer import train_transfer
+    from itskill.transfer.train import asks_analyzer
 
-    client = make_client(settings.llm, cache_dir=Path(settings.llm_cache))
+    # Only where the analyzer is asked: a cell that needs no model must not need its API key.
+    client = (
+        make_client(settings.llm, cache_dir=Path(settings.llm_cache))
+        if asks_analyzer(cell.method, out)
+        else None
+    )
     res = train_transfer(
         cell.task,
         cell.method,

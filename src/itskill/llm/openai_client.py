@@ -1,11 +1,12 @@
 """A client for any OpenAI-compatible chat endpoint: OpenAI, vLLM, Ollama, a llama.cpp server.
 
 Built on the ``openai`` SDK with its own retries turned off, because the policy here is ours:
-exponential back-off with jitter on rate limits (429, honouring ``Retry-After``), timeouts,
-connection errors and 5xx replies, then an :class:`LLMUnavailableError` that says what to do.
-``n`` samples are asked for in one request; a server that rejects ``n`` or returns fewer choices
-(Ollama and llama.cpp ignore it) gets the missing ones as repeated single-sample requests, and is
-remembered as such so later requests go straight to repeated calls.
+exponential back-off with jitter on rate limits (429, honouring ``Retry-After``), timeouts (408
+and the client's own), lock conflicts (409), connection errors and 5xx replies, then an
+:class:`LLMUnavailableError` that says what to do. ``n`` samples are asked for in one request; a
+server that rejects ``n`` (its error names it) or returns fewer choices (Ollama ignores it) gets
+the missing ones as repeated single-sample requests, and is remembered as such so later requests
+go straight to repeated calls. Any other rejected request is an error as it stands.
 """
 
 from __future__ import annotations
@@ -32,6 +33,12 @@ else:  # pragma: no cover
 OPENAI_URL = "https://api.openai.com/v1"
 LOCAL_DUMMY_KEY = "sk-no-key-needed"
 """Sent to a custom endpoint when no key is set: the SDK insists on one, Ollama ignores it."""
+RETRY_STATUSES = frozenset({408, 409, 429})
+"""Statuses below 500 asked again, as the SDK's own policy does: a request timeout, a lock
+timeout, a rate limit."""
+_ABOUT_N = re.compile(r"(?<![\w-])n(?![\w-])|completion choice")
+"""A refusal that names the ``n`` parameter, or the choices it counts (llama.cpp: "Only one
+completion choice is allowed")."""
 
 
 @dataclass(frozen=True)
@@ -119,9 +126,11 @@ class OpenAIClient(BaseClient):
         if n > 1 and self.n_supported is not False:
             try:
                 replies = self._request(messages, n, temperature)
-            except (openai.BadRequestError, openai.UnprocessableEntityError):
-                # Most likely the server does not take `n`; a single-sample request below tells:
-                # if it fails too, its error is the one that matters.
+            except (openai.BadRequestError, openai.UnprocessableEntityError) as err:
+                # Any other refusal (a prompt too long, a bad temperature) would be asked again
+                # sample by sample, and every later request would lose `n` for good.
+                if not _about_n(err):
+                    raise self._rejected(err) from err
                 self.n_supported = False
             else:
                 self.n_supported = len(replies) >= n
@@ -129,14 +138,16 @@ class OpenAIClient(BaseClient):
             try:
                 reply = self._request(messages, 1, temperature)[:1]
             except (openai.BadRequestError, openai.UnprocessableEntityError) as err:
-                raise LLMError(
-                    f"{self.name} at {self.base_url} rejected the request: {_detail(err)}"
-                ) from err
+                raise self._rejected(err) from err
             if not reply:
                 # Asking again would pay for the same empty answer forever.
                 raise LLMError(f"{self.name} at {self.base_url} returned no choices")
             replies += reply
         return replies[:n]
+
+    def _rejected(self, err: openai.APIStatusError) -> LLMError:
+        """The error for a request the server refused as malformed (400, 422)."""
+        return LLMError(f"{self.name} at {self.base_url} rejected the request: {_detail(err)}")
 
     def _request(self, messages: list[Message], n: int, temperature: float) -> list[str]:
         """One chat-completion request with retries; its choices' texts."""
@@ -170,7 +181,7 @@ class OpenAIClient(BaseClient):
                 raise
             except (openai.APIConnectionError, openai.RateLimitError, openai.APIStatusError) as err:
                 retryable = not isinstance(err, openai.APIStatusError) or (
-                    err.status_code == 429 or err.status_code >= 500
+                    err.status_code in RETRY_STATUSES or err.status_code >= 500
                 )
                 if not retryable:
                     raise LLMError(
@@ -218,6 +229,12 @@ class OpenAIClient(BaseClient):
         self.usage.cost_usd += (prompt * self.price[0] + completion * self.price[1]) / 1e6
 
 
+def _about_n(err: openai.APIStatusError) -> bool:
+    """Whether a refused multi-sample request was refused for its ``n``: the error's ``param``
+    (OpenAI's error body names the field), else its message."""
+    return err.param == "n" or _ABOUT_N.search(_detail(err)) is not None
+
+
 def _detail(err: Exception) -> str:
     message = getattr(err, "message", None) or str(err)
     return " ".join(str(message).split())[:300]
@@ -239,7 +256,8 @@ def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnav
         what = f"rate-limited by {client.base_url}"
         advice = "try again later"
     elif isinstance(err, openai.APIStatusError):
-        what = f"server error {err.status_code} from {client.base_url}"
+        kind = "server error" if err.status_code >= 500 else "HTTP"
+        what = f"{kind} {err.status_code} from {client.base_url}"
         advice = "try again later"
     else:
         what = f"cannot reach {client.name} at {client.base_url}"

@@ -15,9 +15,9 @@ from typing import Any
 
 from itskill.datafile import DataFileError, read_toml
 from itskill.executors import EXECUTORS
+from itskill.limits import SEED_MAX
 from itskill.reward.sandbox import SandboxConfig
 from itskill.rl.config import ALGOS
-from itskill.rl.train import SEED_MAX
 
 
 class SearchConfigError(DataFileError):
@@ -66,7 +66,7 @@ def check_seeds(
     source: str | Path, where: str, seeds: tuple[int, ...], error: type[DataFileError]
 ) -> None:
     """Raise ``error`` naming ``source`` and the field unless ``seeds`` are distinct, at least
-    one, and each a seed training takes (0 to :data:`~itskill.rl.train.SEED_MAX`): a seed
+    one, and each a seed training takes (0 to :data:`~itskill.limits.SEED_MAX`): a seed
     training refuses would otherwise fail every run only once the runs start."""
     if not seeds or len(set(seeds)) != len(seeds):
         raise error(source, where, f"expected distinct seeds, at least one, got {list(seeds)}")

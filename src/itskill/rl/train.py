@@ -30,6 +30,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from itskill.datafile import read_toml
 from itskill.errors import PicklableError
 from itskill.files import write_json
+from itskill.limits import SEED_MAX
 from itskill.reward_contract import EXPERT, RewardOutputError, check_reward_output
 from itskill.rl.checkpoint import (
     BEST_DIR,
@@ -67,9 +68,6 @@ from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.spec import TaskSpec
 
 ALGO_CLASSES: dict[str, type[BaseAlgorithm]] = {"a2c": A2C, "ppo": PPO}
-SEED_MAX = 2**32 - 1
-"""The largest seed a run takes: NumPy's legacy seeding, which Stable-Baselines3 uses, stops
-there."""
 _PROBE_ENVS = 2
 """Environments a reward file is probed on: more than one, so a total that is a single number
 instead of one per environment is caught."""

@@ -250,6 +250,13 @@ def prepare_transfer(
     return record
 
 
+def asks_analyzer(method: str, out: str | Path) -> bool:
+    """Whether :func:`prepare_transfer` of ``method`` in ``out`` asks the analyzer, and so needs
+    a language model: a method that uses its prior, in a run with no record yet (a record
+    already holds the matrix, or differs and is refused before anything is asked)."""
+    return get_method(method).uses_prior and not (Path(out) / TRANSFER_FILE).is_file()
+
+
 def transfer_network(
     record: dict[str, Any], config: TransferConfig | None = None
 ) -> tuple[type[ActorCriticPolicy], dict[str, Any] | None]:
