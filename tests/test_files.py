@@ -45,3 +45,20 @@ def test_a_path_too_long_or_looping_is_the_paths_fault_and_named_cut_short(tmp_p
         f"cannot use {loop}: Too many levels of symbolic links"
     )
     assert not is_unusable_path(OSError(errno.ENOSPC, "No space left on device"))
+
+
+def test_a_recorded_path_is_found_wherever_the_run_now_is(tmp_path, monkeypatch) -> None:
+    from itskill.files import run_path
+
+    run = tmp_path / "run"
+    (run / "reward").mkdir(parents=True)
+    (run / "reward" / "best.py").write_text("")
+    usual = "reward/best.py"
+    # Relative to the run (records written now).
+    assert run_path(run, "reward/best.py", usual) == run / "reward" / "best.py"
+    # Relative to where an older release's command ran (`--out run`): as written while it
+    # exists there, which the resume of such a run needs.
+    monkeypatch.chdir(tmp_path)
+    assert run_path(run, "run/reward/best.py", usual) == Path("run/reward/best.py")
+    # Absolute, of a run since moved: at its usual place in the run.
+    assert run_path(run, "/gone/run/reward/best.py", usual) == run / "reward" / "best.py"

@@ -175,11 +175,12 @@ def json_safe(data: Any) -> Any:
 
 
 def run_path(run_dir: Path, recorded: str, default: str) -> Path:
-    """A path a run's record names, found wherever the run now is: a relative one against
-    ``run_dir``; an absolute one (records written before paths were relative) as written if it
-    still exists, else at ``default``, its usual place relative to ``run_dir`` (the run was
-    moved, or copied to ``results/``)."""
+    """A path a run's record names, found wherever the run now is: against ``run_dir`` if it is
+    there; else as written, if it exists (records from before paths were relative to the run hold
+    absolute paths, or paths relative to the directory the command ran in); else at ``default``,
+    its usual place relative to ``run_dir`` (the run was moved, or copied to ``results/``)."""
     path = Path(recorded)
-    if not path.is_absolute():
-        return run_dir / path
-    return path if path.exists() else run_dir / default
+    for candidate in ([] if path.is_absolute() else [run_dir / path]) + [path]:
+        if candidate.exists():
+            return candidate
+    return run_dir / default

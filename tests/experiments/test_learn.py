@@ -412,3 +412,33 @@ def test_the_final_training_runs_the_generated_reward_under_the_memory_limit(tmp
     message = str(info.value)
     assert "ran out of memory" in message and str(bomb) in message and "--resume" in message
     assert resource.getrlimit(resource.RLIMIT_AS) == before
+
+
+def test_resume_names_the_setting_that_differs_and_ignores_a_reworded_description(
+    tmp_path, budgets
+):
+    # It dumped both budgets whole (1,500 characters), and refused a run whose budget's prose
+    # description had been reworded, as any release rewording it would.
+    out = tmp_path / "run"
+    out.mkdir()
+    budget = load_budgets(budgets)["test"].to_dict()
+    settings = {"command": COMMAND, "budget": budget, "seed": 0, "llm": "offline"}
+    (out / "learn.json").write_text(json.dumps(settings))
+    args = [COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out), "--resume"]
+    result = learn(*args, "--steps", "512")
+    assert result.exit_code == 2
+    assert "started with budget.transfer.steps=256, this call gives 512" in flat(result.output)
+    settings["budget"]["description"] = "Reworded."
+    (out / "learn.json").write_text(json.dumps(settings))
+    result = learn(*args, "--steps", "512")
+    assert "budget.transfer.steps=256" in flat(result.output)  # still the one difference
+
+
+def test_a_mistyped_task_id_is_refused_before_any_step(tmp_path, budgets):
+    # The planner grounded "pick_nut_m1" as a command; the reward search, step 4, then refused
+    # it as a task id, leaving a run that could neither resume nor start again.
+    out = tmp_path / "run"
+    result = learn("pick_nut_m1", "--budgets", str(budgets), "--budget", "test", "--out", str(out))
+    assert result.exit_code == 2
+    assert "unknown task 'pick_nut_m1'" in flat(result.output)
+    assert not out.exists()

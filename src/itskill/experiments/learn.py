@@ -255,13 +255,13 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
                 f"{run_dir} already holds a learn run; pass --resume to continue it or "
                 "--out to start another"
             )
-        old = read_json(path)
-        for key, value in settings.items():
-            if old.get(key) != value:
-                raise LearnError(
-                    f"{run_dir} was started with {key}={old.get(key)!r}, this call gives "
-                    f"{value!r}; resume with the same settings or use another --out"
-                )
+        found = _difference(read_json(path), settings)
+        if found is not None:
+            key, was, now = found
+            raise LearnError(
+                f"{run_dir} was started with {key}={was!r}, this call gives {now!r}; resume "
+                "with the same settings or use another --out"
+            )
     elif not resume and run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
         # A step finds its files from an earlier session by name: another run's plan.json or
         # sources.json there would be taken for this run's, and the user's files overwritten.
@@ -283,6 +283,21 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
             "--out, or leave out --resume to start a new run"
         )
     write_json(path, settings)
+
+
+def _difference(old: Any, new: Any, key: str = "") -> tuple[str, Any, Any] | None:
+    """The first setting (as a dotted key) whose value differs between a run's recorded
+    settings and this call's; None if they agree. A budget's description is prose, not a
+    setting: rewording it does not make another run."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for name in new:
+            if name == "description":
+                continue
+            found = _difference(old.get(name), new[name], f"{key}.{name}" if key else name)
+            if found is not None:
+                return found
+        return None
+    return None if old == new else (key, old, new)
 
 
 def learn_dir(command: str, out: str | Path | None) -> Path:
@@ -428,11 +443,13 @@ def _pipeline(
 
 
 def _plan(command: str, client: Any, steps: _Steps) -> dict[str, Any]:
-    from itskill.reward import plan_command
+    from itskill.reward.search import plan_target
 
     cached = steps.cached("plan.json")
     if cached is None:
-        cached = plan_command(command, client).to_dict()
+        # As the reward search reads it (step 4): a task id as itself, and a single word that is
+        # none ("pick_nut_m1") refused now, not after three steps as the search's target.
+        cached = plan_target(command, client).to_dict()
         write_json(steps.run_dir / "plan.json", cached)
         was_cached = False
     else:
