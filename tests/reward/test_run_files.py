@@ -138,6 +138,17 @@ def test_a_directory_holding_another_kind_of_run_is_not_offered_to_resume(
     assert (run / "config.json").read_text() == config
 
 
+def test_a_new_search_refuses_a_directory_of_other_files(tmp_path: Path) -> None:
+    # A learn run there (plan.json, summary.json) was overwritten and could not be resumed.
+    run = tmp_path / "learn_run"
+    run.mkdir()
+    (run / "plan.json").write_text('{"task": "pickplace_nut_m12"}')
+    result = CliRunner().invoke(app, ["reward", "generate", "pick_nut_m12", "--out", str(run)])
+    assert result.exit_code == 2
+    assert "holds plan.json and is not a reward search" in " ".join(result.output.split())
+    assert [p.name for p in run.iterdir()] == ["plan.json"]
+
+
 def test_a_finished_search_without_its_chosen_reward_says_where_it_is(
     finished_run: Path, tmp_path: Path
 ) -> None:

@@ -162,6 +162,7 @@ def generate_cmd(
     """Search a reward for a task or command: plan, generate, train candidates, keep the best,
     compare it with the expert reward (Fig. 6). Rerun with --resume RUN after an interruption."""
     from itskill.reward.search import (
+        CONFIG_FILE,
         NETWORK_DIR,
         check_new_run,
         config_from_run,
@@ -224,11 +225,15 @@ def generate_cmd(
                 plan=plan,
             )
         except KeyboardInterrupt:
-            err_console.print(
-                f"interrupted: finished candidates are saved; continue with "
-                f"itskill reward generate --resume {run_dir}",
-                markup=False,
-            )
+            # Stopped while planning, a new search leaves no run (--resume would find none).
+            if (run_dir / CONFIG_FILE).is_file():
+                hint = (
+                    "finished candidates are saved; continue with "
+                    f"itskill reward generate --resume {run_dir}"
+                )
+            else:
+                hint = "nothing was kept; run the same command again"
+            err_console.print(f"interrupted: {hint}", markup=False)
             raise typer.Exit(130) from None
     console.print(
         f"best reward: {result.best_path}; details: itskill reward show {run_dir}", markup=False

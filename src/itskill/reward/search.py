@@ -229,9 +229,23 @@ def _is_search(config: Any) -> bool:
 
 def check_new_run(out: Path) -> None:
     """Raise :class:`RewardSearchError` if ``out`` cannot take a new search: it holds one (to
-    continue with ``--resume``) or another kind of run. A caller that writes into ``out`` before
-    the search (the candidates' network) checks first."""
+    continue with ``--resume``), another kind of run, or any files but the candidates' network
+    and the reply cache (a caller that writes those into ``out`` before the search checks
+    first)."""
     if not (out / CONFIG_FILE).exists():
+        others = (
+            sorted(p.name for p in out.iterdir() if p.name not in (NETWORK_DIR, CACHE_DIR))
+            if out.is_dir()
+            else []
+        )
+        if others:
+            # A learn or training run there was overwritten (its plan.json, summary.json) and
+            # could no longer be resumed.
+            more = f" and {len(others) - 3} more" if len(others) > 3 else ""
+            raise RewardSearchError(
+                f"{out}: holds {', '.join(others[:3])}{more} and is not a reward search (no "
+                f"{CONFIG_FILE}); give --out a new or empty directory"
+            )
         return
     try:
         ours = _is_search(read_json(out / CONFIG_FILE))
