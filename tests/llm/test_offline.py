@@ -188,6 +188,8 @@ def test_planner_says_which_nut_it_assumed() -> None:
         ("Pick up the M16 nut and the round peg", "with the M16 nut and round peg"),
         ("Grasp the rectangular peg and the round peg", "with the rectangular peg and round peg"),
         ("Pick up the round 16 mm peg", "no peg of this scene is as the command describes it"),
+        # A fixture stays where it is: this planned the nut's pick, the bolt's task.
+        ("Pick up the bolt", "names only the M12 bolt, a fixture"),
     ],
 )
 def test_planner_refuses_what_it_cannot_ground(command: str, why: str) -> None:

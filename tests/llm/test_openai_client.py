@@ -4,6 +4,7 @@ errors and the reply cache; make_client's choice of backend."""
 from __future__ import annotations
 
 import json
+import re
 import socket
 import sys
 import time
@@ -263,3 +264,19 @@ def test_bad_requests_are_refused_before_sending(kwargs: dict, problem: str) -> 
         with pytest.raises(ValueError, match="role"):
             client(server).complete([{"role": "robot", "content": "x"}], purpose="plan")
         assert not server.requests
+
+
+@pytest.mark.parametrize(
+    ("url", "problem"),
+    [
+        ("http://256.1.1.1/v1", "does not appear to be an IPv4 or IPv6 address"),
+        ("http://[::1/v1", "Invalid IPv6 URL"),
+        ("http://localhost:99999/v1", "Port out of range"),
+        ("localhost:8000/v1", "expected http://HOST"),
+    ],
+)
+def test_an_endpoint_that_is_no_url_is_refused_before_any_request(url: str, problem: str) -> None:
+    # The SDK found these out only when sending: a traceback (a bad address), or after every
+    # retry, half a minute later (no scheme).
+    with pytest.raises(LLMUnavailableError, match=re.escape(problem)):
+        OpenAIClient("m", base_url=url, api_key="x")

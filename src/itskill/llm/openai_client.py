@@ -11,6 +11,7 @@ go straight to repeated calls. Any other rejected request is an error as it stan
 
 from __future__ import annotations
 
+import ipaddress
 import random
 import re
 import sys
@@ -20,10 +21,11 @@ from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import openai
 
-from itskill.llm.client import BaseClient, LLMError, LLMUnavailableError, Message
+from itskill.llm.client import BASE_URL_ENV, BaseClient, LLMError, LLMUnavailableError, Message
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -83,6 +85,26 @@ def model_price(model: str) -> tuple[float, float]:
     return prices.get(base, (0.0, 0.0))
 
 
+def _check_base_url(url: str) -> None:
+    """Raise :class:`LLMUnavailableError` for an endpoint that is no http(s) URL: the SDK finds
+    out only when it sends, with a traceback (a bad address) or after every retry (no scheme)."""
+    problem = None
+    try:
+        parts = urlsplit(url)
+        parts.port  # noqa: B018 - parsing it is the check: ValueError for a bad port
+        host = parts.hostname or ""
+        if re.fullmatch(r"[\d.]+", host):
+            ipaddress.ip_address(host)
+        if parts.scheme not in ("http", "https") or not host:
+            problem = "expected http://HOST[:PORT]/... or https://..."
+    except ValueError as err:
+        problem = str(err)
+    if problem:
+        raise LLMUnavailableError(
+            f"{url!r} is not a usable endpoint URL ({problem}); check --base-url or {BASE_URL_ENV}"
+        )
+
+
 class OpenAIClient(BaseClient):
     """``complete()`` against an OpenAI-compatible ``/v1/chat/completions`` endpoint."""
 
@@ -109,6 +131,7 @@ class OpenAIClient(BaseClient):
         self.model = model
         self.name = f"openai:{model}"
         self.base_url = base_url or OPENAI_URL
+        _check_base_url(self.base_url)
         self.price = price if price is not None else model_price(model)
         self.retry = retry or RetryConfig()
         self.n_supported: bool | None = None  # unknown until the server has answered once

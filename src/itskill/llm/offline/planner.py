@@ -275,6 +275,21 @@ def _clauses(command: str) -> list[tuple[str, ...]]:
     return clauses
 
 
+_PLACE_WORDS = {"on", "onto", "into", "in", "over", "above", "to", "next", "near", "beside",
+                "from", "off", "out", "of", "by", "at", "toward", "towards"}  # fmt: skip
+
+
+def _acted_on(command: str, kinds: set[str]) -> bool:
+    """Whether the command names a part of one of ``kinds`` as what a verb acts on ("pick up
+    the bolt"), not as a place ("on the bolt", "out of the hole": a word of place within the
+    three words before it)."""
+    words = _words(command)
+    return any(
+        w.removesuffix("s") in kinds and not _PLACE_WORDS & set(words[max(0, j - 3) : j])
+        for j, w in enumerate(words)
+    )
+
+
 def _verb_groups(command: str) -> set[int]:
     """The :data:`_VERBS` entries a command uses."""
     text = command.lower()
@@ -334,6 +349,14 @@ def plan(command: str, catalogue: list[dict]) -> dict:
         return {
             "error": "the command has no action this robot can do (pick up, place, screw, "
             "unscrew, insert, pull out, push, lift, move to)"
+        }
+    if by_fixture and any(clauses) and _acted_on(command, {p.kind for p in grounded}):
+        # A fixture is where a part goes ("put it on the bolt": the nut's place), never what
+        # is moved: "pick up the bolt" was planned as the nut's pick.
+        labels = " and ".join(p.label for p in grounded)
+        return {
+            "error": f"the command names only the {labels}, a fixture, which stays where it "
+            f"is: name the part to act on ({', '.join(p.label for p in parts)})"
         }
     carries = _carries(command)
     verb_groups = _verb_groups(command)
