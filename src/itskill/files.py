@@ -8,14 +8,18 @@ can trust every file it finds: a ``result.json`` that exists is a finished candi
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import math
 import os
+import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from filelock import FileLock
 
 from itskill.datafile import is_count, is_number
 from itskill.errors import PicklableError
@@ -184,3 +188,14 @@ def run_path(run_dir: Path, recorded: str, default: str) -> Path:
         if candidate.exists():
             return candidate
     return run_dir / default
+
+
+def directory_lock(directory: Path, kind: str) -> FileLock:
+    """A lock that one process at a time holds on ``directory`` (``kind`` names what for).
+
+    Its file is in the temporary directory, keyed by the directory's resolved path, not in the
+    directory itself: it would show up in a checkout, a package or a run's results. Processes on
+    one machine see it; a cluster's nodes do not.
+    """
+    key = hashlib.sha256(str(Path(directory).resolve()).encode()).hexdigest()[:16]
+    return FileLock(str(Path(tempfile.gettempdir()) / f"itskill-{kind}-{key}.lock"))

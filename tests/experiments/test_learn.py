@@ -442,3 +442,21 @@ def test_a_mistyped_task_id_is_refused_before_any_step(tmp_path, budgets):
     assert result.exit_code == 2
     assert "unknown task 'pick_nut_m1'" in flat(result.output)
     assert not out.exists()
+
+
+def test_a_run_in_use_by_another_session_is_refused(tmp_path, budgets):
+    # Two sessions on one run trained the same candidates into the same files: both failed,
+    # and the run could not be finished any more.
+    from itskill.files import directory_lock
+
+    out = tmp_path / "run"
+    out.mkdir()
+    budget = load_budgets(budgets)["test"].to_dict()
+    settings = {"command": COMMAND, "budget": budget, "seed": 0, "llm": "offline"}
+    (out / "learn.json").write_text(json.dumps(settings))
+    args = [COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out), "--resume"]
+    with directory_lock(out, "learn"):
+        result = learn(*args)
+    assert result.exit_code == 2
+    assert "in use by another itskill learn" in flat(result.output)
+    assert sorted(p.name for p in out.iterdir()) == ["learn.json"]

@@ -32,6 +32,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from filelock import Timeout
 from rich.console import Console
 from rich.markup import escape
 
@@ -47,7 +48,7 @@ from itskill.experiments.learn_layout import (
 )
 from itskill.experiments.provenance import Sessions
 from itskill.experiments.report import PROVENANCE_FILE, ReportFiles, learn_report
-from itskill.files import read_json, write_json
+from itskill.files import directory_lock, read_json, write_json
 from itskill.llm.usage_log import UsageLog
 
 EVAL_SEED = 10_000
@@ -353,35 +354,48 @@ def learn(
     client = make_client(llm, cache_dir=run_dir / "llm_cache")
     settings = {"command": command, "budget": b.to_dict(), "seed": seed, "llm": client.name}
     _check_run_dir(run_dir, settings, resume)
-    sessions = Sessions(run_dir / PROVENANCE_FILE)
-    sessions.start()
-    usage = UsageLog(run_dir / USAGE_FILE, client)
+    lock = directory_lock(run_dir, "learn")
     try:
-        summary = _pipeline(command, b, seed, client, usage, run_dir, video, console)
-    except BaseException as err:
-        if created and not (run_dir / "plan.json").is_file():
-            # Nothing was learned (an ungroundable command, no LLM): leave no directory that
-            # a retry would have to --resume.
-            shutil.rmtree(run_dir, ignore_errors=True)
-        else:
-            usage.save()  # what this session paid for, though it did not finish
-            failed = isinstance(err, Exception)
-            sessions.finish(status=f"failed: {err}" if failed else "interrupted")
-        raise
-    sessions.finish(status="complete")
-    report = learn_report(run_dir, summary)
-    skill = summary["skill"]
-    outcome = (
-        f"skill {skill['name']!r} added"
-        if skill["added"]
-        else f"below {skill['min_success']:.0%}, not added to the skill space"
-    )
-    rest = (
-        f"{command!r}: success {summary['evaluation']['success_rate']:.0%}; {outcome}; "
-        f"report {report.markdown}"
-    )
-    console.print(f"[bold green]learned[/bold green] {escape(rest)}")
-    return LearnResult(run_dir, summary, report)
+        lock.acquire(timeout=0)
+    except Timeout:
+        # Two sessions on one run train the same candidates into the same files, and the
+        # run is damaged for good.
+        raise LearnError(
+            f"{run_dir} is in use by another itskill learn on this machine; wait for it to end, "
+            "or stop it and --resume"
+        ) from None
+    try:
+        sessions = Sessions(run_dir / PROVENANCE_FILE)
+        sessions.start()
+        usage = UsageLog(run_dir / USAGE_FILE, client)
+        try:
+            summary = _pipeline(command, b, seed, client, usage, run_dir, video, console)
+        except BaseException as err:
+            if created and not (run_dir / "plan.json").is_file():
+                # Nothing was learned (an ungroundable command, no LLM): leave no directory that
+                # a retry would have to --resume.
+                shutil.rmtree(run_dir, ignore_errors=True)
+            else:
+                usage.save()  # what this session paid for, though it did not finish
+                failed = isinstance(err, Exception)
+                sessions.finish(status=f"failed: {err}" if failed else "interrupted")
+            raise
+        sessions.finish(status="complete")
+        report = learn_report(run_dir, summary)
+        skill = summary["skill"]
+        outcome = (
+            f"skill {skill['name']!r} added"
+            if skill["added"]
+            else f"below {skill['min_success']:.0%}, not added to the skill space"
+        )
+        rest = (
+            f"{command!r}: success {summary['evaluation']['success_rate']:.0%}; {outcome}; "
+            f"report {report.markdown}"
+        )
+        console.print(f"[bold green]learned[/bold green] {escape(rest)}")
+        return LearnResult(run_dir, summary, report)
+    finally:
+        lock.release()
 
 
 def _pipeline(

@@ -16,19 +16,15 @@ Format (``format`` is bumped on incompatible changes)::
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
-import tempfile
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from filelock import FileLock
-
 from itskill.datafile import is_count, is_number
-from itskill.files import write_text
+from itskill.files import directory_lock, write_text
 from itskill.skills.admission import InadmissibleSkillError, check_admissible
 from itskill.skills.store import (
     InvalidMeasurementError,
@@ -236,13 +232,6 @@ def write_manifest(library_dir: Path | str, entries: Sequence[ManifestEntry]) ->
     return path
 
 
-def _manifest_lock(library_dir: Path) -> FileLock:
-    # In the temporary directory, not the library: a lock file beside the shipped manifest would
-    # show up in the checkout and the package.
-    key = hashlib.sha256(str(library_dir.resolve()).encode()).hexdigest()[:16]
-    return FileLock(str(Path(tempfile.gettempdir()) / f"itskill-manifest-{key}.lock"))
-
-
 def update_manifest(library_dir: Path | str, entry: ManifestEntry) -> Path:
     """Put ``entry`` in ``<library_dir>/manifest.json``, replacing an entry of the same name.
 
@@ -250,7 +239,7 @@ def update_manifest(library_dir: Path | str, entry: ManifestEntry) -> Path:
     into one library at once (two ``itskill skills pretrain`` commands) keep each other's
     entries."""
     library_dir = Path(library_dir)
-    with _manifest_lock(library_dir):
+    with directory_lock(library_dir, "manifest"):
         entries = [e for e in read_manifest_or_empty(library_dir) if e.name != entry.name]
         return write_manifest(library_dir, [*entries, entry])
 
