@@ -414,16 +414,22 @@ def test_the_final_training_runs_the_generated_reward_under_the_memory_limit(tmp
     assert resource.getrlimit(resource.RLIMIT_AS) == before
 
 
-def test_resume_names_the_setting_that_differs_and_ignores_a_reworded_description(
-    tmp_path, budgets
-):
-    # It dumped both budgets whole (1,500 characters), and refused a run whose budget's prose
-    # description had been reworded, as any release rewording it would.
+def recorded_run(tmp_path: Path, budgets: Path) -> tuple[Path, dict]:
+    """A run directory holding only the record a session of the test budget starts with."""
     out = tmp_path / "run"
     out.mkdir()
     budget = load_budgets(budgets)["test"].to_dict()
     settings = {"command": COMMAND, "budget": budget, "seed": 0, "llm": "offline"}
     (out / "learn.json").write_text(json.dumps(settings))
+    return out, settings
+
+
+def test_resume_names_the_setting_that_differs_and_ignores_a_reworded_description(
+    tmp_path, budgets
+):
+    # It dumped both budgets whole (1,500 characters), and refused a run whose budget's prose
+    # description had been reworded, as any release rewording it would.
+    out, settings = recorded_run(tmp_path, budgets)
     args = [COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out), "--resume"]
     result = learn(*args, "--steps", "512")
     assert result.exit_code == 2
@@ -449,11 +455,7 @@ def test_a_run_in_use_by_another_session_is_refused(tmp_path, budgets):
     # and the run could not be finished any more.
     from itskill.files import directory_lock
 
-    out = tmp_path / "run"
-    out.mkdir()
-    budget = load_budgets(budgets)["test"].to_dict()
-    settings = {"command": COMMAND, "budget": budget, "seed": 0, "llm": "offline"}
-    (out / "learn.json").write_text(json.dumps(settings))
+    out, _ = recorded_run(tmp_path, budgets)
     args = [COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out), "--resume"]
     with directory_lock(out, "learn"):
         result = learn(*args)

@@ -27,6 +27,7 @@ from itskill.reward import (
     RewardSearchError,
     generate_reward,
     load_search,
+    search,
     search_client,
 )
 from itskill.reward.generator import Attempt, Sample, extract_code, fenced
@@ -269,10 +270,14 @@ def _fake_result(success: float, correlation: float) -> dict:
     }
 
 
-def test_the_choice_is_made_on_more_seeds_than_the_search_saw(tmp_path: Path, quiet) -> None:
+def test_the_choice_is_made_on_more_seeds_than_the_search_saw(
+    tmp_path: Path, quiet, monkeypatch
+) -> None:
     # Sample 0 wins the search on its one seed but fails on the selection seed; sample 1 holds
     # its success there. Finished results written beforehand are used as a resumed run uses
-    # them, which fixes the successes without training to them.
+    # them, which fixes the successes without training to them; a new search would refuse a
+    # directory holding them, so that check stands aside here.
+    monkeypatch.setattr(search, "check_new_run", lambda out: None)
     run = tmp_path / "run"
     planted = {
         "iter_0/sample_0": _fake_result(0.6, 0.9),
