@@ -56,9 +56,14 @@ def test_a_recorded_path_is_found_wherever_the_run_now_is(tmp_path, monkeypatch)
     usual = "reward/best.py"
     # Relative to the run (records written now).
     assert run_path(run, "reward/best.py", usual) == run / "reward" / "best.py"
-    # Relative to where an older release's command ran (`--out run`): as written while it
-    # exists there, which the resume of such a run needs.
+    # Relative to where an older release's command ran (`--out run`): at its usual place in the
+    # run, which the resume of such a run needs.
     monkeypatch.chdir(tmp_path)
-    assert run_path(run, "run/reward/best.py", usual) == Path("run/reward/best.py")
+    assert run_path(run, "run/reward/best.py", usual) == run / "reward" / "best.py"
+    # Absolute, of a run copied elsewhere while the original is still there: the copy's own.
+    copy = tmp_path / "copy"
+    (copy / "reward").mkdir(parents=True)
+    (copy / "reward" / "best.py").write_text("")
+    assert run_path(copy, str(run / "reward" / "best.py"), usual) == copy / "reward" / "best.py"
     # Absolute, of a run since moved: at its usual place in the run.
     assert run_path(run, "/gone/run/reward/best.py", usual) == run / "reward" / "best.py"

@@ -179,15 +179,14 @@ def json_safe(data: Any) -> Any:
 
 
 def run_path(run_dir: Path, recorded: str, default: str) -> Path:
-    """A path a run's record names, found wherever the run now is: against ``run_dir`` if it is
-    there; else as written, if it exists (records from before paths were relative to the run hold
-    absolute paths, or paths relative to the directory the command ran in); else at ``default``,
-    its usual place relative to ``run_dir`` (the run was moved, or copied to ``results/``)."""
+    """A path a run's record names, found in the run as it is now: against ``run_dir`` if it is
+    there; else at ``default``, its usual place in ``run_dir`` (records from before paths were
+    relative to the run hold absolute paths, or paths relative to the directory the command ran
+    in, and the run may have been moved or copied to ``results/`` since); else as written, where
+    an older run's file still is."""
     path = Path(recorded)
-    for candidate in ([] if path.is_absolute() else [run_dir / path]) + [path]:
-        if candidate.exists():
-            return candidate
-    return run_dir / default
+    ours = [run_dir / default] if path.is_absolute() else [run_dir / path, run_dir / default]
+    return next((c for c in [*ours, path] if c.exists()), run_dir / default)
 
 
 def directory_lock(directory: Path, kind: str) -> FileLock:

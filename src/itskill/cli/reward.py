@@ -161,6 +161,7 @@ def generate_cmd(
 ) -> None:
     """Search a reward for a task or command: plan, generate, train candidates, keep the best,
     compare it with the expert reward (Fig. 6). Rerun with --resume RUN after an interruption."""
+    from itskill.llm.client import Usage
     from itskill.reward.search import (
         CONFIG_FILE,
         NETWORK_DIR,
@@ -223,6 +224,8 @@ def generate_cmd(
                 console=console,
                 network=network,
                 plan=plan,
+                # The plan and the analysis for the network were asked of this client first.
+                usage_since=Usage(),
             )
         except KeyboardInterrupt:
             # Stopped while planning, a new search leaves no run (--resume would find none).

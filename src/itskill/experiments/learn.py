@@ -353,18 +353,18 @@ def learn(
     created = not run_dir.exists()
     client = make_client(llm, cache_dir=run_dir / "llm_cache")
     settings = {"command": command, "budget": b.to_dict(), "seed": seed, "llm": client.name}
-    _check_run_dir(run_dir, settings, resume)
+    # Before the record is checked or written (the lock's file is elsewhere): two sessions on
+    # one run train the same candidates into the same files, and the run is damaged for good.
     lock = directory_lock(run_dir, "learn")
     try:
         lock.acquire(timeout=0)
     except Timeout:
-        # Two sessions on one run train the same candidates into the same files, and the
-        # run is damaged for good.
         raise LearnError(
             f"{run_dir} is in use by another itskill learn on this machine; wait for it to end, "
             "or stop it and --resume"
         ) from None
     try:
+        _check_run_dir(run_dir, settings, resume)
         sessions = Sessions(run_dir / PROVENANCE_FILE)
         sessions.start()
         usage = UsageLog(run_dir / USAGE_FILE, client)
@@ -529,7 +529,7 @@ def _reward(
         cached = {
             # Relative to the learn run, which may be moved or copied to results/.
             "run_dir": REWARD_DIR,
-            "best_path": str(res.best_path.relative_to(run_dir)),
+            "best_path": res.best_path.relative_to(run_dir).as_posix(),
             "best_success": res.best_success,
             "expert_success": res.expert_success,
             "iterations": config.iterations,
@@ -600,7 +600,7 @@ def _analyze(
                 _source_request(sources),
                 seed,
                 b.transfer.algo,
-                steps.run_dir / "transfer",
+                steps.run_dir / TRANSFER_DIR,
                 client,
             )
             cached = record["contribution"]
@@ -681,7 +681,7 @@ def _train(
         ],
         "final_success": float(curve.success[-1]),
         # The policy evaluated and kept: the best of the evaluations during training.
-        "policy_dir": str(best_policy_dir(out).relative_to(run_dir)),
+        "policy_dir": best_policy_dir(out).relative_to(run_dir).as_posix(),
         "selection": res.best,
     }
     resumed = f" (resumed from {res.resumed_from:,})" if res.resumed_from else ""
@@ -728,7 +728,7 @@ def _train_generated(
     )
 
 
-def _evaluate(task: str, policy_dir: Path, episodes: int, steps: _Steps) -> dict[str, Any]:
+def _evaluate(task: str, kept: Path, episodes: int, steps: _Steps) -> dict[str, Any]:
     from itskill.rl.checkpoint import as_policy
     from itskill.tasks import get_task
     from itskill.tasks.evaluate import evaluate
@@ -736,7 +736,7 @@ def _evaluate(task: str, policy_dir: Path, episodes: int, steps: _Steps) -> dict
     cached = steps.cached("evaluation.json")
     was_cached = cached is not None
     if cached is None:
-        res = evaluate(get_task(task), as_policy(policy_dir), episodes, seed=EVAL_SEED, num_envs=25)
+        res = evaluate(get_task(task), as_policy(kept), episodes, seed=EVAL_SEED, num_envs=25)
         cached = res.to_dict()
         write_json(steps.run_dir / "evaluation.json", cached)
     steps.done(

@@ -7,7 +7,7 @@ them when they no longer exist (:func:`itskill.files.run_path`).
 
 from __future__ import annotations
 
-from pathlib import Path
+from pathlib import Path, PureWindowsPath
 from typing import Any
 
 from itskill.files import run_path
@@ -38,5 +38,7 @@ def policy_dir(run_dir: Path, transfer: dict[str, Any]) -> Path:
     """The kept policy's directory, from the ``transfer`` part of ``summary.json`` (runs from
     before the best policy was kept evaluated their last checkpoint, the training's own)."""
     recorded = transfer.get("policy_dir", transfer["run_dir"])
-    usual = BEST_POLICY if Path(recorded).name == Path(BEST_POLICY).name else TRANSFER_DIR
+    # PureWindowsPath reads both separators: a record written on Windows names transfer\best.
+    best = PureWindowsPath(recorded).name == Path(BEST_POLICY).name
+    usual = BEST_POLICY if best else TRANSFER_DIR
     return run_path(run_dir, recorded, usual)

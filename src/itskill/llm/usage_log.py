@@ -9,23 +9,24 @@ sessions up: a run's total is neither the last session's alone nor a step's coun
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import fields, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 from itskill.files import read_json, write_json
-from itskill.llm.client import LLMClient
+from itskill.llm.client import LLMClient, Usage
 
-USAGE_KEYS = ("prompt_tokens", "completion_tokens", "requests", "cache_hits", "cost_usd")
+USAGE_KEYS = tuple(f.name for f in fields(Usage))
 
 
 class UsageLog:
-    """The usage file ``path`` of a run whose current session uses ``client``."""
+    """The usage file ``path`` of a run whose current session uses ``client``: what it consumed
+    since ``since`` (a copy of its usage taken when the run's work began; default: now)."""
 
-    def __init__(self, path: Path, client: LLMClient) -> None:
+    def __init__(self, path: Path, client: LLMClient, since: Usage | None = None) -> None:
         self.path, self.client = Path(path), client
-        self._start = replace(client.usage)
+        self._start = replace(since if since is not None else client.usage)
         self._started = time.monotonic()
         self._earlier: list[dict[str, Any]] = (
             read_json(self.path).get("sessions", []) if self.path.is_file() else []

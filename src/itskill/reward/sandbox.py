@@ -264,7 +264,7 @@ def _elements(node: ast.AST) -> int | None:
 class _Checker(ast.NodeVisitor):
     def __init__(self, local_names: set[str]) -> None:
         self.local_names = local_names
-        self._module_bases: set[int] = set()  # the np/math Name nodes that head an attribute
+        self._module_bases: set[int] = set()  # every Name node that heads an attribute
 
     def generic_visit(self, node: ast.AST) -> None:
         if not isinstance(node, _ALLOWED_NODES):

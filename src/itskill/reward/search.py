@@ -17,8 +17,8 @@ Run directory (every file written atomically; see ``docs/reward.md``)::
     config.json  plan.json  usage.json  llm_cache/  network/ (a transfer network's record, if any)
     iter_<i>/sample_<k>/{reply.txt, reward.py, status.json, result.json, train/seed_<s>/}
     iter_<i>/summary.json
-    select/iter_<i>_sample_<k>_seed<s>/{result.json, train/}
-    best_reward.py  final/{generated,expert}_seed<s>/  summary.json  fig6.png
+    select/reward_<code hash>_seed<s>/{result.json, train/}
+    best_reward.py  final/{generated_<code hash>,expert}_seed<s>/  summary.json  fig6.png
 
 Resuming (``resume=True``) replays the model's replies from ``llm_cache/`` in the original order,
 never retrains a candidate whose ``result.json`` exists, and restarts the others (their training
@@ -43,7 +43,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 import itskill
 from itskill.executors import JobResult, check_executor, default_workers, run_jobs
 from itskill.files import check_shape, read_json, write_json, write_text
-from itskill.llm.client import LLMClient, Message, make_client
+from itskill.llm.client import LLMClient, Message, Usage, make_client
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
 from itskill.llm.usage_log import UsageLog
 from itskill.reward.candidate import (
@@ -143,9 +143,11 @@ def _rank(entry: dict[str, Any]) -> tuple[float, float]:
 class _Run:
     """One search's run directory and its bookkeeping."""
 
-    def __init__(self, out: Path, client: LLMClient, console: Console) -> None:
+    def __init__(
+        self, out: Path, client: LLMClient, console: Console, usage_since: Usage | None
+    ) -> None:
         self.out, self.client, self.console = out, client, console
-        self.usage = UsageLog(out / USAGE_FILE, client)
+        self.usage = UsageLog(out / USAGE_FILE, client, usage_since)
 
     def __enter__(self) -> _Run:
         return self
@@ -446,6 +448,7 @@ def generate_reward(
     console: Console | None = None,
     network: CandidateNetwork | None = None,
     plan: TaskPlan | None = None,
+    usage_since: Usage | None = None,
 ) -> RewardSearchResult:
     """Search a reward for ``target`` (a task id or a command) with ``client``, in run dir ``out``.
 
@@ -460,6 +463,9 @@ def generate_reward(
     reward's too) train; None trains the family's own network from scratch. ``plan`` is
     :func:`plan_target`'s plan of ``target`` when the caller already made one (to retrieve the
     network's sources), so the model is not asked twice; a resumed run keeps its stored plan.
+    ``usage_since`` is the client's usage when the search's work began, where a caller asked
+    the model for it first (the plan and the network's analysis); its ``usage.json`` counts
+    from there (default: from this call, as when the client served other steps before).
     """
     config = config or RewardSearchConfig()
     console = console or Console(stderr=True, emoji=False)
@@ -484,7 +490,7 @@ def generate_reward(
             return load_search(out)
     else:
         check_new_run(out)
-    run = _Run(out, client, console)  # its clock starts here, so the planning counts
+    run = _Run(out, client, console, usage_since)  # its clock starts here: the planning counts
     # Planned before anything is written: a command the planner refuses must leave no run behind,
     # or the same --out would be refused as taken and --resume would fail on it again.
     created = not out.exists()
