@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
+from itskill.files import CorruptFileError
 from itskill.llm import OfflineClient, Usage
 from itskill.llm.usage_log import UsageLog
 
@@ -22,3 +25,11 @@ def test_each_session_counts_what_its_client_used_since_the_run_began(tmp_path: 
     total = UsageLog(path, fresh, since=Usage()).save()
     assert [s["requests"] for s in total["sessions"]] == [3, 4]
     assert total["total"]["requests"] == 7
+
+
+def test_a_damaged_usage_file_is_named(tmp_path: Path) -> None:
+    # A list, or sessions that are not numbers, were a TypeError where the total is added up.
+    path = tmp_path / "usage.json"
+    path.write_text('{"sessions": [{"requests": "many"}]}')
+    with pytest.raises(CorruptFileError, match=r"usage.json.*sessions\[0\]\.requests"):
+        UsageLog(path, OfflineClient())

@@ -70,6 +70,8 @@ REPORT_HTML = "report.html"
 FIGURES_DIR = "figures"
 VIDEOS_DIR = "videos"
 RUN_FILES = (CONFIG_FILE, EXPERIMENT_FILE, SOURCES_FILE, PROVENANCE_FILE)
+TRACE_FILE = "attention.json"
+"""A cell's attention trace (:data:`itskill.transfer.trace.TRACE_FILE`)."""
 CELL_FILES = (
     RESULT_FILE,
     ERROR_FILE,
@@ -77,7 +79,7 @@ CELL_FILES = (
     "metrics.csv",
     "checkpoint.json",
     "transfer.json",
-    "attention.json",
+    TRACE_FILE,
 )
 """What a report reads from a run and its cells, weights aside: a report written elsewhere copies
 these beside itself, so it can be written again from its own directory (without the video). The
@@ -298,9 +300,11 @@ def experiment_report(
     if notes:
         doc.add(Heading("Notes"), Bullets(tuple(notes)))
     if outside:
-        # Again: the attention traces this report made (attention.json) go with the copy, which
-        # has no weights to trace them from when its own report is written.
-        _copy_results(config, run_dir, out)
+        # The attention traces this report made go with the copy, which has no weights to trace
+        # them from when its own report is written.
+        for cell in cells(config):
+            if (cell.dir(run_dir) / TRACE_FILE).is_file():
+                shutil.copyfile(cell.dir(run_dir) / TRACE_FILE, cell.dir(out) / TRACE_FILE)
     md, html_path = out / REPORT_MD, out / REPORT_HTML
     write_document(doc, md, html_path)
     return ReportFiles(md, html_path, tuple(notes))

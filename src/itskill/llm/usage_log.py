@@ -14,10 +14,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from itskill.files import read_json, write_json
+from itskill.files import check_shape, read_json, write_json
 from itskill.llm.client import LLMClient, Usage
 
 USAGE_KEYS = tuple(f.name for f in fields(Usage))
+_SESSION = {f"{key}?": float for key in (*USAGE_KEYS, "wall_s")}
+"""A recorded session: the numbers the total adds up (each may be absent)."""
 
 
 class UsageLog:
@@ -28,9 +30,11 @@ class UsageLog:
         self.path, self.client = Path(path), client
         self._start = replace(since if since is not None else client.usage)
         self._started = time.monotonic()
-        self._earlier: list[dict[str, Any]] = (
-            read_json(self.path).get("sessions", []) if self.path.is_file() else []
-        )
+        self._earlier: list[dict[str, Any]] = []
+        if self.path.is_file():
+            data = read_json(self.path)
+            check_shape(self.path, data, {"sessions": [_SESSION]})
+            self._earlier = data["sessions"]
         self._session = {"started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
 
     def save(self) -> dict[str, Any]:

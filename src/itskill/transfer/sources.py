@@ -62,6 +62,8 @@ class SourceSkill:
     score: float | None
     policy_class: str
     policy: dict[str, Any]
+    weights_sha256: str
+    """Of the weights the analyzer and the network take: a skill retrained later is told apart."""
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -73,7 +75,7 @@ class SourceSkill:
             "run_dir": str(self.run_dir),
             "success_rate": self.success_rate,
             "score": self.score,
-            "weights_sha256": policy_sha256(self.run_dir),
+            "weights_sha256": self.weights_sha256,
         }
 
     def spec(self) -> dict[str, Any]:
@@ -84,7 +86,7 @@ class SourceSkill:
             "run_dir": str(self.run_dir),
             "policy_class": self.policy_class,
             "policy": self.policy,
-            "weights_sha256": policy_sha256(self.run_dir),
+            "weights_sha256": self.weights_sha256,
         }
 
     def analyzer_entry(self) -> dict[str, Any]:
@@ -104,6 +106,10 @@ def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSk
             f"skill {skill.name!r}: its policy has {meta['action_size']} actions, "
             f"the tasks have {n_actions}"
         )
+    try:
+        digest = policy_sha256(run_dir)
+    except OSError as err:
+        raise SourceError(f"skill {skill.name!r} (id {skill.id}): its weights: {err}") from err
     return SourceSkill(
         id=skill.id,
         name=skill.name,
@@ -115,6 +121,7 @@ def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSk
         score=score,
         policy_class=meta.get("policy_class", STAGED_POLICY_CLASS),
         policy=meta["policy"],
+        weights_sha256=digest,
     )
 
 
