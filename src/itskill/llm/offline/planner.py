@@ -126,7 +126,21 @@ def _words(text: str) -> list[str]:
 
 # "M16", "m 16", "16mm" and "16 mm" are 16 mm. A longer number is no part's size in millimetres,
 # and int() refuses one of thousands of digits.
-_SIZE = r"\b(?:m ?(\d{1,4})|(\d{1,4}) ?mm)\b"
+_NUMBER = r"\d{1,4}"
+
+
+def _sizes_at(words: list[str]) -> list[tuple[int, int]]:
+    """The sizes written in ``words``: (position of their first word, millimetres)."""
+    found = []
+    for i, word in enumerate(words):
+        nxt = words[i + 1] if i + 1 < len(words) else ""
+        if m := re.fullmatch(rf"m({_NUMBER})|({_NUMBER})mm", word):
+            found.append((i, int(m[1] or m[2])))
+        elif word == "m" and re.fullmatch(_NUMBER, nxt):
+            found.append((i, int(nxt)))
+        elif re.fullmatch(_NUMBER, word) and nxt == "mm":
+            found.append((i, int(word)))
+    return found
 
 
 def _descriptors(command: str, kinds: set[str]) -> dict[str | None, tuple[set[int], set[str]]]:
@@ -135,17 +149,10 @@ def _descriptors(command: str, kinds: set[str]) -> dict[str | None, tuple[set[in
     16 is the nut's, round the peg's). Under None, those written with no kind word in the command.
     """
     words = _words(command)
-    found: list[tuple[int, int | None, str | None]] = []  # (position, size, shape)
-    for i, word in enumerate(words):
-        nxt = words[i + 1] if i + 1 < len(words) else ""
-        if m := re.fullmatch(r"m(\d{1,4})|(\d{1,4})mm", word):
-            found.append((i, int(m[1] or m[2]), None))
-        elif (word == "m" and re.fullmatch(r"\d{1,4}", nxt)) or (
-            re.fullmatch(r"\d{1,4}", word) and nxt == "mm"
-        ):
-            found.append((i, int(nxt if word == "m" else word), None))
-        elif word in _SHAPES:
-            found.append((i, None, _SHAPES[word]))
+    found: list[tuple[int, int | None, str | None]] = [  # (position, size, shape)
+        *((i, mm, None) for i, mm in _sizes_at(words)),
+        *((i, None, _SHAPES[w]) for i, w in enumerate(words) if w in _SHAPES),
+    ]
     places = [(j, w.removesuffix("s")) for j, w in enumerate(words) if w.removesuffix("s") in kinds]
     out: dict[str | None, tuple[set[int], set[str]]] = {}
     for i, size, shape in found:
@@ -159,12 +166,12 @@ def _descriptors(command: str, kinds: set[str]) -> dict[str | None, tuple[set[in
 
 
 def _described(
-    command: str, kind: str, kinds: set[str], rivals: set[str]
+    table: dict[str | None, tuple[set[int], set[str]]], kind: str, rivals: set[str]
 ) -> tuple[set[int], set[str]]:
-    """The sizes and shapes a command gives a part of ``kind`` (see :func:`_descriptors`). One it
-    gives no size (or shape) takes those written for kinds other than ``rivals``: "the peg into
-    the rectangular hole" is the rectangular peg, "the M16 nut and the peg" not the 16 mm peg."""
-    table = _descriptors(command, kinds)
+    """The sizes and shapes a command gives a part of ``kind`` (``table``: its
+    :func:`_descriptors`). One it gives no size (or shape) takes those written for kinds other
+    than ``rivals``: "the peg into the rectangular hole" is the rectangular peg, "the M16 nut and
+    the peg" not the 16 mm peg."""
     own_sizes, own_shapes = table.get(kind, (set(), set()))
     lent = [v for k, v in table.items() if k != kind and k not in rivals]
     return (
@@ -173,20 +180,14 @@ def _described(
     )
 
 
-def _sizes(words: list[str]) -> set[int]:
-    """The sizes in millimetres written in ``words``."""
-    return {int(n) for groups in re.findall(_SIZE, " ".join(words)) for n in groups if n}
-
-
 def _missing_size(command: str, parts: list[Part]) -> str | None:
     """Why the command cannot be grounded if it asks for a part in a size the scene does not
     have ("the M20 nut"): written just before the part's word, where it can only be the part's
     size ("lift the nut 30 mm" is a height); None otherwise."""
     words = _words(command)
     for kind in sorted({p.kind for p in parts if p.width}):
-        written = set().union(
-            *(_sizes(words[max(0, k - 2) : k]) for k, w in enumerate(words) if w == kind)
-        )
+        places = [k for k, w in enumerate(words) if w == kind]
+        written = {mm for i, mm in _sizes_at(words) if any(k - 2 <= i < k for k in places)}
         have = sorted((p for p in parts if p.kind == kind), key=lambda p: p.width)
         if written and not written & {p.width for p in have}:
             asked = " or ".join(f"{w} mm" for w in sorted(written))
@@ -197,7 +198,7 @@ def _missing_size(command: str, parts: list[Part]) -> str | None:
 
 
 def _ground_objects(
-    command: str, parts: list[Part], scene_kinds: set[str]
+    command: str, parts: list[Part], table: dict[str | None, tuple[set[int], set[str]]]
 ) -> tuple[list[Part], list[str]]:
     """The objects the command names, and notes on the assumptions made; :class:`PlanningError`
     if it describes one that no part of its kind fits ("the round 16 mm peg")."""
@@ -211,7 +212,7 @@ def _ground_objects(
         if kind not in words and not plural:
             continue
         of_kind = [p for p in parts if p.kind == kind]
-        named_sizes, named_shapes = _described(command, kind, scene_kinds, set(kinds))
+        named_sizes, named_shapes = _described(table, kind, set(kinds))
         sizes = {p.width for p in of_kind if p.width in named_sizes}
         shapes = {p.shape for p in of_kind if p.shape in named_shapes}
         # "the M12 nut and the M16 nut", "each nut": every one it names, not a default.
@@ -330,14 +331,14 @@ def plan(command: str, catalogue: list[dict]) -> dict:
     missing = _missing_size(command, parts + fixture_parts)
     if missing:
         return {"error": missing}
-    scene_kinds = {p.kind for p in parts + fixture_parts}
+    table = _descriptors(command, {p.kind for p in parts + fixture_parts})
     try:
-        grounded, notes = _ground_objects(command, parts, scene_kinds)
+        grounded, notes = _ground_objects(command, parts, table)
         # A command may name only a fixture ("move the gripper over the M12 bolt"): match tasks
         # on their fixtures then.
         by_fixture = not grounded
         if by_fixture:
-            grounded, notes = _ground_objects(command, fixture_parts, scene_kinds)
+            grounded, notes = _ground_objects(command, fixture_parts, table)
     except PlanningError as err:
         return {"error": str(err)}
     words = set(_words(command))
@@ -404,9 +405,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
     for fixture in (Part.from_name(f) for f in entry["fixtures"]):
         if fixture.kind not in named_fixtures:
             continue
-        named_sizes, named_shapes = _described(
-            command, fixture.kind, scene_kinds, {p.kind for p in fixture_parts}
-        )
+        named_sizes, named_shapes = _described(table, fixture.kind, {p.kind for p in fixture_parts})
         if (named_sizes and fixture.width not in named_sizes) or (
             named_shapes and fixture.shape not in named_shapes
         ):
