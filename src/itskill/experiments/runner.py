@@ -32,7 +32,7 @@ from itskill.executors import check_executor, run_jobs
 from itskill.experiments.analysis import read_curve, time_to_threshold
 from itskill.experiments.config import AUTO, ExperimentConfig
 from itskill.experiments.provenance import Sessions
-from itskill.files import CorruptFileError, read_json, write_json
+from itskill.files import CorruptFileError, read_json, some_of, write_json
 
 CELLS_DIR = "cells"
 RESULT_FILE = "result.json"
@@ -186,9 +186,8 @@ def _recorded_run(
             if source_file is None or not _same_file(p, source_file)
         )
         if foreign:
-            more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
             raise ExperimentRunError(
-                f"{run_dir}: holds {', '.join(foreign[:3])}{more} and is not an experiment run "
+                f"{run_dir}: holds {some_of(foreign)} and is not an experiment run "
                 f"(no {CONFIG_FILE}); a new run would overwrite or mix with them: give --out a "
                 "new or empty directory"
             )

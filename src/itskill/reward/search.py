@@ -42,7 +42,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 import itskill
 from itskill.executors import JobResult, check_executor, default_workers, run_jobs
-from itskill.files import check_shape, read_json, write_json, write_text
+from itskill.files import check_shape, read_json, some_of, write_json, write_text
 from itskill.llm.client import LLMClient, Message, Usage, make_client
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
 from itskill.llm.usage_log import UsageLog
@@ -243,9 +243,8 @@ def check_new_run(out: Path) -> None:
         if others:
             # A learn or training run there was overwritten (its plan.json, summary.json) and
             # could no longer be resumed.
-            more = f" and {len(others) - 3} more" if len(others) > 3 else ""
             raise RewardSearchError(
-                f"{out}: holds {', '.join(others[:3])}{more} and is not a reward search (no "
+                f"{out}: holds {some_of(others)} and is not a reward search (no "
                 f"{CONFIG_FILE}); give --out a new or empty directory"
             )
         return

@@ -29,7 +29,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from itskill.datafile import read_toml
 from itskill.errors import PicklableError
-from itskill.files import write_json
+from itskill.files import some_of, write_json
 from itskill.limits import SEED_MAX
 from itskill.reward_contract import EXPERT, RewardOutputError, check_reward_output
 from itskill.rl.checkpoint import (
@@ -550,9 +550,8 @@ def check_training(
             raise ResumeMismatchError(f"{run_dir}: a file, not a directory; give a directory")
         foreign = _foreign_entries(run_dir, frozenset(own_files))
         if foreign:
-            more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
             raise ResumeMismatchError(
-                f"{run_dir}: holds {', '.join(foreign[:3])}{more}, which no training run "
+                f"{run_dir}: holds {some_of(foreign)}, which no training run "
                 "writes, and no checkpoint to resume; train into a new or empty directory"
             )
     return TrainSetup(
