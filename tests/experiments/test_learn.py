@@ -143,6 +143,8 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(
     resumed = learn(*args, "--no-video", "--resume")
     assert resumed.exit_code == 0, resumed.output
     assert flat(resumed.output).count("kept from the previous session") >= 5
+    # The training had nothing left to do: not "resumed from 256", which reads as training on.
+    assert "finished in an earlier session; nothing trained now" in flat(resumed.output)
     assert model.stat().st_mtime_ns == stamp
     with open_skill_space() as space:
         assert [s.name for s in space.list(task_id="pickplace_nut_m12")] == [skill.name]
@@ -167,6 +169,14 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(
     search = json.loads((out / "reward" / "usage.json").read_text())["sessions"][0]
     assert first["requests"] - search["requests"] == 2  # the plan and the analysis
 
+    # A step's file damaged between sessions is named when read, not a KeyError steps later.
+    evaluation = json.loads((out / "evaluation.json").read_text())
+    (out / "evaluation.json").write_text(json.dumps({**evaluation, "episodes": "four"}))
+    damaged = learn(*args, "--no-video", "--resume")
+    assert damaged.exit_code == 2, damaged.output
+    assert "evaluation.json: episodes: expected a whole number" in flat(damaged.output)
+    assert "delete it and --resume to run its step again" in flat(damaged.output)
+
     # Moved elsewhere, the run still has its report: its records name files relative to it.
     moved = tmp_path / "moved"
     out.rename(moved)
@@ -185,7 +195,7 @@ def test_a_new_run_refuses_a_folder_holding_other_files(tmp_path, budgets):
     (out / "plan.json").write_text('{"task": "insert_peg_round"}')
     result = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out))
     assert result.exit_code == 2
-    assert "not empty and not a learn run" in flat(result.output)
+    assert "holds plan.json and is not a learn run" in flat(result.output)
     assert sorted(p.name for p in out.iterdir()) == ["plan.json"]
 
 
@@ -200,6 +210,9 @@ def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budg
     assert summary["evaluation"]["success_rate"] < 1.0  # 256 env-steps learn nothing
     assert summary["skill"]["added"] is False
     assert "not added to the skill space" in flat(result.output)
+    # Not announced as learned (in green): nothing joined the skill space.
+    assert f"trained '{COMMAND}'" in flat(result.output)
+    assert f"learned '{COMMAND}'" not in flat(result.output)
     with open_skill_space() as space:
         assert space.list(task_id="pickplace_nut_m12") == []
     assert (Path(summary["skill"]["policy"]) / "checkpoint.json").is_file()  # the policy is kept

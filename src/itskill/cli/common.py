@@ -123,11 +123,12 @@ EvalEpisodesOpt = Annotated[int, episodes_option("Episodes per evaluation.")]
 def print_trained(what: str, result: Any, steps: int) -> None:
     """One line on a finished training run (a ``TrainResult``) asked for ``steps`` env-steps:
     steps, where, its best policy."""
-    resumed = f" (resumed from {result.resumed_from:,})" if result.resumed_from else ""
     # Training stops at the first whole rollout at or past the budget: say so, or a user who
     # asked for 64 reads 128 as a bug.
     past = f" (whole rollouts: {steps:,} asked)" if result.num_timesteps > steps else ""
-    line = f"trained {what}: {result.num_timesteps:,} env-steps in total{past}{resumed}; "
+    line = (
+        f"trained {what}: {result.num_timesteps:,} env-steps in total{past}{result.resume_note}; "
+    )
     line += f"checkpoint in {result.run_dir}"
     if result.best is not None:
         line += (

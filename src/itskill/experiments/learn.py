@@ -48,12 +48,62 @@ from itskill.experiments.learn_layout import (
 )
 from itskill.experiments.provenance import Sessions
 from itskill.experiments.report import PROVENANCE_FILE, ReportFiles, learn_report
-from itskill.files import directory_lock, read_json, write_json
+from itskill.files import (
+    Check,
+    CorruptFileError,
+    check_shape,
+    directory_lock,
+    read_json,
+    some_of,
+    write_json,
+)
 from itskill.llm.usage_log import UsageLog
 
 EVAL_SEED = 10_000
 """Seed of the final evaluation's episodes: other initial states than training's."""
 STEPS = ("plan", "sources", "analyze", "reward", "train", "evaluate", "skill", "report")
+
+# What a later step reads of each step's file: a file damaged or edited between sessions is
+# named when it is read, not met as a KeyError steps later.
+_PLAN_SHAPE = {
+    "command": str,
+    "task": str,
+    "notes?": str,
+    "subtasks": [str],
+    "actions": [str],
+    "objects": [str],
+}
+_SOURCES_SHAPE = {"retrieved": [{"name": str}], "used": [{"name": str}]}
+_ANALYSIS_SHAPE = Check(
+    "{} (no analysis) or an object with segments, sources and matrix",
+    lambda v: isinstance(v, dict) and (not v or {"segments", "sources", "matrix"} <= v.keys()),
+)
+_ANALYSIS_FIELDS = {"segments?": [str], "sources?": [str], "matrix?": [[float]]}
+_REWARD_SHAPE = {
+    "run_dir": str,
+    "best_path": str,
+    "best_success": float,
+    "expert_success": (float, None),
+    "network?": (str, None),
+}
+_EVALUATION_SHAPE = {"success_rate": float, "episodes": int, "ci_low": float, "ci_high": float}
+_SKILL_ADDED = ("id", "name", "skill_space")
+_SKILL_NOT_ADDED = ("min_success", "policy")
+_SKILL_SHAPE = Check(
+    f"an object with {', '.join(_SKILL_ADDED)} (added) or {', '.join(_SKILL_NOT_ADDED)} (not)",
+    lambda v: (
+        isinstance(v, dict)
+        and isinstance(v.get("added", True), bool)
+        and set(_SKILL_ADDED if v.get("added", True) else _SKILL_NOT_ADDED) <= v.keys()
+    ),
+)
+_SKILL_FIELDS = {
+    "id?": int,
+    "name?": str,
+    "skill_space?": str,
+    "min_success?": float,
+    "policy?": str,
+}
 
 
 class LearnError(ValueError):
@@ -241,9 +291,21 @@ class _Steps:
         mark = "(kept from the previous session) " if cached else ""
         self.console.print(f"    [green]✓[/green] {mark}{escape(text)}", highlight=False)
 
-    def cached(self, file: str) -> dict[str, Any] | None:
+    def cached(self, file: str, *shapes: Any) -> dict[str, Any] | None:
+        """``file``'s record from an earlier session, checked against each of ``shapes``; None if
+        the step has not run."""
         path = self.run_dir / file
-        return read_json(path) if path.is_file() else None
+        if not path.is_file():
+            return None
+        value = read_json(path)
+        try:
+            for shape in shapes:
+                check_shape(path, value, shape)
+        except CorruptFileError as err:
+            raise CorruptFileError(
+                path, f"{err.problem}; delete it and --resume to run its step again"
+            ) from None
+        return value
 
 
 def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> None:
@@ -263,12 +325,15 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
                 f"{run_dir} was started with {key}={was!r}, this call gives {now!r}; resume "
                 "with the same settings or use another --out"
             )
-    elif not resume and run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
+    elif not resume and run_dir.exists() and not run_dir.is_dir():
+        raise LearnError(f"{run_dir} is a file: give --out a new or empty directory")
+    elif not resume and run_dir.exists() and any(run_dir.iterdir()):
         # A step finds its files from an earlier session by name: another run's plan.json or
         # sources.json there would be taken for this run's, and the user's files overwritten.
+        found = sorted(p.name for p in run_dir.iterdir())
         raise LearnError(
-            f"{run_dir}: not empty and not a learn run (no {LEARN_FILE}); a new run would read "
-            "or overwrite the files there: give --out a new or empty directory"
+            f"{run_dir}: holds {some_of(found)} and is not a learn run (no {LEARN_FILE}); a new "
+            "run would read or overwrite the files there: give --out a new or empty directory"
         )
     elif resume:
         # Starting afresh instead would spend hours where a continuation was asked for: a
@@ -392,7 +457,13 @@ def learn(
             f"{command!r}: success {summary['evaluation']['success_rate']:.0%}; {outcome}; "
             f"report {report.markdown}"
         )
-        console.print(f"[bold green]learned[/bold green] {escape(rest)}")
+        # A policy below the threshold was trained, not learned: not in green, as a success.
+        head = (
+            "[bold green]learned[/bold green]"
+            if skill["added"]
+            else "[bold yellow]trained[/bold yellow]"
+        )
+        console.print(f"{head} {escape(rest)}")
         return LearnResult(run_dir, summary, report)
     finally:
         lock.release()
@@ -459,7 +530,7 @@ def _pipeline(
 def _plan(command: str, client: Any, steps: _Steps) -> dict[str, Any]:
     from itskill.reward.search import plan_target
 
-    cached = steps.cached("plan.json")
+    cached = steps.cached("plan.json", _PLAN_SHAPE)
     if cached is None:
         # As the reward search reads it (step 4): a task id as itself, and a single word that is
         # none ("pick_nut_m1") refused now, not after three steps as the search's target.
@@ -496,7 +567,7 @@ def _reward(
 
     task = plan["task"]
 
-    cached = steps.cached("reward.json")
+    cached = steps.cached("reward.json", _REWARD_SHAPE)
     was_cached = cached is not None
     if cached is None:
         out = run_dir / REWARD_DIR
@@ -553,7 +624,7 @@ def _sources(task: str, b: LearnBudget, steps: _Steps) -> dict[str, list[dict[st
     """The retrieved skills and those the method uses (PST keeps a subset)."""
     from itskill.transfer import get_method, load_transfer_config, resolve_sources
 
-    cached = steps.cached("sources.json")
+    cached = steps.cached("sources.json", _SOURCES_SHAPE)
     was_cached = cached is not None
     if cached is None:
         method = get_method(b.transfer.method)
@@ -589,7 +660,7 @@ def _analyze(
     (``transfer/transfer.json``), which the reward search's network and the training then read."""
     from itskill.transfer import get_method, prepare_transfer
 
-    cached = steps.cached("analysis.json")
+    cached = steps.cached("analysis.json", _ANALYSIS_SHAPE, _ANALYSIS_FIELDS)
     was_cached = cached is not None
     if cached is None:
         cached = {}
@@ -684,12 +755,11 @@ def _train(
         "policy_dir": best_policy_dir(out).relative_to(run_dir).as_posix(),
         "selection": res.best,
     }
-    resumed = f" (resumed from {res.resumed_from:,})" if res.resumed_from else ""
     kept = ""
     if res.best is not None:
         kept = f"; best {res.best['success']:.0%} at {int(res.best['env_steps']):,}, kept"
     steps.done(
-        f"{res.num_timesteps:,} env-steps{resumed}, {wall / 60:.1f} min of training; last "
+        f"{res.num_timesteps:,} env-steps{res.resume_note}, {wall / 60:.1f} min of training; last "
         f"evaluation {curve.success[-1]:.0%}{kept} → {policy_dir(run_dir, summary)}"
     )
     return summary
@@ -733,7 +803,7 @@ def _evaluate(task: str, kept: Path, episodes: int, steps: _Steps) -> dict[str, 
     from itskill.tasks import get_task
     from itskill.tasks.evaluate import evaluate
 
-    cached = steps.cached("evaluation.json")
+    cached = steps.cached("evaluation.json", _EVALUATION_SHAPE)
     was_cached = cached is not None
     if cached is None:
         res = evaluate(get_task(task), as_policy(kept), episodes, seed=EVAL_SEED, num_envs=25)
@@ -768,7 +838,7 @@ def _add_skill(
     from itskill.rl.checkpoint import META_FILE, POLICY_FILE
     from itskill.skills import Skill, itskill_home, open_skill_space
 
-    cached = steps.cached("skill.json")
+    cached = steps.cached("skill.json", _SKILL_SHAPE, _SKILL_FIELDS)
     was_cached = cached is not None
     if cached is None and evaluation["success_rate"] < b.min_success:
         cached = {

@@ -170,6 +170,15 @@ class TrainResult:
     """The evaluation that chose the policy in ``run_dir/best`` (env-steps, success, ...), if the
     run was evaluated while it trained."""
 
+    @property
+    def resume_note(self) -> str:
+        """Where this session started, for a line on the run: empty for a new run."""
+        if not self.resumed_from:
+            return ""
+        if self.num_timesteps == self.resumed_from:
+            return " (finished in an earlier session; nothing trained now)"
+        return f" (resumed from {self.resumed_from:,})"
+
 
 CANNOT_RESUME = (
     "; the run cannot be resumed from it: train into another run directory (--out). Its "
