@@ -626,3 +626,13 @@ def test_every_error_the_user_can_act_on_is_one_line_and_exit_2(err):
 def test_an_error_that_is_not_the_users_keeps_its_traceback():
     result = _raised_in_a_command(ValueError("a bug"))
     assert result.exit_code == 1 and isinstance(result.exception, ValueError)
+
+
+def test_render_refuses_to_overwrite_a_video_unless_forced(tmp_path):
+    # A mistyped --out replaced another video without a word.
+    out = tmp_path / "kept.mp4"
+    out.write_bytes(b"another run's film")
+    result = runner.invoke(app, ["render", "reach_nut_m12", "--out", str(out)])
+    assert result.exit_code == 2
+    assert "exists; pass --force to overwrite it" in flat(result.output)
+    assert out.read_bytes() == b"another run's film"

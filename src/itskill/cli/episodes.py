@@ -6,7 +6,6 @@ Imports of itskill.tasks stay inside the commands: they load PyTorch, which othe
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -29,6 +28,7 @@ from itskill.cli.common import (
     print_json,
     user_errors,
 )
+from itskill.files import write_json
 
 if TYPE_CHECKING:
     from itskill.tasks.evaluate import EvalResult
@@ -131,11 +131,16 @@ def render_cmd(
     episodes: Annotated[int, episodes_option("Episodes to film.")] = 1,
     seed: SeedOpt = 0,
     camera: CameraOpt = "front",
+    force: Annotated[bool, typer.Option("--force", help="Overwrite --out if it exists.")] = False,
 ) -> None:
     """Film episodes of a policy to an MP4 file."""
     from itskill.tasks import get_task, render
 
     _check_camera(camera)
+    if out.exists() and not force:
+        # Checked before the rollouts: a mistyped --out would replace another video, perhaps
+        # the only film of a run since deleted.
+        raise typer.BadParameter(f"{out} exists; pass --force to overwrite it", param_hint="--out")
     with user_errors():
         ref = policy_ref(policy)
         video = render.record(get_task(task), ref, out, episodes, seed=seed, camera=camera)
@@ -153,13 +158,15 @@ def _check_camera(camera: str) -> None:
 
 
 def demo(
-    task: Annotated[str, typer.Option(help="A Table I task.")] = "pick_nut_m12",
+    task: Annotated[
+        str, typer.Option(help="Task id (`itskill tasks list` shows them).")
+    ] = "pick_nut_m12",
     episodes: Annotated[int, episodes_option("Episodes to evaluate.")] = 100,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/demo"),
     seed: SeedOpt = 0,
     camera: CameraOpt = "front",
 ) -> None:
-    """The main job for now: a scripted rollout of a task, filmed and evaluated.
+    """Check the simulator on this machine: a task's scripted controller, filmed and evaluated.
 
     Without an OpenGL backend the video is skipped with a warning; the evaluation still runs.
     """
@@ -180,5 +187,5 @@ def demo(
     _print_eval(result, spec, as_json=False)
     out.mkdir(parents=True, exist_ok=True)
     summary = out / f"{task}_eval.json"
-    summary.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+    write_json(summary, result.to_dict())
     console.print(f"summary: {summary}", markup=False)
