@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 from transfer_helpers import make_source
 
+from itskill.rl.checkpoint import POLICY_FILE
 from itskill.skills import open_skill_space, search
 from itskill.tasks import get_task
 from itskill.transfer import SourceError, resolve_sources
@@ -154,3 +155,31 @@ def test_a_skill_whose_checkpoint_is_gone(tmp_path: Path, monkeypatch) -> None:
         space.remove("half")
         with pytest.raises(SourceError, match="no skill to transfer"):
             resolve_sources("pickplace_nut_m12", "auto", space=space)
+
+
+def test_a_weak_skill_comes_after_the_working_skills_it_would_displace(
+    skill_home: Path, tmp_path: Path, monkeypatch
+) -> None:
+    # `itskill learn --budget tiny` adds its pick-and-place at any success. Performing five of
+    # the pick-place-screw's six steps, it took the first source slot from the library's pick
+    # and place, which work.
+    import shutil
+
+    from itskill.skills import Skill
+
+    home = tmp_path / "home"
+    shutil.copytree(skill_home, home)
+    monkeypatch.setenv("ITSKILL_HOME", str(home))
+    make_source(tmp_path / "weak", seed=0)
+    actions = ("approach", "grasp", "lift", "approach", "place")
+    weights = str(tmp_path / "weak" / POLICY_FILE)
+    command = "Pick up the nut and place it on the bolt"
+    weak = Skill("learned-pick-and-place", "pickplace_nut_m12", command, actions, weights,
+                 success_rate=0.02)  # fmt: skip
+    with open_skill_space() as space:
+        space.add(weak)
+    names = [s.name for s in resolve_sources("pickplacescrew_nut_m12", "auto", k=3)]
+    assert names == ["pick_nut_m12", "place_nut_m12", "screw_nut_m12"]
+    # With a threshold it passes, it leads again.
+    allowed = resolve_sources("pickplacescrew_nut_m12", "auto", k=3, min_success=0.0)
+    assert allowed[0].name == "learned-pick-and-place"

@@ -152,7 +152,13 @@ def transfer_analyze(
     with user_errors():
         cfg = _config(config, k, sources)
         spec = get_task(target)
-        chosen = resolve_sources(spec.id, sources, cfg.k, distinct_actions=cfg.distinct_actions)
+        chosen = resolve_sources(
+            spec.id,
+            sources,
+            cfg.k,
+            distinct_actions=cfg.distinct_actions,
+            min_success=cfg.min_success,
+        )
         client = make_client(llm)
         matrix = analyze(
             target_entry(spec),

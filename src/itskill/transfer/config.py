@@ -25,6 +25,7 @@ class TransferConfig:
 
     k: int = 3
     distinct_actions: bool = True
+    min_success: float = 0.5
     attention_hidden: int = 32
     prior_weight: float = 0.5
     fusion_hidden: tuple[int, ...] = ()
@@ -36,6 +37,8 @@ class TransferConfig:
         for name in ("k", "attention_hidden", "pst_keep"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if not 0.0 <= self.min_success <= 1.0:
+            raise ValueError(f"min_success must be in [0, 1], got {self.min_success}")
         if not 0.0 <= self.prior_weight <= 1.0:
             raise ValueError(f"prior_weight must be in [0, 1], got {self.prior_weight}")
         if self.analyzer_retries < 0:
@@ -58,7 +61,7 @@ class TransferConfig:
 
 # TOML table -> {key: dataclass field}.
 _LAYOUT: dict[str, dict[str, str]] = {
-    "sources": {"k": "k", "distinct_actions": "distinct_actions"},
+    "sources": {"k": "k", "distinct_actions": "distinct_actions", "min_success": "min_success"},
     "attention": {"hidden": "attention_hidden", "prior_weight": "prior_weight"},
     "fusion": {"hidden": "fusion_hidden"},
     "pst": {"keep": "pst_keep"},

@@ -180,6 +180,7 @@ def resolve_sources(
     space: SkillSpace | None = None,
     exclude_target: bool = True,
     distinct_actions: bool = True,
+    min_success: float = 0.5,
 ) -> list[SourceSkill]:
     """The source skills for ``target``: retrieved (``"auto"``) or named (ids or names).
 
@@ -190,7 +191,9 @@ def resolve_sources(
     does; ties by similarity to the target's command. It skips the target's own task when
     ``exclude_target``, repeated action sequences when ``distinct_actions``, and skills whose
     checkpoint is a Stable-Baselines3 ``.zip`` (no transfer loads one; the error when no skill
-    is left names them).
+    is left names them). A skill whose recorded success is below ``min_success`` comes after
+    every other skill of its family: one learned on a smoke budget would otherwise, performing
+    more of the target's steps, displace the working skills it was learned from.
     Named skills (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in
     that order. ``space`` defaults to the user's skill space (:func:`open_skill_space`).
     """
@@ -210,7 +213,13 @@ def resolve_sources(
             seen: set[tuple[str, ...]] = set()
             covered: set[int] = set()
             pool = [
-                (skill, score, _differences(skill, spec), bool(runs(target_steps, skill.actions)))
+                (
+                    skill,
+                    score,
+                    _differences(skill, spec),
+                    bool(runs(target_steps, skill.actions)),
+                    skill.success_rate is not None and skill.success_rate < min_success,
+                )
                 for skill, score in ranked
             ]
             while pool and len(chosen) < k:
@@ -218,7 +227,9 @@ def resolve_sources(
                 # steps no chosen skill performs yet (a pick covers approach, grasp and lift of
                 # a pick-and-place, so a lift adds nothing after it, a place two steps). Skills
                 # of the target's own family first: a nut's "approach, place" fits steps of a
-                # peg task but was learned on another part. Then skills of the target's own
+                # peg task but was learned on another part; of those, skills that work (a
+                # policy below min_success performs its steps in name only). Then skills of the
+                # target's own
                 # parts, and for the first steps those that start where the target starts.
                 # Once every step is covered, a skill that performs some of them comes before
                 # one that performs none (a screw is no source for a pick-and-place, however
@@ -228,6 +239,7 @@ def resolve_sources(
                     range(len(pool)),
                     key=lambda j: (
                         pool[j][2][0],
+                        pool[j][4],
                         -len(adds[j]),
                         not pool[j][3],
                         pool[j][2][1],

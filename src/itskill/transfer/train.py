@@ -205,7 +205,12 @@ def prepare_transfer(
     matrix: ContributionMatrix | None = None
     if meth.uses_sources:
         chosen = resolve_sources(
-            spec.id, sources, config.k, space, distinct_actions=config.distinct_actions
+            spec.id,
+            sources,
+            config.k,
+            space,
+            distinct_actions=config.distinct_actions,
+            min_success=config.min_success,
         )
         chosen = meth.select(chosen, config)
     if meth.uses_prior:
