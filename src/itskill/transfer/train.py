@@ -133,11 +133,13 @@ def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
 def _as_compared(settings: dict[str, Any]) -> dict[str, Any]:
     """The settings as a resume compares them: the sources as the skills they name, however
     the list was written ("a,b" on the command line, a list from Python), and without the
-    analyzer's retries (the record holds its matrix, so the analyzer is not asked again)."""
+    analyzer's retries and the retrieval's success threshold (the record holds its matrix and
+    its sources: neither is asked for again, and a run from before the threshold resumes)."""
     request = settings.get("sources_request")
     if request is not None and request != AUTO:
         request = parse_keys(request)
-    config = {k: v for k, v in settings["config"].items() if k != "analyzer_retries"}
+    ignored = ("analyzer_retries", "min_success")
+    config = {k: v for k, v in settings["config"].items() if k not in ignored}
     return {**settings, "sources_request": request, "config": config}
 
 
