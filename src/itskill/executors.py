@@ -29,6 +29,11 @@ EXECUTORS: tuple[str, ...] = ("local", "ray")
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """The signals that stop a command as Ctrl-C does: the training in progress saves first."""
+FORWARDED_STOP = signal.SIGINT
+"""What a stopped process sends the workers and children it started, to stop them as Ctrl-C
+does: the signal a terminal's Ctrl-C sends them too, so that the two make one stop. (With
+SIGTERM forwarded beside a terminal's SIGINT, a worker whose main thread slept in a system call
+did not stop; tests/test_executors.py.)"""
 
 _interrupted = False
 _in_job = False
@@ -143,15 +148,20 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
                 yield JobResult(index, value=None if error else future.result(), error=error)
     except BaseException:
         # Ctrl-C (or a caller that stopped reading): cancel the queue and interrupt the workers,
-        # as a terminal's Ctrl-C would; `kill -INT` reaches this process alone. Without this the
+        # as a terminal's Ctrl-C would; `kill` reaches this process alone. Without this the
         # pool's shutdown below would train every queued job before returning.
         pool.shutdown(wait=False, cancel_futures=True)
         for child in multiprocessing.active_children():
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(child.pid, signal.SIGINT)
+            stop_child(child.pid)
         raise
     finally:
         pool.shutdown(wait=True)
+
+
+def stop_child(pid: int) -> None:
+    """Ask process ``pid``, one this process started, to stop as on Ctrl-C (it saves first)."""
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(pid, FORWARDED_STOP)
 
 
 def stop_on_first_interrupt() -> None:
@@ -161,15 +171,19 @@ def stop_on_first_interrupt() -> None:
     A worker may get Ctrl-C twice (from the terminal, and forwarded by its parent); the second
     must not cut short the checkpoint the first one made it save. SIGTERM (a scheduler stopping
     the whole process group, `kill`) and SIGHUP (the terminal closed) stop it the same way
-    instead of ending it unsaved. A process started with a signal ignored (SIGINT in a
-    background job of a script, SIGHUP under `nohup`) keeps ignoring it.
+    instead of ending it unsaved. A process started with SIGTERM or SIGHUP ignored (SIGHUP
+    under `nohup`) keeps ignoring it. SIGINT, :data:`FORWARDED_STOP`, is handled even where it
+    was ignored at start: a command started in the background of a script (`cmd &`) ignores it,
+    as do the processes it spawns, which then trained on to the end of their jobs, unsaved
+    and past the user's `kill`, while the command waited for them.
     """
     _install(_interrupt_once)
 
 
 def _install(handler: Callable[[int, Any], None]) -> None:
+    """``handler`` for a worker's or child's stop signals (:func:`stop_on_first_interrupt`)."""
     for sig in STOP_SIGNALS:
-        if signal.getsignal(sig) is not signal.SIG_IGN:
+        if sig == FORWARDED_STOP or signal.getsignal(sig) is not signal.SIG_IGN:
             signal.signal(sig, handler)
 
 

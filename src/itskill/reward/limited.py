@@ -9,24 +9,23 @@ down nothing else. The caller's process keeps its own limits, and gets back the 
 its exception, or why the child died.
 
 Interruptions: a Ctrl-C in a terminal reaches the child as well (same process group); one that
-reaches only the caller (a forwarded SIGINT, or SIGTERM mapped to it) is passed on. Either way
+reaches only the caller (`kill`, or a stop its own parent forwarded) is passed on
+(:func:`~itskill.executors.stop_child`). Either way
 the child stops the way a training does on Ctrl-C (it saves) and the caller raises
 ``KeyboardInterrupt`` once the child has ended.
 """
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing
 import os
 import pickle
-import signal
 import time
 import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from itskill.executors import exit_with_parent, stop_on_first_interrupt
+from itskill.executors import exit_with_parent, stop_child, stop_on_first_interrupt
 from itskill.reward.sandbox import SandboxConfig, apply_process_limits, death_cause
 
 INTERRUPTED = 130
@@ -78,8 +77,7 @@ def run_limited(
     try:
         answer = _wait(child, receiver, name, timeout_s)
     except KeyboardInterrupt:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(child.pid, signal.SIGINT)
+        stop_child(child.pid)
         child.join(_SAVE_S)
         if child.is_alive():
             child.kill()
