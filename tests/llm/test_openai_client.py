@@ -7,16 +7,17 @@ import json
 import re
 import socket
 import sys
-import time
 from pathlib import Path
+from types import SimpleNamespace
 
+import openai
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
 from fake_openai import FakeOpenAIServer, Status, words
 
-from itskill.llm import LLMError, LLMUnavailableError, OfflineClient, make_client
+from itskill.llm import LLMError, LLMUnavailableError, OfflineClient, make_client, openai_client
 from itskill.llm.openai_client import OpenAIClient, RetryConfig, model_price
 
 FAST = RetryConfig(max_retries=2, backoff_initial_s=0.01, backoff_max_s=0.05, timeout_s=5.0)
@@ -129,20 +130,97 @@ def test_gives_up_after_the_last_retry_with_advice() -> None:
     assert "try again later" in str(err.value) and "OPENAI_BASE_URL" not in str(err.value)
 
 
-def test_closed_port_is_a_clear_unavailable_error_quickly() -> None:
+def _closed_port_url() -> str:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    url = f"http://127.0.0.1:{port}/v1"
-    c = OpenAIClient("llama3", base_url=url, retry=FAST)
-    start = time.monotonic()
+    return f"http://127.0.0.1:{port}/v1"
+
+
+def _count_requests(c: OpenAIClient) -> list[int]:
+    """A list that grows by one for each request ``c`` sends through its SDK client."""
+    sent: list[int] = []
+    create = c._sdk.chat.completions.create
+
+    def counted(**kwargs):
+        sent.append(1)
+        return create(**kwargs)
+
+    c._sdk.chat.completions.create = counted  # type: ignore[method-assign]
+    return sent
+
+
+def test_a_refused_connection_fails_fast_saying_no_server_runs_there(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # It was retried with the whole back-off (6 attempts, about 30 s at the default settings)
+    # before the user heard "Connection error.". The default policy, with its waits recorded.
+    waits: list[float] = []
+    # Only this module's clock: the SDK and pytest keep theirs.
+    monkeypatch.setattr(openai_client, "time", SimpleNamespace(sleep=waits.append))
+    url = _closed_port_url()
+    c = OpenAIClient("llama3", base_url=url)
+    assert c._sdk.max_retries == 0  # the SDK's own retries would multiply ours
+    sent = _count_requests(c)
     with pytest.raises(LLMUnavailableError) as err:
         c.complete(MESSAGES, purpose="plan")
-    assert time.monotonic() - start < 5
+    assert len(sent) == 2 and len(waits) == 1 and waits[0] <= 1.5
     message = str(err.value)
-    assert f"cannot reach openai:llama3 at {url}" in message
-    assert "check that a server answers there" in message
+    assert f"cannot reach openai:llama3 at {url}: connection refused" in message
+    assert "gave up after 2 attempts" in message and "is the server running?" in message
     assert "OPENAI_BASE_URL" in message and "--llm offline" in message
+
+
+def test_a_refused_connection_with_no_retries_is_one_attempt() -> None:
+    c = OpenAIClient("llama3", base_url=_closed_port_url(), retry=RetryConfig(max_retries=0))
+    sent = _count_requests(c)
+    with pytest.raises(LLMUnavailableError, match=r"gave up after 1 attempt\)"):
+        c.complete(MESSAGES, purpose="plan")
+    assert len(sent) == 1
+
+
+def _connection_error(c: OpenAIClient, cause: BaseException | None) -> openai.APIConnectionError:
+    """What the SDK of ``c`` raises when a request got no answer: a timeout, else a connection
+    error (the request is built by the SDK's own HTTP client, whichever httpx it uses)."""
+    request = c._sdk._client.build_request("POST", f"{c.base_url}/chat/completions")
+    if cause is None:
+        return openai.APITimeoutError(request=request)
+    return openai.APIConnectionError(request=request)
+
+
+@pytest.mark.parametrize(
+    ("cause", "attempts", "said"),
+    [
+        (ConnectionRefusedError(111, "Connection refused"), 2, "connection refused"),
+        # A name that does not resolve, a reset and a timeout can pass within the back-off (a
+        # resolver or network hiccup, a busy server): they are asked again as before.
+        (socket.gaierror(-3, "Temporary failure in name resolution"), 6, "name resolution"),
+        (ConnectionResetError(104, "Connection reset by peer"), 6, "reset by peer"),
+        (None, 6, "timed out"),
+    ],
+)
+def test_only_a_refused_connection_skips_the_back_off(
+    monkeypatch: pytest.MonkeyPatch, cause: BaseException | None, attempts: int, said: str
+) -> None:
+    monkeypatch.setattr(openai_client, "time", SimpleNamespace(sleep=lambda s: None))
+    c = OpenAIClient("m", base_url="http://example.invalid/v1", api_key="x")
+    sent: list[int] = []
+
+    def create(**kwargs):
+        sent.append(1)
+        # As httpx chains it: the SDK's error from the transport's, from the socket's.
+        try:
+            try:
+                raise cause or TimeoutError("timed out")
+            except OSError as inner:
+                raise RuntimeError(str(inner)) from inner
+        except RuntimeError as transport:
+            raise _connection_error(c, cause) from transport
+
+    c._sdk.chat.completions.create = create  # type: ignore[method-assign]
+    with pytest.raises(LLMUnavailableError, match=f"gave up after {attempts} attempts") as err:
+        c.complete(MESSAGES, purpose="plan")
+    assert len(sent) == attempts and said in str(err.value)
 
 
 def test_auth_failure_and_unknown_model_are_not_retried() -> None:
@@ -280,3 +358,54 @@ def test_an_endpoint_that_is_no_url_is_refused_before_any_request(url: str, prob
     # retry, half a minute later (no scheme).
     with pytest.raises(LLMUnavailableError, match=re.escape(problem)):
         OpenAIClient("m", base_url=url, api_key="x")
+
+
+def test_an_empty_base_url_is_refused_not_replaced_by_another(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # `--base-url ""` fell back to $OPENAI_BASE_URL, else to OpenAI's endpoint (with a key, the
+    # prompts went there; without one, the error asked for a key): never the URL typed.
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    empty = "the endpoint URL is empty: give one (--base-url http://HOST[:PORT]/v1)"
+    for key in (None, "sk-x"):
+        with pytest.raises(LLMUnavailableError, match=re.escape(empty)):
+            OpenAIClient("m", base_url="", api_key=key)
+        with pytest.raises(LLMUnavailableError, match=re.escape(empty)):
+            OpenAIClient("m", base_url="  ", api_key=key)
+    with FakeOpenAIServer(["never sent"]) as server:
+        monkeypatch.setenv("OPENAI_BASE_URL", server.base_url)
+        with pytest.raises(LLMUnavailableError, match=re.escape(empty)):
+            make_client("openai:m", base_url="")
+        assert not server.requests
+
+
+def test_an_empty_base_url_variable_counts_as_unset(monkeypatch: pytest.MonkeyPatch) -> None:
+    # `OPENAI_BASE_URL=${URL:-}` in a compose file or CI template: the default, as if unset.
+    monkeypatch.setenv("OPENAI_BASE_URL", "")
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    with pytest.raises(LLMUnavailableError, match="no API key for openai:m"):
+        make_client("openai:m")
+    monkeypatch.setenv("OPENAI_API_KEY", "sk-x")
+    assert make_client("openai:m").base_url == "https://api.openai.com/v1"  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["plan", "Pick up the nut and lift it"],
+        ["reward", "generate", "Pick up the nut and lift it"],
+    ],
+)
+def test_the_commands_refuse_an_empty_base_url(
+    args: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+
+    monkeypatch.chdir(tmp_path)  # where `reward generate` would put its run
+    monkeypatch.setenv("OPENAI_API_KEY", "sk-x")  # with a key it went to OpenAI's endpoint
+    result = CliRunner().invoke(app, [*args, "--llm", "openai:m", "--base-url", ""])
+    assert result.exit_code == 2, result.output
+    assert "error: the endpoint URL is empty" in " ".join(result.output.split())
+    assert not list(tmp_path.iterdir())  # no run left behind to be refused or resumed

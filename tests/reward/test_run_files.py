@@ -112,6 +112,33 @@ def test_a_run_file_of_another_shape_is_a_one_line_error_naming_it(
         load_search(run)
 
 
+def test_a_final_retraining_on_one_seed_shows_no_interval(finished_run: Path) -> None:
+    # It showed "(95% CI 0%–0%)": the zero-width interval of a single value, read as certainty.
+    code, output = _show(finished_run)
+    assert code == 0, output
+    for label in ("generated (best)", "expert"):
+        assert re.search(
+            rf"{re.escape(label)}: success \d+% \(1 seed, no interval\) over seeds \[\d+\]", output
+        ), output
+    assert "95% CI" not in output
+
+
+def test_a_final_retraining_on_several_seeds_shows_its_interval(
+    finished_run: Path, tmp_path: Path
+) -> None:
+    run = _copy(finished_run, tmp_path)
+    path = run / "summary.json"
+    summary = json.loads(path.read_text())
+    band = {"seeds": [5, 6, 7], "success": [0.2, 0.3, 0.4], "mean": 0.3, "ci_low": 0.05,
+            "ci_high": 0.55}  # fmt: skip
+    summary["final"]["generated"].update(band)
+    path.write_text(json.dumps(summary))
+    code, output = _show(run)
+    assert code == 0, output
+    assert "generated (best): success 30% (95% CI 5%–55%) over seeds [5, 6, 7]" in output
+    assert re.search(r"expert: success \d+% \(1 seed, no interval\)", output), output
+
+
 @pytest.mark.parametrize(
     "config",
     [

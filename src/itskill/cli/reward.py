@@ -243,6 +243,16 @@ def generate_cmd(
     )
 
 
+def _interval(band: dict[str, Any]) -> str:
+    """A final retraining's 95% interval, or why there is none: one seed has no spread to
+    estimate, and the zero-width interval stored for it would read as certainty."""
+    from itskill.stats import format_rate
+
+    if len(band["seeds"]) < 2:
+        return f"{len(band['seeds'])} seed, no interval"
+    return f"95% CI {format_rate(band['ci_low'])}–{format_rate(band['ci_high'])}"
+
+
 def _flags_named(overrides: dict[str, Any], load: Callable[[], Any]) -> Any:
     """``load()``'s search settings; a value a flag gave that does not validate is a usage error
     naming that flag (the settings reader calls the flags "overrides")."""
@@ -342,9 +352,8 @@ def show_cmd(
         for key, label in (("generated", "generated (best)"), ("expert", "expert")):
             band = final.get(key)
             if band and band.get("mean") is not None:
-                low, high = format_rate(band["ci_low"]), format_rate(band["ci_high"])
                 console.print(
-                    f"{label}: success {format_rate(band['mean'])} (95% CI {low}–{high}) "
+                    f"{label}: success {format_rate(band['mean'])} ({_interval(band)}) "
                     f"over seeds {band['seeds']}, "
                     f"{final['steps']} env-steps each",
                     highlight=False,

@@ -169,9 +169,11 @@ def make_client(
 
     ``spec`` is ``"offline"``, ``"openai:MODEL"`` (any OpenAI-compatible endpoint: the model name is
     whatever the server calls it), or ``None`` for ``$ITSKILL_LLM_MODEL``, else ``"offline"``.
-    ``base_url``/``api_key`` default to ``$OPENAI_BASE_URL``/``$OPENAI_API_KEY``. ``price`` is
-    ``(USD per 1M input tokens, USD per 1M output tokens)`` and overrides the price table.
-    ``cache_dir`` turns on the reply cache (a rerun replays instead of asking again).
+    ``base_url``/``api_key`` default to ``$OPENAI_BASE_URL``/``$OPENAI_API_KEY``; a variable set
+    to the empty string counts as unset, but an empty ``base_url`` given here (``--base-url ""``)
+    is refused as no URL. ``price`` is ``(USD per 1M input tokens, USD per 1M output tokens)`` and
+    overrides the price table. ``cache_dir`` turns on the reply cache (a rerun replays instead of
+    asking again).
     """
     backend, model = model_spec(spec)
     if backend == "offline":
@@ -180,9 +182,13 @@ def make_client(
         return OfflineClient(cache_dir=cache_dir)
     from itskill.llm.openai_client import OpenAIClient
 
+    if base_url is None:
+        # An empty variable is how deployment templates (`OPENAI_BASE_URL=${URL:-}`) leave it
+        # unset, so it means the default; an empty flag was typed and is refused by the client.
+        base_url = os.environ.get(BASE_URL_ENV) or None
     return OpenAIClient(
         model,
-        base_url=base_url or os.environ.get(BASE_URL_ENV) or None,
+        base_url=base_url,
         api_key=api_key or os.environ.get(API_KEY_ENV) or None,
         cache_dir=cache_dir,
         price=price,

@@ -1,9 +1,11 @@
 """A client for any OpenAI-compatible chat endpoint: OpenAI, vLLM, Ollama, a llama.cpp server.
 
-Built on the ``openai`` SDK with its own retries turned off, because the policy here is ours:
-exponential back-off with jitter on rate limits (429, honouring ``Retry-After``), timeouts (408
-and the client's own), lock conflicts (409), connection errors and 5xx replies, then an
-:class:`LLMUnavailableError` that says what to do. ``n`` samples are asked for in one request; a
+Built on the ``openai`` SDK with its own retries turned off, because the policy here is ours
+(and both at once would multiply the waits): exponential back-off with jitter on rate limits
+(429, honouring ``Retry-After``), timeouts (408 and the client's own), lock conflicts (409),
+connection errors and 5xx replies, then an :class:`LLMUnavailableError` that says what to do. A
+refused connection is the exception: it is asked again once, shortly, then reported as a server
+that is not running. ``n`` samples are asked for in one request; a
 server that rejects ``n`` (its error names it) or returns fewer choices (Ollama ignores it) gets
 the missing ones as repeated single-sample requests, and is remembered as such so later requests
 go straight to repeated calls. Any other rejected request is an error as it stands.
@@ -50,9 +52,15 @@ class RetryConfig:
     A request is attempted ``1 + max_retries`` times; the wait before retry ``k`` (0-based) is
     ``min(backoff_max_s, backoff_initial_s * 2**k)`` scaled by a random factor in [0.5, 1.5) so
     that parallel workers do not retry in lock-step.
+
+    A refused connection gets at most ``refused_retries`` of those retries, each after the first,
+    shortest wait: the host answered that nothing listens on the port, which a server that is not
+    running (a local Ollama or vLLM not started, a wrong port) keeps answering for far longer than
+    the back-off waits, while one restarting that instant is back within a second.
     """
 
     max_retries: int = 5
+    refused_retries: int = 1
     backoff_initial_s: float = 1.0
     backoff_max_s: float = 30.0
     timeout_s: float = 180.0
@@ -88,6 +96,13 @@ def model_price(model: str) -> tuple[float, float]:
 def _check_base_url(url: str) -> None:
     """Raise :class:`LLMUnavailableError` for an endpoint that is no http(s) URL: the SDK finds
     out only when it sends, with a traceback (a bad address) or after every retry (no scheme)."""
+    if not url.strip():
+        # `--base-url ""` was typed, not inherited: using OpenAI's endpoint instead would send the
+        # prompts somewhere the user did not ask for (and a local run's key-less requests fail).
+        raise LLMUnavailableError(
+            "the endpoint URL is empty: give one (--base-url http://HOST[:PORT]/v1), or leave "
+            f"--base-url out to use {BASE_URL_ENV}, else OpenAI's endpoint"
+        )
     problem = None
     try:
         parts = urlsplit(url)
@@ -123,6 +138,9 @@ class OpenAIClient(BaseClient):
         super().__init__(cache_dir)
         if not model:
             raise ValueError("OpenAIClient needs a model name")
+        if base_url is not None:
+            # First: an empty URL is no reason to ask for a key (nor to fall back to OpenAI's).
+            _check_base_url(base_url)
         if api_key is None and base_url is None:
             raise LLMUnavailableError(
                 f"no API key for openai:{model}: set OPENAI_API_KEY, point OPENAI_BASE_URL at a "
@@ -130,15 +148,14 @@ class OpenAIClient(BaseClient):
             )
         self.model = model
         self.name = f"openai:{model}"
-        self.base_url = base_url or OPENAI_URL
-        _check_base_url(self.base_url)
+        self.base_url = OPENAI_URL if base_url is None else base_url
         self.price = price if price is not None else model_price(model)
         self.retry = retry or RetryConfig()
         self.n_supported: bool | None = None  # unknown until the server has answered once
         self._sdk = openai.OpenAI(
             base_url=self.base_url,
             api_key=api_key or LOCAL_DUMMY_KEY,
-            max_retries=0,
+            max_retries=0,  # the retries are _request's: the SDK's on top would multiply them
             timeout=self.retry.timeout_s,
         )
 
@@ -210,9 +227,13 @@ class OpenAIClient(BaseClient):
                     raise LLMError(
                         f"{self.name} at {self.base_url} failed: {_detail(err)}"
                     ) from err
-                if attempt == attempts - 1:
-                    raise _unavailable(self, err, attempts) from err
-                time.sleep(self._backoff(attempt, err))
+                refused = _refused(err)
+                # A refused connection is not transient like a rate limit or a timeout: waiting
+                # the whole back-off (half a minute) only delays the news that no server runs.
+                last = min(attempts - 1, self.retry.refused_retries) if refused else attempts - 1
+                if attempt >= last:
+                    raise _unavailable(self, err, attempt + 1) from err
+                time.sleep(self._backoff(0 if refused else attempt, err))
                 continue
             self._account(response)
             return self._texts(response)
@@ -263,6 +284,26 @@ def _detail(err: Exception) -> str:
     return " ".join(str(message).split())[:300]
 
 
+def _causes(err: BaseException) -> list[BaseException]:
+    """``err`` and the exceptions it was raised from, outermost first: the SDK's
+    ``APIConnectionError`` says only "Connection error.", the socket error is at the end."""
+    chain: list[BaseException] = []
+    current: BaseException | None = err
+    while current is not None and all(current is not seen for seen in chain):
+        chain.append(current)
+        current = current.__cause__ or current.__context__
+    return chain
+
+
+def _refused(err: Exception) -> bool:
+    """Whether the request failed because the host refused the connection (nothing listens on
+    the port). Only that: a name that does not resolve, a reset or a timeout can be a passing
+    network or resolver hiccup, and they keep the full back-off."""
+    return isinstance(err, openai.APIConnectionError) and any(
+        isinstance(cause, ConnectionRefusedError) for cause in _causes(err)
+    )
+
+
 def _retry_after(err: Exception) -> float | None:
     response = getattr(err, "response", None)
     headers = getattr(response, "headers", None)
@@ -275,6 +316,7 @@ def _retry_after(err: Exception) -> float | None:
 
 
 def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnavailableError:
+    gave_up = f"gave up after {attempts} attempt{'s' if attempts > 1 else ''}"
     if isinstance(err, openai.RateLimitError):
         what = f"rate-limited by {client.base_url}"
         advice = "try again later"
@@ -282,11 +324,26 @@ def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnav
         kind = "server error" if err.status_code >= 500 else "HTTP"
         what = f"{kind} {err.status_code} from {client.base_url}"
         advice = "try again later"
+    elif _refused(err):
+        return LLMUnavailableError(
+            f"cannot reach {client.name} at {client.base_url}: connection refused ({gave_up}); "
+            "is the server running? Start it (ollama serve, vllm serve MODEL, llama-server) or "
+            f"correct the address (--base-url or {BASE_URL_ENV}), or use --llm offline"
+        )
     else:
         what = f"cannot reach {client.name} at {client.base_url}"
         # The address is often already set (OPENAI_BASE_URL), just to a server that is down.
         advice = "check that a server answers there (OPENAI_BASE_URL sets the address)"
     return LLMUnavailableError(
-        f"{what}: {_detail(err)} (gave up after {attempts} attempts); "
-        f"{advice}, or use --llm offline"
+        f"{what}: {_reason(err)} ({gave_up}); {advice}, or use --llm offline"
     )
+
+
+def _reason(err: Exception) -> str:
+    """What went wrong: the SDK's message, with the socket-level cause of a connection error
+    ("Name or service not known") that its "Connection error." leaves out."""
+    detail = _detail(err)
+    root = _causes(err)[-1]
+    if isinstance(err, openai.APIConnectionError) and root is not err and str(root):
+        detail += f" ({_detail(root)})"
+    return detail

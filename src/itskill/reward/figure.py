@@ -27,7 +27,7 @@ def plot_fig6(summary: dict[str, Any], out: Path) -> Path:
     Every trained candidate is a grey dot at its iteration; the line joins each iteration's best;
     a star marks the chosen reward's mean over the search's and the selection's seeds.
     The horizontal bands are the final retraining over fresh seeds (mean and 95% interval) of the
-    best generated reward and of the expert reward.
+    best generated reward and of the expert reward; a retraining on one seed is its line alone.
     """
     iterations = summary["iterations"]
     x = np.arange(1, len(iterations) + 1)
@@ -52,8 +52,10 @@ def plot_fig6(summary: dict[str, Any], out: Path) -> Path:
         if not band or band.get("mean") is None:
             continue
         n = len(band["success"])
+        # One seed has no spread to estimate: neither a band nor a legend that promises one.
+        spread = f"mean of {n} seeds, 95% CI" if n > 1 else "1 seed, no interval"
         ax.axhline(band["mean"], color=colour, linestyle="--", linewidth=1.2,
-                   label=f"{label}, retrained (mean of {n} seeds, 95% CI)")  # fmt: skip
+                   label=f"{label}, retrained ({spread})")  # fmt: skip
         if n > 1:
             ax.axhspan(band["ci_low"], band["ci_high"], color=colour, alpha=0.12, linewidth=0)
     llm = summary.get("llm", "")
