@@ -197,6 +197,123 @@ def test_planner_refuses_what_it_cannot_ground(command: str, why: str) -> None:
     assert set(reply) == {"error"} and why in reply["error"]
 
 
+PLACES = "its places are the M12 bolt, M16 bolt, rectangular hole, round hole"
+
+
+@pytest.mark.parametrize(
+    ("command", "place"),
+    [
+        # Each was planned as a task that puts the part on its fixture, or picks it up.
+        ("Pick up the nut and place it on the table", "on the table"),
+        ("Put the M16 nut on the floor", "on the floor"),
+        ("Put the nut on top of the table", "on top of the table"),
+        ("Take the nut to the shelf", "to the shelf"),
+        ("Move the rectangular peg into the tray", "into the tray"),
+        ("Push the nut next to the box", "next to the box"),
+        ("Put the peg in the box", "in the box"),  # "box" is also a shape word ("box peg")
+    ],
+)
+def test_planner_refuses_a_place_the_scene_does_not_have(command: str, place: str) -> None:
+    reply = plan(command)
+    assert reply == {"error": f"{place!r} is no place of this scene: {PLACES}"}
+
+
+@pytest.mark.parametrize(
+    ("command", "task"),
+    [
+        ("Place the nut on the bolt", "place_nut_m12"),
+        ("Put the M12 nut on top of the bolt", "place_nut_m12"),
+        ("Put the round peg into its hole", "insert_peg_round"),
+        ("Screw the nut to the bottom", "screw_nut_m12"),
+        # Where the part is, not where it goes: the table is where the parts start.
+        ("Lift the M12 nut off the table", "lift_nut_m12"),
+        ("Pick up the nut on the table", "pick_nut_m12"),
+        ("slide the M12 nut along the table to the bolt", "push_nut_m12"),
+    ],
+)
+def test_planner_still_plans_the_places_of_the_scene(command: str, task: str) -> None:
+    assert plan(command)["task"] == task
+
+
+@pytest.mark.parametrize(
+    ("command", "word"),
+    [
+        # Each was planned as if the negation were not there.
+        ("Pick up the nut but do not place it on the bolt", "not"),
+        ("Don't pick up the nut", "don't"),
+        ("Pick up the nut; don’t place it", "don’t"),
+        ("Never screw the M16 nut onto the bolt", "never"),
+        ("Pick up the round peg without lifting it", "without"),
+        ("You cannot place the nut on the bolt", "cannot"),
+        ("Place the nut on the bolt instead of screwing it", "instead of"),
+    ],
+)
+def test_planner_refuses_to_plan_what_not_to_do(command: str, word: str) -> None:
+    reply = plan(command)
+    assert reply == {
+        "error": f"the offline planner cannot plan what not to do ({word!r}): say only what "
+        "the robot should do"
+    }
+
+
+def test_a_word_with_the_letters_of_a_negation_is_none() -> None:
+    assert plan("Pick up the M12 nut and nothing else")["task"] == "pick_nut_m12"
+    assert plan("Pick up the nut past the notch")["task"] == "pick_nut_m12"
+    assert "what not to do" not in plan("Tie a knot")["error"]
+
+
+@pytest.mark.parametrize(
+    ("command", "clause"),
+    [
+        # Each was planned without its last clause (or the one in the middle).
+        ("Pick up the nut and then dance", "dance"),
+        ("Pick up the nut, place it on the bolt and fly to the moon", "fly to the moon"),
+        ("Pick up the nut then sing", "sing"),
+        ("Unscrew the M16 nut, wait, and lift it off the bolt", "wait"),
+        ("Pick up the peg and the hammer", "the hammer"),
+    ],
+)
+def test_planner_refuses_a_clause_it_would_drop(command: str, clause: str) -> None:
+    reply = plan(command)
+    assert set(reply) == {"error"}
+    assert reply["error"].startswith(f"the offline planner knows no action in {clause!r}")
+
+
+@pytest.mark.parametrize(
+    ("command", "task"),
+    [
+        ("Pick up the nut and place it on the bolt and screw it down", "pickplacescrew_nut_m12"),
+        (
+            "Please, carefully pick up the nut, then slowly place it on the bolt",
+            "pickplace_nut_m12",
+        ),
+        ("The robot should pick up the nut, carefully", "pick_nut_m12"),
+        ("Pick up the nut, which is on the table, and place it on the bolt", "pickplace_nut_m12"),
+        # A clause that only names parts is more of what the verb before it acts on.
+        ("Put the M12 nut on the M12 bolt and the M16 nut on the M16 bolt", "pickplace2_nuts"),
+        ("Pick up the M12 and M16 nuts and place them on the bolts", "pickplace2_nuts"),
+    ],
+)
+def test_planner_keeps_clauses_of_filler_and_description(command: str, task: str) -> None:
+    assert plan(command)["task"] == task
+
+
+ROOT = Path(__file__).parents[2]
+
+
+def test_the_commands_of_the_docs_still_plan() -> None:
+    docs = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    written = {
+        " ".join(command.split())
+        for doc in docs
+        for command in re.findall(r'itskill (?:plan|learn) "([^"]+)"', doc.read_text())
+        if command != "COMMAND"
+    }
+    assert "Pick up the nut and place it on the bolt" in written
+    assert {c: reply["error"] for c in written if "error" in (reply := plan(c))} == {}
+    assert plan("Unscrew the M12 nut and lift it off the bolt")["task"] == "removenut_m12"
+
+
 @pytest.mark.parametrize(
     ("command", "outcome"),
     [

@@ -18,10 +18,15 @@
    command shares most words with the user's wins, less one per optional action it lacks; ties
    are broken as :func:`plan` explains (the part named, carrying or not, the verbs shared, the
    words added).
+4. What the rules cannot read is refused, not dropped: a negation ("don't", "never", "without":
+   a plan says only what to do), a clause between separators (commas, "and", "then", ...) with
+   no verb they know that is more than filler or a part's description ("and then dance"), and a
+   place a part is put that is no fixture of the scene ("on the table").
 """
 
 from __future__ import annotations
 
+import bisect
 import json
 import re
 from dataclasses import dataclass
@@ -120,8 +125,11 @@ class PlanningError(ValueError):
     """The command cannot be grounded in the catalogue; the message says why."""
 
 
+_WORD = r"[a-z0-9]+"
+
+
 def _words(text: str) -> list[str]:
-    return re.findall(r"[a-z0-9]+", text.lower())
+    return re.findall(_WORD, text.lower())
 
 
 # "M16", "m 16", "16mm" and "16 mm" are 16 mm. A longer number is no part's size in millimetres,
@@ -242,19 +250,22 @@ def _ground_objects(
     return grounded, notes
 
 
+def _verb_hits(text: str) -> list[tuple[int, int, int]]:
+    """The verbs of ``text`` (lower case) as written: (start, end, index in :data:`_VERBS`)."""
+    hits: list[tuple[int, int, int]] = []
+    for k, (pattern, _) in enumerate(_VERBS):
+        for match in re.finditer(pattern, text):
+            start, end = match.span()
+            if any(s < end and start < e for s, e, _ in hits):
+                continue  # "unscrew" already matched; do not read "screw" in it again
+            hits.append((start, end, k))
+    return sorted(hits)
+
+
 def _clauses(command: str) -> list[tuple[str, ...]]:
     """The distinguishing actions of each verb in the command, in the order they are done."""
     text = command.lower()
-    hits: list[tuple[int, tuple[str, ...]]] = []
-    taken: list[tuple[int, int]] = []
-    for pattern, actions in _VERBS:
-        for match in re.finditer(pattern, text):
-            span = match.span()
-            if any(s < span[1] and span[0] < e for s, e in taken):
-                continue  # "unscrew" already matched; do not read "screw" in it again
-            taken.append(span)
-            hits.append((span[0], actions))
-    hits.sort()
+    hits = [(start, _VERBS[k][1]) for start, _, k in _verb_hits(text)]
     ordered = [actions for _, actions in hits]
     # "lift the peg after grasping it" grasps first, and so does "before lifting the peg, grasp
     # it": a verb introduced by "after" swaps with the verb before it, and a first verb introduced
@@ -289,6 +300,164 @@ def _acted_on(command: str, kinds: set[str]) -> bool:
         w.removesuffix("s") in kinds and not _PLACE_WORDS & set(words[max(0, j - 3) : j])
         for j, w in enumerate(words)
     )
+
+
+# Words that say what the robot must not do. A plan is a list of things to do, so the rules read
+# a command with one as if it were not there ("don't pick up the nut" was the pick). Whole words:
+# "nothing", "knot" and "another" say no "not", but "cannot" is one word, and "don't", "can't"
+# end in "n't".
+_NEGATION = (
+    r"\b(?:not|never|without|cannot|nor|neither|dont|doesnt|cant|wont|shouldnt|mustnt|avoid\w*)\b"
+    r"|\b\w+n['’]t\b|\binstead of\b|\brather than\b"
+)
+# What separates the clauses of a command: punctuation, and the words that join or order them
+# (as :func:`_clauses` reads "after" and "before"). Not a colon: "Assemble the nut onto the bolt:
+# pick it up, ..." says after it how.
+_CLAUSE_SEP = r"[,;.!?]|\b(?:and|then|but|after|before)\b"
+_KNOWN_ACTIONS = "pick up, place, screw, unscrew, insert, pull out, push, lift, move to"
+# Words a clause with no verb may be made of: manners, politeness, who does it and when ("the
+# robot should", "carefully", "then"), and how a part is described ("the M16 nut on its bolt",
+# "the held one"). Anything else in such a clause is something to do that the rules do not know.
+_UNITS = {"mm", "cm", "m", "millimetres", "millimeters", "centimetres", "centimeters"}
+_FILLER = _UNITS | {
+    "please", "kindly", "now", "first", "second", "third", "next", "last", "afterwards",
+    "afterward", "also", "just", "again", "too", "so", "ok", "okay", "thanks", "thank", "you",
+    "i", "we", "me", "us", "robot", "arm", "should", "must", "can", "could", "would", "will",
+    "shall", "may", "want", "need", "like", "for", "is", "are", "be", "do", "all", "way",
+    "right", "away", "yes", "hey", "hi", "or", "as", "well", "one", "ones", "this", "that",
+    "these", "those", "there", "here", "down", "your", "my", "our", "their", "gripper", "hand",
+    "fingers", "finger", "end", "effector", "same", "time", "both", "each", "every", "two",
+    "held", "threaded", "standing", "sitting", "lying", "tight", "fast", "possible", "if",
+    "necessary", "needed", "sure", "make", "nothing", "else",
+}  # fmt: skip
+# A clause that starts so describes a part ("..., which is on the bolt") and does nothing.
+# Not "that": "and after that fly to the moon" does something.
+_RELATIVE = {"which", "who", "where", "whose"}
+# Where a verb puts a part. Those of _TOWARD always say it ("take it to the shelf"); those of _AT
+# only after a verb that puts or moves a part: "pick up the nut on the table" says where it is.
+_TOWARD = {"to", "onto", "into", "toward", "towards"}
+_AT = {"on", "upon", "in", "inside", "over", "above", "at", "next", "near", "beside", "atop",
+       "under", "below", "beneath", "behind", "against", "between", "close", "closer"}  # fmt: skip
+# The verbs that put or move a part somewhere (place, screw, insert, align, push, carry).
+_PUTTING = {
+    k for k, (pattern, actions) in enumerate(_VERBS)
+    if pattern == _CARRY_VERB
+    or {a.rstrip("?") for a in actions} & {"place|align", "align", "insert", "screw", "push"}
+}  # fmt: skip
+# "Move" is a reach ("move to the nut") but with a part after it moves the part, as
+# :data:`_CARRY_VERB` reads "move it over": "move the nut under the table" puts it there.
+_MOVES_PART = r"\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?)\b"
+# Words a place may end in that are no place of their own: "on top of the bolt", "screw it to the
+# bottom", "in place", "push it to the left", "into the round one", "lift it up to 30 mm".
+_NOT_A_PLACE = {"top", "bottom", "front", "back", "side", "middle", "centre", "center", "end",
+                "edge", "entrance", "left", "right", "place", "position", "way", "height",
+                "gripper", "hand", "fingers", "effector", "robot", "it", "them", "one", "ones",
+                "here", "there"} | _UNITS  # fmt: skip
+# Words that end the words of a place: another word of place ("on top of the bolt" reads on
+# through "of"), one of how or when ("to the left now"), or one that starts a verb phrase ("I want
+# you to, if you can, ...").
+_PLACE_END = ((_TOWARD | _AT | _PLACE_WORDS) - {"of"}) | {
+    "with", "along", "past", "through", "across", "around", "beyond", "via", "until", "while",
+    "using", "for", "as", "so", "please", "now", "again", "too", "first", "then", "thanks", "fast",
+    "up", "down", "you", "i", "we", "me", "us", "can", "could", "should", "must", "would",
+    "will", "shall", "may", "might", "if", "is", "are", "be", "do",
+}  # fmt: skip
+_DESCRIBING = _FILLER | _STOP | _PLACE_WORDS | _TOWARD | _AT | _SMALL | _LARGE | set(_SHAPES)
+
+
+def _adverb(word: str) -> bool:
+    """Whether ``word`` reads as an adverb of manner ("carefully", "gently"; not "fly")."""
+    return len(word) >= 6 and word.endswith("ly")
+
+
+def _size_word(word: str) -> bool:
+    """Whether ``word`` is a size or a number ("m16", "16mm", "30")."""
+    return re.fullmatch(rf"m?{_NUMBER}(?:mm)?|\d+", word) is not None
+
+
+def _negation(command: str) -> str | None:
+    """Why the command cannot be planned if it says what not to do; None otherwise."""
+    found = re.search(_NEGATION, command.lower())
+    if found is None:
+        return None
+    return (
+        f"the offline planner cannot plan what not to do ({found[0]!r}): say only what the "
+        "robot should do"
+    )
+
+
+def _segments(text: str) -> list[tuple[list[tuple[int, str]], list[tuple[int, int, int]]]]:
+    """The clauses of ``text`` (lower case) between :data:`_CLAUSE_SEP` separators, each as its
+    words with their positions in ``text`` and its :func:`_verb_hits`; those with no word are
+    left out."""
+    bounds = [0]
+    for sep in re.finditer(_CLAUSE_SEP, text):
+        bounds += [sep.start(), sep.end()]
+    bounds.append(len(text))
+    hits = _verb_hits(text)
+    starts = [start for start, _, _ in hits]
+    segments = []
+    for start, end in zip(bounds[::2], bounds[1::2], strict=True):
+        words = [(m.start() + start, m[0]) for m in re.finditer(_WORD, text[start:end])]
+        if words:
+            # A verb belongs to the clause it starts in.
+            own = hits[bisect.bisect_left(starts, start) : bisect.bisect_left(starts, end)]
+            segments.append((words, own))
+    return segments
+
+
+def _unplanned_clause(command: str, kinds: set[str]) -> str | None:
+    """Why the command cannot be planned if one of its clauses has no verb the rules know and is
+    more than filler or a part's description ("pick up the nut and then dance": the dance was
+    dropped); None otherwise. ``kinds``: the scene's part and fixture kinds."""
+    text = command.lower()
+    for words, verbs in _segments(text):
+        if verbs or words[0][1] in _RELATIVE:
+            continue
+        unknown = [
+            w for _, w in words
+            if w not in _DESCRIBING and w.removesuffix("s") not in kinds
+            and not _adverb(w) and not _size_word(w)
+        ]  # fmt: skip
+        if unknown:
+            clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
+            return (
+                f"the offline planner knows no action in {clause!r} and would drop it (it knows "
+                f"{_KNOWN_ACTIONS}): say only what the robot should do"
+            )
+    return None
+
+
+def _unknown_place(command: str, kinds: set[str], places: list[Part]) -> str | None:
+    """Why the command cannot be planned if it puts a part somewhere that is no fixture of the
+    scene ("place it on the table" was placed on the bolt); None otherwise. ``kinds``: the scene's
+    part and fixture kinds; ``places``: its fixtures."""
+    text = command.lower()
+    for words, verbs in _segments(text):
+        clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
+        putting = any(v in _PUTTING for _, _, v in verbs) or bool(re.search(_MOVES_PART, clause))
+        for i, (_, word) in enumerate(words):
+            # "next to", "close to": a word of _AT, however "to" ends it.
+            at_to = word in _TOWARD and i > 0 and words[i - 1][1] in _AT
+            at = word in _AT or at_to
+            if not (putting if at else word in _TOWARD):
+                continue
+            # The place's words: up to six, to the next word of place, verb or manner ("to line
+            # up with the hole" has none; "on top of the table" reads on through "of").
+            phrase = []
+            for pos, w in words[i + 1 : i + 7]:
+                if w in _PLACE_END or _adverb(w) or any(s <= pos < e for s, e, _ in verbs):
+                    break
+                phrase.append(w)
+            if not phrase or any(w.removesuffix("s") in kinds for w in phrase):
+                continue  # "screw it on", "on its bolt", "screw on the nut"
+            if phrase[-1] in _NOT_A_PLACE or _size_word(phrase[-1]):
+                continue
+            written = " ".join([words[i - 1][1]] * at_to + [word, *phrase])
+            return f"{written!r} is no place of this scene: its places are the " + ", ".join(
+                p.label for p in places
+            )
+    return None
 
 
 def _verb_groups(command: str) -> set[int]:
@@ -347,10 +516,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
         return {"error": "the command names no object of this scene"}
     clauses = _clauses(command)
     if not clauses:
-        return {
-            "error": "the command has no action this robot can do (pick up, place, screw, "
-            "unscrew, insert, pull out, push, lift, move to)"
-        }
+        return {"error": f"the command has no action this robot can do ({_KNOWN_ACTIONS})"}
     if by_fixture and any(clauses) and _acted_on(command, {p.kind for p in grounded}):
         # A fixture is where a part goes ("put it on the bolt": the nut's place), never what
         # is moved: "pick up the bolt" was planned as the nut's pick.
@@ -359,6 +525,16 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             "error": f"the command names only the {labels}, a fixture, which stays where it "
             f"is: name the part to act on ({', '.join(p.label for p in parts)})"
         }
+    # The rules match what the command says to do, so what they would not read is refused, not
+    # dropped: a "not", a clause with no verb they know, a place the scene does not have.
+    scene_kinds = {p.kind for p in parts + fixture_parts}
+    unread = (
+        _negation(command)
+        or _unplanned_clause(command, scene_kinds)
+        or _unknown_place(command, scene_kinds, fixture_parts)
+    )
+    if unread:
+        return {"error": unread}
     carries = _carries(command)
     verb_groups = _verb_groups(command)
     named_fixtures = {p.kind for p in fixture_parts if p.kind in words or f"{p.kind}s" in words}
