@@ -67,3 +67,22 @@ def test_a_recorded_path_is_found_wherever_the_run_now_is(tmp_path, monkeypatch)
     assert run_path(copy, str(run / "reward" / "best.py"), usual) == copy / "reward" / "best.py"
     # Absolute, of a run since moved: at its usual place in the run.
     assert run_path(run, "/gone/run/reward/best.py", usual) == run / "reward" / "best.py"
+
+
+def test_a_directory_held_by_another_session_is_refused_and_one_session_may_nest(
+    tmp_path: Path,
+) -> None:
+    from filelock import Timeout
+
+    from itskill.files import directory_lock, held_alone
+
+    busy = ValueError("in use")
+    other = directory_lock(tmp_path, "run")  # another session's lock: a handle of its own
+    with other, pytest.raises(ValueError, match="in use"), held_alone(tmp_path, "run", busy):
+        pass
+    # A command that holds the directory calls a function that takes it again: one session.
+    nested = held_alone(tmp_path, "run", busy), held_alone(tmp_path, "run", busy)
+    with nested[0], nested[1], pytest.raises(Timeout):
+        other.acquire(timeout=0)
+    other.acquire(timeout=0)  # let go once the outer block ended
+    other.release()

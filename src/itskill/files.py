@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from filelock import FileLock
+from filelock import FileLock, Timeout
 
 from itskill.datafile import is_count, is_number
 from itskill.errors import PicklableError
@@ -204,3 +204,32 @@ def directory_lock(directory: Path, kind: str) -> FileLock:
     """
     key = hashlib.sha256(str(Path(directory).resolve()).encode()).hexdigest()[:16]
     return FileLock(str(Path(tempfile.gettempdir()) / f"itskill-{kind}-{key}.lock"))
+
+
+_HELD: set[str] = set()
+"""The lock files this process holds through :func:`held_alone`."""
+
+
+@contextmanager
+def held_alone(directory: Path, kind: str, refusal: Exception) -> Iterator[None]:
+    """Run the block holding ``directory``'s lock of ``kind`` (:func:`directory_lock`); raise
+    ``refusal`` at once, before anything is read or written, if another session holds it.
+
+    A run's directory is worked on by one session at a time: two would train the same jobs into
+    the same files and damage the run for good. A block inside one that holds the same lock
+    (a command that calls a function taking it too) runs as part of that session.
+    """
+    lock = directory_lock(directory, kind)
+    if lock.lock_file in _HELD:
+        yield
+        return
+    try:
+        lock.acquire(timeout=0)
+    except Timeout:
+        raise refusal from None
+    _HELD.add(lock.lock_file)
+    try:
+        yield
+    finally:
+        _HELD.discard(lock.lock_file)
+        lock.release()

@@ -185,3 +185,18 @@ def test_a_finished_search_without_its_chosen_reward_says_where_it_is(
     (run / "best_reward.py").unlink()
     with pytest.raises(RewardSearchError, match=r"best_reward.py: missing.*sample_<k>/reward.py"):
         load_search(run)
+
+
+def test_a_search_in_use_is_refused_before_its_network_is_built(tmp_path: Path) -> None:
+    # `--transfer` builds the candidates' network into the run before the search starts: a
+    # second session wrote it (and asked the model for its analysis) while the first ran.
+    from itskill.files import directory_lock
+
+    run = tmp_path / "run"
+    with directory_lock(run, "reward-search"):
+        result = CliRunner().invoke(
+            app, ["reward", "generate", "pick_nut_m12", "--transfer", "itn", "--out", str(run)]
+        )
+    assert result.exit_code == 2, result.output
+    assert f"{run} is in use by another itskill reward generate" in " ".join(result.output.split())
+    assert not run.exists()

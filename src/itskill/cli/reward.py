@@ -171,6 +171,7 @@ def generate_cmd(
         load_search_config,
         read_run,
         search_client,
+        search_lock,
     )
 
     overrides: dict[str, Any] = {
@@ -206,38 +207,42 @@ def generate_cmd(
                 )
             config = _flags_named(overrides, lambda: load_search_config(config_file, overrides))
             run_dir = out or Path("runs/reward") / _slug(target)
-        if resume is None:
-            # Before the network is built into it: a directory of another run is refused as is.
-            check_new_run(run_dir)
-        client = search_client(run_dir, llm, base_url)
-        network = plan = None
-        if transfer is not None:
-            plan, network = _network(target, transfer, run_dir / NETWORK_DIR, client, config.algo)
-        try:
-            result = generate_reward(
-                target,
-                client,
-                run_dir,
-                config,
-                resume=resume is not None,
-                compare_expert=expert is not False,
-                console=console,
-                network=network,
-                plan=plan,
-                # The plan and the analysis for the network were asked of this client first.
-                usage_since=Usage(),
-            )
-        except KeyboardInterrupt:
-            # Stopped while planning, a new search leaves no run (--resume would find none).
-            if (run_dir / CONFIG_FILE).is_file():
-                hint = (
-                    "finished candidates are saved; continue with "
-                    f"itskill reward generate --resume {run_dir}"
+        # Held from here, not only by the search: the transfer network is built into the run.
+        with search_lock(run_dir):
+            if resume is None:
+                # Before the network is built into it: a directory of another run is refused.
+                check_new_run(run_dir)
+            client = search_client(run_dir, llm, base_url)
+            network = plan = None
+            if transfer is not None:
+                plan, network = _network(
+                    target, transfer, run_dir / NETWORK_DIR, client, config.algo
                 )
-            else:
-                hint = "nothing was kept; run the same command again"
-            err_console.print(f"interrupted: {hint}", markup=False)
-            raise typer.Exit(130) from None
+            try:
+                result = generate_reward(
+                    target,
+                    client,
+                    run_dir,
+                    config,
+                    resume=resume is not None,
+                    compare_expert=expert is not False,
+                    console=console,
+                    network=network,
+                    plan=plan,
+                    # The plan and the analysis for the network were asked of this client first.
+                    usage_since=Usage(),
+                )
+            except KeyboardInterrupt:
+                # Stopped while planning, a new search leaves no run (--resume would find none).
+                if (run_dir / CONFIG_FILE).is_file():
+                    hint = (
+                        "finished candidates are saved; continue with "
+                        f"itskill reward generate --resume {run_dir}"
+                    )
+                else:
+                    hint = "nothing was kept; run the same command again"
+                err_console.print(f"interrupted: {hint}", markup=False)
+                raise typer.Exit(130) from None
     console.print(
         f"best reward: {result.best_path}; details: itskill reward show {run_dir}", markup=False
     )

@@ -32,7 +32,6 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from filelock import Timeout
 from rich.console import Console
 from rich.markup import escape
 
@@ -52,7 +51,7 @@ from itskill.files import (
     Check,
     CorruptFileError,
     check_shape,
-    directory_lock,
+    held_alone,
     read_json,
     some_of,
     write_json,
@@ -418,17 +417,12 @@ def learn(
     created = not run_dir.exists()
     client = make_client(llm, cache_dir=run_dir / "llm_cache")
     settings = {"command": command, "budget": b.to_dict(), "seed": seed, "llm": client.name}
-    # Before the record is checked or written (the lock's file is elsewhere): two sessions on
-    # one run train the same candidates into the same files, and the run is damaged for good.
-    lock = directory_lock(run_dir, "learn")
-    try:
-        lock.acquire(timeout=0)
-    except Timeout:
-        raise LearnError(
-            f"{run_dir} is in use by another itskill learn on this machine; wait for it to end, "
-            "or stop it and --resume"
-        ) from None
-    try:
+    # Before the record is checked or written.
+    busy = LearnError(
+        f"{run_dir} is in use by another itskill learn on this machine; wait for it to end, "
+        "or stop it and --resume"
+    )
+    with held_alone(run_dir, "learn", busy):
         _check_run_dir(run_dir, settings, resume)
         sessions = Sessions(run_dir / PROVENANCE_FILE)
         sessions.start()
@@ -465,8 +459,6 @@ def learn(
         )
         console.print(f"{head} {escape(rest)}")
         return LearnResult(run_dir, summary, report)
-    finally:
-        lock.release()
 
 
 def _pipeline(

@@ -32,7 +32,7 @@ from itskill.executors import check_executor, run_jobs
 from itskill.experiments.analysis import read_curve, time_to_threshold
 from itskill.experiments.config import AUTO, ExperimentConfig
 from itskill.experiments.provenance import Sessions
-from itskill.files import CorruptFileError, read_json, some_of, write_json
+from itskill.files import CorruptFileError, held_alone, read_json, some_of, write_json
 
 CELLS_DIR = "cells"
 RESULT_FILE = "result.json"
@@ -306,8 +306,9 @@ def run_experiment(
     sources), so the report covers every cell in the directory, and the file's report settings;
     its ``[execution]`` only when cells train (nothing ran with it otherwise). Whenever the run's
     files are written, ``source_file`` is copied to ``experiment.toml``: the file of the latest
-    session that trained or changed what is recorded. A call refused, or with nothing to train
-    and nothing new to record, writes nothing.
+    session that trained or changed what is recorded. A call refused (``run_dir`` in use by
+    another session on this machine included), or with nothing to train and nothing new to
+    record, writes nothing.
     """
     console = console or Console(stderr=True, emoji=False)
     run_dir = Path(run_dir)
@@ -320,6 +321,26 @@ def run_experiment(
         ray_address = config.execution.ray_address
     # Before the run is recorded: settings that cannot run leave no run to --resume.
     check_executor(ex, workers, ray_address)
+    # Before the directory is checked or written.
+    busy = ExperimentRunError(
+        f"{run_dir} is in use by another itskill experiment run on this machine; wait for it "
+        "to end, or stop it and --resume"
+    )
+    with held_alone(run_dir, "experiment", busy):
+        return _run(config, run_dir, ex, workers, ray_address, resume, source_file, console)
+
+
+def _run(
+    config: ExperimentConfig,
+    run_dir: Path,
+    ex: str,
+    workers: int | None,
+    ray_address: str | None,
+    resume: bool,
+    source_file: Path | None,
+    console: Console,
+) -> RunSummary:
+    """:func:`run_experiment`'s run, once ``run_dir`` is this session's alone."""
     old = _recorded_run(config, run_dir, resume, source_file)
     # Before the run is recorded: a source that cannot be found leaves no run to --resume.
     sources = resolve_all_sources(config, run_dir)

@@ -32,6 +32,7 @@ import hashlib
 import json
 import math
 import shutil
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -42,7 +43,14 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 import itskill
 from itskill.executors import JobResult, check_executor, default_workers, run_jobs
-from itskill.files import check_shape, read_json, some_of, write_json, write_text
+from itskill.files import (
+    check_shape,
+    held_alone,
+    read_json,
+    some_of,
+    write_json,
+    write_text,
+)
 from itskill.llm.client import LLMClient, Message, Usage, make_client
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
 from itskill.llm.usage_log import UsageLog
@@ -454,7 +462,8 @@ def generate_reward(
     Pass a client made by :func:`search_client` (its reply cache in ``out``) so that ``resume``
     can replay the model. ``resume=True`` continues a run in ``out`` made with the same target,
     model and settings; without it, ``out`` must not hold a search yet. Raises
-    :class:`RewardSearchError` for an unusable run directory or when no candidate trained,
+    :class:`RewardSearchError` for an unusable run directory (one another search on this machine
+    is using included) or when no candidate trained,
     :class:`~itskill.reward.plan.PlanError` for a command that cannot be grounded, and the
     client's :class:`~itskill.llm.client.LLMError` when the model cannot be reached.
 
@@ -480,6 +489,49 @@ def generate_reward(
         "network": None if network is None else network.describe(),
         "settings": config.result_settings(),
     }
+    # Before the directory is checked or written. Its own key: itskill learn holds its lock on
+    # the run directory above this one.
+    with search_lock(out):
+        return _search(
+            target,
+            client,
+            out,
+            config,
+            header,
+            resume=resume,
+            compare_expert=compare_expert,
+            console=console,
+            network=network,
+            plan=plan,
+            usage_since=usage_since,
+        )
+
+
+def search_lock(out: Path) -> AbstractContextManager[None]:
+    """Hold the search in ``out`` for this session (:func:`~itskill.files.held_alone`): a
+    :class:`RewardSearchError` if another session on this machine holds it."""
+    busy = RewardSearchError(
+        f"{out} is in use by another itskill reward generate on this machine; wait for it to "
+        f"end, or stop it and continue with --resume {out}"
+    )
+    return held_alone(out, "reward-search", busy)
+
+
+def _search(
+    target: str,
+    client: LLMClient,
+    out: Path,
+    config: RewardSearchConfig,
+    header: dict[str, Any],
+    *,
+    resume: bool,
+    compare_expert: bool,
+    console: Console,
+    network: CandidateNetwork | None,
+    plan: TaskPlan | None,
+    usage_since: Usage | None,
+) -> RewardSearchResult:
+    """:func:`generate_reward`'s search, once its run directory is this session's alone."""
     if resume:
         _check_resume(out, header)
         if (out / SUMMARY_FILE).is_file():
