@@ -465,3 +465,46 @@ def test_diverged_physics_ends_the_episode_instead_of_continuing_from_a_reset_st
     np.testing.assert_allclose(env.sim.ee_pos[1], env.sim.target_pos[1], atol=0.01)
     assert env.sim.ee_pos[1, 2] > 0.1
     env.close()
+
+
+def test_a_rectangular_peg_held_across_its_longer_side_is_grasped_and_lifted():
+    # The fingers may close on the peg's 16 mm faces as well as its 10 mm ones (a pick finds it
+    # at any yaw). `grasped` read 0 there, though the peg was held and came up with the hand, so
+    # a learner holding it so was paid nothing for lifting it.
+    import mujoco
+
+    env = make_batch_env("grasp_peg_rect", num_envs=2, seed=3, n_threads=1)
+    env.reset()
+    # Environment 1's peg, standing between the open fingers, turned a quarter about its axis.
+    yaw = env.context()["obj_yaw"][1, 0] + np.pi / 2
+    data, quat = env.sim.datas[1], env.sim.scene.obj_qpos[0][3:7]
+    data.qpos[quat] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+    mujoco.mj_forward(env.sim.model, data)
+    for _ in range(6):
+        env.step(np.tile([0.0, 0.0, 0.0, 0.0, 1.0], (2, 1)))
+    for _ in range(8):
+        env.step(np.tile([0.0, 0.0, 1.0, 0.0, 1.0], (2, 1)))
+    ctx = env.context()
+    env.close()
+    width = ctx["gripper_width"]
+    assert width[0] < 0.012 < 0.014 < width[1] < 0.017  # across 10 mm, and across 16 mm
+    assert (ctx["obj_bottom_z"][:, 0] > 0.02).all()  # lifted, both
+    assert (ctx["grasped"][:, 0] > 0.5).all()
+
+
+def test_an_upside_down_part_on_the_table_reads_as_on_the_table():
+    # The bottom was centre - height/2 * cos(tilt): turned over, its top face read as its bottom,
+    # a part on the table as lifted by its own height.
+    import mujoco
+
+    env = make_batch_env("pick_peg_round", num_envs=1, seed=0, n_threads=1)
+    env.reset()
+    data, qpos = env.sim.datas[0], env.sim.scene.obj_qpos[0]
+    data.qpos[qpos[3:7]] = [0.0, 1.0, 0.0, 0.0]  # half a turn about x
+    mujoco.mj_forward(env.sim.model, data)
+    for _ in range(3):
+        env.step(np.zeros((1, 5)))
+    ctx = env.context()
+    env.close()
+    assert ctx["obj_tilt"][0, 0] > 3.0
+    assert abs(ctx["obj_bottom_z"][0, 0]) < 0.003

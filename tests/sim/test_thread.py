@@ -145,3 +145,20 @@ def test_nut_lowered_on_the_tip_engages_only_when_centred(offset, engages):
     assert seen is engages
     if engages:
         assert abs(nut.data.qpos[nut.qpos[0]] - x) < 1e-3
+
+
+def test_a_nut_upright_after_a_whole_turn_of_tilt_engages_and_stays_put():
+    # The tilt hinges are unlimited: a nut that tumbled a whole turn round stands upright with
+    # its hinge at 2 pi, and was never engaged on the bolt it sat centred on.
+    nut = Nut("screw_nut_m12")
+    x, y = nut.bolt.xy
+    nut.drop_from(x, y, 0.004)
+    nut.data.qpos[nut.qpos[4]] = 2 * math.pi
+    seen = False
+    for _ in range(round(0.5 / nut.sim.control_dt)):
+        nut.step()
+        seen |= nut.engaged
+    assert seen
+    # Engaged, the locks hold the tilt at 0: the hinge is unwound, not spun back a whole turn.
+    assert abs(nut.data.qpos[nut.qpos[4]]) < 0.05
+    assert abs(nut.data.qpos[nut.qpos[0]] - x) < 1e-3

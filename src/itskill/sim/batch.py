@@ -127,9 +127,11 @@ class BatchSim:
         self.obj_mask[:k] = 1
         self.obj_height = np.zeros(MAX_OBJECTS)
         self.obj_width = np.zeros(MAX_OBJECTS)
+        self.obj_widest = np.zeros(MAX_OBJECTS)
         self.obj_lead = np.zeros(MAX_OBJECTS)
         for i, part in enumerate(self._objects):
             self.obj_height[i], self.obj_width[i] = part.height, part.grasp_width
+            self.obj_widest[i] = part.widest_grasp
             if isinstance(part, NutSpec):
                 self.obj_lead[i] = part.pitch / (2 * math.pi)
         self.fix_mask = np.zeros(MAX_FIXTURES)
@@ -416,7 +418,8 @@ class BatchSim:
         obj_pos = self.obj_pos * om[..., None]
         tilt = np.arccos(np.clip(self.obj_rot[..., 2, 2], -1.0, 1.0)) * om
         obj_yaw = np.arctan2(self.obj_rot[..., 1, 0], self.obj_rot[..., 0, 0]) * om
-        bottom = (obj_pos[..., 2] - 0.5 * self.obj_height * np.cos(tilt)) * om
+        # |cos|: upside down, the part's bottom is the face that was its top.
+        bottom = (obj_pos[..., 2] - 0.5 * self.obj_height * np.abs(np.cos(tilt))) * om
         width = self.finger_width
         to_ee = (self.ee_pos[:, None] - obj_pos) * om[..., None]
 
@@ -425,7 +428,8 @@ class BatchSim:
         grasped = (
             closed
             & (width[:, None] >= min_grasp_width(self.obj_width, self.obj_height))
-            & (width[:, None] <= self.obj_width * 1.2 + 0.002)
+            # A nut's corners, or a rectangular peg across its longer side, open them wider.
+            & (width[:, None] <= self.obj_widest * 1.2 + 0.002)
             & (lateral <= 0.012)
             & (np.abs(to_ee[..., 2]) <= max_grip_offset(self.obj_height))
             & (om > 0)

@@ -25,7 +25,7 @@ fixture slots; an unused slot has mask 0 and zeros elsewhere. Object i is meant 
 Robot
   ee_pos          (N, 3)  grip point between the fingertip pads
   ee_vel          (N, 3)  grip point velocity, m/s
-  ee_yaw          (N,)    hand yaw relative to its start orientation, within the wrist's range
+  ee_yaw          (N,)    hand yaw relative to its home orientation, within the wrist's range
                           [{_YAW_LOW:g}, {_YAW_HIGH:g}]; the hand always points down
   gripper_width   (N,)    distance between the fingers, 0 (closed) to 0.08 (open)
   grip_closed     (N,)    1.0 if the last action commanded the fingers closed
@@ -40,8 +40,9 @@ Objects (movable parts: hex nuts, pegs)
   obj_width       (N, 2)  width the fingers close on (a nut's across-flats, a peg's thickness)
   obj_bottom_z    (N, 2)  height of the part's bottom face above the table
   obj_to_ee       (N, 2, 3) ee_pos - obj_pos
-  grasped         (N, 2)  1.0 if the closed fingers hold the part (across its width, or
-                          across its height when it has tipped over in the grip)
+  grasped         (N, 2)  1.0 if the closed fingers hold the part (across its width, a
+                          rectangular peg's longer side too, or across its height when it
+                          has tipped over in the grip)
 Fixtures (fixed to the table: bolts, holes)
   fix_mask        (N, 2)  1.0 for a real fixture
   fix_pos         (N, 2, 3) target point: a bolt's tip centre or a hole's entrance centre

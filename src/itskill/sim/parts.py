@@ -54,6 +54,11 @@ class NutSpec:
     def grasp_width(self) -> float:
         return self.across_flats
 
+    @property
+    def widest_grasp(self) -> float:
+        """The widest side the fingers may hold the part across: its across-flats."""
+        return self.across_flats
+
     def __post_init__(self) -> None:
         _positive(self.name, across_flats=self.across_flats, height=self.height, pitch=self.pitch)
         if self.bore_apothem >= self.across_flats / 2 - 0.001:
@@ -106,6 +111,12 @@ class PegSpec:
     @property
     def grasp_width(self) -> float:
         return self.diameter if self.shape == "round" else self.depth
+
+    @property
+    def widest_grasp(self) -> float:
+        """The widest side the fingers may hold the part across: a rectangular peg's longer
+        side (held across it, it is as firmly held as across its thickness)."""
+        return self.diameter if self.shape == "round" else max(self.width, self.depth)
 
     def __post_init__(self) -> None:
         if self.shape == "round":

@@ -68,6 +68,8 @@ class ThreadCoupling:
         z, yaw = data.qpos[adr[2]], data.qpos[adr[3]]
         sixths = round(((z - pair.seat_center_z) / pair.lead - yaw) / HEX_SYMMETRY)
         data.qpos[adr[3]] = yaw + HEX_SYMMETRY * sixths
+        # The locks hold the tilt hinges at 0: one wound a whole turn round would be spun back.
+        data.qpos[adr[4:6]] = [math.remainder(a, 2 * math.pi) for a in data.qpos[adr[4:6]]]
         data.eq_active[list(pair.eq_ids)] = 1
         data.mocap_pos[pair.crest_mocap, 2] = PARKED_Z
 
@@ -89,6 +91,10 @@ class ThreadCoupling:
         busy_nuts = {p.obj for p in self.scene.threads if active[p.eq_ids[0]]}
         for k, pair in enumerate(self.scene.threads):
             x, y, z, _, tilt_x, tilt_y = data.qpos[self._nut_qpos[k]].tolist()
+            # The hinges are unlimited: a nut tumbled a whole turn round stands upright at 2 pi.
+            tilt = math.hypot(
+                math.remainder(tilt_x, 2 * math.pi), math.remainder(tilt_y, 2 * math.pi)
+            )
             bottom = z - self._nut_half_height[k]
             tip_x, tip_y, tip_z = self._tips[k]
             if active[pair.eq_ids[0]]:
@@ -99,7 +105,7 @@ class ThreadCoupling:
                 continue
             if (
                 math.hypot(x - tip_x, y - tip_y) <= cfg.radial_tolerance
-                and math.hypot(tilt_x, tilt_y) <= cfg.tilt_tolerance
+                and tilt <= cfg.tilt_tolerance
                 and tip_z - cfg.engage_below <= bottom <= tip_z + cfg.engage_above
             ):
                 self.engage(data, k)
