@@ -51,17 +51,22 @@ def test_scripted_push_brings_nut_to_its_target() -> None:
 @pytest.mark.parametrize("task", ["lift_nut_m12_bolt", "lift_nut_m16_bolt"])
 def test_lift_off_the_bolt_starts_where_unscrewing_ends(task: str) -> None:
     # The nut starts held just above the top of the thread, off it, as the unscrew skills leave
-    # it (5.2 +- 1.9 mm up); the scripted lift takes it 3 cm up, still held.
-    env = make_batch_env(task, num_envs=4, seed=0, n_threads=1)
+    # it (5.2 +- 1.9 mm up); the scripted lift takes it 3 cm up, still held. Starts within 1 mm
+    # of the tip began engaged (about 1 in 75): every one of 400 is clear of it.
+    env = make_batch_env(task, num_envs=100, seed=0, n_threads=1)
     try:
-        env.reset()
-        start = env.context()
+        starts = []
+        for seed in range(4):
+            env.seed(seed)
+            env.reset()
+            starts.append(env.context())
     finally:
         env.close()
-    assert (start["grasped"][:, 0] > 0.5).all()
-    assert (start["engaged"][:, 0] < 0.5).all()
-    height = -start["obj_to_fix"][:, 0, 2]
-    assert ((height > 0.001) & (height < 0.010)).all(), height
+    for start in starts:
+        assert (start["grasped"][:, 0] > 0.5).all()
+        assert (start["engaged"][:, 0] < 0.5).all()
+        height = -start["obj_to_fix"][:, 0, 2]
+        assert ((height > 0.0015) & (height < 0.011)).all(), height
     end = _run(task, num_envs=4)
     assert (end["grasped"][:, 0] > 0.5).all()
     assert (-end["obj_to_fix"][:, 0, 2] >= 0.03).all()
