@@ -86,7 +86,11 @@ def trace_handovers(spec: TaskSpec, policy: StageChain, episodes: int, seed: int
                 handed[k].setdefault(
                     e, np.concatenate([ctx["obj_to_ee"][e, 0], ctx["obj_to_fix"][e, 0]])
                 )
-            _, _, dones, _ = env.step(policy(ctx))
+            _, _, dones, infos = env.step(policy(ctx))
+            for e in np.flatnonzero(running & dones):
+                # A stage entered on the episode's last step is seen only in its end's record
+                # (the environment is reset at once); on success every stage was reached.
+                furthest[e] = max(furthest[e], min(int(infos[e]["stages_done"]), n - 1))
             running &= ~dones
     finally:
         env.close()
