@@ -38,3 +38,12 @@ python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 
 python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 --steps 300000 \
   --eval-every 20000 --eval-episodes 50 --workers 2 \
   --hyperparams results/learn_basic/a2c_screening/logstd0/hyperparams.toml --out runs/a2c_screening/logstd0
+# 2026-12-05, twenty-eighth session, one run at a time (--workers 1) beside the session's tests and
+# reviews: 8 environments (64 samples an update, twice the updates of the packaged 16), the
+# Monte Carlo end of GAE (lambda 1.0, Stable-Baselines3's A2C default) and a higher learning rate
+# (1e-3). The runs went to /work/runs/scr/<variant>/out.
+for v in envs8 lam1 lr1e3; do
+  python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 --steps 300000 \
+    --eval-every 20000 --eval-episodes 50 --workers 1 \
+    --hyperparams results/learn_basic/a2c_screening/$v/hyperparams.toml --out runs/a2c_screening/$v
+done
