@@ -448,3 +448,284 @@ def test_a_malformed_starts_file_names_the_field(tmp_path, text, field, problem)
     with pytest.raises(TaskFileError, match=problem) as err:
         spec_module.load_starts(path, get_task("insert_peg_round"))
     assert field in str(err.value) and "starts.toml" in str(err.value)
+
+
+# ---------------------------------------------------------------------- what a user may write
+# Each group below was accepted (or failed with a traceback, or blamed the wrong file or field)
+# before the loaders checked it. A case: an edit to VALID, the field the error names, a word of
+# the problem.
+def _refused(path: Path, load) -> TaskFileError:
+    """The error ``load()`` raises, checked to name ``path``."""
+    with pytest.raises(TaskFileError) as err:
+        load()
+    assert err.value.path == str(path) and str(path) in str(err.value)
+    return err.value
+
+
+NAMES = {
+    # An experiment wrote its cell directory at runs/<id>: this one outside the run directory.
+    "escaping": ('id = "my_pick"', 'id = "../../../escaped"'),
+    "a_path": ('id = "my_pick"', 'id = "tasks/my_pick"'),
+    "empty": ('id = "my_pick"', 'id = ""'),
+    "upper_case": ('id = "my_pick"', 'id = "My_Pick"'),
+    "spaces": ('id = "my_pick"', 'id = "my pick"'),
+    "too_long": ('id = "my_pick"', f'id = "{"a" * 65}"'),
+}
+
+
+@pytest.mark.parametrize("case", list(NAMES))
+def test_a_task_id_must_be_a_plain_name(tmp_path, parts, case):
+    old, new = NAMES[case]
+    path = write(tmp_path, VALID.replace(old, new, 1))
+    err = _refused(path, lambda: load_task_file(path, parts))
+    assert err.where == "task[0].id"
+    assert "lower-case letters, digits and underscores" in err.problem
+
+
+def test_a_part_name_must_be_a_plain_name(tmp_path):
+    path = tmp_path / "parts.toml"
+    path.write_text(NUT.replace("[nut.my_nut]", '[nut."../my nut"]'))
+    err = _refused(path, lambda: load_parts(path))
+    assert err.where == "nut" and "'../my nut'" in err.problem
+
+
+BOLT = "[bolt.my_bolt]\nthread_diameter = 0.012\npitch = 0.00175\nshank_length = 0.005\n"
+PEG = '[peg.my_peg]\nshape = "round"\ndiameter = 0.004\nlength = 0.05\n'
+HOLE = '[hole.my_hole]\nshape = "round"\ndiameter = 0.004\nclearance = 0.0005\nhole_depth = 0.02\n'
+# (the valid table, an edit to it, the field named, a word of the problem)
+BAD_PARTS = {
+    "string_height": (NUT, ("height = 0.01", 'height = "0.0108"'), "height", "expected float"),
+    "string_thread": (
+        NUT,
+        ("thread_diameter = 0.012", 'thread_diameter = "M12"'),
+        "thread_diameter",
+        "expected float",
+    ),
+    "bool_height": (NUT, ("height = 0.01", "height = true"), "height", "got bool"),
+    "huge_height": (NUT, ("height = 0.01", "height = 1e300"), "height", "0 < height < 0.5"),
+    "negative_clearance": (
+        NUT,
+        ("pitch = 0.00175", "pitch = 0.00175\nbore_clearance = -0.01"),
+        "bore_clearance",
+        "0 < bore_clearance",
+    ),
+    "thin_wall": (NUT, ("across_flats = 0.02", "across_flats = 0.014"), "across_flats", "wall"),
+    "colour_above_one": (
+        NUT,
+        ("pitch = 0.00175", "pitch = 0.00175\nrgba = [2, 0, 0, 1]"),
+        "rgba",
+        "each 0 to 1",
+    ),
+    "string_head": (
+        BOLT,
+        ("shank_length = 0.005", 'shank_length = 0.005\nhead_diameter = "big"'),
+        "head_diameter",
+        "expected float",
+    ),
+    "negative_head": (
+        BOLT,
+        ("shank_length = 0.005", "shank_length = 0.005\nhead_diameter = -0.026"),
+        "head_diameter",
+        "0 < head_diameter",
+    ),
+    "negative_thread": (
+        BOLT,
+        ("thread_diameter = 0.012", "thread_diameter = -0.012"),
+        "thread_diameter",
+        "0 < thread_diameter",
+    ),
+    "unknown_shape": (PEG, ('shape = "round"', 'shape = "square"'), "shape", "'square'"),
+    "missing_shape": (PEG, ('shape = "round"\n', ""), "shape", "missing"),
+    "width_of_a_round_peg": (
+        PEG,
+        ("length = 0.05", "length = 0.05\nwidth = 0.01"),
+        "width",
+        "a round part has diameter",
+    ),
+    "rect_without_depth": (
+        PEG,
+        ('shape = "round"\ndiameter = 0.004', 'shape = "rect"\nwidth = 0.016'),
+        "depth",
+        "0 < depth",
+    ),
+    "two_segments": (
+        HOLE,
+        ("hole_depth = 0.02", "hole_depth = 0.02\nsegments = 2"),
+        "segments",
+        "from 3 to",
+    ),
+    "fractional_segments": (
+        HOLE,
+        ("hole_depth = 0.02", "hole_depth = 0.02\nsegments = 12.5"),
+        "segments",
+        "expected int",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_PARTS))
+def test_a_bad_part_field_names_the_file_and_the_field(tmp_path, case):
+    table, (old, new), field, problem = BAD_PARTS[case]
+    assert old in table
+    path = tmp_path / "parts.toml"
+    path.write_text(table.replace(old, new, 1))
+    err = _refused(path, lambda: load_parts(path))
+    kind, name = table.split("]")[0].strip("[").split(".")
+    assert err.where == f"{kind}.{name}.{field}"
+    assert problem in err.problem
+    path.write_text(table)
+    assert name in load_parts(path)  # the unedited table loads
+
+
+def test_a_user_part_cannot_redefine_a_packaged_one(monkeypatch, tmp_path):
+    # It silently replaced nut_m12 in every packaged task, and a bad one was blamed on
+    # nutbolt.toml, while a repeated task id was already refused.
+    path = tmp_path / "parts.toml"
+    path.write_text(NUT.replace("my_nut", "nut_m12"))
+    monkeypatch.setenv(spec_module.TASKS_DIR_ENV, str(tmp_path))
+    spec_module._registry.cache_clear()
+    try:
+        err = _refused(path, all_tasks)
+    finally:
+        spec_module._registry.cache_clear()
+    assert err.where == "nut.nut_m12" and str(PARTS_FILE) in err.problem
+
+
+BAD_PREDICATES = {
+    "nan": ("near(0, nan)", "dist must be a finite number, got nan"),
+    "inf": ("near(0, 1e999)", "dist must be a finite number, got inf"),
+    "negative_angle": ("upright(0, -5)", "degrees must be 0 or more"),
+    "fractional_slot": ("near(0.9, 0.015)", "object slot must be a whole number"),
+    "negative_slot": ("grasped(-1)", "object slot must be a whole number"),
+    "nan_slot": ("grasped(nan)", "i must be a finite number"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_PREDICATES))
+def test_a_predicate_argument_must_be_finite_a_slot_whole_and_a_threshold_not_negative(
+    tmp_path, parts, case
+):
+    text, problem = BAD_PREDICATES[case]
+    with pytest.raises(PredicateError, match=problem):
+        parse(text)
+    path = write(tmp_path, VALID.replace('done = "grasped(0)"', f'done = "{text}"', 1))
+    err = _refused(path, lambda: load_task_file(path, parts))
+    assert err.where == "task 'my_pick'.stages[1].done" and problem in err.problem
+
+
+def test_an_offset_may_be_negative():
+    assert parse("displaced(0, 0.0, -0.07, 0.015)").terms[0][2] == (0.0, 0.0, -0.07, 0.015)
+
+
+BAD_STARTS = {
+    "part_far_off": (("x = [0.45, 0.58]", "x = 5.0"), "init.objects[0].x", "workspace in x"),
+    "hand_far_off": (("x = [0.4, 0.5]", "x = 1e300"), "init.ee.x", "from 0.25 to 0.75 m"),
+    "hand_below_the_table": (("z = [0.15, 0.22]", "z = [-0.1, 0.2]"), "init.ee.z", "in z"),
+    "hand_turned_too_far": (
+        ("z = [0.15, 0.22] }", "z = [0.15, 0.22], yaw = 4.0 }"),
+        "init.ee.yaw",
+        "yaw limits",
+    ),
+    "part_at_the_robot_base": (  # y left out reads 0, x left out 0 too: under the arm's base
+        ("x = [0.45, 0.58], y = [-0.14, -0.02]", "y = 0.0"),
+        "init.objects[0].x",
+        "nothing (0 by default)",
+    ),
+    "part_yaw": (("y = [-0.14, -0.02] }", "y = [-0.14, -0.02], yaw = 1e300 }"), "[0].yaw", "turn"),
+    "unused_field": (
+        ("y = [-0.14, -0.02] }", "y = [-0.14, -0.02], z = 0.3 }"),
+        "init.objects[0].z",
+        "does not use z",
+    ),
+    "fixture_off_the_table": (("xy = [0.55, 0.12]", "xy = [5.0, 0.12]"), "fixtures[0].xy", "x"),
+    "too_many_turns": (
+        (
+            '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }',
+            '{ mode = "bolt", turns = 9 }',
+        ),
+        "init.objects[0].turns",
+        "bolt_m12's thread",
+    ),
+    "fixture_index": (
+        ("y = [-0.14, -0.02] }", "y = [-0.14, -0.02], fixture = 3 }"),
+        "init.objects[0].fixture",
+        "1 fixture(s)",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_STARTS))
+def test_a_start_outside_what_the_scene_has_names_the_field(tmp_path, parts, case):
+    # x = 5 or 1e300 loaded; the simulation went unstable and 0% success read as measured.
+    (old, new), field, problem = BAD_STARTS[case]
+    assert old in VALID
+    path = write(tmp_path, VALID.replace(old, new, 1))
+    err = _refused(path, lambda: load_task_file(path, parts))
+    assert field in err.where and problem in err.problem
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "problem"),
+    [
+        ('[[start]]\nname = "a"\nobjects = [{ x = 5.0 }]\n', "objects[0].x", "workspace"),
+        ('[[start]]\nname = "a"\nee = { z = 1e300 }\n', "ee.z", "workspace"),
+        ('[[start]]\nname = "a"\nobjects = [{ yaw = 0.1 }]\n', "objects[0].yaw", "does not use"),
+        ('[[start]]\nname = ""\n', "start[0].name", "expected some text"),
+        ('[[start]]\nname = "a"\n[[start]]\nname = "a"\n', "start[1].name", "earlier start"),
+    ],
+)
+def test_a_starts_file_start_must_be_in_reach_and_named_once(tmp_path, text, field, problem):
+    path = tmp_path / "starts.toml"
+    path.write_text(text)
+    err = _refused(path, lambda: spec_module.load_starts(path, get_task("insert_peg_round")))
+    assert field in err.where and problem in err.problem
+
+
+BAD_TASK_FIELDS = {
+    "unknown_kind": (('kind = "basic"', 'kind = "weird"'), "kind", "'basic', 'complex'"),
+    "empty_command": (
+        ('command = "Pick up the M12 nut"', 'command = "  "'),
+        "command",
+        "expected some text",
+    ),
+    "no_actions": (('actions = ["approach", "grasp"]', "actions = []"), "actions", "one or more"),
+    "empty_action": (
+        ('actions = ["approach", "grasp"]', 'actions = ["approach", ""]'),
+        "actions",
+        "one or more action names",
+    ),
+    "stage_not_an_action": (
+        ('actions = ["approach", "grasp"]', 'actions = ["fly"]'),
+        "stages[0].name",
+        "not one of the task's actions",
+    ),
+    "stages_out_of_order": (
+        ('actions = ["approach", "grasp"]', 'actions = ["grasp", "approach"]'),
+        "stages[1].name",
+        "out of order",
+    ),
+    "empty_stage_name": (
+        ('{ name = "grasp"', '{ name = ""'),
+        "stages[1].name",
+        "expected some text",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_TASK_FIELDS))
+def test_a_task_kind_command_and_actions_are_checked(tmp_path, parts, case):
+    (old, new), field, problem = BAD_TASK_FIELDS[case]
+    assert old in VALID
+    path = write(tmp_path, VALID.replace(old, new, 1))
+    err = _refused(path, lambda: load_task_file(path, parts))
+    assert err.where == f"task 'my_pick'.{field}" and problem in err.problem
+
+
+def test_actions_without_a_stage_and_carry_stages_still_load(tmp_path, parts):
+    # What the packaged tasks do: removenut's grasp has no stage, pickplace2_nuts carries.
+    text = VALID.replace(
+        'actions = ["approach", "grasp"]', 'actions = ["approach", "lift", "grasp"]'
+    )
+    text = text.replace('{ name = "approach"', '{ name = "carry"')
+    (task,) = load_task_file(write(tmp_path, text), parts)
+    assert [s.name for s in task.stages] == ["carry", "grasp"]

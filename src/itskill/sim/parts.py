@@ -16,6 +16,8 @@ from typing import Literal
 
 import mujoco
 
+from itskill.errors import PicklableError
+
 STEEL_DENSITY = 7850.0
 PART_FRICTION = (1.0, 0.01, 0.001)
 PART_SOLREF = (0.008, 1.0)
@@ -28,6 +30,15 @@ PART_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)
 CONTACT_PARTS = 1
 CONTACT_TABLE = 2
 CONTACT_ROBOT_TABLE = 4
+
+MAX_PART_SIZE = 0.5
+"""Upper bound (exclusive, metres) on every part dimension: the arm reaches a box of 0.5 m
+(x) by 0.7 m (y) by 0.44 m (z) (``ControllerConfig``'s workspace), so no larger part is
+anything it could handle, and far larger ones (1e300) overflow MuJoCo's geometry."""
+PART_SHAPES = ("round", "rect")
+MAX_HOLE_SEGMENTS = 64
+"""Each wall box of a round hole is geoms and contacts with the peg; 64 already make a ring
+within 0.12% of a circle (cos(pi/64)), so more only cost simulation time."""
 
 _BOX = mujoco.mjtGeom.mjGEOM_BOX
 _CYL = mujoco.mjtGeom.mjGEOM_CYLINDER
@@ -60,9 +71,18 @@ class NutSpec:
         return self.across_flats
 
     def __post_init__(self) -> None:
-        _positive(self.name, across_flats=self.across_flats, height=self.height, pitch=self.pitch)
+        _sizes(
+            self.name,
+            across_flats=self.across_flats,
+            height=self.height,
+            thread_diameter=self.thread_diameter,
+            pitch=self.pitch,
+            # Zero clearance puts the bore flats on the shank: they collide and the nut jams.
+            bore_clearance=self.bore_clearance,
+        )
+        _check_rgba(self.name, self.rgba)
         if self.bore_apothem >= self.across_flats / 2 - 0.001:
-            raise ValueError(f"{self.name}: bore leaves less than 1 mm of wall")
+            raise PartSpecError(self.name, "across_flats", "bore leaves less than 1 mm of wall")
 
 
 @dataclass(frozen=True)
@@ -88,7 +108,15 @@ class BoltSpec:
         return self.head_height + self.shank_length
 
     def __post_init__(self) -> None:
-        _positive(self.name, shank_length=self.shank_length, pitch=self.pitch)
+        _sizes(
+            self.name,
+            thread_diameter=self.thread_diameter,
+            pitch=self.pitch,
+            shank_length=self.shank_length,
+            head_height=self.head_height,
+            head_diameter=self.head_diameter,
+        )
+        _check_rgba(self.name, self.rgba)
 
 
 @dataclass(frozen=True)
@@ -119,10 +147,11 @@ class PegSpec:
         return self.diameter if self.shape == "round" else max(self.width, self.depth)
 
     def __post_init__(self) -> None:
-        if self.shape == "round":
-            _positive(self.name, diameter=self.diameter, length=self.length)
-        else:
-            _positive(self.name, width=self.width, depth=self.depth, length=self.length)
+        _check_shape(
+            self.name, self.shape, diameter=self.diameter, width=self.width, depth=self.depth
+        )
+        _sizes(self.name, length=self.length)
+        _check_rgba(self.name, self.rgba)
 
 
 @dataclass(frozen=True)
@@ -146,7 +175,23 @@ class HoleSpec:
         return self.hole_depth
 
     def __post_init__(self) -> None:
-        _positive(self.name, hole_depth=self.hole_depth, clearance=self.clearance)
+        _check_shape(
+            self.name, self.shape, diameter=self.diameter, width=self.width, depth=self.depth
+        )
+        _sizes(self.name, hole_depth=self.hole_depth, clearance=self.clearance, wall=self.wall)
+        segments = self.segments
+        if (
+            not isinstance(segments, int)
+            or isinstance(segments, bool)
+            or not 3 <= segments <= MAX_HOLE_SEGMENTS
+        ):
+            # Fewer than 3 boxes make no ring around the hole.
+            raise PartSpecError(
+                self.name,
+                "segments",
+                f"expected a whole number from 3 to {MAX_HOLE_SEGMENTS}, got {segments!r}",
+            )
+        _check_rgba(self.name, self.rgba)
 
 
 PartSpec = NutSpec | PegSpec
@@ -162,10 +207,57 @@ class PlacedFixture:
     yaw: float = 0.0
 
 
-def _positive(name: str, **values: float) -> None:
+class PartSpecError(PicklableError, ValueError):
+    """A part field out of range: ``field`` names it, so a parts file's error can point at it."""
+
+    def __init__(self, part: str, field: str, problem: str) -> None:
+        super().__init__(f"{part}: {field}: {problem}")
+        self.part, self.field, self.problem = part, field, problem
+
+
+def _is_real(value: object) -> bool:
+    """A finite int or float, not a bool (TOML's ``true`` would otherwise be 1 m)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _sizes(name: str, **values: float) -> None:
+    """Each of ``values`` is a length in metres: finite, above 0, below :data:`MAX_PART_SIZE`."""
     for key, value in values.items():
-        if not value > 0:
-            raise ValueError(f"{name}: {key} must be > 0, got {value}")
+        if not _is_real(value) or not 0 < value < MAX_PART_SIZE:
+            raise PartSpecError(
+                name,
+                key,
+                f"expected a length in metres, 0 < {key} < {MAX_PART_SIZE}, got {value!r}",
+            )
+
+
+def _check_shape(name: str, shape: str, *, diameter: float, width: float, depth: float) -> None:
+    """``shape`` is round (a ``diameter``) or rect (``width`` by ``depth``); the other shape's
+    dimensions stay 0, since a value there would be silently ignored."""
+    if shape not in PART_SHAPES:
+        raise PartSpecError(name, "shape", f"expected one of {PART_SHAPES}, got {shape!r}")
+    if shape == "round":
+        used, unused = {"diameter": diameter}, {"width": width, "depth": depth}
+    else:
+        used, unused = {"width": width, "depth": depth}, {"diameter": diameter}
+    for key, value in unused.items():
+        if value != 0:
+            raise PartSpecError(
+                name, key, f"a {shape} part has {' and '.join(used)}, not {key}; got {value!r}"
+            )
+    _sizes(name, **used)
+
+
+def _check_rgba(name: str, rgba: tuple[float, ...]) -> None:
+    """Four colour components (red, green, blue, alpha), each from 0 to 1 as MuJoCo reads them."""
+    if (
+        not isinstance(rgba, tuple | list)
+        or len(rgba) != 4
+        or not all(_is_real(v) and 0 <= v <= 1 for v in rgba)
+    ):
+        raise PartSpecError(
+            name, "rgba", f"expected [red, green, blue, alpha], each 0 to 1, got {list(rgba)!r}"
+        )
 
 
 def _part_geom(

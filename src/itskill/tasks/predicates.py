@@ -13,6 +13,7 @@ Each predicate returns a boolean array over the batch.
 from __future__ import annotations
 
 import inspect
+import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -148,16 +149,33 @@ class Expression:
         return {int(args[0]) for _, _, args in self.terms}
 
 
-def _check_arity(term: str, name: str, given: int) -> None:
-    """Refuse on load what would fail at the first step: too few or too many arguments."""
+_SIGNED = {"dx", "dy"}
+"""Arguments that are offsets and may be negative; every other one after the object slot is a
+distance, angle, count of heights or fraction, for which a negative value makes the predicate
+always false (or, negated, always true) and so the stage or task unreachable or free."""
+
+
+def _check_args(term: str, name: str, args: tuple[float, ...]) -> None:
+    """Refuse on load what would fail at the first step (too few or too many arguments) or
+    quietly measure something else (a fractional slot read as a whole one, nan, inf)."""
     params = list(inspect.signature(PREDICATES[name]).parameters.values())[1:]  # after ctx
     least = sum(p.default is inspect.Parameter.empty for p in params)
-    if not least <= given <= len(params):
+    if not least <= len(args) <= len(params):
         names = ", ".join(
             p.name if p.default is inspect.Parameter.empty else f"{p.name}={p.default}"
             for p in params
         )
-        raise PredicateError(f"{term!r}: {name} takes ({names}), got {given} argument(s)")
+        raise PredicateError(f"{term!r}: {name} takes ({names}), got {len(args)} argument(s)")
+    for param, value in zip(params, args, strict=False):
+        if not math.isfinite(value):
+            # nan compares false with everything and inf true with everything.
+            raise PredicateError(f"{term!r}: {param.name} must be a finite number, got {value}")
+        if param.name == "i" and not (value.is_integer() and value >= 0):
+            raise PredicateError(
+                f"{term!r}: the object slot must be a whole number 0 or more, got {value:g}"
+            )
+        if param.name not in _SIGNED and value < 0:
+            raise PredicateError(f"{term!r}: {param.name} must be 0 or more, got {value:g}")
 
 
 def parse(source: str) -> Expression:
@@ -179,6 +197,6 @@ def parse(source: str) -> Expression:
             raise PredicateError(f"{raw.strip()!r}: arguments must be numbers") from err
         if not args:
             raise PredicateError(f"{raw.strip()!r}: the first argument is the object slot")
-        _check_arity(raw.strip(), name, len(args))
+        _check_args(raw.strip(), name, args)
         terms.append((negate, name, args))
     return Expression(source, tuple(terms))

@@ -10,16 +10,25 @@ from __future__ import annotations
 import difflib
 import math
 import os
-from dataclasses import dataclass, field, replace
+import re
+from dataclasses import MISSING, dataclass, field, replace
 from functools import cache
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 from itskill.datafile import DataFileError, is_number, read_toml
 from itskill.errors import PicklableError
 from itskill.sim.context import max_grip_offset
-from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec, PlacedFixture
+from itskill.sim.controller import ControllerConfig
+from itskill.sim.parts import (
+    BoltSpec,
+    HoleSpec,
+    NutSpec,
+    PartSpecError,
+    PegSpec,
+    PlacedFixture,
+)
 from itskill.sim.scene import SceneSpec
 from itskill.sim.task import (
     HAND_MODES,
@@ -36,6 +45,45 @@ from itskill.tasks.predicates import Expression, PredicateError, parse
 TASKS_DIR_ENV = "ITSKILL_TASKS_DIR"
 _PART_KINDS = {"nut": NutSpec, "bolt": BoltSpec, "peg": PegSpec, "hole": HoleSpec}
 _INIT_MODES = ("table", "gripper", "fingers", "bolt", "hole")
+_MAX_NAME = 64
+_PLAIN_NAME = re.compile(rf"[a-z0-9_]{{1,{_MAX_NAME}}}")
+"""A task id or part name: what every packaged one is, and safe as a file or directory name."""
+_KINDS = ("basic", "complex")
+"""A basic task is one skill (pretraining trains every basic task); a complex one chains them."""
+_CARRY = "carry"
+"""A stage name that stands for the lift and approach actions that move a held part (a task's
+actions list what a plan does; its stages what ``ctx["stage"]`` counts)."""
+
+
+@dataclass(frozen=True)
+class _Bounds:
+    """Where a start value must lie, and how an error says so."""
+
+    low: float
+    high: float
+    what: str
+    unit: str = " m"
+
+
+_ARM = ControllerConfig()
+# A start outside the controller's workspace is one the arm cannot reach (the hand is clipped
+# back at the first step, a part there is out of reach), or far outside (x = 1e300) one the
+# simulation cannot hold: either way the episodes fail and read as a measured 0%.
+_REACH = {
+    axis: _Bounds(low, high, f"within the arm's workspace in {axis}")
+    for axis, low, high in zip("xyz", _ARM.workspace_low, _ARM.workspace_high, strict=True)
+}
+_HAND_YAW = _Bounds(*_ARM.yaw_limits, "within the hand's yaw limits", " rad")
+_PART_YAW = _Bounds(-2 * math.pi, 2 * math.pi, "at most a turn either way", " rad")
+_MODE_FIELDS = {
+    "table": {"x", "y", "yaw"},
+    "gripper": {"x", "y", "z", "hold"},
+    "fingers": {"x", "y", "z"},
+    "bolt": {"turns"},
+    "hole": {"depth", "yaw"},
+}
+"""The start fields each mode reads (``BatchEnv._place_object``); a part in the hand takes the
+hand's yaw, a part on its fixture the fixture's place."""
 
 
 class TaskFileError(DataFileError):
@@ -155,7 +203,8 @@ class _Reader:
             raise self._fail(key, "expected a list of strings")
         return tuple(value)
 
-    def range(self, key: str, default: tuple[float, float]) -> Range:
+    def range(self, key: str, default: tuple[float, float], within: _Bounds | None = None) -> Range:
+        """A number or ``[low, high]``; with ``within``, inside those bounds (both ends)."""
         raw = self.table.get(key, list(default))
         value = [raw, raw] if isinstance(raw, int | float) and not isinstance(raw, bool) else raw
         if not isinstance(value, list) or len(value) != 2 or not all(map(is_number, value)):
@@ -164,6 +213,13 @@ class _Reader:
             )
         if value[1] < value[0]:
             raise self._fail(key, f"expected low <= high, got {value!r}")
+        if within is not None and not within.low <= value[0] <= value[1] <= within.high:
+            got = repr(raw) if key in self.table else f"nothing ({default[0]:g} by default)"
+            raise self._fail(
+                key,
+                f"expected {within.what}, from {within.low:g} to {within.high:g}{within.unit}, "
+                f"got {got}",
+            )
         return Range(float(value[0]), float(value[1]))
 
     def check_keys(self, allowed: set[str]) -> None:
@@ -176,8 +232,45 @@ def _load_toml(path: Path) -> dict[str, Any]:
     return read_toml(path, TaskFileError)
 
 
+def _check_name(path: Path, where: str, name: str, what: str, example: str) -> None:
+    """``name`` (a task id or part name) is a plain name: it becomes a directory or file name
+    (``runs/<task>/seed0``, ``<task>_eval.json``), where ``../x`` or ``a/b`` would write outside
+    the directory meant and an empty one into the directory itself."""
+    if not _PLAIN_NAME.fullmatch(name):
+        raise TaskFileError(
+            path,
+            where,
+            f"expected a {what} of 1 to {_MAX_NAME} lower-case letters, digits and underscores "
+            f"(like {example}), got {name!r}",
+        )
+
+
+def _part_field(reader: _Reader, key: str, hint: Any) -> Any:
+    """Field ``key`` of a part table read as the dataclass's type ``hint`` says: a number for a
+    float (not a bool, not nan or inf), a whole number for an int, one of the choices for a
+    ``Literal``, four numbers for a colour."""
+    if hint is float or hint is int:
+        return reader.get(key, hint)
+    if get_origin(hint) is Literal:
+        choices = get_args(hint)
+        value = reader.get(key, str)
+        if value not in choices:
+            raise reader._fail(key, f"expected one of {choices}, got {value!r}")
+        return value
+    if get_origin(hint) is tuple:  # rgba
+        value = reader.get(key, list)
+        if len(value) != 4 or not all(map(is_number, value)):
+            raise reader._fail(key, f"expected [red, green, blue, alpha], got {value!r}")
+        return tuple(float(v) for v in value)
+    raise TypeError(f"no reader for {key}: {hint!r}")  # a new field type in sim/parts.py
+
+
 def load_parts(path: Path) -> dict[str, Any]:
-    """Parse a parts file into ``{name: NutSpec | BoltSpec | PegSpec | HoleSpec}``."""
+    """Parse a parts file into ``{name: NutSpec | BoltSpec | PegSpec | HoleSpec}``.
+
+    Every field is read as its dataclass declares it; the dataclass then checks the values
+    (sizes, shapes, colours), and its :class:`PartSpecError` is reported at the field it names.
+    """
     parts: dict[str, Any] = {}
     for kind, table in _load_toml(path).items():
         if kind not in _PART_KINDS:
@@ -185,28 +278,32 @@ def load_parts(path: Path) -> dict[str, Any]:
                 path, kind, f"unknown part kind; expected one of {list(_PART_KINDS)}"
             )
         cls = _PART_KINDS[kind]
+        hints = get_type_hints(cls)
         for name, fields in _Reader(path, kind, table).table.items():
-            reader = _Reader(path, f"{kind}.{name}", fields)
+            where = f"{kind}.{name}"
+            # Named at its kind: the name itself would garble the field's path.
+            _check_name(path, kind, name, "part name", "nut_m12")
+            if name in parts:
+                # The same name under two kinds: the second would replace the first unseen.
+                raise TaskFileError(path, where, f"part already defined as a {parts[name].kind}")
+            reader = _Reader(path, where, fields)
             allowed = set(cls.__dataclass_fields__) - {"name", "kind"}
             reader.check_keys(allowed)
-            values = dict(fields)
-            for key, value in values.items():
-                if isinstance(value, float):
-                    # The parts' own checks let inf through, and nan where they check nothing.
-                    reader.get(key, float)
-            if "rgba" in values:
-                rgba = reader.get("rgba", list)
-                if len(rgba) != 4 or not all(map(is_number, rgba)):
-                    raise TaskFileError(
-                        path,
-                        f"{kind}.{name}.rgba",
-                        f"expected [red, green, blue, alpha], got {rgba!r}",
-                    )
-                values["rgba"] = tuple(float(v) for v in rgba)
+            missing = [
+                key
+                for key, f in cls.__dataclass_fields__.items()
+                if key != "name"
+                and key not in fields
+                and f.default is MISSING
+                and f.default_factory is MISSING
+            ]
+            if missing:
+                raise reader._fail(missing[0], "missing (required)")
+            values = {key: _part_field(reader, key, hints[key]) for key in fields}
             try:
                 parts[name] = cls(name=name, **values)
-            except (TypeError, ValueError) as err:
-                raise TaskFileError(path, f"{kind}.{name}", str(err)) from err
+            except PartSpecError as err:
+                raise TaskFileError(path, f"{where}.{err.field}", err.problem) from err
     return parts
 
 
@@ -220,6 +317,7 @@ _TASK_KEYS = {
 def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> TaskSpec:
     r = _Reader(path, f"task[{index}]", raw)
     task_id = r.get("id", str)
+    _check_name(path, f"task[{index}].id", task_id, "task id", "reach_nut_m12")
     r = _Reader(path, f"task {task_id!r}", raw)
     r.check_keys(_TASK_KEYS)
 
@@ -244,10 +342,24 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
             raise TaskFileError(
                 path, fr.where + ".xy", f"expected [x, y] of finite numbers, got {xy!r}"
             )
+        reach_x, reach_y = _REACH["x"], _REACH["y"]
+        if not (reach_x.low <= xy[0] <= reach_x.high and reach_y.low <= xy[1] <= reach_y.high):
+            # Off the arm's reach, or off the table altogether (x = 5 hangs it in the air).
+            raise TaskFileError(
+                path,
+                fr.where + ".xy",
+                f"expected within the arm's workspace, x from {reach_x.low:g} to "
+                f"{reach_x.high:g} m and y from {reach_y.low:g} to {reach_y.high:g} m, got {xy!r}",
+            )
+        yaw = fr.get("yaw", float, 0.0)
+        if not _PART_YAW.low <= yaw <= _PART_YAW.high:
+            raise TaskFileError(
+                path, fr.where + ".yaw", f"expected {_PART_YAW.what} (radians), got {yaw!r}"
+            )
         placed = PlacedFixture(
             part(fr.get("part", str), (BoltSpec, HoleSpec), fr.where + ".part"),
             (float(xy[0]), float(xy[1])),
-            fr.get("yaw", float, 0.0),
+            yaw,
         )
         fixtures.append(placed)
     if not 1 <= len(objects) <= 2 or len(fixtures) > 2:
@@ -282,11 +394,22 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
     for k, st in enumerate(r.get("stages", list)):
         sr = _Reader(path, f"task {task_id!r}.stages[{k}]", st)
         sr.check_keys({"name", "done"})
-        stages.append(
-            Stage(sr.get("name", str), expression(sr.get("done", str), sr.where + ".done"))
-        )
+        stages.append(Stage(_text(sr, "name"), expression(sr.get("done", str), sr.where + ".done")))
     if not stages:
         raise TaskFileError(path, f"task {task_id!r}.stages", "at least one stage is required")
+    actions = r.strings("actions")
+    if not actions or not all(a.strip() for a in actions):
+        raise TaskFileError(
+            path,
+            f"task {task_id!r}.actions",
+            f"expected one or more action names, got {list(actions)!r}",
+        )
+    _check_stages_follow_actions(path, f"task {task_id!r}", stages, actions)
+    kind = r.get("kind", str, "basic")
+    if kind not in _KINDS:
+        raise TaskFileError(
+            path, f"task {task_id!r}.kind", f"expected one of {_KINDS}, got {kind!r}"
+        )
     max_steps = r.get("max_steps", int)
     if max_steps < 1:
         raise TaskFileError(path, f"task {task_id!r}.max_steps", "expected a positive integer")
@@ -320,11 +443,11 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
     spec = TaskSpec(
         id=task_id,
         family=r.get("family", str),
-        kind=r.get("kind", str, "basic"),
-        command=r.get("command", str),
+        kind=kind,
+        command=_text(r, "command"),
         description=r.get("description", str, ""),
         skills=r.strings("skills"),
-        actions=r.strings("actions"),
+        actions=actions,
         objects=objects,
         fixtures=tuple(fixtures),
         object_fixture=object_fixture,
@@ -341,6 +464,46 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
     )
     _check_script(path, spec)
     return spec
+
+
+def _text(r: _Reader, key: str) -> str:
+    """A required string that says something: an empty command or stage name is shown, sent to
+    a language model and embedded as if it were one."""
+    value = r.get(key, str)
+    if not value.strip():
+        raise r._fail(key, f"expected some text, got {value!r}")
+    return value
+
+
+def _check_stages_follow_actions(
+    path: Path, where: str, stages: list[Stage], actions: tuple[str, ...]
+) -> None:
+    """Each stage is one of the task's actions, in the actions' order.
+
+    The packaged tasks imply no more: an action may have no stage of its own (removenut's
+    grasp ends with its lift stage), and a ``carry`` stage stands for the lift and approach
+    actions that move a held part (pickplace2_nuts).
+    """
+    rest = list(actions)
+    for k, stage in enumerate(stages):
+        if stage.name == _CARRY:
+            continue
+        if stage.name not in actions:
+            problem = f"stage {stage.name!r} is not one of the task's actions {list(actions)!r}"
+        elif stage.name not in rest:
+            problem = (
+                f"stage {stage.name!r} is out of order: the stages follow the actions "
+                f"{list(actions)!r} in order"
+            )
+        else:
+            del rest[: rest.index(stage.name) + 1]
+            continue
+        raise TaskFileError(
+            path,
+            f"{where}.stages[{k}].name",
+            f"{problem} (an action may have no stage; a {_CARRY!r} stage stands for lift and "
+            "approach)",
+        )
 
 
 def _check_script(path: Path, spec: TaskSpec) -> None:
@@ -413,28 +576,49 @@ def _parse_init(
                     f"its thread ({seat.thread_diameter * 1000:g} mm, pitch "
                     f"{seat.pitch * 1000:g} mm)",
                 )
-        obj_inits.append(
-            ObjectInit(
-                mode=mode,
-                x=orr.range("x", (0.0, 0.0)),
-                y=orr.range("y", (0.0, 0.0)),
-                z=orr.range("z", (0.0, 0.0)),
-                yaw=orr.range("yaw", (0.0, 0.0)),
-                turns=orr.range("turns", (0.0, 0.0)),
-                depth=orr.range("depth", (0.0, 0.0)),
-                hold=hold,
-                fixture=fixture,
+        elif not 0 <= fixture < max(len(fixtures), 1):
+            raise TaskFileError(
+                path, orr.where + ".fixture", f"the task has {len(fixtures)} fixture(s)"
             )
-        )
+        bounds = {key: _REACH[key] for key in "xyz"} | {"yaw": _PART_YAW}
+        if mode == "bolt":
+            # The nut's bottom stays on the thread: at most at the shank's tip.
+            bolt = fixtures[fixture].part
+            bounds["turns"] = _Bounds(
+                0.0,
+                bolt.shank_length / bolt.pitch + 1e-9,
+                f"a place on {bolt.name}'s thread",
+                " turns",
+            )
+        if mode == "hole":
+            # From the entrance (0) to the bottom of the hole, the table.
+            hole = fixtures[fixture].part
+            bounds["depth"] = _Bounds(0.0, hole.hole_depth, f"a depth inside {hole.name}")
+        ranges = {}
+        for key in ("x", "y", "z", "yaw", "turns", "depth"):
+            if key in _MODE_FIELDS[mode]:
+                ranges[key] = orr.range(key, (0.0, 0.0), bounds[key])
+                continue
+            # A field the mode does not read would be ignored without a word; init_table writes
+            # every field, as 0, so 0 is let through.
+            ranges[key] = orr.range(key, (0.0, 0.0))
+            if ranges[key] != Range(0.0, 0.0):
+                raise TaskFileError(
+                    path,
+                    f"{orr.where}.{key}",
+                    f"mode {mode!r} does not use {key} (it uses "
+                    f"{', '.join(sorted(_MODE_FIELDS[mode]))}); leave it out",
+                )
+        obj_inits.append(ObjectInit(mode=mode, hold=hold, fixture=fixture, **ranges))
     if sum(o.mode in HAND_MODES for o in obj_inits) > 1:
         raise TaskFileError(
             path, ir.where + ".objects", "at most one object can start in the gripper"
         )
     return InitSpec(
-        ee_x=er.range("x", (0.45, 0.45)),
-        ee_y=er.range("y", (0.0, 0.0)),
-        ee_z=er.range("z", (0.2, 0.2)),
-        ee_yaw=er.range("yaw", (0.0, 0.0)),
+        ee_x=er.range("x", (0.45, 0.45), _REACH["x"]),
+        ee_y=er.range("y", (0.0, 0.0), _REACH["y"]),
+        ee_z=er.range("z", (0.2, 0.2), _REACH["z"]),
+        ee_yaw=er.range("yaw", (0.0, 0.0), _HAND_YAW),
         objects=tuple(obj_inits),
     )
 
@@ -478,7 +662,11 @@ def load_starts(path: str | Path, spec: TaskSpec) -> list[tuple[str, TaskSpec]]:
     for k, raw in enumerate(raw_starts):
         r = _Reader(path, f"start[{k}]", raw)
         r.check_keys({"name", "ee", "objects"})
-        name = r.get("name", str)
+        # The name labels the start's row of results: an empty one labels nothing and a repeated
+        # one makes two rows that cannot be told apart.
+        name = _text(r, "name")
+        if any(name == other for other, _ in starts):
+            raise TaskFileError(path, f"start[{k}].name", f"{name!r} names an earlier start too")
         changes = {key: raw[key] for key in ("ee", "objects") if key in raw}
         init = _parse_init(
             _changed_init(path, f"start {name!r}", own, changes),
@@ -544,9 +732,19 @@ def _task_dirs() -> list[Path]:
 @cache
 def _registry(dirs: tuple[Path, ...]) -> dict[str, TaskSpec]:
     parts: dict[str, Any] = {}
+    part_files: dict[str, Path] = {}
     for d in dirs:
-        if (d / "parts.toml").is_file():
-            parts.update(load_parts(d / "parts.toml"))
+        path = d / "parts.toml"
+        if not path.is_file():
+            continue
+        for name, part in load_parts(path).items():
+            if name in parts:
+                # Like a repeated task id: a user's part silently replacing a packaged one would
+                # change every packaged task built from it.
+                raise TaskFileError(
+                    path, f"{part.kind}.{name}", f"part already defined in {part_files[name]}"
+                )
+            parts[name], part_files[name] = part, path
     tasks: dict[str, TaskSpec] = {}
     for d in dirs:
         for path in sorted(d.glob("*.toml")):

@@ -1,0 +1,42 @@
+"""Part dataclasses check their own values, for a user building a scene in Python too."""
+
+from __future__ import annotations
+
+import pickle
+
+import pytest
+
+from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PartSpecError, PegSpec
+
+NUT = {"name": "n", "across_flats": 0.018, "height": 0.0108, "thread_diameter": 0.012,
+       "pitch": 0.00175}  # fmt: skip
+BOLT = {"name": "b", "thread_diameter": 0.012, "pitch": 0.00175, "shank_length": 0.005}
+PEG = {"name": "p", "shape": "rect", "width": 0.016, "depth": 0.01, "length": 0.05}
+HOLE = {"name": "h", "shape": "round", "diameter": 0.004, "clearance": 0.0005, "hole_depth": 0.02}
+
+
+@pytest.mark.parametrize(
+    ("cls", "valid", "change", "field"),
+    [
+        # Each was accepted: a bool read as 1 m, a negative or huge size reached MuJoCo.
+        (NutSpec, NUT, {"height": True}, "height"),
+        (NutSpec, NUT, {"height": 1e300}, "height"),
+        (NutSpec, NUT, {"bore_clearance": -0.01}, "bore_clearance"),
+        (NutSpec, NUT, {"rgba": (0.5, 0.5, 0.5, 1.5)}, "rgba"),
+        (BoltSpec, BOLT, {"head_diameter": -0.026}, "head_diameter"),
+        (BoltSpec, BOLT, {"thread_diameter": -0.012}, "thread_diameter"),
+        (BoltSpec, BOLT, {"head_height": float("nan")}, "head_height"),
+        (PegSpec, PEG, {"shape": "square"}, "shape"),
+        (PegSpec, PEG, {"diameter": 0.004}, "diameter"),
+        (HoleSpec, HOLE, {"segments": 2}, "segments"),
+        (HoleSpec, HOLE, {"wall": 0.0}, "wall"),
+    ],
+)
+def test_a_part_value_out_of_range_names_its_field(cls, valid, change, field):
+    cls(**valid)
+    with pytest.raises(PartSpecError) as err:
+        cls(**(valid | change))
+    assert err.value.field == field and field in str(err.value)
+    back = pickle.loads(pickle.dumps(err.value))  # it crosses process boundaries like the rest
+    assert (back.part, back.field, back.problem) == (err.value.part, field, err.value.problem)
+    assert isinstance(err.value, ValueError)  # callers that caught ValueError still do
