@@ -32,8 +32,14 @@ class DataFileError(PicklableError, ValueError):
 
 def is_number(value: Any) -> bool:
     """Whether ``value`` is a finite int or float, not a bool: TOML and JSON readers also give
-    booleans (an int to Python), ``nan`` and ``inf``, which no length, rate or time can be."""
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    booleans (an int to Python), ``nan`` and ``inf`` (TOML's ``1e999`` too), which no length, rate
+    or time can be, and integers of any length, which one past a float's range is not either."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int too large for a float: every use of the number would fail
+        return False
 
 
 def is_count(value: Any) -> bool:
@@ -55,19 +61,32 @@ def read_toml(path: str | Path, error: type[DataFileError] = DataFileError) -> d
         raise error(path, "file", f"not UTF-8 text (byte {err.start})") from err
     except tomllib.TOMLDecodeError as err:
         raise error(path, "TOML syntax", str(err)) from err
+    except ValueError as err:
+        # tomllib reads an integer of any length through int(), which refuses more digits than
+        # Python's limit with a ValueError (its advice, sys.set_int_max_str_digits, is for code).
+        raise error(
+            path, "file", f"a number of more than {sys.get_int_max_str_digits()} digits"
+        ) from err
 
 
 def check_like(
     path: str | Path, where: str, value: Any, default: Any, error: type[DataFileError]
 ) -> Any:
     """``value`` converted to the type of the field's ``default`` (bool, int, float, str or a
-    tuple of ints, read from a TOML list), or ``error`` naming the type expected."""
+    tuple of ints, read from a TOML list), or ``error`` naming the type expected.
+
+    A float field takes finite numbers only: TOML writes ``nan``, ``inf`` and ``1e999``, which no
+    rate, coefficient or width means, and which otherwise reach training as a traceback there
+    ("Invalid learning rate: nan") or, worse, as losses that are NaN from the first update.
+    """
     if isinstance(default, bool):
         ok, want = isinstance(value, bool), "a boolean"
     elif isinstance(default, int):
         ok, want = isinstance(value, int) and not isinstance(value, bool), "an integer"
     elif isinstance(default, float):
         ok = isinstance(value, int | float) and not isinstance(value, bool)
+        if ok and not is_number(value):
+            raise error(path, where, f"expected a finite number, got {value!r}")
         want, value = "a number", float(value) if ok else value
     elif isinstance(default, str):
         ok, want = isinstance(value, str), "a string"

@@ -232,3 +232,47 @@ def test_cli_reports_an_unreadable_skill_space_and_records_no_run(tmp_path, monk
     assert "skills.sqlite" in "".join(result.output.split()) and "Traceback" not in result.output
     # Nothing recorded: the same command runs once the skill space is fixed, without --resume.
     assert not (out / "config.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("edit", "where", "problem"),
+    [
+        # Every cell trained, then failed with MemoryError evaluating.
+        (("every = 500", "every = 500\nepisodes = 100000000000000"), "eval.episodes", "1,000,000"),
+        (("every = 500", "every = 500\nepisodes = 1000001"), "eval.episodes", "at most"),
+        # Every cell crashed allocating its environments.
+        (("steps = 1000", "steps = 1000\nnum_envs = 100000000000"), "num_envs", "at most 1,024"),
+        (("steps = 1000", "steps = 1000\nnum_envs = 1025"), "num_envs", "at most 1,024"),
+        # A repeated fraction passed the sorted check: the same column twice in the report.
+        (
+            ("every = 500", "every = 500\n[report]\nfractions = [0.5, 0.5]"),
+            "report.fractions",
+            "strictly increasing",
+        ),
+        (
+            ("every = 500", "every = 500\n[report]\nfractions = [0.2, 1, 1]"),
+            "report.fractions",
+            "strictly increasing",
+        ),
+        # An integer past a float's range was an OverflowError traceback.
+        (
+            ("every = 500", f"every = 500\n[report]\nthreshold = {'9' * 400}"),
+            "report.threshold",
+            "expected a finite number",
+        ),
+    ],
+)
+def test_counts_past_their_bounds_and_repeated_fractions_are_named(tmp_path, edit, where, problem):
+    path = write(tmp_path, MINIMAL.replace(*edit))
+    with pytest.raises(ExperimentConfigError) as info:
+        load_experiment(path)
+    assert (info.value.path, info.value.where) == (str(path), where)
+    assert problem in info.value.problem
+
+
+def test_the_bounds_themselves_load(tmp_path):
+    text = MINIMAL.replace("steps = 1000", "steps = 1000\nnum_envs = 1024").replace(
+        "every = 500", "every = 500\nepisodes = 1_000_000"
+    )
+    config = load_experiment(write(tmp_path, text))
+    assert (config.num_envs, config.eval.episodes) == (1024, 1_000_000)

@@ -388,6 +388,56 @@ def test_bad_budget_fields_are_named(tmp_path, edit, message):
     assert message in str(info.value) and str(path) in str(info.value)
 
 
+@pytest.mark.parametrize(
+    ("edit", "where", "problem"),
+    [
+        # The reward search's fields named "test.reward: overrides: iterations".
+        (("iterations = 1", "iterations = 0"), "test.reward.iterations", "a positive number"),
+        (("select_top = 0", "select_top = -1"), "test.reward.select_top", "0 or more"),
+        (("samples = 1", "sampels = 1"), "test.reward.sampels", "unknown field"),
+        (
+            ("[test.transfer]", "[test.reward.sandbox]\ncall_timeout_s = inf\n[test.transfer]"),
+            "test.reward.sandbox.call_timeout_s",
+            "expected a finite number",
+        ),
+        # Counts with no bound: MemoryError, or a crash at allocation, after the reward search.
+        (
+            ("eval_episodes = 2\ncorrelation", "eval_episodes = 100000000000000\ncorrelation"),
+            "test.reward.eval_episodes",
+            "at most 1,000,000",
+        ),
+        (
+            ("num_envs = 2\nselect_top", "num_envs = 100000000000\nselect_top"),
+            "test.reward.num_envs",
+            "at most 1,024",
+        ),
+        (
+            ("num_envs = 2\neval_every", "num_envs = 100000000000\neval_every"),
+            "test.transfer.num_envs",
+            "at most 1,024",
+        ),
+        (
+            ("eval_episodes = 2\n[test.evaluation]", "eval_episodes = 1000001\n[test.evaluation]"),
+            "test.transfer.eval_episodes",
+            "at most 1,000,000",
+        ),
+        (
+            ("episodes = 4", "episodes = 100000000000000"),
+            "test.evaluation.episodes",
+            "at most 1,000,000",
+        ),
+    ],
+)
+def test_budget_fields_are_named_as_the_file_has_them(tmp_path, edit, where, problem):
+    path = tmp_path / "b.toml"
+    assert edit[0] in TEST_BUDGETS
+    path.write_text(TEST_BUDGETS.replace(*edit, 1))
+    with pytest.raises(BudgetError) as info:
+        load_budgets(path)
+    assert (info.value.path, info.value.where) == (str(path), where)
+    assert problem in info.value.problem
+
+
 def test_unknown_budget_is_a_clear_error(tmp_path, budgets):
     result = learn(COMMAND, "--budgets", str(budgets), "--budget", "huge",
                    "--out", str(tmp_path / "run"))  # fmt: skip

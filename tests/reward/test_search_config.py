@@ -127,3 +127,85 @@ def test_a_run_made_on_a_cluster_resumes_here_without_its_address(tmp_path) -> N
     assert (here.executor, here.ray_address) == ("local", None)
     again = config_from_run(run, {})
     assert (again.executor, again.ray_address) == ("ray", "10.0.0.5:6379")
+
+
+@pytest.mark.parametrize(
+    ("text", "where", "problem"),
+    [
+        # Not finite: an OverflowError traceback from the timer, in the probe's process.
+        ("[sandbox]\ncall_timeout_s = inf\n", "sandbox.call_timeout_s", "expected a finite"),
+        ("[sandbox]\ncall_timeout_s = nan\n", "sandbox.call_timeout_s", "expected a finite"),
+        ("[sandbox]\ncall_timeout_s = 1e999\n", "sandbox.call_timeout_s", "expected a finite"),
+        ("[search]\ncandidate_timeout_s = inf\n", "search.candidate_timeout_s", "finite"),
+        ("[search]\ntemperature = nan\n", "search.temperature", "expected a finite number"),
+        # Finite, but no limit, and past what the timers and rlimits take.
+        ("[sandbox]\ncall_timeout_s = 3601\n", "sandbox.call_timeout_s", "at most 3,600 s"),
+        ("[sandbox]\ncpu_limit_s = 100000000000000\n", "sandbox.cpu_limit_s", "at most 259,200"),
+        (
+            "[sandbox]\nmemory_limit_mb = 100000000000000\n",
+            "sandbox.memory_limit_mb",
+            "at most 1,048,576 MB",
+        ),
+        ("[search]\ncandidate_timeout_s = 1e12\n", "search.candidate_timeout_s", "at most"),
+        # Counts: MemoryError after every candidate's training, or a crash at allocation.
+        ("[search]\neval_episodes = 100000000000000\n", "search.eval_episodes", "1,000,000"),
+        ("[search]\nnum_envs = 100000000000\n", "search.num_envs", "at most 1,024"),
+        ("[search]\ncorrelation_envs = 1025\n", "search.correlation_envs", "at most 1,024"),
+        ("[search]\nprobe_envs = 5000\n", "search.probe_envs", "at most 1,024"),
+        # Range errors named the field without its table ("iterations:").
+        ("[search]\niterations = 0\n", "search.iterations", "expected a positive number"),
+        ("[search]\nseeds = [0, -1]\n", "search.seeds[1]", "expected a seed between"),
+        ("[search]\nselect_top = -1\n", "search.select_top", "expected 0 or more"),
+    ],
+)
+def test_file_errors_name_the_field_as_the_file_has_it(
+    tmp_path: Path, text: str, where: str, problem: str
+) -> None:
+    path = tmp_path / "search.toml"
+    path.write_text(text)
+    with pytest.raises(SearchConfigError) as info:
+        load_search_config(path)
+    assert (info.value.path, info.value.where) == (str(path), where)
+    assert problem in info.value.problem
+
+
+def test_the_limits_themselves_load(tmp_path: Path) -> None:
+    path = tmp_path / "search.toml"
+    path.write_text(
+        "[search]\nnum_envs = 1024\neval_episodes = 1_000_000\ncandidate_timeout_s = 259_200\n"
+        "[sandbox]\ncall_timeout_s = 3600\ncpu_limit_s = 259_200\nmemory_limit_mb = 1_048_576\n"
+    )
+    config = load_search_config(path)
+    assert (config.num_envs, config.sandbox.memory_limit_mb) == (1024, 1_048_576)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "where"),
+    [
+        ({"eval_episodes": 10**14}, "eval_episodes"),
+        ({"sandbox": {"memory_limit_mb": 10**14}}, "sandbox.memory_limit_mb"),
+        # A SandboxConfig given whole skips the file's type checks, not the dataclass's.
+        ({"sandbox": SandboxConfig(call_timeout_s=float("inf"))}, "sandbox.call_timeout_s"),
+        ({"sandbox": SandboxConfig(call_timeout_s=float("nan"))}, "sandbox.call_timeout_s"),
+    ],
+)
+def test_overrides_take_the_same_bounds(overrides: dict, where: str) -> None:
+    with pytest.raises(SearchConfigError) as info:
+        load_search_config(overrides=overrides)
+    assert (info.value.path, info.value.where) == ("overrides", where)
+
+
+def test_cli_reports_an_infinite_timeout_in_one_line(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+
+    path = tmp_path / "search.toml"
+    path.write_text("[sandbox]\ncall_timeout_s = inf\n")
+    out = tmp_path / "run"
+    args = ["reward", "generate", "pick_nut_m12", "--config", str(path), "--out", str(out)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    message = f"error: {path}: sandbox.call_timeout_s: expected a finite number, got inf"
+    assert "".join(message.split()) in "".join(result.output.split())
+    assert "Traceback" not in result.output and not out.exists()

@@ -181,3 +181,106 @@ def test_a_task_of_a_family_without_hyperparameters_is_named(monkeypatch, tmp_pa
     )
     assert "".join(message.split()) in "".join(result.output.split())  # rich wraps long lines
     assert "Traceback" not in result.output and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "where", "expected"),
+    [
+        # Not finite: "Invalid learning rate: nan" from PyTorch, or a traceback mid-training.
+        *(
+            (f"[nutbolt.ppo]\nlearning_rate = {v}\n", "nutbolt.ppo.learning_rate", f"got {got}")
+            for v, got in (("inf", "inf"), ("nan", "nan"), ("-inf", "-inf"), ("1e999", "inf"))
+        ),
+        ("[nutbolt.a2c]\nrms_prop_eps = inf\n", "nutbolt.a2c.rms_prop_eps", "finite"),
+        ("[nutbolt.policy]\nobs_clip = inf\n", "nutbolt.policy.obs_clip", "finite"),
+        ("[nutbolt.policy]\nlog_std_init = nan\n", "nutbolt.policy.log_std_init", "got nan"),
+        ("[nutbolt.init]\nlog_std_init = inf\n", "nutbolt.init.log_std_init", "got inf"),
+        ("[nutbolt.init]\nlearning_rate = inf\n", "nutbolt.init.learning_rate", "finite"),
+        # log_std_init had no range at all: the action noise's log standard deviation.
+        ("[nutbolt.policy]\nlog_std_init = 3\n", "nutbolt.policy.log_std_init", "[-5, 2]"),
+        ("[nutbolt.policy]\nlog_std_init = -6\n", "nutbolt.policy.log_std_init", "[-5, 2]"),
+        ("[nutbolt.init]\nlog_std_init = -50\n", "nutbolt.init.log_std_init", "[-5, 2]"),
+        (
+            "[nutbolt.tasks.pick_nut_m12.policy]\nlog_std_init = 10\n",
+            "nutbolt.tasks.pick_nut_m12.policy.log_std_init",
+            "[-5, 2]",
+        ),
+        # Counts with no upper bound crashed the run at allocation, or after its training.
+        ("[nutbolt]\nnum_envs = 100000000000\n", "nutbolt.num_envs", "at most 1,024"),
+        ("[nutbolt]\nnum_envs = 1025\n", "nutbolt.num_envs", "at most 1,024"),
+        ("[nutbolt.demos]\nepisodes = 100000000000000\n", "nutbolt.demos.episodes", "1,000,000"),
+        ("[nutbolt.demos]\nepisodes = -1\n", "nutbolt.demos.episodes", "0 or more"),
+        ("[nutbolt.init]\ncritic_episodes = 10000000\n", "nutbolt.init.critic_episodes", "most"),
+    ],
+)
+def test_values_with_no_meaning_are_named(
+    tmp_path: Path, text: str, where: str, expected: str
+) -> None:
+    path = tmp_path / "hp.toml"
+    path.write_text(text)
+    with pytest.raises(HyperparamError) as info:
+        load_hyperparams("nutbolt", "ppo", path)
+    assert (info.value.path, info.value.where) == (str(path), where)
+    assert expected in info.value.problem
+
+
+def test_the_bounds_themselves_load(tmp_path: Path) -> None:
+    path = tmp_path / "hp.toml"
+    path.write_text(
+        "[nutbolt]\nnum_envs = 1024\n[nutbolt.policy]\nlog_std_init = -5\n"
+        "[nutbolt.init]\nlog_std_init = 2\n[nutbolt.demos]\nepisodes = 1_000_000\n"
+    )
+    hp = load_hyperparams("nutbolt", "ppo", path)
+    assert (hp.num_envs, hp.policy.log_std_init, hp.init.log_std_init) == (1024, -5.0, 2.0)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "where"),
+    [
+        ({"learning_rate": float("inf")}, "overrides.ppo.learning_rate"),
+        ({"num_envs": 10**11}, "overrides.num_envs"),
+        ({"policy": {"log_std_init": float("nan")}}, "overrides.policy.log_std_init"),
+    ],
+)
+def test_overrides_take_the_same_bounds(overrides: dict, where: str) -> None:
+    with pytest.raises(HyperparamError) as info:
+        load_hyperparams("nutbolt", "ppo", overrides=overrides)
+    assert info.value.where == where
+
+
+@pytest.mark.parametrize(
+    ("text", "where", "expected"),
+    [
+        # Above the first table the key is no family's: it was silently dropped.
+        ("num_envs = 4\n[nutbolt]\ncheckpoint_every = 1000\n", "num_envs", "above the first"),
+        ("normalize_reward = false\n", "normalize_reward", "above the first table"),
+        # A mistyped family's table was never read.
+        ("[nutbolt]\n[peghol]\nnum_envs = 4\n", "peghol", "did you mean 'peghole'?"),
+        ("[nutbolt]\n[screws.ppo]\nn_steps = 32\n", "screws", "unknown task family 'screws'"),
+    ],
+)
+def test_an_entry_of_no_known_family_is_named_with_the_families(
+    tmp_path: Path, text: str, where: str, expected: str
+) -> None:
+    path = tmp_path / "hp.toml"
+    path.write_text(text)
+    with pytest.raises(HyperparamError) as info:
+        load_hyperparams("nutbolt", "ppo", path)
+    assert (info.value.path, info.value.where) == (str(path), where)
+    assert expected in info.value.problem
+    assert "nutbolt, peghole" in info.value.problem
+
+
+def test_cli_reports_a_non_finite_hyperparameter_in_one_line(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+
+    path = tmp_path / "hp.toml"
+    path.write_text("[nutbolt.ppo]\nlearning_rate = inf\n")
+    args = ["train", "pick_nut_m12", "--steps", "64", "--hyperparams", str(path)]
+    result = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2, result.output
+    message = f"error: {path}: nutbolt.ppo.learning_rate: expected a finite number, got inf"
+    assert "".join(message.split()) in "".join(result.output.split())
+    assert "Traceback" not in result.output and not (tmp_path / "run").exists()

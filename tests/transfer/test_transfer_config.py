@@ -16,11 +16,20 @@ def test_packaged_defaults_are_the_dataclass_defaults() -> None:
 @pytest.mark.parametrize(
     "text,where,problem",
     [
-        ("[attention]\nprior_weight = 1.5\n", "values", r"prior_weight must be in \[0, 1\]"),
+        # Range errors named "values" and the Python field (pst_keep), not the file's key.
+        ("[attention]\nprior_weight = 1.5\n", "attention.prior_weight", r"expected in \[0, 1\]"),
         ("[attention]\nhidden = 'wide'\n", "attention.hidden", "expected an integer"),
         ("[fusion]\nhidden = [64, 'x']\n", "fusion.hidden", "list of integers"),
         ("[sources]\ntop = 3\n", "sources.top", "unknown field; expected one of"),
-        ("[pst]\nkeep = 0\n", "values", "pst_keep must be at least 1"),
+        ("[pst]\nkeep = 0\n", "pst.keep", "expected at least 1, got 0"),
+        ("[attention]\nhidden = 0\n", "attention.hidden", "expected at least 1, got 0"),
+        ("[analyzer]\nretries = -1\n", "analyzer.retries", "expected 0 or more, got -1"),
+        ("[sources]\nk = 0\n", "sources.k", "expected at least 1"),
+        ("[sources]\nmin_success = 2\n", "sources.min_success", r"expected in \[0, 1\]"),
+        ("[fusion]\nhidden = [64, 0]\n", "fusion.hidden", "expected positive widths"),
+        # Not finite: nan passed every range check that compares.
+        ("[sources]\nmin_success = nan\n", "sources.min_success", "expected a finite number"),
+        ("[attention]\nprior_weight = inf\n", "attention.prior_weight", "a finite number"),
         ("[head]\nresidual = 'yes'\n", "head.residual", "expected"),
         ("[attn]\nhidden = 3\n", "attn", "unknown table"),
         ("[sources\n", "TOML syntax", "line 1"),
@@ -43,3 +52,10 @@ def test_a_partial_file_keeps_the_other_defaults(tmp_path: Path) -> None:
     assert config.prior_weight == 1.0 and config.fusion_hidden == (64,)
     assert config.k == TransferConfig().k
     assert config.policy_kwargs()["fusion_hidden"] == [64]
+
+
+def test_a_config_built_in_code_still_names_its_python_field() -> None:
+    with pytest.raises(ValueError, match="pst_keep must be at least 1, got 0"):
+        TransferConfig(pst_keep=0)
+    with pytest.raises(ValueError, match=r"prior_weight must be in \[0, 1\], got nan"):
+        TransferConfig(prior_weight=float("nan"))

@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from itskill.files import is_unusable_path, json_safe, path_error_message
-from itskill.limits import SEED_MAX
+from itskill.limits import EPISODES_MAX, SEED_MAX
 
 # No emoji codes: user text such as `skill:x:` must print as typed, and escape() leaves them.
 console = Console(emoji=False)
@@ -105,11 +105,6 @@ EvalEveryOpt = Annotated[
         "kept in OUT/best.",
     ),
 ]
-
-
-EPISODES_MAX = 1_000_000
-"""More episodes than any rate needs (±0.1% at 95%), and the bound keeps counts inside NumPy's
-integers."""
 
 
 def episodes_option(help: str) -> Any:

@@ -11,24 +11,27 @@ Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but 
     name (default: the file's stem; a plain directory name), description
     tasks = [task ids]           methods = [itn, nia, dfs, pst, no_transfer]
     seeds = 5 (at most 1000) | [0, 1, ...]   algo = "a2c" | "ppo"   steps = env-steps per cell
-    num_envs = N                 (default: the family's, from the hyper-parameter table)
+    num_envs = N (at most 1024)  (default: the family's, from the hyper-parameter table)
     reward = "expert" | {task = "file.py", ...}   (paths relative to the experiment file)
     sources = "auto" | {task = [skill names or ids], ...}   k = sources retrieved by "auto"
     llm = "offline" | "openai:MODEL"              (the analyzer's client)
-    [eval] every, episodes       [report] threshold, fractions, baseline, grid_points, paper_gain
+    [eval] every, episodes (at most 1,000,000)
+    [report] threshold, fractions (strictly increasing), baseline, grid_points, paper_gain
     [execution] executor, workers, ray_address
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, read_toml
+from itskill.datafile import DataFileError, is_number, read_toml
 from itskill.executors import EXECUTORS
+from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX
 from itskill.llm.client import UnknownModelError, model_spec
 from itskill.reward.config import check_seeds
 from itskill.reward_contract import EXPERT
@@ -140,6 +143,8 @@ _TOP = {
 
 def _typed(path: Path, where: str, value: Any, kind: type | tuple[type, ...]) -> Any:
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        if not is_number(value):  # TOML reads an integer of any length; float() would overflow
+            raise ExperimentConfigError(path, where, f"expected a finite number, got {value}")
         value = float(value)
     if not isinstance(value, kind) or (isinstance(value, bool) and kind in (int, float)):
         name = kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
@@ -160,9 +165,12 @@ def _table(path: Path, where: str, value: Any, allowed: set[str]) -> dict[str, A
     return table
 
 
-def _positive(path: Path, where: str, value: Any) -> int:
+def _positive(path: Path, where: str, value: Any, most: int | None = None) -> int:
+    """``value``, an integer of 1 or more and, given ``most``, at most that."""
     if _typed(path, where, value, int) < 1:
         raise ExperimentConfigError(path, where, f"must be positive, got {value}")
+    if most is not None and value > most:
+        raise ExperimentConfigError(path, where, f"must be at most {most:,}, got {value:,}")
     return value
 
 
@@ -265,7 +273,8 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
     steps = _positive(path, "steps", raw["steps"])
     num_envs = raw.get("num_envs")
     if num_envs is not None:
-        _positive(path, "num_envs", num_envs)
+        # More crashed every cell at allocation, after the run was made (itskill.limits).
+        _positive(path, "num_envs", num_envs, NUM_ENVS_MAX)
 
     reward = {}
     for task, value in _per_task(path, "reward", raw.get("reward", EXPERT), tasks, EXPERT).items():
@@ -299,7 +308,8 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
         raise ExperimentConfigError(path, "eval.every", "missing (required)")
     evaluation = EvalSettings(
         _positive(path, "eval.every", ev["every"]),
-        _positive(path, "eval.episodes", ev.get("episodes", 50)),
+        # More made every cell fail with MemoryError after its training (itskill.limits).
+        _positive(path, "eval.episodes", ev.get("episodes", 50), EPISODES_MAX),
     )
     if evaluation.every > steps:
         raise ExperimentConfigError(
@@ -346,13 +356,16 @@ def _parse_report(
     fractions = tuple(
         _typed(path, f"report.fractions[{i}]", f, float) for i, f in enumerate(fractions_raw)
     )
+    # Strictly increasing: a repeated fraction is a repeated column of the report's table.
     if (
         not fractions
         or any(not 0 < f <= 1 for f in fractions)
-        or list(fractions) != sorted(fractions)
+        or any(a >= b for a, b in itertools.pairwise(fractions))
     ):
         raise ExperimentConfigError(
-            path, "report.fractions", f"expected increasing values in (0, 1], got {fractions_raw}"
+            path,
+            "report.fractions",
+            f"expected strictly increasing values in (0, 1], got {fractions_raw}",
         )
     baseline = _typed(path, "report.baseline", rep.get("baseline", default.baseline), str)
     # Without the default baseline among the methods the report just has no gain column.

@@ -56,6 +56,7 @@ from itskill.files import (
     some_of,
     write_json,
 )
+from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_MAX
 from itskill.llm.usage_log import UsageLog
 
 EVAL_SEED = 10_000
@@ -158,8 +159,6 @@ class LearnBudget:
     def max_seed(self) -> int:
         """The largest seed whose shifted reward search (:meth:`search_config`) still trains on
         seeds training takes."""
-        from itskill.limits import SEED_MAX
-
         last = self.search_config().last_seed
         return (SEED_MAX - last) // (last + 1)
 
@@ -172,7 +171,17 @@ def default_budgets_path() -> Path:
     return Path(str(resources.files("itskill.experiments") / "data" / "learn.toml"))
 
 
-def _field(path: Path, where: str, table: dict, key: str, kind: type, default: Any = ...) -> Any:
+def _field(
+    path: Path,
+    where: str,
+    table: dict,
+    key: str,
+    kind: type,
+    default: Any = ...,
+    most: int | None = None,
+) -> Any:
+    """``table[key]`` of type ``kind`` (an int: 1 or more, and at most ``most`` when given), or
+    ``default`` when it is left out (``...``: required)."""
     if key not in table:
         if default is ...:
             raise BudgetError(path, f"{where}.{key}", "missing (required)")
@@ -182,10 +191,13 @@ def _field(path: Path, where: str, table: dict, key: str, kind: type, default: A
         raise BudgetError(path, f"{where}.{key}", f"expected {kind.__name__}, got {value!r}")
     if kind is int and value < 1:
         raise BudgetError(path, f"{where}.{key}", f"must be positive, got {value}")
+    if most is not None and value > most:
+        raise BudgetError(path, f"{where}.{key}", f"must be at most {most:,}, got {value:,}")
     return value
 
 
 def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
+    from itskill.reward.config import SearchConfigError
     from itskill.transfer import METHODS
 
     if not isinstance(raw, dict):
@@ -209,8 +221,10 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
         eval_every=_field(path, where, tr, "eval_every", int),
         method=_field(path, where, tr, "method", str, "itn"),
         algo=_field(path, where, tr, "algo", str, TransferBudget.algo),
-        num_envs=_field(path, where, tr, "num_envs", int, None),
-        eval_episodes=_field(path, where, tr, "eval_episodes", int, 50),
+        # Bounded as everywhere (itskill.limits): more crashed the training at allocation, or
+        # failed its evaluations with MemoryError, after the whole reward search.
+        num_envs=_field(path, where, tr, "num_envs", int, None, NUM_ENVS_MAX),
+        eval_episodes=_field(path, where, tr, "eval_episodes", int, 50, EPISODES_MAX),
         k=_field(path, where, tr, "k", int, 3),
     )
     if transfer.method not in METHODS:
@@ -234,13 +248,17 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
         name=name,
         transfer=transfer,
         reward=dict(reward),
-        eval_episodes=_field(path, f"{name}.evaluation", ev, "episodes", int, 100),
+        eval_episodes=_field(path, f"{name}.evaluation", ev, "episodes", int, 100, EPISODES_MAX),
         min_success=float(min_success),
         compare_expert=_field(path, name, raw, "compare_expert", bool, True),
         description=_field(path, name, raw, "description", str, ""),
     )
     try:
         budget.search_config()
+    except SearchConfigError as err:
+        # The table's fields are the search's own, by name (its [sandbox] a sub-table): the field
+        # as this file has it, not as an override of the packaged search settings.
+        raise BudgetError(path, f"{name}.reward.{err.where}", err.problem) from err
     except ValueError as err:
         raise BudgetError(path, f"{name}.reward", str(err)) from err
     return budget

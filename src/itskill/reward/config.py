@@ -13,9 +13,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, read_toml
+from itskill.datafile import DataFileError, is_number, read_toml
 from itskill.executors import EXECUTORS
-from itskill.limits import SEED_MAX
+from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_MAX
 from itskill.reward.sandbox import SandboxConfig
 from itskill.rl.config import ALGOS
 
@@ -39,6 +39,27 @@ _POSITIVE = {
     "eval_episodes",
     "correlation_envs", "probe_envs", "probe_steps", "candidate_timeout_s",
 }  # fmt: skip
+DAY_S = 24 * 3600
+CALL_TIMEOUT_MAX_S = 3600
+"""One reward call (one env-step of a batch) for at most an hour: a candidate calls it thousands
+of times, so more could never finish; and ``signal.setitimer`` overflows on an infinite one."""
+TIME_LIMIT_MAX_S = 3 * DAY_S
+"""A candidate's wall-clock (``candidate_timeout_s``) and CPU-time (``sandbox.cpu_limit_s``)
+limits: the packaged ones are half an hour and an hour, so days are no limit to a reward search;
+an infinite or vast one overflows the C types that the timers and ``RLIMIT_CPU`` take."""
+MEMORY_LIMIT_MAX_MB = 1024 * 1024
+"""1 TiB: more than any machine a search runs on has, so no limit at all; a larger number of
+bytes overflows the C long ``RLIMIT_AS`` takes (an OverflowError in the candidate's process)."""
+_MAXIMA: dict[str, int] = {
+    "num_envs": NUM_ENVS_MAX, "correlation_envs": NUM_ENVS_MAX, "probe_envs": NUM_ENVS_MAX,
+    "eval_episodes": EPISODES_MAX, "candidate_timeout_s": TIME_LIMIT_MAX_S,
+    "sandbox.call_timeout_s": CALL_TIMEOUT_MAX_S, "sandbox.cpu_limit_s": TIME_LIMIT_MAX_S,
+    "sandbox.memory_limit_mb": MEMORY_LIMIT_MAX_MB,
+}  # fmt: skip
+"""The largest value of a field (by its name in the file): environments stepped together in one
+process (:data:`~itskill.limits.NUM_ENVS_MAX`), episodes of an evaluation
+(:data:`~itskill.limits.EPISODES_MAX`), and the limits above. A mistyped huge count ran a whole
+training first and failed after it (MemoryError), or crashed every candidate at allocation."""
 
 
 def default_path() -> Path:
@@ -55,7 +76,10 @@ def _coerce(source: str | Path, where: str, value: Any, kind: type, optional: bo
         ):
             raise SearchConfigError(source, where, f"expected a list of integers, got {value!r}")
         return tuple(value)
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
+        # TOML writes nan and inf (and 1e999): no timeout or temperature means either.
+        if not is_number(value):
+            raise SearchConfigError(source, where, f"expected a finite number, got {value!r}")
         return float(value)
     if not isinstance(value, kind) or isinstance(value, bool):
         raise SearchConfigError(source, where, f"expected {kind.__name__}, got {value!r}")
@@ -195,6 +219,14 @@ class RewardSearchConfig:
                 raise SearchConfigError(
                     where, f"sandbox.{limit.name}", f"expected a positive number, got {value!r}"
                 )
+        for name, most in _MAXIMA.items():
+            table, _, key = name.rpartition(".")
+            value = getattr(self.sandbox if table else self, key)
+            if value is not None and value > most:
+                unit = " s" if key.endswith("_s") else " MB" if key.endswith("_mb") else ""
+                raise SearchConfigError(
+                    where, name, f"expected at most {most:,}{unit}, got {value:,}"
+                )
 
     @property
     def select_seed_list(self) -> list[int]:
@@ -232,6 +264,12 @@ class RewardSearchConfig:
         return data
 
 
+def _in_file(where: str) -> str:
+    """A field as a search file names it: its ``[search]`` fields under ``search.``, as the
+    ``sandbox.`` ones are under theirs (the dataclass's checks name the field alone)."""
+    return where if where.startswith("sandbox.") else f"search.{where}"
+
+
 def load_search_config(
     path: str | Path | None = None, overrides: dict[str, Any] | None = None
 ) -> RewardSearchConfig:
@@ -244,7 +282,7 @@ def load_search_config(
     try:
         base = RewardSearchConfig(**values)
     except SearchConfigError as err:
-        raise SearchConfigError(path or default_path(), err.where, err.problem) from err
+        raise SearchConfigError(path or default_path(), _in_file(err.where), err.problem) from err
     over: dict[str, Any] = {}
     for key, value in (overrides or {}).items():
         if value is None:

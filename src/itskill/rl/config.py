@@ -7,6 +7,8 @@ and what was expected (:class:`HyperparamError`).
 
 from __future__ import annotations
 
+import difflib
+import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import resources
@@ -16,6 +18,7 @@ from typing import Any, Literal
 from stable_baselines3.common.utils import LinearSchedule
 
 from itskill.datafile import DataFileError, check_like, read_toml
+from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX
 from itskill.rl.demos import DemoConfig
 from itskill.rl.init_policy import InitConfig
 from itskill.rl.policy import PolicyConfig
@@ -152,23 +155,43 @@ _FIELDS = {*_FAMILY_KEYS, *_SUB_TABLES, *ALGOS}
 """What a family's or task's table may hold (a family's also ``tasks``)."""
 _POSITIVE = (lambda v: v > 0, "a positive value")
 _NON_NEGATIVE = (lambda v: v >= 0, "a value of 0 or more")
+LOG_STD_RANGE = (-5.0, 2.0)
+"""The range of ``log_std_init`` (the policy's and the ``init`` table's): the log of the action
+noise's standard deviation, actions being in [-1, 1]. At 2 the noise (7.4) is over three times
+the whole action range, nearly every action clipped to a bound; at -5 (0.007) the policy hardly
+explores. The packaged values are -3 to -0.5. A NaN or infinite one trained into a traceback
+mid-run."""
 _RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
     **dict.fromkeys(
         (
-            "num_envs", "checkpoint_every", "n_steps", "batch_size", "n_epochs", "epochs",
-            "learning_rate", "critic_episodes", "clip_range", "max_grad_norm", "rms_prop_eps",
+            "checkpoint_every", "n_steps", "batch_size", "n_epochs", "epochs",
+            "learning_rate", "clip_range", "max_grad_norm", "rms_prop_eps",
             "obs_clip",
         ),
         _POSITIVE,
     ),
-    **dict.fromkeys(("ent_coef", "vf_coef", "target_kl", "episodes"), _NON_NEGATIVE),
+    **dict.fromkeys(("ent_coef", "vf_coef", "target_kl"), _NON_NEGATIVE),
     "gamma": (lambda v: 0 < v <= 1, "a value in (0, 1]"),
     "gae_lambda": (lambda v: 0 <= v <= 1, "a value in [0, 1]"),
+    "log_std_init": (
+        lambda v: LOG_STD_RANGE[0] <= v <= LOG_STD_RANGE[1],
+        f"a value in [{LOG_STD_RANGE[0]:g}, {LOG_STD_RANGE[1]:g}]",
+    ),
+    # Counts a mistyped huge value turns into an allocation that fails mid-run: see the limits.
+    "num_envs": (lambda v: 1 <= v <= NUM_ENVS_MAX, f"a positive value, at most {NUM_ENVS_MAX:,}"),
+    "episodes": (
+        lambda v: 0 <= v <= EPISODES_MAX,
+        f"a value of 0 or more (0: no warm start), at most {EPISODES_MAX:,}",
+    ),
+    "critic_episodes": (
+        lambda v: 1 <= v <= EPISODES_MAX, f"a positive value, at most {EPISODES_MAX:,}"
+    ),
 }  # fmt: skip
 """The range of every numeric field, by name in any table. Outside it training does not fail at
 once: a discount of 90 or a negative clip range turns the losses into NaN after the first
-rollout, and a gradient-norm clip of 0 silently stops all learning. A NaN (valid TOML) is outside
-every range."""
+rollout, and a gradient-norm clip of 0 silently stops all learning. NaN and infinity (valid TOML)
+are refused for every float field: by its range where that refuses them, else by
+:func:`~itskill.datafile.check_like`."""
 
 
 def default_path() -> Path:
@@ -178,8 +201,13 @@ def default_path() -> Path:
 def _check_value(path: Path, where: str, value: Any, default: Any) -> Any:
     """``value`` as the type of ``default`` and within its field's range (:data:`_RANGES`), or a
     HyperparamError naming the expected type or range."""
-    value = check_like(path, where, value, default, HyperparamError)
     rule = _RANGES.get(where.rsplit(".", 1)[-1])
+    # A NaN or an infinity the field's range refuses is named with that range ("gamma: expected
+    # a value in (0, 1], got nan"), which says more than check_like's "a finite number".
+    nonfinite = isinstance(value, float) and not math.isfinite(value)
+    if rule is not None and nonfinite and not rule[0](value):
+        raise HyperparamError(path, where, f"expected {rule[1]}, got {value!r}")
+    value = check_like(path, where, value, default, HyperparamError)
     if rule is not None and not rule[0](value):
         raise HyperparamError(path, where, f"expected {rule[1]}, got {value!r}")
     return value
@@ -232,6 +260,31 @@ def _layer(
         ),
         **top,
     )
+
+
+def _check_families(path: Path, data: dict[str, Any]) -> None:
+    """Every top-level entry of the file is the table of a known task family.
+
+    A key above the first table (``num_envs = 4`` before ``[nutbolt]``) belongs to no family, and
+    a table under a mistyped family (``[peghol]``) is never read: either way runs would train with
+    other values than the file shows, and nothing would say so.
+    """
+    families = sorted({spec.family for spec in all_tasks().values()})
+    known = ", ".join(families)
+    for name, table in data.items():
+        if not isinstance(table, dict):
+            raise HyperparamError(
+                path,
+                name,
+                f"a key above the first table, in no family's; put it under a family's table "
+                f"(known families: {known})",
+            )
+        if name not in families:
+            close = difflib.get_close_matches(name, families, n=1, cutoff=0.6)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise HyperparamError(
+                path, name, f"unknown task family {name!r}; {hint}known families: {known}"
+            )
 
 
 def _check_task_ids(path: Path, data: dict[str, Any]) -> None:
@@ -294,6 +347,7 @@ def load_hyperparams(
     if algo not in ALGO_CONFIGS:
         raise HyperparamError(path, "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
     data = read_toml(path, HyperparamError)
+    _check_families(path, data)
     if family not in data:
         # Mostly the task file's family is mistyped, not this file short of a table.
         spec = all_tasks().get(task) if task is not None else None

@@ -7,6 +7,7 @@ same shape) and checks every field, reporting the file, the field and what was e
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from importlib import resources
 from pathlib import Path
@@ -17,6 +18,26 @@ from itskill.datafile import DataFileError, check_like, read_toml
 
 class TransferConfigError(DataFileError):
     """A transfer settings file that does not validate: names the file, field and problem."""
+
+
+_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "k": (lambda v: v >= 1, "at least 1"),
+    "attention_hidden": (lambda v: v >= 1, "at least 1"),
+    "pst_keep": (lambda v: v >= 1, "at least 1"),
+    "min_success": (lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
+    "prior_weight": (lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
+    "analyzer_retries": (lambda v: v >= 0, "0 or more"),
+    "fusion_hidden": (lambda v: all(w >= 1 for w in v), "positive widths"),
+}
+"""The range of each :class:`TransferConfig` field, by its name there; a rule holds the test and
+what it wants (``"at least 1"``), which the dataclass and the file's loader word each their way.
+A NaN is outside every range."""
+
+
+def _out_of_range(name: str, value: Any) -> str | None:
+    """What field ``name`` wants, if ``value`` is outside its range (:data:`_RULES`)."""
+    rule = _RULES.get(name)
+    return rule[1] if rule is not None and not rule[0](value) else None
 
 
 @dataclass(frozen=True)
@@ -34,17 +55,10 @@ class TransferConfig:
     residual: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("k", "attention_hidden", "pst_keep"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        if not 0.0 <= self.min_success <= 1.0:
-            raise ValueError(f"min_success must be in [0, 1], got {self.min_success}")
-        if not 0.0 <= self.prior_weight <= 1.0:
-            raise ValueError(f"prior_weight must be in [0, 1], got {self.prior_weight}")
-        if self.analyzer_retries < 0:
-            raise ValueError(f"analyzer_retries must be >= 0, got {self.analyzer_retries}")
-        if any(w < 1 for w in self.fusion_hidden):
-            raise ValueError(f"fusion_hidden must be positive widths, got {self.fusion_hidden}")
+        for f in fields(self):
+            want = _out_of_range(f.name, getattr(self, f.name))
+            if want is not None:
+                raise ValueError(f"{f.name} must be {want}, got {getattr(self, f.name)}")
         object.__setattr__(self, "fusion_hidden", tuple(int(w) for w in self.fusion_hidden))
 
     def to_dict(self) -> dict[str, Any]:
@@ -99,7 +113,10 @@ def load_transfer_config(path: str | Path | None = None) -> TransferConfig:
             values[name] = check_like(
                 path, f"{table}.{key}", value, defaults[name], TransferConfigError
             )
-    try:
-        return TransferConfig(**values)
-    except ValueError as err:
-        raise TransferConfigError(path, "values", str(err)) from err
+            # Named as the file has it (pst.keep), not as the dataclass (pst_keep).
+            want = _out_of_range(name, values[name])
+            if want is not None:
+                raise TransferConfigError(
+                    path, f"{table}.{key}", f"expected {want}, got {values[name]!r}"
+                )
+    return TransferConfig(**values)
