@@ -437,3 +437,56 @@ def test_experiment_run_reports_as_itskill_report_does(run, tmp_path, monkeypatc
     assert refused.exit_code == 2, refused.output
     assert "error: " in refused.output and "not an experiment run directory" in refused.output
     assert "Traceback" not in refused.output
+
+
+def _bare_run(tmp_path: Path, **report) -> Path:
+    """A run directory with its records and no cells: what the report reads before the cells."""
+    run = tmp_path / "bare"
+    run.mkdir()
+    config = ExperimentConfig(
+        name="bare",
+        tasks=(TASK,),
+        methods=("no_transfer",),
+        seeds=(0,),
+        steps=1000,
+        eval=EvalSettings(every=200, episodes=10),
+        reward={TASK: "expert"},
+        sources={TASK: "auto"},
+    ).to_dict()
+    config["report"].update(report)
+    write_json(run / "config.json", config)
+    (run / "experiment.toml").write_text('name = "bare"\n')
+    return run
+
+
+def test_an_experiment_copy_that_is_not_utf8_is_a_report_error(tmp_path):
+    # UnicodeDecodeError traceback, after a report --out had already copied the run's files.
+    run = _bare_run(tmp_path)
+    (run / "experiment.toml").write_bytes(b'name = "caf\xe9"\n')
+    out = tmp_path / "out"
+    with pytest.raises(ReportError, match=r"experiment\.toml: not UTF-8 text"):
+        experiment_report(run, out, video=False)
+    assert not out.exists()
+    result = CliRunner().invoke(app, ["report", str(run), "--no-video"])
+    assert result.exit_code == 2, result.output
+    assert "not UTF-8 text" in result.output and "Traceback" not in result.output
+
+
+@pytest.mark.parametrize(
+    ("report", "where"),
+    [
+        ({"threshold": "x"}, "report.threshold"),
+        ({"threshold": 0}, "report.threshold"),
+        ({"fractions": [0.5, "x"]}, "report.fractions"),
+        ({"grid_points": 1.5}, "report.grid_points"),
+        ({"paper_gain": {TASK: "high"}}, "report.paper_gain"),
+    ],
+)
+def test_an_edited_config_json_is_a_report_error_not_a_format_traceback(tmp_path, report, where):
+    # report.threshold = "x" failed deep in the report: "Unknown format code '%' for str".
+    run = _bare_run(tmp_path, **report)
+    with pytest.raises(ReportError, match=rf"config.json: {where}: expected .*was it edited\?"):
+        experiment_report(run, video=False)
+    result = CliRunner().invoke(app, ["report", str(run), "--no-video"])
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output

@@ -423,3 +423,47 @@ def test_cells_that_ask_no_model_need_no_api_key(tmp_path, monkeypatch):
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     assert "2 cells trained, 0 already done, 0 failed" in " ".join(result.output.split())
+
+
+@pytest.mark.parametrize("names", [["no_such_skill"], [""]])
+def test_a_named_source_skill_that_cannot_be_used_names_the_file_and_field(tmp_path, names):
+    # The skill space's error named neither the experiment file nor sources.<task>.
+    from itskill.experiments.config import ExperimentConfigError
+
+    path = tmp_path / "toy.toml"
+    path.write_text(TOY + f"[sources]\npickplace_nut_m12 = {json.dumps(names)}\n")
+    config = load_experiment(path)
+    run = tmp_path / "run"
+    with pytest.raises(ExperimentConfigError) as err:
+        run_experiment(config, run, "local", 1, source_file=path, console=quiet())
+    assert str(err.value).startswith(f"{path}: sources.pickplace_nut_m12: ")
+    assert not (run / "config.json").exists()  # nothing recorded: no run to --resume
+    # From the command line: one line, exit 2.
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+
+    result = CliRunner().invoke(app, ["experiment", "run", str(path), "--out", str(run)])
+    assert result.exit_code == 2, result.output
+    assert "sources.pickplace_nut_m12" in result.output and "Traceback" not in result.output
+
+
+def test_an_edited_run_config_is_refused_with_the_field(toy, tmp_path):
+    from itskill.experiments.runner import read_run_config
+
+    config, _ = toy
+    run = tmp_path / "run"
+    run.mkdir()
+    data = config.to_dict()
+    data["report"]["threshold"] = "x"
+    (run / "config.json").write_text(json.dumps(data))
+    with pytest.raises(ExperimentRunError, match=r"config.json: report.threshold: expected"):
+        read_run_config(run)
+    data["report"]["threshold"] = 0.8
+    data["seeds"] = [0, "one"]
+    (run / "config.json").write_text(json.dumps(data))
+    with pytest.raises(ExperimentRunError, match=r"config.json: seeds: expected"):
+        read_run_config(run)
+    data["seeds"] = [0, 1]
+    (run / "config.json").write_text(json.dumps(data))
+    assert read_run_config(run) == config  # as recorded, it passes

@@ -391,6 +391,86 @@ def test_a_broken_vocabulary_file_is_refused_with_its_path(tmp_path, edit, messa
     assert str(broken) in str(err.value)
 
 
+def _damaged_terms(tmp_path: Path, old: str, new: str) -> Path:
+    """A copy of the packaged terms.toml with ``old`` replaced by ``new``."""
+    text = synthesiser.terms_path().read_text(encoding="utf-8")
+    assert old in text, old
+    path = tmp_path / "terms.toml"
+    path.write_text(text.replace(old, new, 1), encoding="utf-8")
+    return path
+
+
+REACH_WEIGHT = "temperature = 0.08\nweight = 1.0"
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "where", "problem"),
+    [
+        ("\n[recipes]\n", "\n[recipes\n", "TOML syntax", ""),
+        (REACH_WEIGHT, 'temperature = 0.08\nweight = "heavy"', "terms.reach.weight",
+         "expected a finite number >= 0, got 'heavy'"),
+        (REACH_WEIGHT, "temperature = 0.08\nweight = -1.0", "terms.reach.weight", ">= 0"),
+        (REACH_WEIGHT, "temperature = 0.08\nweight = nan", "terms.reach.weight", ">= 0"),
+        (REACH_WEIGHT, "temperature = 0.0\nweight = 1.0", "terms.reach.temperature", "> 0"),
+        ("[terms.reach]", "[terms.reach_part]", "recipes.approach",
+         "unknown term 'reach'; known:"),
+        ("{hover_height} m over", "{hover_hieght} m over", "terms.over_fixture.doc",
+         "unknown placeholder {hover_hieght}"),
+        ("ctx[\"obj_to_ee\"][:, {i}], axis=-1)'\ntemperature = 0.08",
+         "ctx[\"obj_to_ee\"][:, {i:s}], axis=-1)'\ntemperature = 0.08",
+         "terms.reach.distance", "cannot be filled"),
+        ("< {dist}'", "< {distance}'", "predicates.near", "unknown placeholder {distance}"),
+        ("\nhover = [", "\nhovering = [", "recipes.hover", "missing"),
+        ("[conditions]\n", "[conditions]\nsideways = [\"yaw\"]\n", "conditions.sideways",
+         "unknown predicate"),
+        ('transform = "exp"', 'transform = "sigmoid"', "defaults.transform", "expected one of"),
+        ("stage_bonus = 1.0", "stage_bonus = -1.0", "defaults.stage_bonus", ">= 0"),
+        ("tanh_probability = 0.5", "tanh_probability = 1.5", "variation.tanh_probability",
+         "in [0, 1]"),
+        ("temperature_factor = [0.5, 2.0]", "temperature_factor = [0.0, 2.0]",
+         "variation.temperature_factor[0]", "> 0"),
+        ("weight_range = [0.05, 10.0]", "weight_range = [10.0, 0.05]", "retune.weight_range",
+         "above high"),
+        ("widen = 2.0\n", "widen = 2.0\nwiden_more = 3.0\n", "retune.widen_more",
+         "unknown key"),
+        ('weight = 0.3\n', 'weight = 0.3\ntemperature = 0.1\n', "terms.hold.temperature",
+         "not used by a 'flag' term"),
+    ],
+)  # fmt: skip
+def test_a_damaged_vocabulary_file_is_named_not_a_traceback(
+    tmp_path: Path, old: str, new: str, where: str, problem: str
+) -> None:
+    # TOMLDecodeError, "could not convert string to float: 'heavy'" (once a reward was written)
+    # and a ValueError traceback for a renamed term; a negative or NaN weight was accepted.
+    from itskill.datafile import DataFileError
+
+    path = _damaged_terms(tmp_path, old, new)
+    with pytest.raises(synthesiser.VocabularyError) as err:
+        synthesiser.vocabulary(path)
+    assert isinstance(err.value, DataFileError)  # reported by the CLI as a user error
+    assert str(err.value).startswith(f"{path}: {where}:") and problem in str(err.value)
+
+
+def test_the_vocabulary_checks_the_fields_the_synthesiser_fills() -> None:
+    # The placeholders a term may use are exactly those a stage fills in.
+    fields = synthesiser._fields(0, {0: 1}, ())
+    assert set(fields) == {"i", "j", *synthesiser.STAGE_FIELDS}
+    synthesiser.vocabulary(synthesiser.terms_path())  # the packaged file passes
+
+
+def test_a_damaged_vocabulary_stops_the_offline_backend_with_its_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = _damaged_terms(tmp_path, REACH_WEIGHT, 'temperature = 0.08\nweight = "heavy"')
+    monkeypatch.setattr(synthesiser, "terms_path", lambda: path)
+    synthesiser.vocabulary.cache_clear()
+    try:
+        with pytest.raises(synthesiser.VocabularyError, match=r"terms\.reach\.weight"):
+            OfflineClient().complete(reward_messages(describe("pick_nut_m12")), purpose="reward")
+    finally:
+        synthesiser.vocabulary.cache_clear()
+
+
 @pytest.mark.parametrize("task", list(all_tasks()))
 def test_every_task_gets_samples_that_run_in_the_sandbox(task: str) -> None:
     spec = get_task(task)

@@ -299,6 +299,53 @@ def test_a_corrupt_cache_entry_is_asked_again(tmp_path: Path) -> None:
         ]
 
 
+GPT_4O = '[models."gpt-4o"]\ninput = 2.50\noutput = 10.00'
+
+
+@pytest.mark.parametrize(
+    ("new", "where", "problem"),
+    [
+        ('[models."gpt-4o"\ninput = 2.50', "TOML syntax", ""),
+        ('[models."gpt-4o"]\ninput = "cheap"\noutput = 10.00', 'models.gpt-4o.input',
+         "expected a finite number >= 0 (USD per 1M tokens), got 'cheap'"),
+        ('[models."gpt-4o"]\ninput = -5\noutput = 10.00', "models.gpt-4o.input", "got -5"),
+        ('[models."gpt-4o"]\ninput = 2.50\noutput = nan', "models.gpt-4o.output", "got nan"),
+        ('[models."gpt-4o"]\ninput = 2.50', "models.gpt-4o.output", "got None"),
+        ('[models."gpt-4o"]\ninput = 2.50\noutput = 10.00\ncached = 1.25',
+         "models.gpt-4o.cached", "unknown key"),
+        ('[model."gpt-4o"]\ninput = 2.50\noutput = 10.00', "model", "unknown key"),
+    ],
+)  # fmt: skip
+def test_a_damaged_price_file_is_named_not_a_traceback(
+    tmp_path: Path, new: str, where: str, problem: str
+) -> None:
+    # A syntax error and input = "cheap" were tracebacks; input = -5 and output = nan accepted.
+    from itskill.datafile import DataFileError
+
+    text = openai_client.prices_path().read_text(encoding="utf-8")
+    assert GPT_4O in text
+    path = tmp_path / "prices.toml"
+    path.write_text(text.replace(GPT_4O, new, 1), encoding="utf-8")
+    with pytest.raises(openai_client.PriceFileError) as err:
+        openai_client.load_prices(path)
+    assert isinstance(err.value, DataFileError)  # reported by the CLI as a user error
+    assert str(err.value).startswith(f"{path}: {where}:") and problem in str(err.value)
+
+
+def test_a_damaged_price_file_stops_a_client_before_it_is_used(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "prices.toml"
+    path.write_text('[models."gpt-4o"]\ninput = 2.50\noutput = nan\n')
+    monkeypatch.setattr(openai_client, "prices_path", lambda: path)
+    openai_client.load_prices.cache_clear()
+    try:
+        with pytest.raises(openai_client.PriceFileError, match=r"models\.gpt-4o\.output"):
+            model_price("gpt-4o")
+    finally:
+        openai_client.load_prices.cache_clear()
+
+
 def test_price_table_and_unknown_models() -> None:
     assert model_price("gpt-4o") == (2.5, 10.0)
     assert model_price("gpt-4o-2024-08-06") == (2.5, 10.0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -134,3 +135,134 @@ def test_shipped_templates_are_all_valid() -> None:
     for name in prompts.TEMPLATE_FIELDS:
         path = Path(str(prompts._template_path(name)))
         check_template(name, path.read_text(encoding="utf-8"), path)
+
+
+# ----------------------------------------------------------------------- user templates, checked
+def _prompts_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, **files: bytes) -> Path:
+    """``tmp_path/prompts`` holding ``files`` (name -> content) as ``$ITSKILL_PROMPTS_DIR``."""
+    directory = tmp_path / "prompts"
+    directory.mkdir()
+    for name, content in files.items():
+        (directory / name).write_bytes(content)
+    monkeypatch.setenv(prompts.PROMPTS_DIR_ENV, str(directory))
+    return directory
+
+
+def test_a_template_that_is_not_utf8_is_named_not_a_traceback(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # UnicodeDecodeError escaped: only OSError was caught.
+    directory = _prompts_dir(tmp_path, monkeypatch, **{"planner_system.txt": b"\xff\xfe bad"})
+    with pytest.raises(PromptError, match="not UTF-8 text") as err:
+        planner_messages("lift it", CATALOGUE)
+    assert str(directory / "planner_system.txt") in str(err.value)
+
+
+@pytest.mark.parametrize("name", ["planner_system", "reward_system", "reward_constraints"])
+@pytest.mark.parametrize("text", ["", "  \n\t\n"])
+def test_a_blank_template_is_refused(name: str, text: str) -> None:
+    # A template without fields passed the field check empty: an empty system prompt was sent.
+    with pytest.raises(PromptError, match=rf"'{name}'.*is blank"):
+        check_template(name, text, "x.txt")
+
+
+def test_a_blank_user_template_is_refused_before_any_prompt_is_built(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _prompts_dir(tmp_path, monkeypatch, **{"reward_system.txt": b" \n"})
+    with pytest.raises(PromptError, match=r"'reward_system'.*is blank"):
+        reward_messages("a task")
+
+
+def test_a_prompts_dir_that_is_not_a_directory_is_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Ignored without a word, while ITSKILL_TASKS_DIR refused a bad path.
+    missing = tmp_path / "nonexistent"
+    monkeypatch.setenv(prompts.PROMPTS_DIR_ENV, str(missing))
+    with pytest.raises(
+        PromptError, match=re.escape(f"{missing}: ITSKILL_PROMPTS_DIR: no such directory")
+    ):
+        planner_messages("lift it", CATALOGUE)
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    monkeypatch.setenv(prompts.PROMPTS_DIR_ENV, str(a_file))
+    with pytest.raises(PromptError, match="ITSKILL_PROMPTS_DIR: not a directory"):
+        planner_messages("lift it", CATALOGUE)
+
+
+def test_a_file_in_the_prompts_dir_that_no_template_uses_is_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A misspelt name was ignored: the packaged prompt was sent instead of the user's.
+    directory = _prompts_dir(tmp_path, monkeypatch, **{"planer_system.txt": b"Be brief."})
+    with pytest.raises(PromptError) as err:
+        planner_messages("lift it", CATALOGUE)
+    message = str(err.value)
+    assert message.startswith(f"{directory / 'planer_system.txt'}: ITSKILL_PROMPTS_DIR:")
+    assert "not a prompt template's file" in message
+    for name in prompts.TEMPLATE_FIELDS:
+        assert f"{name}.txt" in message
+
+
+def test_a_directory_named_as_a_template_is_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    directory = _prompts_dir(tmp_path, monkeypatch)
+    (directory / "planner_user.txt").mkdir()
+    with pytest.raises(PromptError, match=r"planner_user\.txt: ITSKILL_PROMPTS_DIR: not a file"):
+        planner_messages("lift it", CATALOGUE)
+
+
+def test_a_template_the_user_dir_lacks_is_the_packaged_one_and_hidden_files_are_ignored(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _prompts_dir(
+        tmp_path,
+        monkeypatch,
+        **{"planner_system.txt": b"MY SYSTEM", ".planner_system.txt.swp": b"\x00\xff"},
+    )
+    system, user = planner_messages("lift it", CATALOGUE)
+    assert system["content"] == "MY SYSTEM\n"
+    assert "<command>\nlift it\n</command>" in user["content"]  # the packaged planner_user
+
+
+def test_a_bad_prompts_dir_is_one_line_and_exit_2_from_the_cli(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("ITSKILL_LLM_MODEL", raising=False)
+    _prompts_dir(tmp_path, monkeypatch, **{"planner_system.txt": b"\xff\xfe"})
+    result = CliRunner().invoke(app, ["plan", "Pick up the nut"])
+    assert result.exit_code == 2, result.output
+    assert "not UTF-8 text" in result.output and "Traceback" not in result.output
+
+
+# ----------------------------------------------------------------------- the analyzer's retry
+# The retry note as transfer/data/analyzer_retry.txt wrote it: the same text keeps the LLM reply
+# cache's keys of runs made before it became a template.
+RETRY = """Your reply cannot be used: no matrix.
+Reply again with exactly one JSON object in a ```json fence, {"matrix": [...], "reasoning": "..."},
+where "matrix" has 3 rows (one per target segment, in order) and each row has 2 non-negative
+numbers (one per source skill, in the order given) that sum to 1.
+"""
+
+
+def test_the_analyzer_retry_is_a_template_like_the_others() -> None:
+    assert prompts.TEMPLATE_FIELDS["analyzer_retry"] == {"error", "m", "n"}
+    path = prompts._template_path("analyzer_retry")
+    assert path.parent.name == "prompts" and path.parent.parent.name == "llm"
+    assert prompts.analyzer_retry("no matrix", 3, 2) == RETRY
+    with pytest.raises(PromptError, match=r"'analyzer_retry'.*missing field\(s\) \{n\}"):
+        check_template("analyzer_retry", "{error} {m}")
+
+
+def test_the_analyzer_retry_can_be_overridden(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _prompts_dir(tmp_path, monkeypatch, **{"analyzer_retry.txt": b"Fix: {error} ({m}x{n})"})
+    assert prompts.analyzer_retry("bad", 3, 2) == "Fix: bad (3x2)\n"

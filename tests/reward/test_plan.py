@@ -150,3 +150,103 @@ def test_a_refused_command_names_the_closest_tasks() -> None:
     assert "pick_nut_m12 (Pick up the M12 nut)" in closest
     assert "pick_nut_m16" in closest
     assert "insert_peg_rect" not in message and len(message) < 500
+
+
+# ----------------------------------------------------------------------- plan.toml, checked
+def _damaged_plan(tmp_path, old: str, new: str):
+    """A copy of the packaged plan.toml with ``old`` replaced by ``new``."""
+    from itskill.reward.plan import plan_data_path
+
+    text = plan_data_path().read_text(encoding="utf-8")
+    assert old in text
+    path = tmp_path / "plan.toml"
+    path.write_text(text.replace(old, new, 1), encoding="utf-8")
+    return path
+
+
+APPROACH = 'approach = "move the gripper to {object}"'
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "where", "problem"),
+    [
+        (APPROACH, "approach = [", "TOML syntax", ""),
+        (APPROACH, "approach = 5", "phrases.approach", "expected a non-empty string, got 5"),
+        (APPROACH, APPROACH.replace("{object}", "{objekt}"), "phrases.approach",
+         "unknown placeholder {objekt}; known: {fixture}, {object}"),
+        (APPROACH, APPROACH.replace("{object}", "{object:d}"), "phrases.approach",
+         "cannot be filled"),
+        (APPROACH, APPROACH.replace("{object}", "{object"), "phrases.approach", "literal braces"),
+        ("Your plan cannot be used: {problem}", "Your plan cannot be used.", "correction",
+         "missing placeholder {problem}"),
+        ('"First", ', '"", ', "ordinals[0]", "expected a word"),
+        ("[phrases]", "[phrase]", "phrase", "unknown key"),
+    ],
+)  # fmt: skip
+def test_a_damaged_plan_toml_is_named_not_a_traceback(tmp_path, old, new, where, problem):
+    # TOMLDecodeError, AttributeError ('int' has no 'format') and KeyError ('objekt') escaped.
+    from itskill.datafile import DataFileError
+    from itskill.reward.plan import PlanDataError, load_plan_data
+
+    path = _damaged_plan(tmp_path, old, new)
+    with pytest.raises(PlanDataError) as err:
+        load_plan_data(path)
+    assert isinstance(err.value, DataFileError)  # reported by the CLI as a user error
+    assert str(err.value).startswith(f"{path}: {where}:") and problem in str(err.value)
+
+
+def test_an_empty_plan_toml_says_what_is_missing(tmp_path) -> None:
+    from itskill.reward.plan import PlanDataError, load_plan_data
+
+    path = tmp_path / "plan.toml"
+    path.write_text("")
+    with pytest.raises(PlanDataError, match="ordinals: missing"):
+        load_plan_data(path)
+
+
+def test_a_damaged_plan_toml_is_one_line_and_exit_2_from_the_cli(tmp_path, monkeypatch) -> None:
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+    from itskill.reward import plan as plan_module
+
+    path = _damaged_plan(tmp_path, APPROACH, APPROACH.replace("{object}", "{objekt}"))
+    monkeypatch.setattr(plan_module, "plan_data_path", lambda: path)
+    plan_module._plan_data.cache_clear()
+    try:
+        result = CliRunner().invoke(app, ["plan", "pick_nut_m12"])
+    finally:
+        plan_module._plan_data.cache_clear()
+    assert result.exit_code == 2, result.output
+    assert "unknown placeholder {objekt}" in result.output and "Traceback" not in result.output
+
+
+def _with_stages(task: str, names: list[str]):
+    """Task ``task`` with its stages renamed (and repeated) as ``names``: a user's task."""
+    from dataclasses import replace
+
+    spec = get_task(task)
+    stages = [replace(spec.stages[k % len(spec.stages)], name=n) for k, n in enumerate(names)]
+    return replace(spec, stages=tuple(stages), source="/home/me/tasks/mine.toml")
+
+
+def test_a_user_task_whose_action_has_no_phrase_is_a_plan_error() -> None:
+    # ValueError traceback ("plan.toml: phrases: no entry ...") naming neither task nor file.
+    from itskill.reward.plan import subtask_sentences
+
+    spec = _with_stages("pick_nut_m12", ["approach", "wiggle", "lift"])
+    with pytest.raises(PlanError) as err:
+        subtask_sentences(spec)
+    message = str(err.value)
+    assert "task 'pick_nut_m12' (/home/me/tasks/mine.toml)" in message
+    assert "stage 1 action 'wiggle' has no phrase" in message
+    assert "known actions: align, approach," in message
+
+
+def test_a_user_task_with_more_stages_than_ordinals_is_a_plan_error() -> None:
+    from itskill.reward.plan import _plan_data, subtask_sentences
+
+    many = len(_plan_data()["ordinals"]) + 1
+    spec = _with_stages("reach_nut_m12", ["approach"] * many)
+    with pytest.raises(PlanError, match=rf"'reach_nut_m12' \(/home/me.*\) has {many} stages"):
+        subtask_sentences(spec)

@@ -129,3 +129,24 @@ def test_a_cut_off_reply_is_reasked_as_cut_off() -> None:
     result = analyze(TARGET, SOURCES, client, retries=1)
     np.testing.assert_array_equal(result.matrix, np.eye(2))
     assert "not closed (cut off?)" in client.requests[1][-1]["content"]
+
+
+def test_the_retry_note_is_a_prompt_template_the_user_can_override(tmp_path, monkeypatch) -> None:
+    # It was read from transfer/data, out of reach of ITSKILL_PROMPTS_DIR and of the checks.
+    from itskill.llm.prompts import PROMPTS_DIR_ENV, PromptError
+
+    prompts_dir = tmp_path / "prompts"
+    prompts_dir.mkdir()
+    (prompts_dir / "analyzer_retry.txt").write_text("Wrong ({error}); want {m} x {n}.")
+    monkeypatch.setenv(PROMPTS_DIR_ENV, str(prompts_dir))
+    client = ScriptedClient(["no idea", fenced([[1, 0], [0, 1]])])
+    analyze(TARGET, SOURCES, client, retries=1)
+    assert client.requests[1][-1]["content"].startswith("Wrong (the reply holds no valid JSON")
+    assert client.requests[1][-1]["content"].endswith("want 2 x 2.\n")
+    # An override missing a field is named, not sent half-filled.
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "analyzer_retry.txt").write_text("Wrong ({error})")
+    monkeypatch.setenv(PROMPTS_DIR_ENV, str(broken))
+    with pytest.raises(PromptError, match=r"'analyzer_retry'.*missing field\(s\) \{m\}, \{n\}"):
+        analyze(TARGET, SOURCES, ScriptedClient(["no idea"]), retries=1)

@@ -252,6 +252,9 @@ def experiment_report(
         config = read_run_config(run_dir)
     except ExperimentRunError as err:
         raise ReportError(str(err)) from err
+    # Read before anything is written: a copy that cannot be shown must leave no half report.
+    toml_path = run_dir / EXPERIMENT_FILE
+    toml_text = _experiment_text(toml_path) if toml_path.is_file() else None
     if outside:
         # Before the figures: a report cut short then leaves an out that the next one knows
         # as this run's by its provenance.json, instead of figures it would refuse to replace.
@@ -278,10 +281,9 @@ def experiment_report(
         Sessions(run_dir / PROVENANCE_FILE),
         {"run directory": str(run_dir.resolve())},
     )
-    toml_path = run_dir / EXPERIMENT_FILE
     doc.add(Heading("Configuration", 3))
-    if toml_path.is_file():
-        doc.add(Code(toml_path.read_text(), "toml"))
+    if toml_text is not None:
+        doc.add(Code(toml_text, "toml"))
     doc.add(Code(json.dumps(config.to_dict(), indent=2), "json"))
 
     for task in config.tasks:
@@ -308,6 +310,18 @@ def experiment_report(
     md, html_path = out / REPORT_MD, out / REPORT_HTML
     write_document(doc, md, html_path)
     return ReportFiles(md, html_path, tuple(notes))
+
+
+def _experiment_text(path: Path) -> str:
+    """The run's copy of its experiment file, as the report shows it; :class:`ReportError` if it
+    is not UTF-8 text (the runner copies the user's file as is, and TOML must be UTF-8)."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise ReportError(
+            f"{path}: not UTF-8 text (byte {err.start}); was it edited? Restore it from the "
+            "experiment file, or delete it to report without it"
+        ) from err
 
 
 def _check_out(run_dir: Path, out: Path) -> None:

@@ -18,6 +18,7 @@ worker that trained the cell, atomically, so a killed run loses only the cells i
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 from dataclasses import dataclass, field, replace
@@ -30,7 +31,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from itskill.executors import check_executor, run_jobs
 from itskill.experiments.analysis import read_curve, time_to_threshold
-from itskill.experiments.config import AUTO, ExperimentConfig
+from itskill.experiments.config import AUTO, ExperimentConfig, ExperimentConfigError
 from itskill.experiments.provenance import Sessions
 from itskill.files import CorruptFileError, held_alone, read_json, some_of, write_json
 
@@ -213,7 +214,8 @@ def _not_a_copy(run_dir: Path) -> None:
 
 def read_run_config(run_dir: Path) -> ExperimentConfig:
     """The configuration recorded in an experiment run directory; :class:`ExperimentRunError`
-    if ``run_dir/config.json`` is another kind of run's (a reward search's) or damaged."""
+    if ``run_dir/config.json`` is another kind of run's (a reward search's), damaged, or holds a
+    value of the wrong type or range (every field is checked: the report formats them)."""
     path = run_dir / CONFIG_FILE
     data = read_json(path)
     kind = data.get("kind") if isinstance(data, dict) else None
@@ -222,12 +224,88 @@ def read_run_config(run_dir: Path) -> ExperimentConfig:
             f"{run_dir} holds another kind of run ({kind!r}), not an experiment run"
         )
     try:
-        return ExperimentConfig.from_dict(data)
+        config = ExperimentConfig.from_dict(data)
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise ExperimentRunError(
             f"{path}: not an experiment run's configuration "
             f"({type(err).__name__}: {err}); was it edited?"
         ) from err
+    _check_recorded(config, path)
+    return config
+
+
+def _is_int(value: Any, least: int = 0) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_recorded(config: ExperimentConfig, path: Path) -> None:
+    """:class:`ExperimentRunError` for a field of a recorded configuration whose type or range
+    the experiment file's checks would have refused: :meth:`ExperimentConfig.from_dict` checks
+    only the shape, and a ``report.threshold = "x"`` in an edited ``config.json`` would fail
+    deep in the report ("Unknown format code")."""
+
+    def bad(where: str, value: Any, want: str) -> ExperimentRunError:
+        return ExperimentRunError(
+            f"{path}: {where}: expected {want}, got {value!r}; was it edited?"
+        )
+
+    for key in ("name", "description", "algo", "llm"):
+        if not isinstance(getattr(config, key), str):
+            raise bad(key, getattr(config, key), "a string")
+    for key in ("tasks", "methods"):
+        values = getattr(config, key)
+        if not values or not all(isinstance(v, str) for v in values):
+            raise bad(key, list(values), "a non-empty list of strings")
+    if not config.seeds or not all(_is_int(s) for s in config.seeds):
+        raise bad("seeds", list(config.seeds), "a non-empty list of integers >= 0")
+    for key, value in (
+        ("steps", config.steps),
+        ("k", config.k),
+        ("eval.every", config.eval.every),
+        ("eval.episodes", config.eval.episodes),
+    ):
+        if not _is_int(value, 1):
+            raise bad(key, value, "a positive integer")
+    if config.num_envs is not None and not _is_int(config.num_envs, 1):
+        raise bad("num_envs", config.num_envs, "a positive integer or null")
+    if not isinstance(config.reward, dict) or not all(
+        isinstance(v, str) for v in config.reward.values()
+    ):
+        raise bad("reward", config.reward, "a table of task -> 'expert' or a reward file")
+    for task, value in config.sources.items():
+        if value != AUTO and not (
+            isinstance(value, tuple) and value and all(isinstance(v, str) for v in value)
+        ):
+            raise bad(f"sources.{task}", value, f"{AUTO!r} or a list of skill names")
+    rep = config.report
+    if not _is_real(rep.threshold) or not 0 < rep.threshold <= 1:
+        raise bad("report.threshold", rep.threshold, "a number in (0, 1]")
+    fractions = list(rep.fractions)
+    if (
+        not fractions
+        or not all(_is_real(f) and 0 < f <= 1 for f in fractions)
+        or fractions != sorted(fractions)
+    ):
+        raise bad("report.fractions", fractions, "increasing numbers in (0, 1]")
+    if not isinstance(rep.baseline, str):
+        raise bad("report.baseline", rep.baseline, "a method name")
+    if not _is_int(rep.grid_points, 2):
+        raise bad("report.grid_points", rep.grid_points, "an integer of at least 2")
+    if not isinstance(rep.paper_gain, dict) or not all(
+        _is_real(g) and g < 1 for g in rep.paper_gain.values()
+    ):
+        raise bad("report.paper_gain", rep.paper_gain, "a table of task -> fraction below 1")
+    ex = config.execution
+    if not isinstance(ex.executor, str):
+        raise bad("execution.executor", ex.executor, "an executor name")
+    if ex.workers is not None and not _is_int(ex.workers, 1):
+        raise bad("execution.workers", ex.workers, "a positive integer or null")
+    if ex.ray_address is not None and not isinstance(ex.ray_address, str):
+        raise bad("execution.ray_address", ex.ray_address, "a string or null")
 
 
 def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: Path) -> None:
@@ -263,26 +341,57 @@ def _union(old: ExperimentConfig, new: ExperimentConfig, trains: bool) -> Experi
     )
 
 
-def resolve_all_sources(config: ExperimentConfig, run_dir: Path) -> dict[str, list[str]]:
+def resolve_all_sources(
+    config: ExperimentConfig, run_dir: Path, source_file: Path | None = None
+) -> dict[str, list[str]]:
     """Each task's source skills (names): those ``run_dir`` stores, the others resolved now. They
     are resolved once and stored (by :func:`run_experiment`) so that every cell uses the same.
 
     A resumed run keeps the stored ones: the skill space may have grown since. Nothing is
-    resolved while no method uses sources (No_Transfer alone needs no skill space).
+    resolved while no method uses sources (No_Transfer alone needs no skill space). Skills the
+    experiment file names that cannot be used (unknown, empty, no checkpoint) are an
+    :class:`ExperimentConfigError` naming ``sources.<task>`` and the file (``source_file``, else
+    the run's copy of it or its ``config.json``).
     """
     from itskill.transfer import get_method, resolve_sources
+    from itskill.transfer.sources import SourceError
 
     path = run_dir / SOURCES_FILE
     found: dict[str, list[str]] = read_json(path) if path.is_file() else {}
+    if not isinstance(found, dict) or not all(
+        isinstance(names, list) and all(isinstance(n, str) for n in names)
+        for names in found.values()
+    ):
+        raise ExperimentRunError(
+            f"{path}: expected an object of task -> list of source skill names; was it edited?"
+        )
     if not any(get_method(m).uses_sources for m in config.methods):
         return found
     for task in config.tasks:
         if task in found:
             continue
         wanted = config.sources.get(task, AUTO)
-        chosen = resolve_sources(task, wanted if wanted == AUTO else list(wanted), k=config.k)
+        try:
+            chosen = resolve_sources(task, wanted if wanted == AUTO else list(wanted), k=config.k)
+        except SourceError as err:
+            if wanted == AUTO:
+                raise  # about the skill space, not about anything the file says
+            raise ExperimentConfigError(
+                _experiment_file(run_dir, source_file), f"sources.{task}", str(err)
+            ) from err
         found[task] = [s.name for s in chosen]
     return found
+
+
+def _experiment_file(run_dir: Path, source_file: Path | None) -> Path | str:
+    """What an error about the experiment's settings names: the file given, else the run's copy
+    of it or the configuration it recorded, else (a caller with neither) the run it is for."""
+    if source_file is not None:
+        return source_file
+    for name in (EXPERIMENT_FILE, CONFIG_FILE):
+        if (run_dir / name).is_file():
+            return run_dir / name
+    return f"the experiment file of {run_dir}"
 
 
 def run_experiment(
@@ -343,7 +452,7 @@ def _run(
     """:func:`run_experiment`'s run, once ``run_dir`` is this session's alone."""
     old = _recorded_run(config, run_dir, resume, source_file)
     # Before the run is recorded: a source that cannot be found leaves no run to --resume.
-    sources = resolve_all_sources(config, run_dir)
+    sources = resolve_all_sources(config, run_dir, source_file)
     summary = RunSummary(run_dir)
     todo: list[Cell] = []
     for cell in cells(config):

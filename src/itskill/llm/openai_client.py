@@ -16,7 +16,6 @@ from __future__ import annotations
 import ipaddress
 import random
 import re
-import sys
 import time
 from dataclasses import dataclass
 from functools import cache
@@ -27,12 +26,8 @@ from urllib.parse import urlsplit
 
 import openai
 
+from itskill.datafile import DataFileError, is_number, read_toml
 from itskill.llm.client import BASE_URL_ENV, BaseClient, LLMError, LLMUnavailableError, Message
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 OPENAI_URL = "https://api.openai.com/v1"
 LOCAL_DUMMY_KEY = "sk-no-key-needed"
@@ -66,21 +61,53 @@ class RetryConfig:
     timeout_s: float = 180.0
 
 
+class PriceFileError(DataFileError):
+    """A ``prices.toml`` that does not validate: names the file, the model and the problem."""
+
+
+def prices_path() -> Path:
+    """The packaged ``prices.toml``: USD per 1M tokens of each OpenAI model."""
+    return Path(str(resources.files("itskill.llm") / "prices.toml"))
+
+
 @cache
 def load_prices(path: Path | None = None) -> dict[str, tuple[float, float]]:
-    """Model -> (USD per 1M input tokens, USD per 1M output tokens) from ``prices.toml``."""
-    source = path or Path(str(resources.files("itskill.llm") / "prices.toml"))
-    with open(source, "rb") as fh:
-        data = tomllib.load(fh)
+    """Model -> (USD per 1M input tokens, USD per 1M output tokens) from ``prices.toml``
+    (default :func:`prices_path`); :class:`PriceFileError` names an entry that is not a pair of
+    finite numbers >= 0, or a key that would be ignored."""
+    source = path or prices_path()
+    data = read_toml(source, PriceFileError)
+    for key in data:
+        if key != "models":
+            raise PriceFileError(source, key, 'unknown key; prices go in [models."NAME"] tables')
+    models = data.get("models", {})
+    if not isinstance(models, dict):
+        raise PriceFileError(source, "models", f"expected a table, got {type(models).__name__}")
     prices: dict[str, tuple[float, float]] = {}
-    for model, entry in data.get("models", {}).items():
-        try:
-            prices[model] = (float(entry["input"]), float(entry["output"]))
-        except (KeyError, TypeError, ValueError) as err:
-            raise ValueError(
-                f"{source}: models.{model}: expected numbers 'input' and 'output' "
-                "(USD per 1M tokens)"
-            ) from err
+    for model, entry in models.items():
+        where = f"models.{model}"
+        if not isinstance(entry, dict):
+            raise PriceFileError(
+                source, where, "expected a table with 'input' and 'output' (USD per 1M tokens)"
+            )
+        for key in entry:
+            if key not in ("input", "output"):
+                raise PriceFileError(
+                    source, f"{where}.{key}", "unknown key; expected 'input' and 'output'"
+                )
+        pair = []
+        for key in ("input", "output"):
+            value = entry.get(key)
+            # A cost is summed into every usage report: NaN or a negative price would make it
+            # meaningless, and a string one would fail only once a model answered.
+            if not is_number(value) or value < 0:
+                raise PriceFileError(
+                    source,
+                    f"{where}.{key}",
+                    f"expected a finite number >= 0 (USD per 1M tokens), got {value!r}",
+                )
+            pair.append(float(value))
+        prices[model] = (pair[0], pair[1])
     return prices
 
 

@@ -4,7 +4,9 @@ The templates live in ``itskill/llm/prompts/*.txt`` with ``{placeholder}`` field
 doubled, as in :meth:`str.format`). A directory named by ``$ITSKILL_PROMPTS_DIR`` overrides any of
 them file by file. Every template is checked against the fields its builder fills: a missing or
 unknown field is a :class:`PromptError` naming the template, so an edit that breaks a prompt fails
-at once instead of sending a half-filled prompt to a paid model.
+at once instead of sending a half-filled prompt to a paid model. So is a template that is blank or
+not UTF-8 text, an ``$ITSKILL_PROMPTS_DIR`` that is not a directory, and anything in it that is not
+a known template's file: a misspelt file would otherwise be ignored without a word.
 
 Structured parts of a prompt sit between tags (``<command>``, ``<catalogue>``,
 ``<task_description>``, ``<policy_feedback>``, ``<execution_error>``, ``<target>``,
@@ -43,6 +45,7 @@ TEMPLATE_FIELDS: dict[str, frozenset[str]] = {
     "execution_error": frozenset({"code", "error"}),
     "analyzer_system": frozenset(),
     "analyzer_user": frozenset({"target", "sources"}),
+    "analyzer_retry": frozenset({"error", "m", "n"}),
     "task_description": frozenset(
         {"command", "subtasks", "objects", "fixtures", "stages", "success", "predicates"}
     ),
@@ -58,10 +61,44 @@ class PromptError(ValueError):
     """A template that does not match its builder, or a builder argument of the wrong shape."""
 
 
-def _template_path(name: str) -> Path:
+def prompts_dir() -> Path | None:
+    """The user's template directory (``$ITSKILL_PROMPTS_DIR``), checked; None when unset.
+
+    :class:`PromptError` if it is not a directory, or holds anything but known templates' files
+    (hidden files, such as an editor's, aside): an override that would not be used must say so.
+    """
     override = os.environ.get(PROMPTS_DIR_ENV)
-    if override and (Path(override).expanduser() / f"{name}.txt").is_file():
-        return Path(override).expanduser() / f"{name}.txt"
+    if not override:
+        return None
+    path = Path(override).expanduser()
+    if not path.is_dir():
+        # As ITSKILL_TASKS_DIR: a mistyped directory would otherwise leave every packaged prompt
+        # in use, and the user believing their edits were sent.
+        problem = "not a directory" if path.exists() else "no such directory"
+        raise PromptError(f"{path}: {PROMPTS_DIR_ENV}: {problem}")
+    known = {f"{name}.txt" for name in TEMPLATE_FIELDS}
+    try:
+        entries = sorted(path.iterdir())
+    except OSError as err:
+        raise PromptError(f"{path}: {PROMPTS_DIR_ENV}: cannot read: {err.strerror or err}") from err
+    for entry in entries:
+        if entry.name.startswith("."):
+            continue
+        if entry.name not in known:
+            raise PromptError(
+                f"{entry}: {PROMPTS_DIR_ENV}: not a prompt template's file; known: "
+                f"{', '.join(sorted(known))}"
+            )
+        if not entry.is_file():
+            raise PromptError(f"{entry}: {PROMPTS_DIR_ENV}: not a file")
+    return path
+
+
+def _template_path(name: str) -> Path:
+    """The file of template ``name``: the user's, if their directory has it, else the packaged."""
+    override = prompts_dir()
+    if override is not None and (override / f"{name}.txt").is_file():
+        return override / f"{name}.txt"
     return Path(str(resources.files("itskill.llm") / "prompts" / f"{name}.txt"))
 
 
@@ -71,6 +108,11 @@ def _load_template(path: Path, name: str) -> str:
         text = path.read_text(encoding="utf-8")
     except OSError as err:
         raise PromptError(f"prompt template {name!r}: cannot read {path}: {err}") from err
+    except UnicodeDecodeError as err:
+        raise PromptError(
+            f"prompt template {name!r} ({path}): not UTF-8 text (byte {err.start}); "
+            "save it as UTF-8"
+        ) from err
     check_template(name, text, path)
     return text
 
@@ -78,6 +120,12 @@ def _load_template(path: Path, name: str) -> str:
 def check_template(name: str, text: str, where: Path | str = "") -> None:
     """Raise :class:`PromptError` if ``text`` does not have exactly the fields of ``name``."""
     label = f"prompt template {name!r}" + (f" ({where})" if where else "")
+    if not text.strip():
+        # A template without fields (a system prompt) would pass the field check empty, and the
+        # model would be sent no instructions at all.
+        raise PromptError(
+            f"{label}: is blank; write the prompt, or delete the file to use the packaged one"
+        )
     try:
         fields = [f for _, f, _, _ in string.Formatter().parse(text) if f is not None]
     except ValueError as err:
@@ -214,6 +262,13 @@ def analyzer_messages(target: dict, sources: list[dict]) -> list[Message]:
             ),
         },
     ]
+
+
+def analyzer_retry(error: str, m: int, n: int) -> str:
+    """The follow-up that tells the analyzer what was wrong with its reply: ``error``, and the
+    shape the matrix must have (``m`` rows, one per target segment; ``n`` columns, one per
+    source)."""
+    return render("analyzer_retry", error=error, m=str(int(m)), n=str(int(n)))
 
 
 # --------------------------------------------------------------------------- task description

@@ -13,23 +13,20 @@ A task id needs no model: :func:`plan_for_task` writes the plan straight from th
 from __future__ import annotations
 
 import difflib
-import sys
+import string
 from dataclasses import asdict, dataclass
 from functools import cache
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
+from itskill.datafile import DataFileError, read_toml
 from itskill.llm.client import LLMClient, Message
 from itskill.llm.prompts import planner_messages, task_description
 from itskill.llm.replies import JSONReplyError, parse_json_reply
 from itskill.sim.parts import BoltSpec, NutSpec
 from itskill.tasks import all_tasks, get_task
 from itskill.tasks.spec import TaskSpec
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 PLAN_ATTEMPTS = 3
 """How many replies the planner asks for before giving up on a command."""
@@ -48,6 +45,16 @@ _RELEASED_AFTER = {"place", "insert", "release", "screw"}
 class PlanError(ValueError):
     """A command that cannot be grounded in the scene; the message says why, names the closest
     tasks and how to list them all."""
+
+
+class PlanDataError(DataFileError):
+    """A ``plan.toml`` that does not validate: names the file, the field and the problem."""
+
+
+PHRASE_FIELDS = frozenset({"object", "fixture"})
+"""The placeholders a phrase of ``plan.toml`` may use."""
+CORRECTION_FIELDS = frozenset({"problem"})
+"""The placeholders the correction note must use, exactly."""
 
 
 @dataclass(frozen=True)
@@ -93,15 +100,76 @@ class TaskPlan:
         return cls(**values)
 
 
+def plan_data_path() -> Path:
+    """The packaged ``plan.toml``: ordinals, phrases and the planner's correction note."""
+    return Path(str(resources.files("itskill.reward") / "data" / "plan.toml"))
+
+
+def _fields_of(path: Path, where: str, text: str) -> set[str]:
+    """The ``{placeholder}`` names of ``text``; :class:`PlanDataError` for broken braces."""
+    try:
+        fields = {f for _, f, _, _ in string.Formatter().parse(text) if f is not None}
+    except ValueError as err:
+        raise PlanDataError(path, where, f"{err} (write literal braces as {{{{ and }}}})") from err
+    return fields
+
+
+def _check_text(path: Path, where: str, value: Any, allowed: frozenset[str], exact: bool) -> str:
+    """``value`` as a non-blank string whose placeholders are among ``allowed`` (all of them
+    when ``exact``): the sentence is filled with :meth:`str.format`, which would raise
+    ``KeyError`` on an unknown name only once a plan is written."""
+    if not isinstance(value, str) or not value.strip():
+        raise PlanDataError(path, where, f"expected a non-empty string, got {value!r}")
+    fields = _fields_of(path, where, value)
+    unknown = sorted(fields - allowed)
+    if unknown:
+        known = ", ".join("{" + f + "}" for f in sorted(allowed))
+        raise PlanDataError(path, where, f"unknown placeholder {{{unknown[0]}}}; known: {known}")
+    missing = sorted(allowed - fields) if exact else []
+    if missing:
+        raise PlanDataError(path, where, f"missing placeholder {{{missing[0]}}}")
+    try:
+        # What a name check cannot see: a format spec the text does not take ({object:d}).
+        value.format(**dict.fromkeys(allowed, "the M12 nut"))
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as err:
+        raise PlanDataError(path, where, f"cannot be filled: {err}") from err
+    return value
+
+
+def load_plan_data(path: Path) -> dict[str, Any]:
+    """The plan data in ``path``, every entry checked (:class:`PlanDataError` names the first
+    problem): ``ordinals`` a list of words, ``correction`` a note with ``{problem}``, ``phrases``
+    a table of action -> sentence using ``{object}`` and ``{fixture}``."""
+    data = read_toml(path, PlanDataError)
+    keys = ("ordinals", "correction", "phrases")
+    for key in sorted(data):
+        if key not in keys:
+            raise PlanDataError(
+                path, key, "unknown key; expected ordinals, correction and [phrases]"
+            )
+    for key in keys:
+        if key not in data:
+            raise PlanDataError(path, key, "missing (required)")
+    ordinals = data.get("ordinals")
+    if not isinstance(ordinals, list) or not ordinals:
+        raise PlanDataError(path, "ordinals", f"expected a non-empty list, got {ordinals!r}")
+    for k, word in enumerate(ordinals):
+        # An ordinal goes into the sentence as is: a brace in it would do no harm, but a blank
+        # would make "First, ..." read ", ...".
+        if not isinstance(word, str) or not word.strip():
+            raise PlanDataError(path, f"ordinals[{k}]", f"expected a word, got {word!r}")
+    _check_text(path, "correction", data.get("correction"), CORRECTION_FIELDS, exact=True)
+    phrases = data.get("phrases")
+    if not isinstance(phrases, dict):
+        raise PlanDataError(path, "phrases", f"expected a [phrases] table, got {phrases!r}")
+    for action, phrase in phrases.items():
+        _check_text(path, f"phrases.{action}", phrase, PHRASE_FIELDS, exact=False)
+    return data
+
+
 @cache
 def _plan_data() -> dict[str, Any]:
-    path = resources.files("itskill.reward") / "data" / "plan.toml"
-    with path.open("rb") as fh:
-        data = tomllib.load(fh)
-    for key, kind in (("ordinals", list), ("correction", str), ("phrases", dict)):
-        if not isinstance(data.get(key), kind):
-            raise ValueError(f"{path}: {key}: missing or not a {kind.__name__}")
-    return data
+    return load_plan_data(plan_data_path())
 
 
 def _shape(shape: str) -> str:
@@ -116,11 +184,19 @@ def _part_name(part: Any) -> str:
 
 
 def subtask_sentences(spec: TaskSpec) -> tuple[str, ...]:
-    """The task's stages as ordered sentences: "First, move the gripper to the M12 nut.", ..."""
+    """The task's stages as ordered sentences: "First, move the gripper to the M12 nut.", ...
+
+    :class:`PlanError` for a task (a user's, say) with more stages than ``plan.toml`` has
+    ordinals, or a stage whose action has no phrase there.
+    """
     data = _plan_data()
     ordinals, phrases = data["ordinals"], data["phrases"]
+    task = f"task {spec.id!r}" + (f" ({spec.source})" if spec.source else "")
     if len(spec.stages) > len(ordinals):
-        raise ValueError(f"{spec.id}: {len(spec.stages)} stages, plan.toml has {len(ordinals)}")
+        raise PlanError(
+            f"{task} has {len(spec.stages)} stages; {plan_data_path()} has ordinals for "
+            f"{len(ordinals)}: add ordinals there, or split the task"
+        )
     sentences = []
     holding = False
     for k, stage in enumerate(spec.stages):
@@ -130,7 +206,10 @@ def subtask_sentences(spec: TaskSpec) -> tuple[str, ...]:
         if key == "approach" and holding:
             key = "approach_holding"
         if key not in phrases:
-            raise ValueError(f"plan.toml: phrases: no entry for action {stage.name!r}")
+            raise PlanError(
+                f"{task}: stage {k} action {key!r} has no phrase in {plan_data_path()} "
+                f"[phrases]; known actions: {', '.join(sorted(phrases))}"
+            )
         fixture = spec.fixtures[spec.object_fixture[slot]].part if spec.fixtures else None
         text = phrases[key].format(
             object=_part_name(spec.objects[slot]),

@@ -5,21 +5,21 @@ source skill; entry ``(i, j)`` is how much source ``j`` should contribute while 
 segment ``i``. The reply must be a JSON object ``{"matrix": [[...], ...], "reasoning": "..."}``
 (in a ```json fence, or bare with prose around it). It is validated (shape, finite, non-negative,
 no zero row) and each row is normalised to sum to 1, since a language model's rows are rarely
-exact. A reply that fails is sent back with the problem (:file:`data/analyzer_retry.txt`) up to
-``retries`` times; then :class:`AnalyzerError` says what was wrong with the last one.
+exact. A reply that fails is sent back with the problem (the ``analyzer_retry`` prompt template,
+which ``$ITSKILL_PROMPTS_DIR`` overrides like the others) up to ``retries`` times; then
+:class:`AnalyzerError` says what was wrong with the last one.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from importlib import resources
 from typing import Any
 
 import numpy as np
 
 from itskill.llm.client import LLMClient, Message
-from itskill.llm.prompts import analyzer_messages
+from itskill.llm.prompts import analyzer_messages, analyzer_retry
 from itskill.llm.replies import JSONReplyError, parse_json_reply
 
 
@@ -130,8 +130,8 @@ def parse_reply(
 
 def retry_message(error: str, m: int, n: int) -> str:
     """The follow-up that tells the model what was wrong with its reply."""
-    template = (resources.files("itskill.transfer") / "data" / "analyzer_retry.txt").read_text()
-    return template.format(error=error, m=m, n=n)
+    # A prompt template like the others: checked, and overridable with ITSKILL_PROMPTS_DIR.
+    return analyzer_retry(error, m, n)
 
 
 def analyze(

@@ -19,7 +19,8 @@ import hashlib
 import inspect
 import math
 import re
-import sys
+import string
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import cache
 from importlib import resources
@@ -28,13 +29,9 @@ from typing import Any
 
 import numpy as np
 
+from itskill.datafile import DataFileError, is_number, read_toml
 from itskill.llm.offline.blocks import fenced
 from itskill.tasks.predicates import PREDICATES, PredicateError, parse
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 BACKEND = "offline rule-based backend"
 
@@ -75,44 +72,239 @@ class SynthesisError(ValueError):
     """The prompt has no task description the synthesiser can read."""
 
 
+class VocabularyError(DataFileError):
+    """A ``terms.toml`` that does not validate: names the file, the field and the problem."""
+
+
+STAGE_FIELDS: dict[str, Any] = {
+    "target": '3.0 * ctx["obj_height"][:, 0]',
+    "hover": 0.015,
+    "hover_height": 0.05,
+    "tolerance": 0.0,
+    "fraction": 0.5,
+    "height": 0.02,
+    "dx": 0.0,
+    "dy": 0.0,
+    "degrees": 20.0,
+}
+"""The fields a term's text may use besides ``{i}`` and ``{j}``, with their defaults (the
+``target`` one for slot 0): what :func:`_fields` fills from a stage's condition."""
+
+_SECTIONS = ("recipes", "conditions", "terms", "predicates", "defaults", "variation", "retune")
+_TERM_KEYS = {
+    "distance": ("doc", "kind", "weight", "distance", "temperature"),
+    "flag": ("doc", "kind", "weight", "value"),
+}
+_TERM_OPTIONAL = ("gate", "floor")
+_DEFAULT_KEYS = ("transform", "stage_bonus", "success_bonus", "action_penalty")
+_TRANSFORMS = ("exp", "tanh")
+_RETUNE_FACTORS = (
+    "dead_max",
+    "saturated_min",
+    "widen",
+    "narrow",
+    "unreached_weight",
+    "bottleneck_widen",
+    "success_bonus_factor",
+)
+
+
+def terms_path() -> Path:
+    """The packaged ``terms.toml``, the synthesiser's vocabulary."""
+    return Path(str(resources.files("itskill.llm.offline") / "terms.toml"))
+
+
+def _required_recipes() -> set[str]:
+    """Every recipe :func:`_recipe` can choose, whatever the task: each must be in the file."""
+    return {"approach", "hover", "carry", "remove", *_RECIPE_OF_PREDICATE.values()}
+
+
+def _table(path: Path, where: str, value: Any) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise VocabularyError(path, where, f"expected a table, got {type(value).__name__}")
+    return value
+
+
+def _exact_keys(path: Path, where: str, table: dict[str, Any], keys: Sequence[str]) -> None:
+    """Every one of ``keys`` in ``table`` and nothing else: an unknown key (a misspelt one) would
+    be ignored, a missing one a ``KeyError`` once a reward is written."""
+    for key in table:
+        if key not in keys:
+            raise VocabularyError(
+                path, f"{where}.{key}", f"unknown key; expected {', '.join(keys)}"
+            )
+    for key in keys:
+        if key not in table:
+            raise VocabularyError(path, f"{where}.{key}", "missing")
+
+
+def _number(path: Path, where: str, value: Any, positive: bool = False) -> float:
+    """``value`` as a finite number >= 0 (> 0 when ``positive``: a divisor or a logarithm's)."""
+    if not is_number(value) or value < 0 or (positive and value == 0):
+        want = "a finite number > 0" if positive else "a finite number >= 0"
+        raise VocabularyError(path, where, f"expected {want}, got {value!r}")
+    return float(value)
+
+
+def _number_range(
+    path: Path, where: str, value: Any, positive: bool = False, most: float | None = None
+) -> None:
+    """``value`` as ``[low, high]``, numbers as :func:`_number` takes, ``low <= high``."""
+    if not isinstance(value, list) or len(value) != 2:
+        raise VocabularyError(path, where, f"expected [low, high], got {value!r}")
+    low, high = (_number(path, f"{where}[{k}]", v, positive) for k, v in enumerate(value))
+    if low > high:
+        raise VocabularyError(path, where, f"low {low} is above high {high}")
+
+
+def _code_text(
+    path: Path, where: str, value: Any, sample: dict[str, Any], allowed: Sequence[str]
+) -> None:
+    """``value`` as a non-blank string that :meth:`str.format` fills from fields named in
+    ``allowed`` (tried with ``sample``), so that a bad placeholder is this file's error, not a
+    ``KeyError`` in the middle of writing a reward."""
+    if not isinstance(value, str) or not value.strip():
+        raise VocabularyError(path, where, f"expected a non-empty string, got {value!r}")
+    known = ", ".join("{" + name + "}" for name in allowed)
+    try:
+        names = [f for _, f, _, _ in string.Formatter().parse(value) if f is not None]
+    except ValueError as err:
+        raise VocabularyError(
+            path, where, f"{err} (write literal braces as {{{{ and }}}})"
+        ) from err
+    for name in names:
+        if name not in allowed:
+            raise VocabularyError(path, where, f"unknown placeholder {{{name}}}; known: {known}")
+    try:
+        value.format(**sample)
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as err:
+        raise VocabularyError(path, where, f"cannot be filled: {err}") from err
+
+
+def _check_names(
+    path: Path, where: str, value: Any, terms: dict[str, Any], empty: bool = False
+) -> None:
+    """``value`` as a list of term names defined in ``[terms]``, each once."""
+    if not isinstance(value, list) or (not value and not empty):
+        raise VocabularyError(path, where, f"expected a list of term names, got {value!r}")
+    for name in value:
+        if name not in terms:
+            known = ", ".join(sorted(terms))
+            raise VocabularyError(path, where, f"unknown term {name!r}; known: {known}")
+    if len(set(value)) != len(value):
+        raise VocabularyError(path, where, f"a term is listed twice in {value}")
+
+
+def _check_term(path: Path, name: str, term: Any) -> None:
+    where = f"terms.{name}"
+    term = _table(path, where, term)
+    kind = term.get("kind")
+    if kind not in _TERM_KEYS:
+        needed = ", ".join(dict.fromkeys(k for keys in _TERM_KEYS.values() for k in keys))
+        raise VocabularyError(
+            path, where, f"needs kind 'distance' or 'flag' and {needed}; got kind {kind!r}"
+        )
+    needed = _TERM_KEYS[kind]
+    missing = [key for key in needed if key not in term]
+    if missing:
+        raise VocabularyError(
+            path,
+            where,
+            f"needs kind 'distance' or 'flag' and {', '.join(needed)}; missing {missing[0]}",
+        )
+    for key in term:
+        if key not in needed and key not in _TERM_OPTIONAL:
+            # A 'value' on a distance term (or the reverse) would be silently left unused.
+            raise VocabularyError(
+                path,
+                f"{where}.{key}",
+                f"not used by a {kind!r} term; it takes {', '.join(needed + _TERM_OPTIONAL)}",
+            )
+    _number(path, f"{where}.weight", term["weight"])
+    if kind == "distance":
+        # The temperature divides the distance: 0 would make every value NaN.
+        _number(path, f"{where}.temperature", term["temperature"], positive=True)
+    sample = {"i": 0, "j": 0, **STAGE_FIELDS}
+    allowed = ["i", "j", *STAGE_FIELDS]
+    for key in ("doc", "distance", "value", *_TERM_OPTIONAL):
+        if key in term:
+            _code_text(path, f"{where}.{key}", term[key], sample, allowed)
+
+
+def check_vocabulary(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """``data`` (a parsed ``terms.toml``) if every entry is usable; :class:`VocabularyError`
+    names the first that is not."""
+    for section in data:
+        if section not in _SECTIONS:
+            raise VocabularyError(path, section, f"unknown table; expected {', '.join(_SECTIONS)}")
+    for section in _SECTIONS:
+        if section not in data:
+            raise VocabularyError(path, section, f"missing [{section}] table")
+        _table(path, section, data[section])
+    terms = data["terms"]
+    for name, term in terms.items():
+        _check_term(path, name, term)
+    for key, names in data["recipes"].items():
+        _check_names(path, f"recipes.{key}", names, terms)
+    missing = sorted(_required_recipes() - set(data["recipes"]))
+    if missing:
+        raise VocabularyError(
+            path, f"recipes.{missing[0]}", "missing: the synthesiser picks this recipe by rule"
+        )
+    for key, names in data["conditions"].items():
+        if key not in PREDICATES:
+            raise VocabularyError(
+                path,
+                f"conditions.{key}",
+                f"unknown predicate; known: {', '.join(sorted(PREDICATES))}",
+            )
+        _check_names(path, f"conditions.{key}", names, terms, empty=True)
+    if set(data["predicates"]) != set(PREDICATES):
+        raise VocabularyError(path, "predicates", f"must cover exactly {sorted(PREDICATES)}")
+    for name, code in data["predicates"].items():
+        params = list(inspect.signature(PREDICATES[name]).parameters)[1:]  # drop ctx
+        allowed = list(dict.fromkeys(["i", "j", *params]))
+        _code_text(path, f"predicates.{name}", code, dict.fromkeys(allowed, 0), allowed)
+    defaults = data["defaults"]
+    _exact_keys(path, "defaults", defaults, _DEFAULT_KEYS)
+    if defaults["transform"] not in _TRANSFORMS:
+        raise VocabularyError(
+            path,
+            "defaults.transform",
+            f"expected one of {', '.join(_TRANSFORMS)}, got {defaults['transform']!r}",
+        )
+    for key in _DEFAULT_KEYS[1:]:
+        _number(path, f"defaults.{key}", defaults[key])
+    variation = data["variation"]
+    _exact_keys(
+        path, "variation", variation, ("temperature_factor", "weight_factor", "tanh_probability")
+    )
+    # Temperature factors are drawn log-uniformly: 0 has no logarithm.
+    _number_range(path, "variation.temperature_factor", variation["temperature_factor"], True)
+    _number_range(path, "variation.weight_factor", variation["weight_factor"])
+    if _number(path, "variation.tanh_probability", variation["tanh_probability"]) > 1:
+        raise VocabularyError(
+            path,
+            "variation.tanh_probability",
+            f"expected a probability in [0, 1], got {variation['tanh_probability']!r}",
+        )
+    retune = data["retune"]
+    _exact_keys(path, "retune", retune, (*_RETUNE_FACTORS, "temperature_range", "weight_range"))
+    for key in _RETUNE_FACTORS:
+        _number(path, f"retune.{key}", retune[key])
+    # Temperatures are clamped into this range and divide distances: its low end must be > 0.
+    _number_range(path, "retune.temperature_range", retune["temperature_range"], True)
+    _number_range(path, "retune.weight_range", retune["weight_range"])
+    return data
+
+
 @cache
 def vocabulary(path: Path | None = None) -> dict[str, Any]:
-    """The synthesiser's data file, checked: every recipe term defined, every term complete."""
-    source = path or Path(str(resources.files("itskill.llm.offline") / "terms.toml"))
-    with open(source, "rb") as fh:
-        data = tomllib.load(fh)
-    for section in (
-        "recipes",
-        "conditions",
-        "terms",
-        "predicates",
-        "defaults",
-        "variation",
-        "retune",
-    ):
-        if section not in data:
-            raise ValueError(f"{source}: missing [{section}] table")
-    for table in ("recipes", "conditions"):
-        for key, names in data[table].items():
-            for name in names:
-                if name not in data["terms"]:
-                    raise ValueError(f"{source}: {table}.{key}: unknown term {name!r}")
-    stray = set(data["conditions"]) - set(PREDICATES)
-    if stray:
-        raise ValueError(f"{source}: [conditions] names unknown predicates {sorted(stray)}")
-    for name, term in data["terms"].items():
-        needed = ["doc", "kind", "weight"] + (
-            ["distance", "temperature"] if term.get("kind") == "distance" else ["value"]
-        )
-        missing = [key for key in needed if key not in term]
-        if term.get("kind") not in ("distance", "flag") or missing:
-            raise ValueError(
-                f"{source}: terms.{name}: needs kind 'distance' or 'flag' and {', '.join(needed)}"
-            )
-    unknown = set(data["predicates"]) ^ set(PREDICATES)
-    if unknown:
-        raise ValueError(f"{source}: [predicates] must cover exactly {sorted(PREDICATES)}")
-    return data
+    """The synthesiser's data file (default :func:`terms_path`), every entry checked: the
+    tables it needs, every recipe term defined, every term complete with placeholders it can
+    fill, numbers finite and >= 0 (:class:`VocabularyError`)."""
+    source = path or terms_path()
+    return check_vocabulary(read_toml(source, VocabularyError), source)
 
 
 # ------------------------------------------------------------------------------ task structure
@@ -227,18 +419,12 @@ def _terms(recipe: str, predicates: list[str]) -> tuple[str, ...]:
 
 def _fields(slot: int, fixture_of: dict[int, int], terms) -> dict[str, Any]:
     j = fixture_of.get(slot, slot)
+    # The defaults are those terms.toml is checked against, so that every field it may use is set.
     fields: dict[str, Any] = {
         "i": slot,
         "j": j,
+        **STAGE_FIELDS,
         "target": f'3.0 * ctx["obj_height"][:, {slot}]',
-        "hover": 0.015,
-        "hover_height": 0.05,
-        "tolerance": 0.0,
-        "fraction": 0.5,
-        "height": 0.02,
-        "dx": 0.0,
-        "dy": 0.0,
-        "degrees": 20.0,
     }
     for negate, name, args in terms:
         if negate or int(args[0]) != slot:
