@@ -201,6 +201,47 @@ def test_ctrl_c_stops_the_jobs_in_flight_and_starts_no_more(tmp_path, target, si
             os.killpg(parent.pid, signal.SIGKILL)
 
 
+IGNORED_SCRIPT = """
+import os, sys, time
+from itskill.executors import run_jobs
+
+def work(directory, i):
+    open(os.path.join(directory, f"{i}.started"), "w").close()
+    for _ in range(30):
+        time.sleep(0.1)
+    open(os.path.join(directory, f"{i}.done"), "w").close()
+
+if __name__ == "__main__":
+    import signal
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    results = list(run_jobs(work, [(sys.argv[1], i) for i in range(4)], "local", 2))
+    sys.exit(1 if any(not r.ok for r in results) else 0)
+"""
+
+
+def test_a_ctrl_c_the_background_command_ignores_stops_none_of_its_workers(tmp_path) -> None:
+    # A script's background job (`cmd &`) ignores SIGINT. Its workers must too: stopped by a
+    # Ctrl-C their parent ignored, they left every job failed while the parent went on.
+    script = tmp_path / "parent.py"
+    script.write_text(IGNORED_SCRIPT)
+    parent = subprocess.Popen(
+        [sys.executable, str(script), str(tmp_path)],
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(tmp_path.glob("*.started"))) < 2:
+            assert time.monotonic() < deadline, "workers did not start"
+            time.sleep(0.1)
+        os.killpg(parent.pid, signal.SIGINT)
+        assert parent.wait(timeout=60) == 0
+        assert len(list(tmp_path.glob("*.done"))) == 4
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(parent.pid, signal.SIGKILL)
+
+
 SLOW_IMPORT_MODULE = """
 import multiprocessing, os, sys, time
 

@@ -29,12 +29,6 @@ EXECUTORS: tuple[str, ...] = ("local", "ray")
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """The signals that stop a command as Ctrl-C does: the training in progress saves first."""
-FORWARDED_STOP = signal.SIGINT
-"""What a stopped process sends the workers and children it started, to stop them as Ctrl-C
-does: the signal a terminal's Ctrl-C sends them too, so that the two make one stop. (With
-SIGTERM forwarded beside a terminal's SIGINT, a worker whose main thread slept in a system call
-did not stop; tests/test_executors.py.)"""
-
 _interrupted = False
 _in_job = False
 _RAY_STOP_S = 120.0
@@ -159,9 +153,18 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
 
 
 def stop_child(pid: int) -> None:
-    """Ask process ``pid``, one this process started, to stop as on Ctrl-C (it saves first)."""
+    """Ask process ``pid``, one this process started, to stop as on Ctrl-C (it saves first).
+
+    The signal is SIGINT, the one a terminal's Ctrl-C sends the child too, so that the two make
+    one stop (with SIGTERM forwarded beside a terminal's SIGINT, a worker whose main thread slept
+    in a system call did not stop; tests/test_executors.py). Where this process ignores SIGINT,
+    so does the child it spawned (a command started in the background of a script, `cmd &`): it
+    is sent SIGTERM, which it handles, or it would train on to the end of its job, unsaved, while
+    this process waited for it.
+    """
+    ignored = signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     with contextlib.suppress(ProcessLookupError):
-        os.kill(pid, FORWARDED_STOP)
+        os.kill(pid, signal.SIGTERM if ignored else signal.SIGINT)
 
 
 def stop_on_first_interrupt() -> None:
@@ -172,10 +175,8 @@ def stop_on_first_interrupt() -> None:
     must not cut short the checkpoint the first one made it save. SIGTERM (a scheduler stopping
     the whole process group, `kill`) and SIGHUP (the terminal closed) stop it the same way
     instead of ending it unsaved. A process started with SIGTERM or SIGHUP ignored (SIGHUP
-    under `nohup`) keeps ignoring it. SIGINT, :data:`FORWARDED_STOP`, is handled even where it
-    was ignored at start: a command started in the background of a script (`cmd &`) ignores it,
-    as do the processes it spawns, which then trained on to the end of their jobs, unsaved
-    and past the user's `kill`, while the command waited for them.
+    under `nohup`, SIGINT in a background job of a script) keeps ignoring it, as the process
+    that started it does: a Ctrl-C that this whole tree ignores must not stop its workers alone.
     """
     _install(_interrupt_once)
 
@@ -183,7 +184,7 @@ def stop_on_first_interrupt() -> None:
 def _install(handler: Callable[[int, Any], None]) -> None:
     """``handler`` for a worker's or child's stop signals (:func:`stop_on_first_interrupt`)."""
     for sig in STOP_SIGNALS:
-        if sig == FORWARDED_STOP or signal.getsignal(sig) is not signal.SIG_IGN:
+        if signal.getsignal(sig) is not signal.SIG_IGN:
             signal.signal(sig, handler)
 
 
