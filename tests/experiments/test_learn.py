@@ -176,6 +176,14 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(
     assert damaged.exit_code == 2, damaged.output
     assert "evaluation.json: episodes: expected a whole number" in flat(damaged.output)
     assert "delete it and --resume to run its step again" in flat(damaged.output)
+    # The skill step's record: run again, it would add the skill a second time.
+    (out / "evaluation.json").write_text(json.dumps(evaluation))
+    recorded = json.loads((out / "skill.json").read_text())
+    (out / "skill.json").write_text(json.dumps({**recorded, "id": "one"}))
+    damaged = learn(*args, "--no-video", "--resume")
+    assert damaged.exit_code == 2, damaged.output
+    assert "skill.json: id: expected a whole number" in flat(damaged.output)
+    assert "remove it first (`itskill skills remove NAME`)" in flat(damaged.output)
 
     # Moved elsewhere, the run still has its report: its records name files relative to it.
     moved = tmp_path / "moved"

@@ -319,9 +319,14 @@ class _Steps:
             for shape in shapes:
                 check_shape(path, value, shape)
         except CorruptFileError as err:
-            raise CorruptFileError(
-                path, f"{err.problem}; delete it and --resume to run its step again"
-            ) from None
+            redo = "delete it and --resume to run its step again"
+            if file == "skill.json":
+                # The step may have added the skill already: run again, it adds a second copy.
+                redo = (
+                    "if the skill space holds this run's skill (`itskill skills list`), remove it "
+                    f"first (`itskill skills remove NAME`); then {redo}"
+                )
+            raise CorruptFileError(path, f"{err.problem}; {redo}") from None
         return value
 
 
@@ -640,8 +645,15 @@ def _sources(task: str, b: LearnBudget, steps: _Steps) -> dict[str, list[dict[st
         method = get_method(b.transfer.method)
         retrieved = used = []
         if method.uses_sources:
-            retrieved = resolve_sources(task, "auto", k=b.transfer.k)
-            used = method.select(retrieved, load_transfer_config())
+            retrieval = load_transfer_config()
+            retrieved = resolve_sources(
+                task,
+                "auto",
+                k=b.transfer.k,
+                distinct_actions=retrieval.distinct_actions,
+                min_success=retrieval.min_success,
+            )
+            used = method.select(retrieved, retrieval)
         cached = {
             "retrieved": [s.to_dict() for s in retrieved],
             "used": [s.to_dict() for s in used],

@@ -353,7 +353,7 @@ def resolve_all_sources(
     :class:`ExperimentConfigError` naming ``sources.<task>`` and the file (``source_file``, else
     the run's copy of it or its ``config.json``).
     """
-    from itskill.transfer import get_method, resolve_sources
+    from itskill.transfer import get_method, load_transfer_config, resolve_sources
     from itskill.transfer.sources import SourceError
 
     path = run_dir / SOURCES_FILE
@@ -367,12 +367,20 @@ def resolve_all_sources(
         )
     if not any(get_method(m).uses_sources for m in config.methods):
         return found
+    # The retrieval settings the cells' networks are built with (transfer.toml).
+    retrieval = load_transfer_config()
     for task in config.tasks:
         if task in found:
             continue
         wanted = config.sources.get(task, AUTO)
         try:
-            chosen = resolve_sources(task, wanted if wanted == AUTO else list(wanted), k=config.k)
+            chosen = resolve_sources(
+                task,
+                wanted if wanted == AUTO else list(wanted),
+                k=config.k,
+                distinct_actions=retrieval.distinct_actions,
+                min_success=retrieval.min_success,
+            )
         except SourceError as err:
             if wanted == AUTO:
                 raise  # about the skill space, not about anything the file says
