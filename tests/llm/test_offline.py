@@ -229,6 +229,9 @@ def test_planner_refuses_a_place_the_scene_does_not_have(command: str, place: st
         ("Lift the M12 nut off the table", "lift_nut_m12"),
         ("Pick up the nut on the table", "pick_nut_m12"),
         ("slide the M12 nut along the table to the bolt", "push_nut_m12"),
+        # How or when, not where (read as places when the refusal came in).
+        ("Put the nut on the bolt at once", "place_nut_m12"),
+        ("Pick up the nut and place it on the bolt in one motion", "pickplace_nut_m12"),
     ],
 )
 def test_planner_still_plans_the_places_of_the_scene(command: str, task: str) -> None:

@@ -352,7 +352,12 @@ _MOVES_PART = r"\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?)\b"
 _NOT_A_PLACE = {"top", "bottom", "front", "back", "side", "middle", "centre", "center", "end",
                 "edge", "entrance", "left", "right", "place", "position", "way", "height",
                 "gripper", "hand", "fingers", "effector", "robot", "it", "them", "one", "ones",
-                "here", "there"} | _UNITS  # fmt: skip
+                "here", "there",
+                # How or when, not where: "at once", "in one motion", "in the correct orientation"
+                # ("orient" is a verb, so the place's words stop before it).
+                "once", "go", "motion", "movement", "moment", "time", "turn", "turns", "step",
+                "steps", "order", "sequence", "manner", "fashion", "orientation", "correct",
+                "proper", "angle", "pose", "speed", "rate"} | _UNITS  # fmt: skip
 # Words that end the words of a place: another word of place ("on top of the bolt" reads on
 # through "of"), one of how or when ("to the left now"), or one that starts a verb phrase ("I want
 # you to, if you can, ...").
