@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 
 import pytest
 
@@ -93,6 +94,14 @@ if __name__ == "__main__":
 """
 
 
+def _wait_for_workers(started: Callable[[], bool]) -> None:
+    """Wait (up to a minute) until ``started()``: the workers have begun their jobs."""
+    deadline = time.monotonic() + 60
+    while not started():
+        assert time.monotonic() < deadline, "workers did not start"
+        time.sleep(0.1)
+
+
 def _alive(pid: int) -> bool:
     """Running and not a zombie (an orphan's zombie waits for a reaper that may never come)."""
     try:
@@ -109,10 +118,7 @@ def test_local_workers_end_when_the_parent_is_killed(tmp_path) -> None:
     marks = [tmp_path / "a.pid", tmp_path / "b.pid"]
     parent = subprocess.Popen([sys.executable, str(script), *map(str, marks)])
     try:
-        deadline = time.monotonic() + 60
-        while not all(m.exists() and m.read_text() for m in marks):
-            assert time.monotonic() < deadline, "workers did not start"
-            time.sleep(0.1)
+        _wait_for_workers(lambda: all(m.exists() and m.read_text() for m in marks))
         workers = [int(m.read_text()) for m in marks]
         parent.send_signal(signal.SIGTERM)
         parent.wait(timeout=10)
@@ -184,10 +190,7 @@ def test_ctrl_c_stops_the_jobs_in_flight_and_starts_no_more(tmp_path, target, si
         preexec_fn=lambda: signal.signal(signal.SIGINT, sigint),
     )
     try:
-        deadline = time.monotonic() + 60
-        while len(list(tmp_path.glob("*.started"))) < 2:
-            assert time.monotonic() < deadline, "workers did not start"
-            time.sleep(0.1)
+        _wait_for_workers(lambda: len(list(tmp_path.glob("*.started"))) >= 2)
         time.sleep(0.5)
         if target == "process group":
             os.killpg(parent.pid, sig)
@@ -230,10 +233,7 @@ def test_a_ctrl_c_the_background_command_ignores_stops_none_of_its_workers(tmp_p
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
     )
     try:
-        deadline = time.monotonic() + 60
-        while len(list(tmp_path.glob("*.started"))) < 2:
-            assert time.monotonic() < deadline, "workers did not start"
-            time.sleep(0.1)
+        _wait_for_workers(lambda: len(list(tmp_path.glob("*.started"))) >= 2)
         os.killpg(parent.pid, signal.SIGINT)
         assert parent.wait(timeout=60) == 0
         assert len(list(tmp_path.glob("*.done"))) == 4
@@ -300,10 +300,7 @@ def test_ctrl_c_while_workers_import_their_job_ends_without_a_traceback(tmp_path
         text=True,
     )
     try:
-        deadline = time.monotonic() + 60
-        while len(list(tmp_path.glob("*.importing"))) < 2:
-            assert time.monotonic() < deadline, "workers did not start"
-            time.sleep(0.1)
+        _wait_for_workers(lambda: len(list(tmp_path.glob("*.importing"))) >= 2)
         os.killpg(parent.pid, signal.SIGINT)
         _, stderr = parent.communicate(timeout=30)
         assert parent.returncode == 130

@@ -8,7 +8,6 @@ import re
 from pathlib import Path
 
 import pytest
-from filelock import Timeout
 from rich.console import Console
 
 from itskill.experiments.config import load_experiment
@@ -327,22 +326,9 @@ def test_ctrl_c_says_how_to_go_on_only_where_there_is_a_run(toy, tmp_path, monke
     assert ("no run was recorded yet; run the same command again" in output) is not recorded
 
 
-def _locked(directory: Path, kind: str) -> bool:
-    """Whether someone holds ``directory``'s ``kind`` lock (this asks for it and lets it go)."""
-    lock = directory_lock(directory, kind)
-    try:
-        lock.acquire(timeout=0)
-    except Timeout:
-        return True
-    lock.release()
-    return False
-
-
-def _tree(directory: Path) -> dict[Path, bytes | None]:
-    return {p: p.read_bytes() if p.is_file() else None for p in directory.rglob("*")}
-
-
-def test_a_run_in_use_by_another_session_is_refused_and_left_as_it_is(toy, tmp_path, monkeypatch):
+def test_a_run_in_use_by_another_session_is_refused_and_left_as_it_is(
+    toy, tmp_path, monkeypatch, file_tree
+):
     # Two sessions resuming one run trained the same cells into the same files: both failed,
     # and the run could not be finished any more.
     from itskill.experiments import runner
@@ -356,7 +342,7 @@ def test_a_run_in_use_by_another_session_is_refused_and_left_as_it_is(toy, tmp_p
     run = tmp_path / "run"
     with pytest.raises(RuntimeError, match="stopped"):  # recorded, then stopped
         run_experiment(small, run, "local", 1, source_file=path, console=quiet())
-    before = _tree(run)
+    before = file_tree(run)
     new = tmp_path / "new"
     with directory_lock(run, "experiment"), directory_lock(new, "experiment"):
         for out, resume in ((run, True), (run, False), (new, False)):
@@ -368,19 +354,21 @@ def test_a_run_in_use_by_another_session_is_refused_and_left_as_it_is(toy, tmp_p
                 run_experiment(
                     small, out, "local", 1, resume=resume, source_file=path, console=quiet()
                 )
-    assert _tree(run) == before
+    assert file_tree(run) == before
     assert not new.exists()
 
 
 @pytest.mark.parametrize("error", [RuntimeError, KeyboardInterrupt])
-def test_a_run_holds_its_lock_until_it_ends_however_it_ends(toy, tmp_path, monkeypatch, error):
+def test_a_run_holds_its_lock_until_it_ends_however_it_ends(
+    toy, tmp_path, monkeypatch, error, lock_held
+):
     from itskill.experiments import runner
 
     run = tmp_path / "run"
     held = []
 
     def stopped(*args, **kwargs):
-        held.append(_locked(run, "experiment"))
+        held.append(lock_held(run, "experiment"))
         raise error("stopped before any cell trained")
 
     monkeypatch.setattr(runner, "run_jobs", stopped)
@@ -392,7 +380,7 @@ def test_a_run_holds_its_lock_until_it_ends_however_it_ends(toy, tmp_path, monke
     with pytest.raises(error):
         run_experiment(small, run, "local", 1, resume=True, console=quiet())
     assert held == [True, True]
-    assert not _locked(run, "experiment")
+    assert not lock_held(run, "experiment")
 
 
 def test_cells_that_ask_no_model_need_no_api_key(tmp_path, monkeypatch):

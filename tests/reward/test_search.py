@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 from fake_openai import FakeOpenAIServer
-from filelock import Timeout
 from replies import (
     CONSTANT,
     EMPTY,
@@ -195,23 +194,8 @@ def test_an_empty_command_leaves_no_run_behind(tmp_path: Path, quiet, command: s
         generate_reward(command, client, run, tiny_config(), resume=True, console=quiet)
 
 
-def _locked(directory: Path, kind: str) -> bool:
-    """Whether someone holds ``directory``'s ``kind`` lock (this asks for it and lets it go)."""
-    lock = directory_lock(directory, kind)
-    try:
-        lock.acquire(timeout=0)
-    except Timeout:
-        return True
-    lock.release()
-    return False
-
-
-def _tree(directory: Path) -> dict[Path, bytes | None]:
-    return {p: p.read_bytes() if p.is_file() else None for p in directory.rglob("*")}
-
-
 def test_a_search_in_use_by_another_session_is_refused_and_left_as_it_is(
-    tmp_path: Path, quiet, monkeypatch
+    tmp_path: Path, quiet, monkeypatch, file_tree
 ) -> None:
     # Two sessions resuming one search trained the same candidates into the same files: both
     # failed, and the run could not be finished any more.
@@ -223,7 +207,7 @@ def test_a_search_in_use_by_another_session_is_refused_and_left_as_it_is(
     client = search_client(run, "offline")
     with pytest.raises(RuntimeError, match="stopped"):  # recorded, then stopped
         generate_reward("pick_nut_m12", client, run, tiny_config(), console=quiet)
-    before = _tree(run)
+    before = file_tree(run)
     new = tmp_path / "new"
     with directory_lock(run, "reward-search"), directory_lock(new, "reward-search"):
         for out, resume in ((run, True), (run, False), (new, False)):
@@ -235,13 +219,13 @@ def test_a_search_in_use_by_another_session_is_refused_and_left_as_it_is(
                 generate_reward(
                     "pick_nut_m12", client, out, tiny_config(), resume=resume, console=quiet
                 )
-    assert _tree(run) == before
+    assert file_tree(run) == before
     assert not new.exists()
 
 
 @pytest.mark.parametrize("error", [RuntimeError, KeyboardInterrupt])
 def test_a_search_holds_its_lock_until_it_ends_however_it_ends(
-    tmp_path: Path, quiet, monkeypatch, error: type[BaseException]
+    tmp_path: Path, quiet, monkeypatch, error: type[BaseException], lock_held
 ) -> None:
     # itskill learn searches in <its run>/reward while it holds its own lock on <its run>: the
     # search's lock must not be refused for it.
@@ -250,7 +234,7 @@ def test_a_search_holds_its_lock_until_it_ends_however_it_ends(
     held = []
 
     def stopped(*args: object) -> None:
-        held.append(_locked(run, "reward-search"))
+        held.append(lock_held(run, "reward-search"))
         raise error("stopped before the samples")
 
     monkeypatch.setattr(search, "probe_contexts", stopped)
@@ -262,7 +246,7 @@ def test_a_search_holds_its_lock_until_it_ends_however_it_ends(
         with pytest.raises(error):
             generate_reward("pick_nut_m12", client, run, tiny_config(), resume=True, console=quiet)
     assert held == [True, True]
-    assert not _locked(run, "reward-search")
+    assert not lock_held(run, "reward-search")
 
 
 def test_a_reward_repeated_in_a_later_iteration_is_not_trained_again(tmp_path: Path, quiet) -> None:
