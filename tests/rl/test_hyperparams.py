@@ -43,6 +43,24 @@ def test_packaged_file_loads(family: str) -> None:
         ("[peghole]\n", "nutbolt", "no table"),
         ("[nutbolt.ppo]\nlr_schedule = 'cosine'\n", "nutbolt.ppo", "lr_schedule must be one of"),
         ("[nutbolt\n", "TOML syntax", ""),
+        # Above the first table the key is no family's: it was silently dropped.
+        (
+            "num_envs = 4\n[nutbolt]\ncheckpoint_every = 1000\n",
+            "num_envs",
+            "(known families: nutbolt, peghole)",
+        ),
+        ("normalize_reward = false\n", "normalize_reward", "a key above the first table"),
+        # A mistyped family's table was never read.
+        (
+            "[nutbolt]\n[peghol]\nnum_envs = 4\n",
+            "peghol",
+            "did you mean 'peghole'? known families: nutbolt, peghole",
+        ),
+        (
+            "[nutbolt]\n[screws.ppo]\nn_steps = 32\n",
+            "screws",
+            "unknown task family 'screws'; known families: nutbolt",
+        ),
     ],
 )
 def test_invalid_file_names_file_field_expected(
@@ -246,29 +264,6 @@ def test_overrides_take_the_same_bounds(overrides: dict, where: str) -> None:
     with pytest.raises(HyperparamError) as info:
         load_hyperparams("nutbolt", "ppo", overrides=overrides)
     assert info.value.where == where
-
-
-@pytest.mark.parametrize(
-    ("text", "where", "expected"),
-    [
-        # Above the first table the key is no family's: it was silently dropped.
-        ("num_envs = 4\n[nutbolt]\ncheckpoint_every = 1000\n", "num_envs", "above the first"),
-        ("normalize_reward = false\n", "normalize_reward", "above the first table"),
-        # A mistyped family's table was never read.
-        ("[nutbolt]\n[peghol]\nnum_envs = 4\n", "peghol", "did you mean 'peghole'?"),
-        ("[nutbolt]\n[screws.ppo]\nn_steps = 32\n", "screws", "unknown task family 'screws'"),
-    ],
-)
-def test_an_entry_of_no_known_family_is_named_with_the_families(
-    tmp_path: Path, text: str, where: str, expected: str
-) -> None:
-    path = tmp_path / "hp.toml"
-    path.write_text(text)
-    with pytest.raises(HyperparamError) as info:
-        load_hyperparams("nutbolt", "ppo", path)
-    assert (info.value.path, info.value.where) == (str(path), where)
-    assert expected in info.value.problem
-    assert "nutbolt, peghole" in info.value.problem
 
 
 def test_cli_reports_a_non_finite_hyperparameter_in_one_line(tmp_path: Path) -> None:
