@@ -17,3 +17,27 @@ NUM_ENVS_MAX = 1024
 and the controller's IK) and a row of every rollout buffer, and they are stepped by the process's
 own threads: the families train with 16, a thousand is already far past the cores that step them,
 and a mistyped 100000000000 crashes every run at allocation instead of failing at load."""
+
+WIDTH_MAX = 4096
+"""The widest layer of a network a user sizes (the policy's stages, the transfer network's
+attention and fusion MLPs): the paper's are 256 units and the packaged ones at most 256, and a
+mistyped 2560000 allocates a weight matrix of terabytes when the network is built."""
+
+SOURCES_MAX = 32
+"""The most source skills one transfer network takes (``k``, PST's ``keep``): the paper's and the
+packaged ``k`` are 3, and every source is a frozen policy run on every step of the training."""
+
+WORKERS_MAX = 1024
+"""The most worker processes (or Ray tasks at once) a run asks for: each is a process that trains
+one job; a thousand is far past any machine's cores, and a mistyped huge count starts processes
+until the machine gives out."""
+
+RETRIES_MAX = 10
+"""The most times a model's reply that does not validate is sent back (the analyzer's
+``retries``, the reward search's ``max_regenerations``): each is a paid model call, and the
+packaged values are 2 and 3."""
+
+SEED_COUNT_MAX = 1000
+"""The most seeds given as a count (an experiment's ``seeds = 5``, the reward search's
+``select_seeds`` and ``final_seeds``): each is a whole training per task, method or reward, so a
+mistyped 50000 for 5 would queue that many."""

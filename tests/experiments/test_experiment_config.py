@@ -276,3 +276,22 @@ def test_the_bounds_themselves_load(tmp_path):
     )
     config = load_experiment(write(tmp_path, text))
     assert (config.num_envs, config.eval.episodes) == (1024, 1_000_000)
+
+
+@pytest.mark.parametrize(
+    ("edit", "where", "bound"),
+    [
+        # No upper bound: thousands of frozen sources in every cell, processes until the machine
+        # gave out.
+        (("steps = 1000", "steps = 1000\nk = {}"), "k", 32),
+        (("every = 500", "every = 500\n[execution]\nworkers = {}"), "execution.workers", 1024),
+    ],
+)
+def test_source_and_worker_counts_have_an_upper_bound(tmp_path, edit, where, bound):
+    old, new = edit
+    load_experiment(write(tmp_path, MINIMAL.replace(old, new.format(bound))))  # the bound loads
+    path = write(tmp_path, MINIMAL.replace(old, new.format(bound + 1)))
+    with pytest.raises(ExperimentConfigError) as info:
+        load_experiment(path)
+    assert (info.value.path, info.value.where) == (str(path), where)
+    assert info.value.problem == f"must be at most {bound:,}, got {bound + 1:,}"

@@ -446,6 +446,38 @@ def test_budget_fields_are_named_as_the_file_has_them(tmp_path, edit, where, pro
     assert problem in info.value.problem
 
 
+@pytest.mark.parametrize(
+    ("edit", "where", "bound"),
+    [
+        # No upper bound: thousands of frozen sources, paid model calls or trainings, or days of
+        # one, all found only once the run got there.
+        (("eval_episodes = 2\n[test.evaluation]", "eval_episodes = 2\nk = {}\n[test.evaluation]"),
+         "test.transfer.k", 32),
+        (("iterations = 1", "iterations = {}"), "test.reward.iterations", 100),
+        (("samples = 1", "samples = {}"), "test.reward.samples", 100),
+        (("steps = 256\nnum_envs = 2\nselect_top", "steps = {}\nnum_envs = 2\nselect_top"),
+         "test.reward.steps", 1_000_000_000),
+        (("evaluations = 1", "evaluations = {}"), "test.reward.evaluations", 1000),
+        (("final_seeds = 1", "final_seeds = {}"), "test.reward.final_seeds", 1000),
+        (("[test.transfer]", "max_regenerations = {}\n[test.transfer]"),
+         "test.reward.max_regenerations", 10),
+        (("[test.transfer]", "probe_steps = {}\n[test.transfer]"), "test.reward.probe_steps", 1000),
+        (("[test.transfer]", "workers = {}\n[test.transfer]"), "test.reward.workers", 1024),
+    ],
+)  # fmt: skip
+def test_budget_counts_have_an_upper_bound(tmp_path, edit, where, bound):
+    path = tmp_path / "b.toml"
+    old, new = edit
+    assert old in TEST_BUDGETS
+    path.write_text(TEST_BUDGETS.replace(old, new.format(bound), 1))
+    load_budgets(path)  # the bound itself loads
+    path.write_text(TEST_BUDGETS.replace(old, new.format(bound + 1), 1))
+    with pytest.raises(BudgetError) as info:
+        load_budgets(path)
+    assert (info.value.path, info.value.where) == (str(path), where)
+    assert f"at most {bound:,}, got {bound + 1:,}" in info.value.problem
+
+
 def test_unknown_budget_is_a_clear_error(tmp_path, budgets):
     result = learn(COMMAND, "--budgets", str(budgets), "--budget", "huge",
                    "--out", str(tmp_path / "run"))  # fmt: skip

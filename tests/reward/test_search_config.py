@@ -209,3 +209,33 @@ def test_cli_reports_an_infinite_timeout_in_one_line(tmp_path: Path) -> None:
     message = f"error: {path}: sandbox.call_timeout_s: expected a finite number, got inf"
     assert "".join(message.split()) in "".join(result.output.split())
     assert "Traceback" not in result.output and not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("key", "bound"),
+    [
+        # No upper bound: thousands of paid model calls, trainings or processes, or days of one.
+        ("iterations", 100),
+        ("samples", 100),
+        ("select_top", 100),
+        ("steps", 1_000_000_000),
+        ("evaluations", 1000),
+        ("probe_steps", 1000),
+        ("select_seeds", 1000),
+        ("final_seeds", 1000),
+        ("workers", 1024),
+        ("max_regenerations", 10),
+    ],
+)
+def test_counts_have_an_upper_bound(tmp_path: Path, key: str, bound: int) -> None:
+    path = tmp_path / "search.toml"
+    path.write_text(f"[search]\n{key} = {bound}\n")
+    assert getattr(load_search_config(path), key) == bound  # the bound itself loads
+    path.write_text(f"[search]\n{key} = {bound + 1}\n")
+    with pytest.raises(SearchConfigError) as info:
+        load_search_config(path)
+    assert (info.value.path, info.value.where) == (str(path), f"search.{key}")
+    assert info.value.problem == f"expected at most {bound:,}, got {bound + 1:,}"
+    with pytest.raises(SearchConfigError) as info:
+        load_search_config(overrides={key: bound + 1})
+    assert (info.value.path, info.value.where) == ("overrides", key)

@@ -279,3 +279,45 @@ def test_cli_reports_a_non_finite_hyperparameter_in_one_line(tmp_path: Path) -> 
     message = f"error: {path}: nutbolt.ppo.learning_rate: expected a finite number, got inf"
     assert "".join(message.split()) in "".join(result.output.split())
     assert "Traceback" not in result.output and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("table", "key", "most"),
+    [
+        # No upper bound: a mistyped huge width or count allocated until the machine gave out, or
+        # trained on for days, before failing.
+        ("nutbolt.policy", "stages", "[256, {}, 128]"),
+        ("nutbolt.ppo", "n_steps", "{}"),
+        ("nutbolt.a2c", "n_steps", "{}"),
+        ("nutbolt.ppo", "batch_size", "{}"),
+        ("nutbolt.ppo", "n_epochs", "{}"),
+        ("nutbolt.demos", "epochs", "{}"),
+        ("nutbolt.demos", "batch_size", "{}"),
+    ],
+)
+def test_widths_and_counts_have_an_upper_bound(
+    tmp_path: Path, table: str, key: str, most: str
+) -> None:
+    from itskill.limits import WIDTH_MAX
+    from itskill.rl.config import BATCH_SIZE_MAX, EPOCHS_MAX, N_STEPS_MAX
+
+    bound = {"stages": WIDTH_MAX, "n_steps": N_STEPS_MAX, "batch_size": BATCH_SIZE_MAX}.get(
+        key, EPOCHS_MAX
+    )
+    path = tmp_path / "hp.toml"
+    path.write_text(f"[{table}]\n{key} = {most.format(bound)}\n")
+    load_hyperparams("nutbolt", "ppo", path)  # the bound itself loads
+    path.write_text(f"[{table}]\n{key} = {most.format(bound + 1)}\n")
+    with pytest.raises(HyperparamError) as info:
+        load_hyperparams("nutbolt", "ppo", path)
+    assert (info.value.path, info.value.where) == (str(path), f"{table}.{key}")
+    assert f"at most {bound:,}" in info.value.problem
+
+
+def test_overrides_take_the_upper_bounds() -> None:
+    with pytest.raises(HyperparamError) as info:
+        load_hyperparams("nutbolt", "ppo", overrides={"policy": {"stages": [256, 10**9]}})
+    assert info.value.where == "overrides.policy.stages" and "at most 4,096" in info.value.problem
+    with pytest.raises(HyperparamError) as info:
+        load_hyperparams("nutbolt", "ppo", overrides={"n_epochs": 5000})
+    assert info.value.where == "overrides.ppo.n_epochs" and "at most 1,000" in info.value.problem

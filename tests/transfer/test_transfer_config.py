@@ -59,3 +59,34 @@ def test_a_config_built_in_code_still_names_its_python_field() -> None:
         TransferConfig(pst_keep=0)
     with pytest.raises(ValueError, match=r"prior_weight must be in \[0, 1\], got nan"):
         TransferConfig(prior_weight=float("nan"))
+
+
+@pytest.mark.parametrize(
+    ("text", "where", "bound"),
+    [
+        # No upper bound: a network of terabytes, thousands of sources, thousands of paid calls.
+        ("[attention]\nhidden = {}\n", "attention.hidden", 4096),
+        ("[fusion]\nhidden = [64, {}]\n", "fusion.hidden", 4096),
+        ("[sources]\nk = {}\n", "sources.k", 32),
+        ("[pst]\nkeep = {}\n", "pst.keep", 32),
+        ("[analyzer]\nretries = {}\n", "analyzer.retries", 10),
+    ],
+)
+def test_widths_and_counts_have_an_upper_bound(
+    tmp_path: Path, text: str, where: str, bound: int
+) -> None:
+    path = tmp_path / "transfer.toml"
+    path.write_text(text.format(bound))
+    load_transfer_config(path)  # the bound itself loads
+    path.write_text(text.format(bound + 1))
+    with pytest.raises(TransferConfigError) as info:
+        load_transfer_config(path)
+    assert (info.value.path, info.value.where) == (str(path), where)
+    assert f"at most {bound:,}, got" in info.value.problem
+
+
+def test_a_config_built_in_code_takes_the_upper_bounds() -> None:
+    with pytest.raises(ValueError, match="attention_hidden must be at most 4,096, got 4097"):
+        TransferConfig(attention_hidden=4097)
+    with pytest.raises(ValueError, match="analyzer_retries must be at most 10, got 11"):
+        TransferConfig(analyzer_retries=11)

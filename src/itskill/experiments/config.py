@@ -13,11 +13,12 @@ Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but 
     seeds = 5 (at most 1000) | [0, 1, ...]   algo = "a2c" | "ppo"   steps = env-steps per cell
     num_envs = N (at most 1024)  (default: the family's, from the hyper-parameter table)
     reward = "expert" | {task = "file.py", ...}   (paths relative to the experiment file)
-    sources = "auto" | {task = [skill names or ids], ...}   k = sources retrieved by "auto"
+    sources = "auto" | {task = [skill names or ids], ...}
+    k = sources retrieved by "auto" (at most 32)
     llm = "offline" | "openai:MODEL"              (the analyzer's client)
     [eval] every, episodes (at most 1,000,000)
     [report] threshold, fractions (strictly increasing), baseline, grid_points, paper_gain
-    [execution] executor, workers, ray_address
+    [execution] executor, workers (at most 1024), ray_address
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from typing import Any
 
 from itskill.datafile import DataFileError, is_number, read_toml
 from itskill.executors import EXECUTORS
-from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX
+from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_COUNT_MAX, SOURCES_MAX, WORKERS_MAX
 from itskill.llm.client import UnknownModelError, model_spec
 from itskill.reward.config import check_seeds
 from itskill.reward_contract import EXPERT
@@ -40,7 +41,6 @@ from itskill.tasks import UnknownTaskError, get_task
 
 ALGOS = ("a2c", "ppo")
 AUTO = "auto"
-MAX_SEED_COUNT = 1000
 MAX_NAME_BYTES = 100
 """Well inside the file systems' 255 bytes per directory name, and a path one can still read."""
 MAX_GRID_POINTS = 100_000
@@ -259,11 +259,11 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
         check_seeds(path, "seeds", seeds, ExperimentConfigError)
     else:
         count = _positive(path, "seeds", seeds_raw)
-        if count > MAX_SEED_COUNT:
+        if count > SEED_COUNT_MAX:
             # A mistyped count (50000 for 5) would queue that many runs per task and method, and
             # a huge one hang building them; more than this is listed on purpose.
             raise ExperimentConfigError(
-                path, "seeds", f"at most {MAX_SEED_COUNT} as a count, got {count}; list the "
+                path, "seeds", f"at most {SEED_COUNT_MAX} as a count, got {count}; list the "
                 "seeds to run more"
             )  # fmt: skip
         seeds = tuple(range(count))
@@ -334,7 +334,8 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
         num_envs=num_envs,
         reward=reward,
         sources=sources,
-        k=_positive(path, "k", raw.get("k", 3)),
+        # More retrieved and ran thousands of frozen sources in every cell (itskill.limits).
+        k=_positive(path, "k", raw.get("k", 3), SOURCES_MAX),
         llm=llm,
         report=report,
         execution=execution,
@@ -402,7 +403,8 @@ def _parse_execution(path: Path, value: Any) -> ExecutionSettings:
         )
     workers = ex.get("workers")
     if workers is not None:
-        _positive(path, "execution.workers", workers)
+        # More started processes until the machine gave out (itskill.limits).
+        _positive(path, "execution.workers", workers, WORKERS_MAX)
     address = ex.get("ray_address")
     if address is not None:
         _typed(path, "execution.ray_address", address, str)

@@ -56,7 +56,7 @@ from itskill.files import (
     some_of,
     write_json,
 )
-from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_MAX
+from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_MAX, SOURCES_MAX
 from itskill.llm.usage_log import UsageLog
 
 EVAL_SEED = 10_000
@@ -221,11 +221,12 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
         eval_every=_field(path, where, tr, "eval_every", int),
         method=_field(path, where, tr, "method", str, "itn"),
         algo=_field(path, where, tr, "algo", str, TransferBudget.algo),
-        # Bounded as everywhere (itskill.limits): more crashed the training at allocation, or
-        # failed its evaluations with MemoryError, after the whole reward search.
+        # Bounded as everywhere (itskill.limits): more crashed the training at allocation,
+        # failed its evaluations with MemoryError, or ran thousands of frozen sources, after the
+        # whole reward search (whose own counts the search settings bound).
         num_envs=_field(path, where, tr, "num_envs", int, None, NUM_ENVS_MAX),
         eval_episodes=_field(path, where, tr, "eval_episodes", int, 50, EPISODES_MAX),
-        k=_field(path, where, tr, "k", int, 3),
+        k=_field(path, where, tr, "k", int, 3, SOURCES_MAX),
     )
     if transfer.method not in METHODS:
         raise BudgetError(path, f"{where}.method", f"expected one of {list(METHODS)}")

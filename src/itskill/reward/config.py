@@ -15,7 +15,14 @@ from typing import Any
 
 from itskill.datafile import DataFileError, is_number, read_toml
 from itskill.executors import EXECUTORS
-from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_MAX
+from itskill.limits import (
+    EPISODES_MAX,
+    NUM_ENVS_MAX,
+    RETRIES_MAX,
+    SEED_COUNT_MAX,
+    SEED_MAX,
+    WORKERS_MAX,
+)
 from itskill.reward.sandbox import SandboxConfig
 from itskill.rl.config import ALGOS
 
@@ -50,16 +57,36 @@ an infinite or vast one overflows the C types that the timers and ``RLIMIT_CPU``
 MEMORY_LIMIT_MAX_MB = 1024 * 1024
 """1 TiB: more than any machine a search runs on has, so no limit at all; a larger number of
 bytes overflows the C long ``RLIMIT_AS`` takes (an OverflowError in the candidate's process)."""
+ITERATIONS_MAX = 100
+"""The most iterations of the loop (the paper's: 5): each waits for its samples' trainings."""
+SAMPLES_MAX = 100
+"""The most reward samples per iteration, and rewards retrained before the choice
+(``select_top``): the paper samples 10; each sample is a paid model call and a training per seed."""
+STEPS_MAX = 1_000_000_000
+"""The most env-steps of one candidate's training (packaged: 73,728): a thousand times the
+paper's transfer runs (1M), past what any candidate finishes within its timeout."""
+EVALUATIONS_MAX = 1000
+"""The most evaluations through one training (packaged: 4): each runs ``eval_episodes`` episodes,
+so a mistyped huge count evaluates after every few env-steps instead of training."""
+PROBE_STEPS_MAX = 1000
+"""The most random steps of the probe (packaged: 6): the tasks' episodes end within a few hundred
+steps, and the probe keeps every step's context of every environment."""
 _MAXIMA: dict[str, int] = {
     "num_envs": NUM_ENVS_MAX, "correlation_envs": NUM_ENVS_MAX, "probe_envs": NUM_ENVS_MAX,
     "eval_episodes": EPISODES_MAX, "candidate_timeout_s": TIME_LIMIT_MAX_S,
+    "iterations": ITERATIONS_MAX, "samples": SAMPLES_MAX, "select_top": SAMPLES_MAX,
+    "steps": STEPS_MAX, "evaluations": EVALUATIONS_MAX, "probe_steps": PROBE_STEPS_MAX,
+    "select_seeds": SEED_COUNT_MAX, "final_seeds": SEED_COUNT_MAX, "workers": WORKERS_MAX,
+    "max_regenerations": RETRIES_MAX,
     "sandbox.call_timeout_s": CALL_TIMEOUT_MAX_S, "sandbox.cpu_limit_s": TIME_LIMIT_MAX_S,
     "sandbox.memory_limit_mb": MEMORY_LIMIT_MAX_MB,
 }  # fmt: skip
 """The largest value of a field (by its name in the file): environments stepped together in one
 process (:data:`~itskill.limits.NUM_ENVS_MAX`), episodes of an evaluation
-(:data:`~itskill.limits.EPISODES_MAX`), and the limits above. A mistyped huge count ran a whole
-training first and failed after it (MemoryError), or crashed every candidate at allocation."""
+(:data:`~itskill.limits.EPISODES_MAX`), worker processes, retries of a paid model call, seeds
+given as a count (:mod:`itskill.limits`), and the limits above. A mistyped huge count ran a whole
+training first and failed after it (MemoryError), crashed every candidate at allocation, paid for
+thousands of model calls, or ran for days."""
 
 
 def default_path() -> Path:
@@ -193,6 +220,15 @@ class RewardSearchConfig:
             raise SearchConfigError(
                 where, "executor", f"expected one of {EXECUTORS}, got {self.executor!r}"
             )
+        # Before the seeds' check, which lists the retraining's seeds: a huge count hung there.
+        for name, most in _MAXIMA.items():
+            table, _, key = name.rpartition(".")
+            value = getattr(self.sandbox if table else self, key)
+            if value is not None and value > most:
+                unit = " s" if key.endswith("_s") else " MB" if key.endswith("_mb") else ""
+                raise SearchConfigError(
+                    where, name, f"expected at most {most:,}{unit}, got {value:,}"
+                )
         check_seeds(where, "seeds", self.seeds, SearchConfigError)
         # The final (and selection) retraining train on the seeds after the largest one.
         last = self.last_seed
@@ -218,14 +254,6 @@ class RewardSearchConfig:
             if value is not None and not value > 0:
                 raise SearchConfigError(
                     where, f"sandbox.{limit.name}", f"expected a positive number, got {value!r}"
-                )
-        for name, most in _MAXIMA.items():
-            table, _, key = name.rpartition(".")
-            value = getattr(self.sandbox if table else self, key)
-            if value is not None and value > most:
-                unit = " s" if key.endswith("_s") else " MB" if key.endswith("_mb") else ""
-                raise SearchConfigError(
-                    where, name, f"expected at most {most:,}{unit}, got {value:,}"
                 )
 
     @property

@@ -18,7 +18,7 @@ from typing import Any, Literal
 from stable_baselines3.common.utils import LinearSchedule
 
 from itskill.datafile import DataFileError, check_like, read_toml
-from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX
+from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, WIDTH_MAX
 from itskill.rl.demos import DemoConfig
 from itskill.rl.init_policy import InitConfig
 from itskill.rl.policy import PolicyConfig
@@ -161,11 +161,21 @@ noise's standard deviation, actions being in [-1, 1]. At 2 the noise (7.4) is ov
 the whole action range, nearly every action clipped to a bound; at -5 (0.007) the policy hardly
 explores. The packaged values are -3 to -0.5. A NaN or infinite one trained into a traceback
 mid-run."""
+N_STEPS_MAX = 100_000
+"""The longest rollout per environment (``n_steps``): the packaged are 8 (A2C) and 64 (PPO), and
+the rollout buffer holds ``n_steps`` rows of every environment, so a mistyped huge one fails at
+allocation after the environments are made."""
+BATCH_SIZE_MAX = 1_000_000
+"""The largest minibatch (PPO's, the warm start's): the packaged are 256; a million transitions
+is already a whole rollout of many environments, and no minibatch at all."""
+EPOCHS_MAX = 1000
+"""The most passes over one rollout (PPO's ``n_epochs``, packaged 5) or over the demonstrations
+(the warm start's ``epochs``, 100): a mistyped 50000 trains on for days before the first
+evaluation."""
 _RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
     **dict.fromkeys(
         (
-            "checkpoint_every", "n_steps", "batch_size", "n_epochs", "epochs",
-            "learning_rate", "clip_range", "max_grad_norm", "rms_prop_eps",
+            "checkpoint_every", "learning_rate", "clip_range", "max_grad_norm", "rms_prop_eps",
             "obs_clip",
         ),
         _POSITIVE,
@@ -185,6 +195,18 @@ _RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
     ),
     "critic_episodes": (
         lambda v: 1 <= v <= EPISODES_MAX, f"a positive value, at most {EPISODES_MAX:,}"
+    ),
+    "n_steps": (lambda v: 1 <= v <= N_STEPS_MAX, f"a positive value, at most {N_STEPS_MAX:,}"),
+    "batch_size": (
+        lambda v: 1 <= v <= BATCH_SIZE_MAX, f"a positive value, at most {BATCH_SIZE_MAX:,}"
+    ),
+    **dict.fromkeys(
+        ("n_epochs", "epochs"),
+        (lambda v: 1 <= v <= EPOCHS_MAX, f"a positive value, at most {EPOCHS_MAX:,}"),
+    ),
+    "stages": (
+        lambda v: all(1 <= w <= WIDTH_MAX for w in v),
+        f"positive widths, at most {WIDTH_MAX:,} each",
     ),
 }  # fmt: skip
 """The range of every numeric field, by name in any table. Outside it training does not fail at

@@ -14,30 +14,41 @@ from pathlib import Path
 from typing import Any
 
 from itskill.datafile import DataFileError, check_like, read_toml
+from itskill.limits import RETRIES_MAX, SOURCES_MAX, WIDTH_MAX
 
 
 class TransferConfigError(DataFileError):
     """A transfer settings file that does not validate: names the file, field and problem."""
 
 
-_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "k": (lambda v: v >= 1, "at least 1"),
-    "attention_hidden": (lambda v: v >= 1, "at least 1"),
-    "pst_keep": (lambda v: v >= 1, "at least 1"),
-    "min_success": (lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
-    "prior_weight": (lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
-    "analyzer_retries": (lambda v: v >= 0, "0 or more"),
-    "fusion_hidden": (lambda v: all(w >= 1 for w in v), "positive widths"),
+_Rule = tuple[Callable[[Any], bool], str]
+_AT_LEAST_1: _Rule = (lambda v: v >= 1, "at least 1")
+_SOURCES: _Rule = (lambda v: v <= SOURCES_MAX, f"at most {SOURCES_MAX:,}")
+_RULES: dict[str, tuple[_Rule, ...]] = {
+    "k": (_AT_LEAST_1, _SOURCES),
+    "attention_hidden": (_AT_LEAST_1, (lambda v: v <= WIDTH_MAX, f"at most {WIDTH_MAX:,}")),
+    "pst_keep": (_AT_LEAST_1, _SOURCES),
+    "min_success": ((lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),),
+    "prior_weight": ((lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),),
+    "analyzer_retries": (
+        (lambda v: v >= 0, "0 or more"),
+        (lambda v: v <= RETRIES_MAX, f"at most {RETRIES_MAX:,}"),
+    ),
+    "fusion_hidden": (
+        (lambda v: all(w >= 1 for w in v), "positive widths"),
+        (lambda v: all(w <= WIDTH_MAX for w in v), f"widths of at most {WIDTH_MAX:,}"),
+    ),
 }
-"""The range of each :class:`TransferConfig` field, by its name there; a rule holds the test and
-what it wants (``"at least 1"``), which the dataclass and the file's loader word each their way.
-A NaN is outside every range."""
+"""The range of each :class:`TransferConfig` field, by its name there; a rule holds the tests and
+what each wants (``"at least 1"``), which the dataclass and the file's loader word each their way.
+A NaN is outside every range. The upper bounds (:mod:`itskill.limits`) stop a mistyped huge
+width or count before it allocates a network of terabytes, retrieves and runs thousands of
+sources, or pays for thousands of model calls."""
 
 
 def _out_of_range(name: str, value: Any) -> str | None:
     """What field ``name`` wants, if ``value`` is outside its range (:data:`_RULES`)."""
-    rule = _RULES.get(name)
-    return rule[1] if rule is not None and not rule[0](value) else None
+    return next((want for test, want in _RULES.get(name, ()) if not test(value)), None)
 
 
 @dataclass(frozen=True)
