@@ -61,6 +61,31 @@ def test_packaged_file_loads(family: str) -> None:
             "screws",
             "unknown task family 'screws'; known families: nutbolt",
         ),
+        # Not finite: "Invalid learning rate: nan" from PyTorch, or a traceback mid-training.
+        *(
+            (f"[nutbolt.ppo]\nlearning_rate = {v}\n", "nutbolt.ppo.learning_rate", f"got {got}")
+            for v, got in (("inf", "inf"), ("nan", "nan"), ("-inf", "-inf"), ("1e999", "inf"))
+        ),
+        ("[nutbolt.a2c]\nrms_prop_eps = inf\n", "nutbolt.a2c.rms_prop_eps", "finite"),
+        ("[nutbolt.policy]\nobs_clip = inf\n", "nutbolt.policy.obs_clip", "finite"),
+        ("[nutbolt.policy]\nlog_std_init = nan\n", "nutbolt.policy.log_std_init", "got nan"),
+        ("[nutbolt.init]\nlog_std_init = inf\n", "nutbolt.init.log_std_init", "got inf"),
+        ("[nutbolt.init]\nlearning_rate = inf\n", "nutbolt.init.learning_rate", "finite"),
+        # log_std_init had no range at all: the action noise's log standard deviation.
+        ("[nutbolt.policy]\nlog_std_init = 3\n", "nutbolt.policy.log_std_init", "[-5, 2]"),
+        ("[nutbolt.policy]\nlog_std_init = -6\n", "nutbolt.policy.log_std_init", "[-5, 2]"),
+        ("[nutbolt.init]\nlog_std_init = -50\n", "nutbolt.init.log_std_init", "[-5, 2]"),
+        (
+            "[nutbolt.tasks.pick_nut_m12.policy]\nlog_std_init = 10\n",
+            "nutbolt.tasks.pick_nut_m12.policy.log_std_init",
+            "[-5, 2]",
+        ),
+        # Counts with no upper bound crashed the run at allocation, or after its training.
+        ("[nutbolt]\nnum_envs = 100000000000\n", "nutbolt.num_envs", "at most 1,024"),
+        ("[nutbolt]\nnum_envs = 1025\n", "nutbolt.num_envs", "at most 1,024"),
+        ("[nutbolt.demos]\nepisodes = 100000000000000\n", "nutbolt.demos.episodes", "1,000,000"),
+        ("[nutbolt.demos]\nepisodes = -1\n", "nutbolt.demos.episodes", "0 or more"),
+        ("[nutbolt.init]\ncritic_episodes = 10000000\n", "nutbolt.init.critic_episodes", "most"),
     ],
 )
 def test_invalid_file_names_file_field_expected(
@@ -199,47 +224,6 @@ def test_a_task_of_a_family_without_hyperparameters_is_named(monkeypatch, tmp_pa
     )
     assert "".join(message.split()) in "".join(result.output.split())  # rich wraps long lines
     assert "Traceback" not in result.output and not (tmp_path / "run").exists()
-
-
-@pytest.mark.parametrize(
-    ("text", "where", "expected"),
-    [
-        # Not finite: "Invalid learning rate: nan" from PyTorch, or a traceback mid-training.
-        *(
-            (f"[nutbolt.ppo]\nlearning_rate = {v}\n", "nutbolt.ppo.learning_rate", f"got {got}")
-            for v, got in (("inf", "inf"), ("nan", "nan"), ("-inf", "-inf"), ("1e999", "inf"))
-        ),
-        ("[nutbolt.a2c]\nrms_prop_eps = inf\n", "nutbolt.a2c.rms_prop_eps", "finite"),
-        ("[nutbolt.policy]\nobs_clip = inf\n", "nutbolt.policy.obs_clip", "finite"),
-        ("[nutbolt.policy]\nlog_std_init = nan\n", "nutbolt.policy.log_std_init", "got nan"),
-        ("[nutbolt.init]\nlog_std_init = inf\n", "nutbolt.init.log_std_init", "got inf"),
-        ("[nutbolt.init]\nlearning_rate = inf\n", "nutbolt.init.learning_rate", "finite"),
-        # log_std_init had no range at all: the action noise's log standard deviation.
-        ("[nutbolt.policy]\nlog_std_init = 3\n", "nutbolt.policy.log_std_init", "[-5, 2]"),
-        ("[nutbolt.policy]\nlog_std_init = -6\n", "nutbolt.policy.log_std_init", "[-5, 2]"),
-        ("[nutbolt.init]\nlog_std_init = -50\n", "nutbolt.init.log_std_init", "[-5, 2]"),
-        (
-            "[nutbolt.tasks.pick_nut_m12.policy]\nlog_std_init = 10\n",
-            "nutbolt.tasks.pick_nut_m12.policy.log_std_init",
-            "[-5, 2]",
-        ),
-        # Counts with no upper bound crashed the run at allocation, or after its training.
-        ("[nutbolt]\nnum_envs = 100000000000\n", "nutbolt.num_envs", "at most 1,024"),
-        ("[nutbolt]\nnum_envs = 1025\n", "nutbolt.num_envs", "at most 1,024"),
-        ("[nutbolt.demos]\nepisodes = 100000000000000\n", "nutbolt.demos.episodes", "1,000,000"),
-        ("[nutbolt.demos]\nepisodes = -1\n", "nutbolt.demos.episodes", "0 or more"),
-        ("[nutbolt.init]\ncritic_episodes = 10000000\n", "nutbolt.init.critic_episodes", "most"),
-    ],
-)
-def test_values_with_no_meaning_are_named(
-    tmp_path: Path, text: str, where: str, expected: str
-) -> None:
-    path = tmp_path / "hp.toml"
-    path.write_text(text)
-    with pytest.raises(HyperparamError) as info:
-        load_hyperparams("nutbolt", "ppo", path)
-    assert (info.value.path, info.value.where) == (str(path), where)
-    assert expected in info.value.problem
 
 
 def test_the_bounds_themselves_load(tmp_path: Path) -> None:
