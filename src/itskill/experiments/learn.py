@@ -646,15 +646,8 @@ def _sources(task: str, b: LearnBudget, steps: _Steps) -> dict[str, list[dict[st
         method = get_method(b.transfer.method)
         retrieved = used = []
         if method.uses_sources:
-            retrieval = load_transfer_config()
-            retrieved = resolve_sources(
-                task,
-                "auto",
-                k=b.transfer.k,
-                distinct_actions=retrieval.distinct_actions,
-                min_success=retrieval.min_success,
-            )
-            used = method.select(retrieved, retrieval)
+            retrieved = resolve_sources(task, "auto", k=b.transfer.k)
+            used = method.select(retrieved, load_transfer_config())
         cached = {
             "retrieved": [s.to_dict() for s in retrieved],
             "used": [s.to_dict() for s in used],

@@ -18,7 +18,6 @@ worker that trained the cell, atomically, so a killed run loses only the cells i
 
 from __future__ import annotations
 
-import math
 import os
 import shutil
 from dataclasses import dataclass, field, replace
@@ -29,6 +28,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from itskill.datafile import is_count, is_number
 from itskill.executors import check_executor, run_jobs
 from itskill.experiments.analysis import read_curve, time_to_threshold
 from itskill.experiments.config import AUTO, ExperimentConfig, ExperimentConfigError
@@ -235,11 +235,7 @@ def read_run_config(run_dir: Path) -> ExperimentConfig:
 
 
 def _is_int(value: Any, least: int = 0) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= least
-
-
-def _is_real(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    return is_count(value) and value >= least
 
 
 def _check_recorded(config: ExperimentConfig, path: Path) -> None:
@@ -282,12 +278,12 @@ def _check_recorded(config: ExperimentConfig, path: Path) -> None:
         ):
             raise bad(f"sources.{task}", value, f"{AUTO!r} or a list of skill names")
     rep = config.report
-    if not _is_real(rep.threshold) or not 0 < rep.threshold <= 1:
+    if not is_number(rep.threshold) or not 0 < rep.threshold <= 1:
         raise bad("report.threshold", rep.threshold, "a number in (0, 1]")
     fractions = list(rep.fractions)
     if (
         not fractions
-        or not all(_is_real(f) and 0 < f <= 1 for f in fractions)
+        or not all(is_number(f) and 0 < f <= 1 for f in fractions)
         or fractions != sorted(fractions)
     ):
         raise bad("report.fractions", fractions, "increasing numbers in (0, 1]")
@@ -296,7 +292,7 @@ def _check_recorded(config: ExperimentConfig, path: Path) -> None:
     if not _is_int(rep.grid_points, 2):
         raise bad("report.grid_points", rep.grid_points, "an integer of at least 2")
     if not isinstance(rep.paper_gain, dict) or not all(
-        _is_real(g) and g < 1 for g in rep.paper_gain.values()
+        is_number(g) and g < 1 for g in rep.paper_gain.values()
     ):
         raise bad("report.paper_gain", rep.paper_gain, "a table of task -> fraction below 1")
     ex = config.execution
@@ -353,7 +349,7 @@ def resolve_all_sources(
     :class:`ExperimentConfigError` naming ``sources.<task>`` and the file (``source_file``, else
     the run's copy of it or its ``config.json``).
     """
-    from itskill.transfer import get_method, load_transfer_config, resolve_sources
+    from itskill.transfer import get_method, resolve_sources
     from itskill.transfer.sources import SourceError
 
     path = run_dir / SOURCES_FILE
@@ -367,20 +363,12 @@ def resolve_all_sources(
         )
     if not any(get_method(m).uses_sources for m in config.methods):
         return found
-    # The retrieval settings the cells' networks are built with (transfer.toml).
-    retrieval = load_transfer_config()
     for task in config.tasks:
         if task in found:
             continue
         wanted = config.sources.get(task, AUTO)
         try:
-            chosen = resolve_sources(
-                task,
-                wanted if wanted == AUTO else list(wanted),
-                k=config.k,
-                distinct_actions=retrieval.distinct_actions,
-                min_success=retrieval.min_success,
-            )
+            chosen = resolve_sources(task, wanted if wanted == AUTO else list(wanted), k=config.k)
         except SourceError as err:
             if wanted == AUTO:
                 raise  # about the skill space, not about anything the file says

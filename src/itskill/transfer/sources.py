@@ -36,6 +36,7 @@ from itskill.skills.store import Skill, is_serial_number
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.spec import TaskSpec
+from itskill.transfer.config import load_transfer_config
 from itskill.transfer.stages import runs
 
 AUTO = "auto"
@@ -179,8 +180,8 @@ def resolve_sources(
     k: int = 3,
     space: SkillSpace | None = None,
     exclude_target: bool = True,
-    distinct_actions: bool = True,
-    min_success: float = 0.5,
+    distinct_actions: bool | None = None,
+    min_success: float | None = None,
 ) -> list[SourceSkill]:
     """The source skills for ``target``: retrieved (``"auto"``) or named (ids or names).
 
@@ -194,9 +195,16 @@ def resolve_sources(
     is left names them). A skill whose recorded success is below ``min_success`` comes after
     every other skill of its family: one learned on a smoke budget would otherwise, performing
     more of the target's steps, displace the working skills it was learned from.
+    ``distinct_actions`` and ``min_success`` left None are the packaged ``transfer.toml``'s.
     Named skills (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in
     that order. ``space`` defaults to the user's skill space (:func:`open_skill_space`).
     """
+    if distinct_actions is None or min_success is None:
+        packaged = load_transfer_config()
+        distinct_actions = (
+            packaged.distinct_actions if distinct_actions is None else distinct_actions
+        )
+        min_success = packaged.min_success if min_success is None else min_success
     spec = get_task(target)
     if k < 1:
         raise ValueError(f"k must be at least 1, got {k}")
