@@ -10,6 +10,7 @@ manifest), which their readers check field by field the same way.
 from __future__ import annotations
 
 import math
+import string
 import sys
 from pathlib import Path
 from typing import Any
@@ -45,6 +46,16 @@ def is_number(value: Any) -> bool:
 def is_count(value: Any) -> bool:
     """Whether ``value`` is a whole number of 0 or more, not a bool."""
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def placeholders(text: str) -> list[str]:
+    """The ``{field}`` names of a :meth:`str.format` text (a prompt template, a phrase or code
+    template of a data file), in order; ``ValueError`` saying how to write literal braces where
+    the braces do not parse."""
+    try:
+        return [f for _, f, _, _ in string.Formatter().parse(text) if f is not None]
+    except ValueError as err:
+        raise ValueError(f"{err} (write literal braces as {{{{ and }}}})") from err
 
 
 def read_toml(path: str | Path, error: type[DataFileError] = DataFileError) -> dict[str, Any]:

@@ -20,12 +20,12 @@ import json
 import math
 import os
 import re
-import string
 from collections.abc import Mapping, Sequence
 from functools import cache
 from importlib import resources
 from pathlib import Path
 
+from itskill.datafile import placeholders
 from itskill.llm.client import Message
 from itskill.sim.context import CONTEXT_DOC
 from itskill.sim.layout import OBSERVATION_LAYOUT
@@ -127,9 +127,9 @@ def check_template(name: str, text: str, where: Path | str = "") -> None:
             f"{label}: is blank; write the prompt, or delete the file to use the packaged one"
         )
     try:
-        fields = [f for _, f, _, _ in string.Formatter().parse(text) if f is not None]
+        fields = placeholders(text)
     except ValueError as err:
-        raise PromptError(f"{label}: {err} (write literal braces as {{{{ and }}}})") from err
+        raise PromptError(f"{label}: {err}") from err
     expected = TEMPLATE_FIELDS[name]
     for field in fields:
         if not field.isidentifier():

@@ -13,14 +13,13 @@ A task id needs no model: :func:`plan_for_task` writes the plan straight from th
 from __future__ import annotations
 
 import difflib
-import string
 from dataclasses import asdict, dataclass
 from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, read_toml
+from itskill.datafile import DataFileError, placeholders, read_toml
 from itskill.llm.client import LLMClient, Message
 from itskill.llm.prompts import planner_messages, task_description
 from itskill.llm.replies import JSONReplyError, parse_json_reply
@@ -108,10 +107,9 @@ def plan_data_path() -> Path:
 def _fields_of(path: Path, where: str, text: str) -> set[str]:
     """The ``{placeholder}`` names of ``text``; :class:`PlanDataError` for broken braces."""
     try:
-        fields = {f for _, f, _, _ in string.Formatter().parse(text) if f is not None}
+        return set(placeholders(text))
     except ValueError as err:
-        raise PlanDataError(path, where, f"{err} (write literal braces as {{{{ and }}}})") from err
-    return fields
+        raise PlanDataError(path, where, str(err)) from err
 
 
 def _check_text(path: Path, where: str, value: Any, allowed: frozenset[str], exact: bool) -> str:

@@ -19,7 +19,6 @@ import hashlib
 import inspect
 import math
 import re
-import string
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import cache
@@ -29,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from itskill.datafile import DataFileError, is_number, read_toml
+from itskill.datafile import DataFileError, is_number, placeholders, read_toml
 from itskill.llm.offline.blocks import fenced
 from itskill.tasks.predicates import PREDICATES, PredicateError, parse
 
@@ -167,11 +166,9 @@ def _code_text(
         raise VocabularyError(path, where, f"expected a non-empty string, got {value!r}")
     known = ", ".join("{" + name + "}" for name in allowed)
     try:
-        names = [f for _, f, _, _ in string.Formatter().parse(value) if f is not None]
+        names = placeholders(value)
     except ValueError as err:
-        raise VocabularyError(
-            path, where, f"{err} (write literal braces as {{{{ and }}}})"
-        ) from err
+        raise VocabularyError(path, where, str(err)) from err
     for name in names:
         if name not in allowed:
             raise VocabularyError(path, where, f"unknown placeholder {{{name}}}; known: {known}")
