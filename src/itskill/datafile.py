@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import string
 import sys
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +28,7 @@ class DataFileError(PicklableError, ValueError):
     """A data file that does not validate: names the file, the field and the problem."""
 
     def __init__(self, path: str | Path, where: str, problem: str) -> None:
-        super().__init__(f"{path}: {where}: {problem}")
+        super().__init__(f"{path}: {where}: {problem}" if where else f"{path}: {problem}")
         self.path, self.where, self.problem = str(path), where, problem
 
 
@@ -80,32 +81,88 @@ def read_toml(path: str | Path, error: type[DataFileError] = DataFileError) -> d
         ) from err
 
 
+_KIND_NAMES = {
+    bool: "a boolean", int: "an integer", float: "a number", str: "a string", list: "a list",
+    dict: "a table",
+}  # fmt: skip
+
+
+def check_type(
+    path: str | Path,
+    where: str,
+    value: Any,
+    kind: type | tuple[type, ...],
+    error: type[DataFileError],
+) -> Any:
+    """``value`` if it is a ``kind`` (one type or a tuple of them), or ``error`` naming the types
+    expected and what the file has.
+
+    TOML and JSON give booleans, which Python counts as integers: a bool is taken only where
+    ``bool`` is asked for. A float field takes an integer too, as a float, and takes finite
+    numbers only: TOML writes ``nan``, ``inf`` and ``1e999``, which no rate, coefficient or width
+    means, and which otherwise reach training as a traceback there ("Invalid learning rate: nan")
+    or, worse, as losses that are NaN from the first update.
+    """
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    is_bool = isinstance(value, bool)
+    if float in kinds and int not in kinds and isinstance(value, int) and not is_bool:
+        if not is_number(value):  # an integer of any length, which float() would overflow
+            raise error(path, where, f"expected a finite number, got {value!r}")
+        value = float(value)
+    if not isinstance(value, kinds) or (is_bool and bool not in kinds):
+        want = " or ".join(_KIND_NAMES.get(k, k.__name__) for k in kinds)
+        raise error(path, where, f"expected {want}, got {type(value).__name__} {value!r}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise error(path, where, f"expected a finite number, got {value!r}")
+    return value
+
+
+def check_positive(
+    path: str | Path, where: str, value: Any, error: type[DataFileError], most: int | None = None
+) -> int:
+    """``value`` if it is an integer of 1 or more and, given ``most``, at most that (the caps of
+    :mod:`itskill.limits`), or ``error`` saying which bound it breaks."""
+    if check_type(path, where, value, int, error) < 1:
+        raise error(path, where, f"must be positive, got {value}")
+    if most is not None and value > most:
+        raise error(path, where, f"must be at most {most:,}, got {value:,}")
+    return value
+
+
+def check_table(
+    path: str | Path,
+    where: str,
+    value: Any,
+    error: type[DataFileError],
+    allowed: Collection[str] | None = None,
+    what: str = "field",
+) -> dict[str, Any]:
+    """``value`` if it is a table whose keys are all in ``allowed`` (any keys when it is None),
+    or ``error`` naming the first other key (``what`` it is: a field, a table) and the known
+    ones. A misspelt key would otherwise be read as left out, and its setting silently lost."""
+    table = check_type(path, where, value, dict, error)
+    if allowed is not None:
+        for key in table:
+            if key not in allowed:
+                raise error(
+                    path,
+                    f"{where}.{key}" if where else key,
+                    f"unknown {what}; expected one of {', '.join(sorted(allowed))}",
+                )
+    return table
+
+
 def check_like(
     path: str | Path, where: str, value: Any, default: Any, error: type[DataFileError]
 ) -> Any:
-    """``value`` converted to the type of the field's ``default`` (bool, int, float, str or a
-    tuple of ints, read from a TOML list), or ``error`` naming the type expected.
-
-    A float field takes finite numbers only: TOML writes ``nan``, ``inf`` and ``1e999``, which no
-    rate, coefficient or width means, and which otherwise reach training as a traceback there
-    ("Invalid learning rate: nan") or, worse, as losses that are NaN from the first update.
-    """
-    if isinstance(default, bool):
-        ok, want = isinstance(value, bool), "a boolean"
-    elif isinstance(default, int):
-        ok, want = isinstance(value, int) and not isinstance(value, bool), "an integer"
-    elif isinstance(default, float):
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        if ok and not is_number(value):
-            raise error(path, where, f"expected a finite number, got {value!r}")
-        want, value = "a number", float(value) if ok else value
-    elif isinstance(default, str):
-        ok, want = isinstance(value, str), "a string"
-    else:
-        ok = isinstance(value, list) and all(
-            isinstance(v, int) and not isinstance(v, bool) for v in value
+    """``value`` as the type of the field's ``default``: bool, int, float or str as
+    :func:`check_type` takes them, or a tuple of ints, read from a TOML list."""
+    if not isinstance(default, tuple):
+        return check_type(path, where, value, type(default), error)
+    if not isinstance(value, list) or not all(
+        isinstance(v, int) and not isinstance(v, bool) for v in value
+    ):
+        raise error(
+            path, where, f"expected a list of integers, got {type(value).__name__} {value!r}"
         )
-        want, value = "a list of integers", tuple(value) if ok else value
-    if not ok:
-        raise error(path, where, f"expected {want}, got {type(value).__name__} {value!r}")
-    return value
+    return tuple(value)

@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 
 from itskill.experiments.config import (
-    ExperimentConfig,
     ExperimentConfigError,
     load_experiment,
+    parse_experiment,
 )
 
 REPO = Path(__file__).resolve().parents[2]
@@ -47,7 +47,8 @@ def test_defaults_and_round_trip(tmp_path):
     assert config.reward == {"pick_nut_m12": "expert"}
     assert config.sources == {"pick_nut_m12": "auto"}
     assert config.report.threshold == 0.8 and config.report.baseline == "no_transfer"
-    assert ExperimentConfig.from_dict(config.to_dict()) == config
+    # A run records its configuration as JSON and reads it back with the file's checks.
+    assert parse_experiment(config.to_dict(), tmp_path / "config.json", recorded=True) == config
 
 
 GOOD_REWARD = """\
@@ -71,7 +72,7 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
         (('tasks = ["pick_nut_m12"]', 'tasks = ["pick_nut_m99"]'), "tasks[0]", "unknown task"),
         (('"itn"', '"itm"'), "methods[0]", "unknown method 'itm'"),
         (("steps = 1000", "steps = 0"), "steps", "must be positive"),
-        (("steps = 1000", 'steps = "many"'), "steps", "expected int"),
+        (("steps = 1000", 'steps = "many"'), "steps", "expected an integer"),
         (("every = 500", "every = 5000"), "eval.every", "more than steps"),
         (("steps = 1000", 'steps = 1000\nalgo = "dqn"'), "algo", "expected one of"),
         (("steps = 1000", "steps = 1000\nseeds = [1, 1]"), "seeds", "distinct"),
@@ -125,9 +126,14 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
             (
                 ("every = 500", f"every = 500\n[report]\npaper_gain = {{pick_nut_m12 = {gain}}}"),
                 "report.paper_gain.pick_nut_m12",
-                "expected a fraction below 1 (0.7222 for 72.22%)",
+                problem,
             )
-            for gain in ("72.22", "1", "nan", "-inf")
+            for gain, problem in (
+                ("72.22", "expected a fraction below 1 (0.7222 for 72.22%)"),
+                ("1", "expected a fraction below 1 (0.7222 for 72.22%)"),
+                ("nan", "expected a finite number"),
+                ("-inf", "expected a finite number"),
+            )
         ),
         (
             ("every = 500", 'every = 500\n[execution]\nexecutor = "slurm"'),

@@ -385,7 +385,7 @@ def test_budget_threshold_outside_zero_to_one_is_rejected(tmp_path):
         (('method = "itn"', 'method = "xyz"'), "test.transfer.method: expected one of"),
         (("iterations = 1", "iterations = 0"), "test.reward"),
         (("[test.evaluation]", "[test.evaluation]\nseeds = 3"), "test.evaluation"),
-        (("compare_expert = false", "compare_expert = 1"), "test.compare_expert: expected bool"),
+        (("compare_expert = false", "compare_expert = 1"), "compare_expert: expected a boolean"),
     ],
 )  # fmt: skip
 def test_bad_budget_fields_are_named(tmp_path, edit, message):

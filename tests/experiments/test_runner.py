@@ -192,7 +192,8 @@ def test_resume_needs_a_run_and_records_every_sessions_cells(toy, tmp_path):
         # experiment's and failed with KeyError: 'eval', or asked for a --resume that then did.
         ('{"kind": "itskill-reward-search", "target": "pick_nut_m12"}', "another kind of run"),
         ('{"name": "toy", "tasks": ', "not valid JSON"),  # cut short, or edited
-        ('{"name": "toy"}', "not an experiment run's configuration"),
+        ('{"name": "toy"}', r"tasks: missing \(required\); was it edited\?"),
+        ("[1, 2]", "expected a table, got list"),
     ],
 )
 def test_a_directory_that_is_not_an_experiment_run_is_named_as_such(
@@ -450,7 +451,7 @@ def test_an_edited_run_config_is_refused_with_the_field(toy, tmp_path):
     data["report"]["threshold"] = 0.8
     data["seeds"] = [0, "one"]
     (run / "config.json").write_text(json.dumps(data))
-    with pytest.raises(ExperimentRunError, match=r"config.json: seeds: expected"):
+    with pytest.raises(ExperimentRunError, match=r"config.json: seeds\[1\]: expected"):
         read_run_config(run)
     data["seeds"] = [0, 1]
     (run / "config.json").write_text(json.dumps(data))

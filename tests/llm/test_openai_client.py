@@ -312,7 +312,7 @@ GPT_4O = '[models."gpt-4o"]\ninput = 2.50\noutput = 10.00'
         ('[models."gpt-4o"]\ninput = 2.50\noutput = nan', "models.gpt-4o.output", "got nan"),
         ('[models."gpt-4o"]\ninput = 2.50', "models.gpt-4o.output", "got None"),
         ('[models."gpt-4o"]\ninput = 2.50\noutput = 10.00\ncached = 1.25',
-         "models.gpt-4o.cached", "unknown key"),
+         "models.gpt-4o.cached", "unknown field"),
         ('[model."gpt-4o"]\ninput = 2.50\noutput = 10.00', "model", "unknown key"),
     ],
 )  # fmt: skip

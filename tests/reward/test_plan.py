@@ -180,7 +180,7 @@ APPROACH = 'approach = "move the gripper to {object}"'
         ("Your plan cannot be used: {problem}", "Your plan cannot be used.", "correction",
          "missing placeholder {problem}"),
         ('"First", ', '"", ', "ordinals[0]", "expected a word"),
-        ("[phrases]", "[phrase]", "phrase", "unknown key"),
+        ("[phrases]", "[phrase]", "phrase", "unknown field"),
     ],
 )  # fmt: skip
 def test_a_damaged_plan_toml_is_named_not_a_traceback(tmp_path, old, new, where, problem):

@@ -61,7 +61,7 @@ def test_user_file(tmp_path: Path) -> None:
     ("text", "message"),
     [
         ("[search]\nsampels = 3\n", "search.sampels: unknown field"),
-        ("[search]\nsamples = 'ten'\n", "search.samples: expected int"),
+        ("[search]\nsamples = 'ten'\n", "search.samples: expected an integer"),
         ("[search]\nsamples = 0\n", "samples: expected a positive number"),
         ("[search]\nalgo = 'sac'\n", "algo: expected one of"),
         ("[search]\nseeds = [1, 1]\n", "seeds: expected distinct seeds"),

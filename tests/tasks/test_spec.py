@@ -494,12 +494,12 @@ PEG = '[peg.my_peg]\nshape = "round"\ndiameter = 0.004\nlength = 0.05\n'
 HOLE = '[hole.my_hole]\nshape = "round"\ndiameter = 0.004\nclearance = 0.0005\nhole_depth = 0.02\n'
 # (the valid table, an edit to it, the field named, a word of the problem)
 BAD_PARTS = {
-    "string_height": (NUT, ("height = 0.01", 'height = "0.0108"'), "height", "expected float"),
+    "string_height": (NUT, ("height = 0.01", 'height = "0.0108"'), "height", "expected a number"),
     "string_thread": (
         NUT,
         ("thread_diameter = 0.012", 'thread_diameter = "M12"'),
         "thread_diameter",
-        "expected float",
+        "expected a number",
     ),
     "bool_height": (NUT, ("height = 0.01", "height = true"), "height", "got bool"),
     "huge_height": (NUT, ("height = 0.01", "height = 1e300"), "height", "0 < height < 0.5"),
@@ -520,7 +520,7 @@ BAD_PARTS = {
         BOLT,
         ("shank_length = 0.005", 'shank_length = 0.005\nhead_diameter = "big"'),
         "head_diameter",
-        "expected float",
+        "expected a number",
     ),
     "negative_head": (
         BOLT,
@@ -558,7 +558,7 @@ BAD_PARTS = {
         HOLE,
         ("hole_depth = 0.02", "hole_depth = 0.02\nsegments = 12.5"),
         "segments",
-        "expected int",
+        "expected an integer",
     ),
 }
 

@@ -25,12 +25,11 @@ from __future__ import annotations
 
 import itertools
 import json
-import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, is_number, read_toml
+from itskill.datafile import DataFileError, check_positive, check_table, check_type, read_toml
 from itskill.executors import EXECUTORS
 from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_COUNT_MAX, SOURCES_MAX, WORKERS_MAX
 from itskill.llm.client import UnknownModelError, model_spec
@@ -119,20 +118,6 @@ class ExperimentConfig:
         """JSON-ready form (written to the run directory as ``config.json``)."""
         return json.loads(json.dumps(asdict(self)))
 
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> ExperimentConfig:
-        """Inverse of :meth:`to_dict` (for a run directory's ``config.json``)."""
-        d = dict(data)
-        d["eval"] = EvalSettings(**d["eval"])
-        rep = dict(d.get("report", {}))
-        rep["fractions"] = tuple(rep.get("fractions", ReportSettings.fractions))
-        d["report"] = ReportSettings(**rep)
-        d["execution"] = ExecutionSettings(**d.get("execution", {}))
-        for key in ("tasks", "methods", "seeds"):
-            d[key] = tuple(d[key])
-        d["sources"] = {t: s if isinstance(s, str) else tuple(s) for t, s in d["sources"].items()}
-        return cls(**d)
-
 
 # ---------------------------------------------------------------------- loading
 _TOP = {
@@ -142,36 +127,15 @@ _TOP = {
 
 
 def _typed(path: Path, where: str, value: Any, kind: type | tuple[type, ...]) -> Any:
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        if not is_number(value):  # TOML reads an integer of any length; float() would overflow
-            raise ExperimentConfigError(path, where, f"expected a finite number, got {value}")
-        value = float(value)
-    if not isinstance(value, kind) or (isinstance(value, bool) and kind in (int, float)):
-        name = kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
-        raise ExperimentConfigError(
-            path, where, f"expected {name}, got {type(value).__name__} {value!r}"
-        )
-    return value
+    return check_type(path, where, value, kind, ExperimentConfigError)
 
 
 def _table(path: Path, where: str, value: Any, allowed: set[str]) -> dict[str, Any]:
-    table = _typed(path, where, value, dict)
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise ExperimentConfigError(
-            path, f"{where}.{unknown[0]}" if where else unknown[0],
-            f"unknown field; allowed: {', '.join(sorted(allowed))}",
-        )  # fmt: skip
-    return table
+    return check_table(path, where, value, ExperimentConfigError, allowed)
 
 
 def _positive(path: Path, where: str, value: Any, most: int | None = None) -> int:
-    """``value``, an integer of 1 or more and, given ``most``, at most that."""
-    if _typed(path, where, value, int) < 1:
-        raise ExperimentConfigError(path, where, f"must be positive, got {value}")
-    if most is not None and value > most:
-        raise ExperimentConfigError(path, where, f"must be at most {most:,}, got {value:,}")
-    return value
+    return check_positive(path, where, value, ExperimentConfigError, most)
 
 
 def _strings(path: Path, where: str, value: Any) -> tuple[str, ...]:
@@ -233,8 +197,13 @@ def _check_reward_file(path: Path, where: str, file: Path, task: str) -> None:
         raise ExperimentConfigError(path, where, str(err)) from err
 
 
-def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
-    """Validate a parsed experiment file; relative reward paths are resolved against ``path``."""
+def parse_experiment(data: dict[str, Any], path: Path, recorded: bool = False) -> ExperimentConfig:
+    """Validate a parsed experiment file; relative reward paths are resolved against ``path``.
+
+    ``recorded``: ``data`` is a run's ``config.json`` (:meth:`ExperimentConfig.to_dict`). Its
+    values are checked as a file's are, but not that its tasks and reward files exist here: a
+    report may read a run made on another machine, or with a tasks folder that is not set now.
+    """
     from itskill.transfer import METHODS
 
     raw = _table(path, "", data, _TOP)
@@ -242,7 +211,7 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
         if key not in raw:
             raise ExperimentConfigError(path, key, "missing (required)")
     tasks = _strings(path, "tasks", raw["tasks"])
-    for i, task in enumerate(tasks):
+    for i, task in enumerate(() if recorded else tasks):
         try:
             get_task(task)
         except UnknownTaskError as err:
@@ -280,8 +249,8 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
     for task, value in _per_task(path, "reward", raw.get("reward", EXPERT), tasks, EXPERT).items():
         where = f"reward.{task}" if isinstance(raw.get("reward"), dict) else "reward"
         _typed(path, where, value, str)
-        if value == EXPERT:
-            reward[task] = EXPERT
+        if value == EXPERT or recorded:
+            reward[task] = value
             continue
         file = (path.parent / value).resolve()
         if file.suffix != ".py" or not file.is_file():
@@ -320,7 +289,7 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
         model_spec(llm)  # parses the spec only: loading a file never contacts a model
     except UnknownModelError as err:
         raise ExperimentConfigError(path, "llm", str(err)) from err
-    report = _parse_report(path, raw.get("report", {}), methods, tasks)
+    report = _parse_report(path, raw.get("report", {}), methods, tasks, recorded)
     execution = _parse_execution(path, raw.get("execution", {}))
     return ExperimentConfig(
         name=_name(path, raw.get("name", path.stem)),
@@ -343,7 +312,7 @@ def parse_experiment(data: dict[str, Any], path: Path) -> ExperimentConfig:
 
 
 def _parse_report(
-    path: Path, value: Any, methods: tuple[str, ...], tasks: tuple[str, ...]
+    path: Path, value: Any, methods: tuple[str, ...], tasks: tuple[str, ...], recorded: bool
 ) -> ReportSettings:
     allowed = {"threshold", "fractions", "baseline", "grid_points", "paper_gain"}
     rep = _table(path, "report", value, allowed)
@@ -369,8 +338,9 @@ def _parse_report(
             f"expected strictly increasing values in (0, 1], got {fractions_raw}",
         )
     baseline = _typed(path, "report.baseline", rep.get("baseline", default.baseline), str)
-    # Without the default baseline among the methods the report just has no gain column.
-    if "baseline" in rep and baseline not in methods:
+    # Without the default baseline among the methods the report just has no gain column (a
+    # run's record always names its baseline).
+    if "baseline" in rep and not recorded and baseline not in methods:
         raise ExperimentConfigError(
             path, "report.baseline", f"{baseline!r} is not one of the methods {list(methods)}"
         )
@@ -387,7 +357,7 @@ def _parse_report(
 def _gain(path: Path, where: str, value: Any) -> float:
     """A time-efficiency gain, 1 − method/baseline: a fraction below 1 (negative when slower)."""
     gain = _typed(path, where, value, float)
-    if not math.isfinite(gain) or gain >= 1:
+    if gain >= 1:
         raise ExperimentConfigError(
             path, where, f"expected a fraction below 1 (0.7222 for 72.22%), got {value}"
         )

@@ -35,7 +35,7 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
-from itskill.datafile import DataFileError, read_toml
+from itskill.datafile import DataFileError, check_positive, check_table, check_type, read_toml
 from itskill.experiments.analysis import read_curve
 from itskill.experiments.learn_layout import (
     LEARN_FILE,
@@ -186,36 +186,21 @@ def _field(
         if default is ...:
             raise BudgetError(path, f"{where}.{key}", "missing (required)")
         return default
-    value = table[key]
-    if isinstance(value, bool) != (kind is bool) or not isinstance(value, kind):
-        raise BudgetError(path, f"{where}.{key}", f"expected {kind.__name__}, got {value!r}")
-    if kind is int and value < 1:
-        raise BudgetError(path, f"{where}.{key}", f"must be positive, got {value}")
-    if most is not None and value > most:
-        raise BudgetError(path, f"{where}.{key}", f"must be at most {most:,}, got {value:,}")
-    return value
+    if kind is int:
+        return check_positive(path, f"{where}.{key}", table[key], BudgetError, most)
+    return check_type(path, f"{where}.{key}", table[key], kind, BudgetError)
 
 
 def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
     from itskill.reward.config import SearchConfigError
     from itskill.transfer import METHODS
 
-    if not isinstance(raw, dict):
-        raise BudgetError(path, name, "expected a table")
     allowed = {"description", "compare_expert", "reward", "transfer", "evaluation"}
-    for key in raw:
-        if key not in allowed:
-            raise BudgetError(path, f"{name}.{key}", f"unknown field; allowed: {sorted(allowed)}")
-    tr = raw.get("transfer")
-    if not isinstance(tr, dict):
-        raise BudgetError(path, f"{name}.transfer", "missing table (required)")
-    t_allowed = {f for f in TransferBudget.__dataclass_fields__}
-    for key in tr:
-        if key not in t_allowed:
-            raise BudgetError(
-                path, f"{name}.transfer.{key}", f"unknown field; allowed: {sorted(t_allowed)}"
-            )
+    check_table(path, name, raw, BudgetError, allowed)
     where = f"{name}.transfer"
+    if "transfer" not in raw:
+        raise BudgetError(path, where, "missing table (required)")
+    tr = check_table(path, where, raw["transfer"], BudgetError, TransferBudget.__dataclass_fields__)
     transfer = TransferBudget(
         steps=_field(path, where, tr, "steps", int),
         eval_every=_field(path, where, tr, "eval_every", int),
@@ -232,17 +217,12 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
         raise BudgetError(path, f"{where}.method", f"expected one of {list(METHODS)}")
     if transfer.algo not in ("a2c", "ppo"):
         raise BudgetError(path, f"{where}.algo", "expected a2c or ppo")
-    reward = raw.get("reward", {})
-    if not isinstance(reward, dict):
-        raise BudgetError(path, f"{name}.reward", "expected a table")
+    reward = check_table(path, f"{name}.reward", raw.get("reward", {}), BudgetError)
     ev = raw.get("evaluation", {})
-    if not isinstance(ev, dict) or set(ev) - {"episodes", "min_success"}:
-        raise BudgetError(
-            path, f"{name}.evaluation", "expected a table with only 'episodes' and 'min_success'"
-        )
-    min_success = ev.get("min_success", LearnBudget.min_success)
-    if isinstance(min_success, bool) or not isinstance(min_success, int | float):
-        raise BudgetError(path, f"{name}.evaluation.min_success", "expected a number")
+    check_table(path, f"{name}.evaluation", ev, BudgetError, {"episodes", "min_success"})
+    min_success = _field(
+        path, f"{name}.evaluation", ev, "min_success", float, LearnBudget.min_success
+    )
     if not 0.0 <= min_success <= 1.0:
         raise BudgetError(path, f"{name}.evaluation.min_success", "must be between 0 and 1")
     budget = LearnBudget(
@@ -250,7 +230,7 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
         transfer=transfer,
         reward=dict(reward),
         eval_episodes=_field(path, f"{name}.evaluation", ev, "episodes", int, 100, EPISODES_MAX),
-        min_success=float(min_success),
+        min_success=min_success,
         compare_expert=_field(path, name, raw, "compare_expert", bool, True),
         description=_field(path, name, raw, "description", str, ""),
     )

@@ -28,10 +28,14 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from itskill.datafile import is_count, is_number
 from itskill.executors import check_executor, run_jobs
 from itskill.experiments.analysis import read_curve, time_to_threshold
-from itskill.experiments.config import AUTO, ExperimentConfig, ExperimentConfigError
+from itskill.experiments.config import (
+    AUTO,
+    ExperimentConfig,
+    ExperimentConfigError,
+    parse_experiment,
+)
 from itskill.experiments.provenance import Sessions
 from itskill.files import CorruptFileError, held_alone, read_json, some_of, write_json
 
@@ -215,7 +219,8 @@ def _not_a_copy(run_dir: Path) -> None:
 def read_run_config(run_dir: Path) -> ExperimentConfig:
     """The configuration recorded in an experiment run directory; :class:`ExperimentRunError`
     if ``run_dir/config.json`` is another kind of run's (a reward search's), damaged, or holds a
-    value of the wrong type or range (every field is checked: the report formats them)."""
+    value an experiment file could not have (every field is checked as the file's were: the
+    report formats them, and ``report.threshold = "x"`` failed deep in it)."""
     path = run_dir / CONFIG_FILE
     data = read_json(path)
     kind = data.get("kind") if isinstance(data, dict) else None
@@ -224,84 +229,9 @@ def read_run_config(run_dir: Path) -> ExperimentConfig:
             f"{run_dir} holds another kind of run ({kind!r}), not an experiment run"
         )
     try:
-        config = ExperimentConfig.from_dict(data)
-    except (KeyError, TypeError, ValueError, AttributeError) as err:
-        raise ExperimentRunError(
-            f"{path}: not an experiment run's configuration "
-            f"({type(err).__name__}: {err}); was it edited?"
-        ) from err
-    _check_recorded(config, path)
-    return config
-
-
-def _is_int(value: Any, least: int = 0) -> bool:
-    return is_count(value) and value >= least
-
-
-def _check_recorded(config: ExperimentConfig, path: Path) -> None:
-    """:class:`ExperimentRunError` for a field of a recorded configuration whose type or range
-    the experiment file's checks would have refused: :meth:`ExperimentConfig.from_dict` checks
-    only the shape, and a ``report.threshold = "x"`` in an edited ``config.json`` would fail
-    deep in the report ("Unknown format code")."""
-
-    def bad(where: str, value: Any, want: str) -> ExperimentRunError:
-        return ExperimentRunError(
-            f"{path}: {where}: expected {want}, got {value!r}; was it edited?"
-        )
-
-    for key in ("name", "description", "algo", "llm"):
-        if not isinstance(getattr(config, key), str):
-            raise bad(key, getattr(config, key), "a string")
-    for key in ("tasks", "methods"):
-        values = getattr(config, key)
-        if not values or not all(isinstance(v, str) for v in values):
-            raise bad(key, list(values), "a non-empty list of strings")
-    if not config.seeds or not all(_is_int(s) for s in config.seeds):
-        raise bad("seeds", list(config.seeds), "a non-empty list of integers >= 0")
-    for key, value in (
-        ("steps", config.steps),
-        ("k", config.k),
-        ("eval.every", config.eval.every),
-        ("eval.episodes", config.eval.episodes),
-    ):
-        if not _is_int(value, 1):
-            raise bad(key, value, "a positive integer")
-    if config.num_envs is not None and not _is_int(config.num_envs, 1):
-        raise bad("num_envs", config.num_envs, "a positive integer or null")
-    if not isinstance(config.reward, dict) or not all(
-        isinstance(v, str) for v in config.reward.values()
-    ):
-        raise bad("reward", config.reward, "a table of task -> 'expert' or a reward file")
-    for task, value in config.sources.items():
-        if value != AUTO and not (
-            isinstance(value, tuple) and value and all(isinstance(v, str) for v in value)
-        ):
-            raise bad(f"sources.{task}", value, f"{AUTO!r} or a list of skill names")
-    rep = config.report
-    if not is_number(rep.threshold) or not 0 < rep.threshold <= 1:
-        raise bad("report.threshold", rep.threshold, "a number in (0, 1]")
-    fractions = list(rep.fractions)
-    if (
-        not fractions
-        or not all(is_number(f) and 0 < f <= 1 for f in fractions)
-        or fractions != sorted(fractions)
-    ):
-        raise bad("report.fractions", fractions, "increasing numbers in (0, 1]")
-    if not isinstance(rep.baseline, str):
-        raise bad("report.baseline", rep.baseline, "a method name")
-    if not _is_int(rep.grid_points, 2):
-        raise bad("report.grid_points", rep.grid_points, "an integer of at least 2")
-    if not isinstance(rep.paper_gain, dict) or not all(
-        is_number(g) and g < 1 for g in rep.paper_gain.values()
-    ):
-        raise bad("report.paper_gain", rep.paper_gain, "a table of task -> fraction below 1")
-    ex = config.execution
-    if not isinstance(ex.executor, str):
-        raise bad("execution.executor", ex.executor, "an executor name")
-    if ex.workers is not None and not _is_int(ex.workers, 1):
-        raise bad("execution.workers", ex.workers, "a positive integer or null")
-    if ex.ray_address is not None and not isinstance(ex.ray_address, str):
-        raise bad("execution.ray_address", ex.ray_address, "a string or null")
+        return parse_experiment(data, path, recorded=True)
+    except ExperimentConfigError as err:
+        raise ExperimentRunError(f"{err}; was it edited?") from err
 
 
 def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: Path) -> None:

@@ -26,7 +26,7 @@ from urllib.parse import urlsplit
 
 import openai
 
-from itskill.datafile import DataFileError, is_number, read_toml
+from itskill.datafile import DataFileError, check_table, is_number, read_toml
 from itskill.llm.client import BASE_URL_ENV, BaseClient, LLMError, LLMUnavailableError, Message
 
 OPENAI_URL = "https://api.openai.com/v1"
@@ -80,21 +80,11 @@ def load_prices(path: Path | None = None) -> dict[str, tuple[float, float]]:
     for key in data:
         if key != "models":
             raise PriceFileError(source, key, 'unknown key; prices go in [models."NAME"] tables')
-    models = data.get("models", {})
-    if not isinstance(models, dict):
-        raise PriceFileError(source, "models", f"expected a table, got {type(models).__name__}")
+    models = check_table(source, "models", data.get("models", {}), PriceFileError)
     prices: dict[str, tuple[float, float]] = {}
     for model, entry in models.items():
         where = f"models.{model}"
-        if not isinstance(entry, dict):
-            raise PriceFileError(
-                source, where, "expected a table with 'input' and 'output' (USD per 1M tokens)"
-            )
-        for key in entry:
-            if key not in ("input", "output"):
-                raise PriceFileError(
-                    source, f"{where}.{key}", "unknown key; expected 'input' and 'output'"
-                )
+        check_table(source, where, entry, PriceFileError, ("input", "output"))
         pair = []
         for key in ("input", "output"):
             value = entry.get(key)

@@ -13,7 +13,13 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, is_number, read_toml
+from itskill.datafile import (
+    DataFileError,
+    check_like,
+    check_table,
+    check_type,
+    read_toml,
+)
 from itskill.executors import EXECUTORS
 from itskill.limits import (
     EPISODES_MAX,
@@ -98,19 +104,10 @@ def _coerce(source: str | Path, where: str, value: Any, kind: type, optional: bo
     if value is None and optional:
         return None
     if kind is tuple:
-        if not isinstance(value, list | tuple) or not all(
-            isinstance(v, int) and not isinstance(v, bool) for v in value
-        ):
-            raise SearchConfigError(source, where, f"expected a list of integers, got {value!r}")
-        return tuple(value)
-    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
-        # TOML writes nan and inf (and 1e999): no timeout or temperature means either.
-        if not is_number(value):
-            raise SearchConfigError(source, where, f"expected a finite number, got {value!r}")
-        return float(value)
-    if not isinstance(value, kind) or isinstance(value, bool):
-        raise SearchConfigError(source, where, f"expected {kind.__name__}, got {value!r}")
-    return value
+        # A file's list of seeds, or the tuple a command line gives.
+        listed = list(value) if isinstance(value, tuple) else value
+        return check_like(source, where, listed, (), SearchConfigError)
+    return check_type(source, where, value, kind, SearchConfigError)
 
 
 def check_seeds(
@@ -130,15 +127,10 @@ def check_seeds(
 
 def _sandbox(source: str | Path, table: Any, base: SandboxConfig | None = None) -> SandboxConfig:
     """A :class:`SandboxConfig` from a table of its fields (over ``base``)."""
-    if not isinstance(table, dict):
-        raise SearchConfigError(source, "sandbox", f"expected a table, got {table!r}")
     hints = typing.get_type_hints(SandboxConfig)
+    check_table(source, "sandbox", table, SearchConfigError, hints)
     values = {}
     for key, value in table.items():
-        if key not in hints:
-            raise SearchConfigError(
-                source, f"sandbox.{key}", f"unknown field; expected one of {', '.join(hints)}"
-            )
         kind = next(a for a in (*typing.get_args(hints[key]), hints[key]) if a is not type(None))
         optional = type(None) in typing.get_args(hints[key])
         values[key] = _coerce(source, f"sandbox.{key}", value, kind, optional)
@@ -150,18 +142,10 @@ def _read(path: Path, sandbox: SandboxConfig | None = None) -> dict[str, Any]:
     its ``[sandbox]`` table over ``sandbox`` (a user's file: the packaged limits, so that a file
     which leaves them out does not run generated code without them)."""
     data = read_toml(path, SearchConfigError)
-    unknown = sorted(set(data) - {"search", "sandbox"})
-    if unknown:
-        raise SearchConfigError(path, unknown[0], "unknown table; expected [search] and [sandbox]")
-    table = data.get("search", {})
-    if not isinstance(table, dict):
-        raise SearchConfigError(path, "search", f"expected a table, got {type(table).__name__}")
+    check_table(path, "", data, SearchConfigError, {"search", "sandbox"}, "table")
+    table = check_table(path, "search", data.get("search", {}), SearchConfigError, _KINDS)
     values: dict[str, Any] = {}
     for key, value in table.items():
-        if key not in _KINDS:
-            raise SearchConfigError(
-                path, f"search.{key}", f"unknown field; expected one of {', '.join(_KINDS)}"
-            )
         values[key] = _coerce(path, f"search.{key}", value, _KINDS[key], key in _OPTIONAL)
     values["sandbox"] = _sandbox(path, data.get("sandbox", {}), sandbox)
     return values

@@ -19,7 +19,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, placeholders, read_toml
+from itskill.datafile import DataFileError, check_table, placeholders, read_toml
 from itskill.llm.client import LLMClient, Message
 from itskill.llm.prompts import planner_messages, task_description
 from itskill.llm.replies import JSONReplyError, parse_json_reply
@@ -140,11 +140,7 @@ def load_plan_data(path: Path) -> dict[str, Any]:
     a table of action -> sentence using ``{object}`` and ``{fixture}``."""
     data = read_toml(path, PlanDataError)
     keys = ("ordinals", "correction", "phrases")
-    for key in sorted(data):
-        if key not in keys:
-            raise PlanDataError(
-                path, key, "unknown key; expected ordinals, correction and [phrases]"
-            )
+    check_table(path, "", data, PlanDataError, keys)
     for key in keys:
         if key not in data:
             raise PlanDataError(path, key, "missing (required)")
@@ -157,9 +153,7 @@ def load_plan_data(path: Path) -> dict[str, Any]:
         if not isinstance(word, str) or not word.strip():
             raise PlanDataError(path, f"ordinals[{k}]", f"expected a word, got {word!r}")
     _check_text(path, "correction", data.get("correction"), CORRECTION_FIELDS, exact=True)
-    phrases = data.get("phrases")
-    if not isinstance(phrases, dict):
-        raise PlanDataError(path, "phrases", f"expected a [phrases] table, got {phrases!r}")
+    phrases = check_table(path, "phrases", data["phrases"], PlanDataError)
     for action, phrase in phrases.items():
         _check_text(path, f"phrases.{action}", phrase, PHRASE_FIELDS, exact=False)
     return data

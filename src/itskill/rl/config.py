@@ -17,7 +17,7 @@ from typing import Any, Literal
 
 from stable_baselines3.common.utils import LinearSchedule
 
-from itskill.datafile import DataFileError, check_like, read_toml
+from itskill.datafile import DataFileError, check_like, check_table, read_toml
 from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, WIDTH_MAX
 from itskill.rl.demos import DemoConfig
 from itskill.rl.init_policy import InitConfig
@@ -237,17 +237,12 @@ def _check_value(path: Path, where: str, value: Any, default: Any) -> Any:
 
 def _build(path: Path, where: str, cls: type, table: Any, base: Any = None) -> Any:
     """An instance of dataclass ``cls`` from a TOML table, every field checked."""
-    if not isinstance(table, dict):
-        raise HyperparamError(path, where, f"expected a table, got {type(table).__name__}")
+    check_table(path, where, table, HyperparamError, {f.name for f in fields(cls)})
     base = base if base is not None else cls()
-    known = {f.name for f in fields(cls)}
-    values = {}
-    for key, value in table.items():
-        if key not in known:
-            raise HyperparamError(
-                path, f"{where}.{key}", f"unknown field; expected one of {', '.join(sorted(known))}"
-            )
-        values[key] = _check_value(path, f"{where}.{key}", value, getattr(base, key))
+    values = {
+        key: _check_value(path, f"{where}.{key}", value, getattr(base, key))
+        for key, value in table.items()
+    }
     try:
         return replace(base, **values)
     except (TypeError, ValueError) as err:
@@ -258,15 +253,7 @@ def _layer(
     path: Path | str, where: str, table: Any, algo: str, allowed: set[str], base: Hyperparams
 ) -> Hyperparams:
     """``base`` with the fields of one family or task table applied, every one checked."""
-    if not isinstance(table, dict):
-        raise HyperparamError(path, where, f"expected a table, got {type(table).__name__}")
-    for key in table:
-        if key not in allowed:
-            raise HyperparamError(
-                path,
-                f"{where}.{key}",
-                f"unknown field; expected one of {', '.join(sorted(allowed))}",
-            )
+    check_table(path, where, table, HyperparamError, allowed)
     top = {
         k: _check_value(path, f"{where}.{k}", table[k], getattr(base, k))
         for k in _FAMILY_KEYS

@@ -17,7 +17,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin, get_type_hints
 
-from itskill.datafile import DataFileError, is_number, read_toml
+from itskill.datafile import DataFileError, check_table, check_type, is_number, read_toml
 from itskill.errors import PicklableError
 from itskill.sim.context import max_grip_offset
 from itskill.sim.controller import ControllerConfig
@@ -173,9 +173,8 @@ class _Reader:
     """Typed access to one table of a TOML file, with errors that say where."""
 
     def __init__(self, path: Path, where: str, table: Any) -> None:
-        if not isinstance(table, dict):
-            raise TaskFileError(path, where, f"expected a table, got {type(table).__name__}")
-        self.path, self.where, self.table = path, where, table
+        self.path, self.where = path, where
+        self.table = check_table(path, where, table, TaskFileError)
 
     def _fail(self, key: str, problem: str) -> TaskFileError:
         return TaskFileError(self.path, f"{self.where}.{key}", problem)
@@ -185,17 +184,7 @@ class _Reader:
             if default is ...:
                 raise self._fail(key, "missing (required)")
             return default
-        value = self.table[key]
-        if kind is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if not isinstance(value, kind) or (isinstance(value, bool) and kind in (int, float)):
-            name = (
-                kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
-            )
-            raise self._fail(key, f"expected {name}, got {type(value).__name__} {value!r}")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise self._fail(key, f"expected a finite number, got {value!r}")
-        return value
+        return check_type(self.path, f"{self.where}.{key}", self.table[key], kind, TaskFileError)
 
     def strings(self, key: str, default: Any = ...) -> tuple[str, ...]:
         value = self.get(key, list, default)
@@ -223,9 +212,7 @@ class _Reader:
         return Range(float(value[0]), float(value[1]))
 
     def check_keys(self, allowed: set[str]) -> None:
-        unknown = sorted(set(self.table) - allowed)
-        if unknown:
-            raise self._fail(unknown[0], f"unknown field; allowed: {', '.join(sorted(allowed))}")
+        check_table(self.path, self.where, self.table, TaskFileError, allowed)
 
 
 def _load_toml(path: Path) -> dict[str, Any]:

@@ -13,7 +13,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, check_like, read_toml
+from itskill.datafile import DataFileError, check_like, check_table, read_toml
 from itskill.limits import RETRIES_MAX, SOURCES_MAX, WIDTH_MAX
 
 
@@ -105,21 +105,10 @@ def load_transfer_config(path: str | Path | None = None) -> TransferConfig:
     data = read_toml(path, TransferConfigError)
     defaults = {f.name: f.default for f in fields(TransferConfig)}
     values: dict[str, Any] = {}
+    check_table(path, "", data, TransferConfigError, _LAYOUT, "table")
     for table, entries in data.items():
-        if table not in _LAYOUT:
-            raise TransferConfigError(
-                path, table, f"unknown table; expected one of {', '.join(sorted(_LAYOUT))}"
-            )
-        if not isinstance(entries, dict):
-            raise TransferConfigError(
-                path, table, f"expected a table, got {type(entries).__name__}"
-            )
+        check_table(path, table, entries, TransferConfigError, _LAYOUT[table])
         for key, value in entries.items():
-            if key not in _LAYOUT[table]:
-                known = ", ".join(sorted(_LAYOUT[table]))
-                raise TransferConfigError(
-                    path, f"{table}.{key}", f"unknown field; expected one of {known}"
-                )
             name = _LAYOUT[table][key]
             values[name] = check_like(
                 path, f"{table}.{key}", value, defaults[name], TransferConfigError

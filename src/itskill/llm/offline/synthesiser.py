@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from itskill.datafile import DataFileError, is_number, placeholders, read_toml
+from itskill.datafile import DataFileError, check_table, is_number, placeholders, read_toml
 from itskill.llm.offline.blocks import fenced
 from itskill.tasks.predicates import PREDICATES, PredicateError, parse
 
@@ -118,20 +118,10 @@ def _required_recipes() -> set[str]:
     return {"approach", "hover", "carry", "remove", *_RECIPE_OF_PREDICATE.values()}
 
 
-def _table(path: Path, where: str, value: Any) -> dict[str, Any]:
-    if not isinstance(value, dict):
-        raise VocabularyError(path, where, f"expected a table, got {type(value).__name__}")
-    return value
-
-
 def _exact_keys(path: Path, where: str, table: dict[str, Any], keys: Sequence[str]) -> None:
     """Every one of ``keys`` in ``table`` and nothing else: an unknown key (a misspelt one) would
     be ignored, a missing one a ``KeyError`` once a reward is written."""
-    for key in table:
-        if key not in keys:
-            raise VocabularyError(
-                path, f"{where}.{key}", f"unknown key; expected {', '.join(keys)}"
-            )
+    check_table(path, where, table, VocabularyError, keys)
     for key in keys:
         if key not in table:
             raise VocabularyError(path, f"{where}.{key}", "missing")
@@ -194,7 +184,7 @@ def _check_names(
 
 def _check_term(path: Path, name: str, term: Any) -> None:
     where = f"terms.{name}"
-    term = _table(path, where, term)
+    term = check_table(path, where, term, VocabularyError)
     kind = term.get("kind")
     if kind not in _TERM_KEYS:
         needed = ", ".join(dict.fromkeys(k for keys in _TERM_KEYS.values() for k in keys))
@@ -231,13 +221,11 @@ def _check_term(path: Path, name: str, term: Any) -> None:
 def check_vocabulary(data: dict[str, Any], path: Path) -> dict[str, Any]:
     """``data`` (a parsed ``terms.toml``) if every entry is usable; :class:`VocabularyError`
     names the first that is not."""
-    for section in data:
-        if section not in _SECTIONS:
-            raise VocabularyError(path, section, f"unknown table; expected {', '.join(_SECTIONS)}")
+    check_table(path, "", data, VocabularyError, _SECTIONS, "table")
     for section in _SECTIONS:
         if section not in data:
             raise VocabularyError(path, section, f"missing [{section}] table")
-        _table(path, section, data[section])
+        check_table(path, section, data[section], VocabularyError)
     terms = data["terms"]
     for name, term in terms.items():
         _check_term(path, name, term)
