@@ -9,7 +9,15 @@ from pathlib import Path
 
 import pytest
 
-from itskill.datafile import DataFileError, check_like, is_number, read_toml
+from itskill.datafile import (
+    DataFileError,
+    check_like,
+    check_positive,
+    check_table,
+    check_type,
+    is_number,
+    read_toml,
+)
 
 
 def test_a_valid_file_reads(tmp_path: Path) -> None:
@@ -75,3 +83,57 @@ def test_an_integer_too_long_for_python_is_named_not_a_traceback(tmp_path: Path)
         read_toml(path)
     assert (info.value.path, info.value.where) == (str(path), "file")
     assert "digits" in info.value.problem and "sys." not in info.value.problem
+
+
+@pytest.mark.parametrize(
+    ("value", "kind", "problem"),
+    [
+        (True, int, "expected an integer, got bool True"),  # TOML's booleans are Python ints
+        (1, bool, "expected a boolean, got int 1"),
+        ("3", (int, float), "expected an integer or a number, got str '3'"),
+        pytest.param(10**400, float, "expected a finite number", id="past-float-range"),
+        (math.nan, float, "expected a finite number, got nan"),
+        ([1], dict, "expected a table, got list [1]"),
+    ],
+)
+def test_a_value_of_another_type_names_the_type_expected(value, kind, problem) -> None:
+    with pytest.raises(DataFileError) as err:
+        check_type("f.toml", "a.b", value, kind, DataFileError)
+    assert err.value.where == "a.b" and err.value.problem.startswith(problem)
+
+
+def test_a_value_of_its_type_is_returned_a_float_fields_integer_as_a_float() -> None:
+    assert check_type("f.toml", "x", 3, float, DataFileError) == 3.0
+    assert isinstance(check_type("f.toml", "x", 3, float, DataFileError), float)
+    assert check_type("f.toml", "x", 3, (int, float), DataFileError) == 3  # stays an integer
+    assert check_type("f.toml", "x", False, bool, DataFileError) is False
+
+
+def test_a_table_with_a_misspelt_key_names_it_and_the_known_ones() -> None:
+    with pytest.raises(DataFileError) as err:
+        check_table(
+            "f.toml",
+            "search",
+            {"samples": 3, "iteratons": 2},
+            DataFileError,
+            {"samples", "iterations"},
+        )
+    assert err.value.where == "search.iteratons"
+    assert err.value.problem == "unknown field; expected one of iterations, samples"
+    top = {"serach": {}}
+    with pytest.raises(DataFileError, match=r"^f.toml: serach: unknown table; expected one of"):
+        check_table("f.toml", "", top, DataFileError, {"search"}, "table")
+
+
+@pytest.mark.parametrize(
+    ("value", "problem"),
+    [
+        (0, "must be positive, got 0"),
+        (2000, "must be at most 1,000, got 2,000"),
+        (1.0, "expected an integer"),
+    ],
+)
+def test_a_count_out_of_its_bounds_says_which(value, problem) -> None:
+    with pytest.raises(DataFileError, match=problem):
+        check_positive("f.toml", "n", value, DataFileError, most=1000)
+    assert check_positive("f.toml", "n", 1000, DataFileError, most=1000) == 1000

@@ -454,5 +454,12 @@ def test_an_edited_run_config_is_refused_with_the_field(toy, tmp_path):
     with pytest.raises(ExperimentRunError, match=r"config.json: seeds\[1\]: expected"):
         read_run_config(run)
     data["seeds"] = [0, 1]
+    # Read back with the experiment file's own checks, caps included: a resumed run started
+    # this many worker processes.
+    data["execution"]["workers"] = 10**9
+    (run / "config.json").write_text(json.dumps(data))
+    with pytest.raises(ExperimentRunError, match=r"execution.workers: must be at most 1,024"):
+        read_run_config(run)
+    data["execution"]["workers"] = config.execution.workers
     (run / "config.json").write_text(json.dumps(data))
     assert read_run_config(run) == config  # as recorded, it passes
