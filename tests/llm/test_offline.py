@@ -219,6 +219,37 @@ def test_planner_refuses_a_place_the_scene_does_not_have(command: str, place: st
 
 
 @pytest.mark.parametrize(
+    ("command", "place"),
+    [
+        # Each was planned from where the parts are: the shelf was read as the table.
+        ("Reach the nut on the shelf", "on the shelf"),
+        ("Pick up the nut from the shelf", "from the shelf"),
+        ("Put the nut on the shelf into the hole", "on the shelf"),
+    ],
+)
+def test_planner_refuses_a_start_the_scene_does_not_have(command: str, place: str) -> None:
+    reply = plan(command)
+    assert reply == {
+        "error": f"{place!r} is nowhere in this scene: the parts start on the table, and "
+        f"{PLACES}"
+    }
+
+
+@pytest.mark.parametrize(
+    ("command", "clause"),
+    [
+        # Each was planned without its last clause.
+        ("Pick up the nut and place it on the bolt, then go home", "go home"),
+        ("Pick up the nut and move back", "move back"),
+    ],
+)
+def test_planner_refuses_a_move_to_nothing_of_the_scene(command: str, clause: str) -> None:
+    reply = plan(command)
+    assert set(reply) == {"error"}
+    assert reply["error"].startswith(f"{clause!r} moves the hand to nothing of this scene")
+
+
+@pytest.mark.parametrize(
     ("command", "task"),
     [
         ("Place the nut on the bolt", "place_nut_m12"),
@@ -228,6 +259,11 @@ def test_planner_refuses_a_place_the_scene_does_not_have(command: str, place: st
         # Where the part is, not where it goes: the table is where the parts start.
         ("Lift the M12 nut off the table", "lift_nut_m12"),
         ("Pick up the nut on the table", "pick_nut_m12"),
+        ("Pick up the nut from the table", "pick_nut_m12"),
+        ("Put the nut that is on the table onto the bolt", "place_nut_m12"),
+        # A hand's move to a part written before or as a pronoun.
+        ("Go to the round peg and pick it up", "pick_peg_round"),
+        ("Move to the M12 nut, then pick it up", "pick_nut_m12"),
         ("slide the M12 nut along the table to the bolt", "push_nut_m12"),
         # How or when, not where (read as places when the refusal came in).
         ("Put the nut on the bolt at once", "place_nut_m12"),
@@ -435,7 +471,7 @@ REACH_WEIGHT = "temperature = 0.08\nweight = 1.0"
         ("weight_range = [0.05, 10.0]", "weight_range = [10.0, 0.05]", "retune.weight_range",
          "above high"),
         ("widen = 2.0\n", "widen = 2.0\nwiden_more = 3.0\n", "retune.widen_more",
-         "unknown key"),
+         "unknown field"),
         ('weight = 0.3\n', 'weight = 0.3\ntemperature = 0.1\n', "terms.hold.temperature",
          "not used by a 'flag' term"),
     ],

@@ -367,6 +367,14 @@ _PLACE_END = ((_TOWARD | _AT | _PLACE_WORDS) - {"of"}) | {
     "up", "down", "you", "i", "we", "me", "us", "can", "could", "should", "must", "would",
     "will", "shall", "may", "might", "if", "is", "are", "be", "do",
 }  # fmt: skip
+# What the parts stand on: "the nut on the table" says where it is, not a place the scene lacks.
+_SURFACES = {"table", "tabletop", "bench", "workbench", "desk", "surface"}
+# The verbs that only move the hand: reach, move to, go, hover, position the gripper.
+_HAND_ONLY = {k for k, (pattern, actions) in enumerate(_VERBS) if not actions} - {
+    k for k, (pattern, _) in enumerate(_VERBS) if pattern == _CARRY_VERB
+}
+# Words that stand for a part named elsewhere in the command: "go to it", "move over the M16 one".
+_PRONOUNS = {"it", "them", "one", "ones"}
 _DESCRIBING = _FILLER | _STOP | _PLACE_WORDS | _TOWARD | _AT | _SMALL | _LARGE | set(_SHAPES)
 
 
@@ -433,35 +441,77 @@ def _unplanned_clause(command: str, kinds: set[str]) -> str | None:
     return None
 
 
+def _place_phrases(
+    words: list[tuple[int, str]], verbs: list[tuple[int, int, int]], kinds: set[str]
+) -> list[tuple[str, str, bool]]:
+    """The places one clause writes, each as (the words, their kind, whether they name a part or
+    fixture of the scene). Kind: ``"to"`` where a part goes ("to the shelf"), ``"at"`` where a
+    part goes or is ("on the table"), ``"from"`` where a part is taken from. Words that name no
+    place ("screw it on", "at once", "to the left") are left out."""
+    places = []
+    for i, (_, word) in enumerate(words):
+        # "next to", "close to": a word of _AT, however "to" ends it.
+        at_to = word in _TOWARD and i > 0 and words[i - 1][1] in _AT
+        kind = "at" if word in _AT or at_to else "to" if word in _TOWARD else "from"
+        if kind == "from" and word != "from":
+            continue
+        # The place's words: up to six, to the next word of place, verb or manner ("to line up
+        # with the hole" has none; "on top of the table" reads on through "of").
+        phrase = []
+        for pos, w in words[i + 1 : i + 7]:
+            if w in _PLACE_END or _adverb(w) or any(s <= pos < e for s, e, _ in verbs):
+                break
+            phrase.append(w)
+        if not phrase or phrase[-1] in _NOT_A_PLACE or _size_word(phrase[-1]):
+            continue
+        written = " ".join([words[i - 1][1]] * at_to + [word, *phrase])
+        places.append((written, kind, any(w.removesuffix("s") in kinds for w in phrase)))
+    return places
+
+
 def _unknown_place(command: str, kinds: set[str], places: list[Part]) -> str | None:
     """Why the command cannot be planned if it puts a part somewhere that is no fixture of the
-    scene ("place it on the table" was placed on the bolt); None otherwise. ``kinds``: the scene's
-    part and fixture kinds; ``places``: its fixtures."""
+    scene ("place it on the table" was placed on the bolt), or takes one from somewhere the scene
+    does not have ("reach the nut on the shelf" reached the nut on the table); None otherwise.
+    ``kinds``: the scene's part and fixture kinds; ``places``: its fixtures."""
     text = command.lower()
+    labels = ", ".join(p.label for p in places)
     for words, verbs in _segments(text):
         clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
         putting = any(v in _PUTTING for _, _, v in verbs) or bool(re.search(_MOVES_PART, clause))
-        for i, (_, word) in enumerate(words):
-            # "next to", "close to": a word of _AT, however "to" ends it.
-            at_to = word in _TOWARD and i > 0 and words[i - 1][1] in _AT
-            at = word in _AT or at_to
-            if not (putting if at else word in _TOWARD):
-                continue
-            # The place's words: up to six, to the next word of place, verb or manner ("to line
-            # up with the hole" has none; "on top of the table" reads on through "of").
-            phrase = []
-            for pos, w in words[i + 1 : i + 7]:
-                if w in _PLACE_END or _adverb(w) or any(s <= pos < e for s, e, _ in verbs):
-                    break
-                phrase.append(w)
-            if not phrase or any(w.removesuffix("s") in kinds for w in phrase):
-                continue  # "screw it on", "on its bolt", "screw on the nut"
-            if phrase[-1] in _NOT_A_PLACE or _size_word(phrase[-1]):
-                continue
-            written = " ".join([words[i - 1][1]] * at_to + [word, *phrase])
-            return f"{written!r} is no place of this scene: its places are the " + ", ".join(
-                p.label for p in places
+        phrases = _place_phrases(words, verbs, kinds)
+        for k, (written, kind, in_scene) in enumerate(phrases):
+            if in_scene:
+                continue  # "on its bolt", "screw on the nut", "from the hole"
+            # After a verb that puts a part, "on ..." is where it goes, unless a "to ..." after
+            # it says that ("put the nut that is on the table onto the bolt").
+            goes = kind == "to" or (
+                kind == "at" and putting and not any(kd == "to" for _, kd, _ in phrases[k + 1 :])
             )
+            if goes:
+                return f"{written!r} is no place of this scene: its places are the {labels}"
+            if not _SURFACES & set(written.split()):
+                return (
+                    f"{written!r} is nowhere in this scene: the parts start on the table, and "
+                    f"its places are the {labels}"
+                )
+    return None
+
+
+def _aimless_move(command: str, kinds: set[str]) -> str | None:
+    """Why the command cannot be planned if a clause only moves the hand and names nothing of
+    the scene to move to ("..., then go home" was dropped); None otherwise."""
+    text = command.lower()
+    for words, verbs in _segments(text):
+        if not verbs or any(v not in _HAND_ONLY for _, _, v in verbs):
+            continue
+        if any(w.removesuffix("s") in kinds or w in _PRONOUNS for _, w in words):
+            continue
+        clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
+        return (
+            f"{clause!r} moves the hand to nothing of this scene: the offline planner moves it "
+            "only to a part or fixture (\"move to the nut\")"
+        )
     return None
 
 
@@ -537,6 +587,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
         _negation(command)
         or _unplanned_clause(command, scene_kinds)
         or _unknown_place(command, scene_kinds, fixture_parts)
+        or _aimless_move(command, scene_kinds)
     )
     if unread:
         return {"error": unread}
