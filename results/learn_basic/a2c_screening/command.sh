@@ -47,3 +47,11 @@ for v in envs8 lam1 lr1e3; do
     --eval-every 20000 --eval-episodes 50 --workers 1 \
     --hyperparams results/learn_basic/a2c_screening/$v/hyperparams.toml --out runs/a2c_screening/$v
 done
+# 2026-12-06, twenty-ninth session, one run at a time beside the session's tests: the entropy
+# bonus of Mnih et al. (ent_coef 0.01) and normalised advantages with RMSprop (adam/ had them with
+# Adam). The runs went to /work/runs/scr29/<variant>/out.
+for v in ent01 normadv; do
+  python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 --steps 300000 \
+    --eval-every 20000 --eval-episodes 50 --workers 1 \
+    --hyperparams results/learn_basic/a2c_screening/$v/hyperparams.toml --out runs/a2c_screening/$v
+done
