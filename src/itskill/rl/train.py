@@ -12,7 +12,7 @@ import hashlib
 import json
 import runpy
 import shutil
-from collections.abc import Collection, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -63,6 +63,7 @@ from itskill.rl.init_policy import (
 from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.sim.task import Context, RewardFn
+from itskill.sim.vec_env import BatchEnv
 from itskill.tasks import get_task, make_batch_env
 from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.spec import TaskSpec
@@ -579,6 +580,147 @@ def check_training(
     )
 
 
+def _notifier(logger: LoggerConfig | None, console: Console | None) -> Callable[[str], None]:
+    """Prints a line of what the run does before its progress bar appears (a warm start takes
+    up to a minute or two), unless progress output is off."""
+
+    def note(text: str) -> None:
+        if (logger or LoggerConfig()).progress:
+            (console or Console(stderr=True, emoji=False)).print(text, highlight=False)
+
+    return note
+
+
+def _resumed_model(
+    setup: TrainSetup, train_env: VecEnv, clock: WallClock, note: Callable[[str], None]
+) -> BaseAlgorithm:
+    """The run's model as its last checkpoint saved it, on ``train_env``."""
+    model_path = setup.run_dir / MODEL_FILE
+    try:
+        model = ALGO_CLASSES[setup.algo].load(model_path, env=train_env, device="cpu")
+    except Exception as err:
+        raise CheckpointError(model_path, f"{type(err).__name__}: {err}{CANNOT_RESUME}") from err
+    model._last_obs = None  # the saved observation belongs to the old process's envs
+    recorded = int((setup.previous or {})["num_timesteps"])
+    if model.num_timesteps != recorded:
+        # Killed between model.zip and checkpoint.json: the model is the newer; record it.
+        note(
+            f"{setup.run_dir}: checkpoint.json records {recorded} env-steps, model.zip holds "
+            f"{model.num_timesteps}: resuming from model.zip"
+        )
+        _save(model, setup.run_dir, setup.meta, clock)
+    return model
+
+
+def _new_model(
+    setup: TrainSetup,
+    env: BatchEnv,
+    train_env: VecEnv,
+    policy_kwargs: Mapping[str, Any] | None,
+    note: Callable[[str], None],
+) -> BaseAlgorithm:
+    """A fresh model for the run: random weights, then the scripted controller's clone (a
+    ``demos`` table) or the weights of a trained policy (``--init``) where the run asks."""
+    hp, seed = setup.hp, setup.seed
+    set_random_seed(seed)
+    model = ALGO_CLASSES[setup.algo](
+        setup.policy_class,
+        train_env,
+        policy_kwargs={**hp.policy.policy_kwargs(), **dict(policy_kwargs or {})},
+        seed=seed,
+        device="cpu",
+        verbose=0,
+        **hp.algo_config.sb3_kwargs(),
+    )
+    if hp.demos.episodes:
+        note(f"warm start: cloning the scripted controller over {hp.demos.episodes} episodes")
+        summary = warm_start(
+            model, setup.spec, env, train_env, hp.demos, hp.algo_config.gamma, seed
+        )
+        write_json(setup.run_dir / DEMOS_FILE, summary)
+        note(
+            f"warm start: {summary['episodes_kept']} of {summary['episodes_run']} "
+            f"demonstrations kept, clone fitted in {summary['wall_s']:.0f} s"
+        )
+    if "init" in setup.meta:
+        init_policy(model.policy, setup.meta["init"])
+        note(
+            f"starting from {setup.meta['init']['path']}: fitting the critic to "
+            f"{hp.init.critic_episodes} of its episodes"
+        )
+        summary = warm_up_critic(model, env, train_env, hp.algo_config.gamma, hp.init, seed)
+        write_json(setup.run_dir / CRITIC_WARM_UP_FILE, summary)
+        note(
+            f"critic fitted in {summary['wall_s']:.0f} s ({summary['successes']} of "
+            f"{summary['episodes_run']} episodes succeeded with the run's action noise)"
+        )
+    return model
+
+
+def _clear_records_after(run_dir: Path, resumed_from: int | None) -> None:
+    """Drop the metrics and evaluations a run's directory holds past the checkpoint it resumes
+    from (``None``: a new run)."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if resumed_from is None:
+        # A session killed before its first checkpoint left rows and a best policy of a run
+        # whose settings nothing records: this run starts them again.
+        shutil.rmtree(run_dir / BEST_DIR, ignore_errors=True)
+    MetricsWriter(run_dir).truncate_after(-1 if resumed_from is None else resumed_from)
+    truncate_evaluations(run_dir, -1 if resumed_from is None else resumed_from)
+
+
+def _learn(
+    model: BaseAlgorithm,
+    setup: TrainSetup,
+    env: BatchEnv,
+    clock: WallClock,
+    evaluate_at_start: bool,
+    logger: LoggerConfig | None,
+    console: Console | None,
+) -> dict[str, Any] | None:
+    """Train ``model`` on to the run's budget, logging, checkpointing and evaluating on the
+    way; the last metrics row logged. Ctrl-C saves a checkpoint before it stops the run."""
+    run_dir, meta = setup.run_dir, setup.meta
+    metrics = MetricsCallback(env, run_dir, setup.steps, logger, console, clock)
+    checkpoints = CheckpointCallback(run_dir, setup.hp.checkpoint_every, meta, clock)
+    callbacks: list[BaseCallback] = [metrics, checkpoints]
+    if setup.eval_every:
+        callbacks.append(
+            DeterministicEvalCallback(
+                setup.spec,
+                run_dir,
+                setup.eval_every,
+                setup.eval_episodes,
+                meta=meta,
+                at_start=evaluate_at_start,
+                clock=clock,
+            )
+        )
+    try:
+        model.learn(
+            # 0 for a finished run whose final evaluation was cut short: it runs only that.
+            total_timesteps=max(0, setup.steps - model.num_timesteps),
+            callback=CallbackList(callbacks),
+            log_interval=None,  # type: ignore[arg-type]
+            reset_num_timesteps=False,
+        )
+    except BaseException as err:
+        # An error stops the progress bar and flushes TensorBoard (the callback does at a
+        # normal end); Ctrl-C also saves the checkpoint.
+        metrics.close()
+        if not isinstance(err, KeyboardInterrupt):
+            raise
+        # Counting the cut-short rollout would have the resumed run collect whole rollouts on
+        # top and stop past `steps`, with that rollout's steps never learned from.
+        model.num_timesteps = checkpoints.trained
+        _save(model, run_dir, meta, clock)
+        (console or Console(stderr=True, emoji=False)).print(
+            f"interrupted: checkpoint saved at {model.num_timesteps} env-steps in {run_dir}"
+        )
+        raise
+    return metrics.last_row
+
+
 def run_training(
     setup: TrainSetup,
     policy_kwargs: Mapping[str, Any] | None = None,
@@ -588,18 +730,16 @@ def run_training(
 ) -> TrainResult:
     """Train the run :func:`check_training` accepted; the other arguments are :func:`train`'s."""
     torch.set_num_threads(1)
-    spec, hp, meta, run_dir = setup.spec, setup.hp, setup.meta, setup.run_dir
-    eval_every, eval_episodes = setup.eval_every, setup.eval_episodes
-    algo, seed, steps = setup.algo, setup.seed, setup.steps
-    resuming, old = setup.previous is not None, setup.previous or {}
-    resumed_from = int(old["num_timesteps"]) if resuming else 0
-    model_path = run_dir / MODEL_FILE
+    hp, meta, run_dir, steps = setup.hp, setup.meta, setup.run_dir, setup.steps
+    resuming = setup.previous is not None
+    resumed_from = int(setup.previous["num_timesteps"]) if setup.previous else 0
     keep_obs_stats = bool(hp.demos.episodes) or "init" in meta
+    note = _notifier(logger, console)
 
     # A resumed run draws fresh initial states, not a replay of the first ones.
-    env_seed = int(np.random.SeedSequence([seed, resumed_from]).generate_state(1)[0])
+    env_seed = int(np.random.SeedSequence([setup.seed, resumed_from]).generate_state(1)[0])
     env = make_batch_env(
-        spec.id,
+        setup.spec.id,
         hp.num_envs,
         seed=env_seed,
         reward_fn=setup.reward_fn,
@@ -613,67 +753,15 @@ def run_training(
         )
         if resuming:
             restore_reward_norm(train_env, run_dir)
-    cls = ALGO_CLASSES[algo]
 
-    def note(text: str) -> None:
-        # A warm start takes up to a minute or two before the progress bar appears.
-        if (logger or LoggerConfig()).progress:
-            (console or Console(stderr=True, emoji=False)).print(text, highlight=False)
-
-    clock = WallClock.from_checkpoint(old)  # from here, so that a warm start's time counts
+    clock = WallClock.from_checkpoint(setup.previous or {})  # a warm start's time counts
     try:
         if resuming:
-            try:
-                model = cls.load(model_path, env=train_env, device="cpu")
-            except Exception as err:
-                raise CheckpointError(
-                    model_path, f"{type(err).__name__}: {err}{CANNOT_RESUME}"
-                ) from err
-            model._last_obs = None  # the saved observation belongs to the old process's envs
-            if model.num_timesteps != resumed_from:
-                # Killed between model.zip and checkpoint.json: the model is the newer; record it.
-                note(
-                    f"{run_dir}: checkpoint.json records {resumed_from} env-steps, model.zip "
-                    f"holds {model.num_timesteps}: resuming from model.zip"
-                )
-                resumed_from = int(model.num_timesteps)
-                _save(model, run_dir, meta, clock)
+            model = _resumed_model(setup, train_env, clock, note)
+            resumed_from = int(model.num_timesteps)
             set_random_seed(env_seed)  # seed + resumed_from may pass the 2**32 numpy takes
         else:
-            set_random_seed(seed)
-            model = cls(
-                setup.policy_class,
-                train_env,
-                policy_kwargs={**hp.policy.policy_kwargs(), **dict(policy_kwargs or {})},
-                seed=seed,
-                device="cpu",
-                verbose=0,
-                **hp.algo_config.sb3_kwargs(),
-            )
-            if hp.demos.episodes:
-                note(
-                    f"warm start: cloning the scripted controller over {hp.demos.episodes} episodes"
-                )
-                summary = warm_start(
-                    model, spec, env, train_env, hp.demos, hp.algo_config.gamma, seed
-                )
-                write_json(run_dir / DEMOS_FILE, summary)
-                note(
-                    f"warm start: {summary['episodes_kept']} of {summary['episodes_run']} "
-                    f"demonstrations kept, clone fitted in {summary['wall_s']:.0f} s"
-                )
-            if "init" in meta:
-                init_policy(model.policy, meta["init"])
-                note(
-                    f"starting from {meta['init']['path']}: fitting the critic to "
-                    f"{hp.init.critic_episodes} of its episodes"
-                )
-                summary = warm_up_critic(model, env, train_env, hp.algo_config.gamma, hp.init, seed)
-                write_json(run_dir / CRITIC_WARM_UP_FILE, summary)
-                note(
-                    f"critic fitted in {summary['wall_s']:.0f} s ({summary['successes']} of "
-                    f"{summary['episodes_run']} episodes succeeded with the run's action noise)"
-                )
+            model = _new_model(setup, env, train_env, policy_kwargs, note)
         # Building or loading the model seeds the environments with the run's seed: the fresh
         # initial states of a resumed run are drawn from env_seed only from here on.
         train_env.seed(env_seed)
@@ -693,6 +781,7 @@ def run_training(
                 f"{steps:,} asked for; use another --out directory or --steps "
                 f"{model.num_timesteps:,} or more"
             )
+        eval_every = setup.eval_every
         finished = model.num_timesteps >= steps
         if finished and not (eval_every and (last_evaluated(run_dir) or -1) < model.num_timesteps):
             return TrainResult(
@@ -704,53 +793,8 @@ def run_training(
                 None,
                 read_selection(run_dir),
             )
-        run_dir.mkdir(parents=True, exist_ok=True)
-        if resuming:
-            MetricsWriter(run_dir).truncate_after(resumed_from)
-            truncate_evaluations(run_dir, resumed_from)
-        else:
-            # A session killed before its first checkpoint left rows and a best policy of a run
-            # whose settings nothing records: this run starts them again.
-            MetricsWriter(run_dir).truncate_after(-1)
-            truncate_evaluations(run_dir, -1)
-            shutil.rmtree(run_dir / BEST_DIR, ignore_errors=True)
-        metrics = MetricsCallback(env, run_dir, steps, logger, console, clock)
-        checkpoints = CheckpointCallback(run_dir, hp.checkpoint_every, meta, clock)
-        callbacks: list[BaseCallback] = [metrics, checkpoints]
-        if eval_every:
-            callbacks.append(
-                DeterministicEvalCallback(
-                    spec,
-                    run_dir,
-                    eval_every,
-                    eval_episodes,
-                    meta=meta,
-                    at_start=keep_obs_stats,
-                    clock=clock,
-                )
-            )
-        try:
-            model.learn(
-                # 0 for a finished run whose final evaluation was cut short: it runs only that.
-                total_timesteps=max(0, steps - model.num_timesteps),
-                callback=CallbackList(callbacks),
-                log_interval=None,  # type: ignore[arg-type]
-                reset_num_timesteps=False,
-            )
-        except BaseException as err:
-            # An error stops the progress bar and flushes TensorBoard (the callback does at a
-            # normal end); Ctrl-C also saves the checkpoint.
-            metrics.close()
-            if not isinstance(err, KeyboardInterrupt):
-                raise
-            # Counting the cut-short rollout would have the resumed run collect whole rollouts on
-            # top and stop past `steps`, with that rollout's steps never learned from.
-            model.num_timesteps = checkpoints.trained
-            _save(model, run_dir, meta, clock)
-            (console or Console(stderr=True, emoji=False)).print(
-                f"interrupted: checkpoint saved at {model.num_timesteps} env-steps in {run_dir}"
-            )
-            raise
+        _clear_records_after(run_dir, resumed_from if resuming else None)
+        last_row = _learn(model, setup, env, clock, keep_obs_stats, logger, console)
         session_s = clock.session_s()
         # As the checkpoint stores it, so a later call that finds the run finished reports the
         # same figure.
@@ -761,7 +805,7 @@ def run_training(
             resumed_from,
             total_s,
             session_s,
-            metrics.last_row,
+            last_row,
             read_selection(run_dir),
         )
     finally:
