@@ -369,6 +369,9 @@ def test_out_of_range_numbers_and_the_current_directory_are_refused_before_any_w
         (["train", "reach_nut_m12", "--seed", str(2**32)], "--seed"),
         (["transfer", "train", "pick_nut_m12", "--seed", "-3"], "--seed"),
         (["eval", "reach_nut_m12", "--episodes", "9" * 23], "--episodes"),
+        # A mistyped budget trained on for ever at an undecayed learning rate.
+        (["train", "reach_nut_m12", "--steps", "1" + "0" * 12], "--steps"),
+        (["transfer", "train", "pick_nut_m12", "--steps", "1" + "0" * 12], "--steps"),
         (["train", "reach_nut_m12", "--out", ""], "not the current one"),
         (["transfer", "train", "pick_nut_m12", "--out", "."], "not the current one"),
         (["train", "reach_nut_m12", "--steps", "64", "--out", "/proc/x"], "cannot use /proc/x"),

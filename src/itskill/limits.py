@@ -18,6 +18,16 @@ and the controller's IK) and a row of every rollout buffer, and they are stepped
 own threads: the families train with 16, a thousand is already far past the cores that step them,
 and a mistyped 100000000000 crashes every run at allocation instead of failing at load."""
 
+STEPS_MAX = 1_000_000_000
+"""The most env-steps of one training run (a training, a transfer run, an experiment's cell, a
+reward candidate): a thousand times the paper's transfer runs (1M). The learning rate decays over
+the budget, so a mistyped huge one trains on at an undecayed rate for ever instead of failing at
+once; a budget this size takes weeks on any machine we know of."""
+
+DEPTH_MAX = 16
+"""The most stages (hidden layers) of a policy network: the paper's has three, and the transfer
+network takes a lateral connection and a fusion block per stage of every source."""
+
 WIDTH_MAX = 4096
 """The widest layer of a network a user sizes (the policy's stages, the transfer network's
 attention and fusion MLPs): the paper's are 256 units and the packaged ones at most 256, and a

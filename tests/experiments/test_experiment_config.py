@@ -249,6 +249,8 @@ def test_cli_reports_an_unreadable_skill_space_and_records_no_run(tmp_path, monk
         # Every cell crashed allocating its environments.
         (("steps = 1000", "steps = 1000\nnum_envs = 100000000000"), "num_envs", "at most 1,024"),
         (("steps = 1000", "steps = 1000\nnum_envs = 1025"), "num_envs", "at most 1,024"),
+        # Every cell trained on at an undecayed learning rate for ever (itskill.limits).
+        (("steps = 1000", "steps = 1000000000000"), "steps", "at most 1,000,000,000"),
         # A repeated fraction passed the sorted check: the same column twice in the report.
         (
             ("every = 500", "every = 500\n[report]\nfractions = [0.5, 0.5]"),

@@ -434,6 +434,15 @@ def test_bad_budget_fields_are_named(tmp_path, edit, message):
             "test.evaluation.episodes",
             "at most 1,000,000",
         ),
+        # Trained on at an undecayed learning rate for ever, after the whole reward search.
+        (
+            (
+                "steps = 256\nnum_envs = 2\neval_every",
+                "steps = 1000000000000\nnum_envs = 2\neval_every",
+            ),
+            "test.transfer.steps",
+            "at most 1,000,000,000",
+        ),
     ],
 )
 def test_budget_fields_are_named_as_the_file_has_them(tmp_path, edit, where, problem):

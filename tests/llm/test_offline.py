@@ -230,8 +230,7 @@ def test_planner_refuses_a_place_the_scene_does_not_have(command: str, place: st
 def test_planner_refuses_a_start_the_scene_does_not_have(command: str, place: str) -> None:
     reply = plan(command)
     assert reply == {
-        "error": f"{place!r} is nowhere in this scene: the parts start on the table, and "
-        f"{PLACES}"
+        "error": f"{place!r} is nowhere in this scene: the parts start on the table, and {PLACES}"
     }
 
 

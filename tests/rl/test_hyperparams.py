@@ -40,6 +40,12 @@ def test_packaged_file_loads(family: str) -> None:
         ("[nutbolt.demos]\nepochs = 0\n", "nutbolt.demos.epochs", "positive"),
         ("[nutbolt.policy]\nobs_clip = 0\n", "nutbolt.policy.obs_clip", "positive"),
         ("[nutbolt.policy]\nstages = [1, 'x']\n", "nutbolt.policy.stages", "list of integers"),
+        # A network of a hundred thousand layers was built (the widths alone were bounded).
+        (
+            "[nutbolt.policy]\nstages = [8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8]\n",
+            "nutbolt.policy.stages",
+            "1 to 16 positive widths",
+        ),
         ("[peghole]\n", "nutbolt", "no table"),
         ("[nutbolt.ppo]\nlr_schedule = 'cosine'\n", "nutbolt.ppo", "lr_schedule must be one of"),
         ("[nutbolt\n", "TOML syntax", ""),

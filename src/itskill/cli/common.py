@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from itskill.files import is_unusable_path, json_safe, path_error_message
-from itskill.limits import EPISODES_MAX, SEED_MAX
+from itskill.limits import EPISODES_MAX, SEED_MAX, STEPS_MAX
 
 # No emoji codes: user text such as `skill:x:` must print as typed, and escape() leaves them.
 console = Console(emoji=False)
@@ -110,6 +110,11 @@ EvalEveryOpt = Annotated[
 def episodes_option(help: str) -> Any:
     """An episode-count option: 1 to :data:`EPISODES_MAX`."""
     return typer.Option(help=help, min=1, max=EPISODES_MAX)
+
+
+def steps_option(help: str, least: int = 1) -> Any:
+    """An env-step budget option: ``least`` to :data:`STEPS_MAX`."""
+    return typer.Option(help=help, min=least, max=STEPS_MAX)
 
 
 EvalEpisodesOpt = Annotated[int, episodes_option("Episodes per evaluation.")]

@@ -12,6 +12,7 @@ from itskill.cli.common import (
     err_console,
     run_dir_option,
     seed_option,
+    steps_option,
     user_errors,
 )
 
@@ -28,7 +29,7 @@ def learn_cmd(
     ] = "default",
     steps: Annotated[
         int | None,
-        typer.Option(min=1, help="Env-steps of the transfer training (overrides the budget's)."),
+        steps_option("Env-steps of the transfer training (overrides the budget's)."),
     ] = None,
     llm: Annotated[
         str | None,

@@ -22,6 +22,7 @@ from itskill.cli.common import (
     err_console,
     print_json,
     run_dir_option,
+    steps_option,
     user_errors,
 )
 
@@ -103,9 +104,7 @@ def generate_cmd(
     samples: Annotated[
         int | None, typer.Option(min=1, help="Reward samples per iteration (default 10).")
     ] = None,
-    steps: Annotated[
-        int | None, typer.Option(min=1, help="Env-steps per candidate and seed.")
-    ] = None,
+    steps: Annotated[int | None, steps_option("Env-steps per candidate and seed.")] = None,
     executor: Annotated[
         str | None, typer.Option(help="local (process pool) or ray (default local).")
     ] = None,

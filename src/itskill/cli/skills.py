@@ -24,6 +24,7 @@ from itskill.cli.common import (
     print_json,
     run_dir_option,
     seed_option,
+    steps_option,
     user_errors,
 )
 
@@ -176,7 +177,7 @@ def skills_add(
     success: Annotated[float | None, typer.Option(min=0, max=1, help="Success rate.")] = None,
     ci_low: Annotated[float | None, typer.Option(min=0, max=1, help="95% CI low.")] = None,
     ci_high: Annotated[float | None, typer.Option(min=0, max=1, help="95% CI high.")] = None,
-    steps: Annotated[int | None, typer.Option(min=0, help="Training env-steps.")] = None,
+    steps: Annotated[int | None, steps_option("Training env-steps.", least=0)] = None,
     wall_s: Annotated[float | None, typer.Option(min=0, help="Training wall seconds.")] = None,
     algo: Annotated[str | None, typer.Option(help="Algorithm, e.g. ppo or a2c.")] = None,
     seed: Annotated[int | None, seed_option("Training seed.")] = None,

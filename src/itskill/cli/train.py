@@ -16,6 +16,7 @@ from itskill.cli.common import (
     print_trained,
     run_dir_option,
     seed_option,
+    steps_option,
     user_errors,
 )
 
@@ -23,7 +24,7 @@ from itskill.cli.common import (
 def train_cmd(
     task: TaskArg,
     algo: Annotated[str, typer.Option(help="a2c (the paper's algorithm) or ppo.")] = "ppo",
-    steps: Annotated[int, typer.Option(min=1, help="Total env-steps (a rerun resumes).")] = 100_000,
+    steps: Annotated[int, steps_option("Total env-steps (a rerun resumes).")] = 100_000,
     seed: Annotated[int, seed_option("Seed of the run.")] = 0,
     reward: Annotated[
         str, typer.Option(help="'expert' or a .py file defining compute_reward(ctx).")

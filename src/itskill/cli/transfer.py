@@ -24,6 +24,7 @@ from itskill.cli.common import (
     print_trained,
     run_dir_option,
     seed_option,
+    steps_option,
     usage_error,
     user_errors,
 )
@@ -82,7 +83,7 @@ def transfer_train(
     sources: SourcesOpt = "auto",
     k: KOpt = None,
     seed: Annotated[int, seed_option("Seed of the run.")] = 0,
-    steps: Annotated[int, typer.Option(min=1, help="Total env-steps (a rerun resumes).")] = 200_000,
+    steps: Annotated[int, steps_option("Total env-steps (a rerun resumes).")] = 200_000,
     algo: Annotated[
         str, typer.Option(help="ppo, or a2c (the paper's algorithm; it learns less from sources).")
     ] = "ppo",

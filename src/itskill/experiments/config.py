@@ -31,7 +31,14 @@ from typing import Any
 
 from itskill.datafile import DataFileError, check_positive, check_table, check_type, read_toml
 from itskill.executors import EXECUTORS
-from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_COUNT_MAX, SOURCES_MAX, WORKERS_MAX
+from itskill.limits import (
+    EPISODES_MAX,
+    NUM_ENVS_MAX,
+    SEED_COUNT_MAX,
+    SOURCES_MAX,
+    STEPS_MAX,
+    WORKERS_MAX,
+)
 from itskill.llm.client import UnknownModelError, model_spec
 from itskill.reward.config import check_seeds
 from itskill.reward_contract import EXPERT
@@ -239,7 +246,7 @@ def parse_experiment(data: dict[str, Any], path: Path, recorded: bool = False) -
     algo = _typed(path, "algo", raw.get("algo", "a2c"), str)
     if algo not in ALGOS:
         raise ExperimentConfigError(path, "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
-    steps = _positive(path, "steps", raw["steps"])
+    steps = _positive(path, "steps", raw["steps"], STEPS_MAX)
     num_envs = raw.get("num_envs")
     if num_envs is not None:
         # More crashed every cell at allocation, after the run was made (itskill.limits).

@@ -56,7 +56,7 @@ from itskill.files import (
     some_of,
     write_json,
 )
-from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_MAX, SOURCES_MAX
+from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_MAX, SOURCES_MAX, STEPS_MAX
 from itskill.llm.usage_log import UsageLog
 
 EVAL_SEED = 10_000
@@ -202,8 +202,8 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
         raise BudgetError(path, where, "missing table (required)")
     tr = check_table(path, where, raw["transfer"], BudgetError, TransferBudget.__dataclass_fields__)
     transfer = TransferBudget(
-        steps=_field(path, where, tr, "steps", int),
-        eval_every=_field(path, where, tr, "eval_every", int),
+        steps=_field(path, where, tr, "steps", int, most=STEPS_MAX),
+        eval_every=_field(path, where, tr, "eval_every", int, most=STEPS_MAX),
         method=_field(path, where, tr, "method", str, "itn"),
         algo=_field(path, where, tr, "algo", str, TransferBudget.algo),
         # Bounded as everywhere (itskill.limits): more crashed the training at allocation,
@@ -402,8 +402,8 @@ def learn(
         raise LearnError(f"unknown budget {budget!r}; expected one of {list(budgets)}")
     b = budgets[budget]
     if steps is not None:
-        if steps < 1:
-            raise LearnError(f"--steps must be positive, got {steps}")
+        if not 1 <= steps <= STEPS_MAX:
+            raise LearnError(f"--steps must be between 1 and {STEPS_MAX:,}, got {steps:,}")
         b = replace(b, transfer=replace(b.transfer, steps=steps))
     if min_success is not None:
         if not 0.0 <= min_success <= 1.0:

@@ -27,6 +27,7 @@ from itskill.limits import (
     RETRIES_MAX,
     SEED_COUNT_MAX,
     SEED_MAX,
+    STEPS_MAX,
     WORKERS_MAX,
 )
 from itskill.reward.sandbox import SandboxConfig
@@ -68,9 +69,6 @@ ITERATIONS_MAX = 100
 SAMPLES_MAX = 100
 """The most reward samples per iteration, and rewards retrained before the choice
 (``select_top``): the paper samples 10; each sample is a paid model call and a training per seed."""
-STEPS_MAX = 1_000_000_000
-"""The most env-steps of one candidate's training (packaged: 73,728): a thousand times the
-paper's transfer runs (1M), past what any candidate finishes within its timeout."""
 EVALUATIONS_MAX = 1000
 """The most evaluations through one training (packaged: 4): each runs ``eval_episodes`` episodes,
 so a mistyped huge count evaluates after every few env-steps instead of training."""

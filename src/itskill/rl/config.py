@@ -18,7 +18,7 @@ from typing import Any, Literal
 from stable_baselines3.common.utils import LinearSchedule
 
 from itskill.datafile import DataFileError, check_like, check_table, read_toml
-from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, WIDTH_MAX
+from itskill.limits import DEPTH_MAX, EPISODES_MAX, NUM_ENVS_MAX, WIDTH_MAX
 from itskill.rl.demos import DemoConfig
 from itskill.rl.init_policy import InitConfig
 from itskill.rl.policy import PolicyConfig
@@ -205,8 +205,8 @@ _RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
         (lambda v: 1 <= v <= EPOCHS_MAX, f"a positive value, at most {EPOCHS_MAX:,}"),
     ),
     "stages": (
-        lambda v: all(1 <= w <= WIDTH_MAX for w in v),
-        f"positive widths, at most {WIDTH_MAX:,} each",
+        lambda v: 1 <= len(v) <= DEPTH_MAX and all(1 <= w <= WIDTH_MAX for w in v),
+        f"1 to {DEPTH_MAX} positive widths, at most {WIDTH_MAX:,} each",
     ),
 }  # fmt: skip
 """The range of every numeric field, by name in any table. Outside it training does not fail at

@@ -510,7 +510,7 @@ def _aimless_move(command: str, kinds: set[str]) -> str | None:
         clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
         return (
             f"{clause!r} moves the hand to nothing of this scene: the offline planner moves it "
-            "only to a part or fixture (\"move to the nut\")"
+            'only to a part or fixture ("move to the nut")'
         )
     return None
 
