@@ -249,6 +249,33 @@ def test_planner_refuses_a_move_to_nothing_of_the_scene(command: str, clause: st
 
 
 @pytest.mark.parametrize(
+    "command",
+    [
+        # Each was planned as the pick (or grasp) alone: no task picks a part and only carries it.
+        "Pick up the M12 nut and move it over the bolt",
+        "Pick up the nut and hold it above the bolt",
+        "Grasp the nut and bring it to the bolt",
+    ],
+)
+def test_planner_refuses_a_carry_it_would_drop(command: str) -> None:
+    reply = plan(command)
+    assert set(reply) == {"error"}
+    assert reply["error"].startswith("no catalogue task carries the part after picking it up")
+
+
+@pytest.mark.parametrize(
+    ("command", "task"),
+    [
+        ("Pick up the nut and hold it", "pick_nut_m12"),  # keeps it: no carry
+        ("Pick up the nut, carry it to the bolt and place it on it", "pickplace_nut_m12"),
+        ("Hold the M12 nut over the bolt", "carry_nut_m12"),
+    ],
+)
+def test_planner_still_plans_a_carry_a_task_does(command: str, task: str) -> None:
+    assert plan(command)["task"] == task
+
+
+@pytest.mark.parametrize(
     ("command", "task"),
     [
         ("Place the nut on the bolt", "place_nut_m12"),

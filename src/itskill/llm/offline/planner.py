@@ -39,6 +39,11 @@ _CARRY_VERB = (
     r"\bcarry\w*|\btransport\w*|\bbring\w*|\bhold\w*"
     r"|\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?) (?:over|above|to)\b"
 )
+# A carry that takes the part somewhere ("bring it to the bolt"; not "hold it", which keeps it).
+_CARRY_TO = (
+    rf"\bcarry\w*|\btransport\w*|\bbring\w*|\bhold\w* {_OBJ}(?:over|above)\b"
+    r"|\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?) (?:over|above|to)\b"
+)
 # verb phrase -> distinguishing actions; a "?" suffix marks an action that may be absent. Earlier
 # patterns claim their words first: "position the gripper" is a move, not a place.
 _VERBS: list[tuple[str, tuple[str, ...]]] = [
@@ -634,6 +639,20 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             f"(actions read from the command: {read or 'move to'})"
         }
     entry = min(candidates, key=lambda c: c[:-1])[-1]
+    actions = entry["actions"]
+    grasp = actions.index("grasp") if "grasp" in actions else None
+    if (
+        re.search(_CARRY_TO, command.lower())
+        and grasp is not None
+        and "approach" not in actions[grasp:]
+    ):
+        # "Pick up the nut and move it over the bolt" was planned as the pick: no task picks a
+        # part up and then only carries it.
+        return {
+            "error": f"no catalogue task carries the part after picking it up (the closest, "
+            f'{entry["task"]!r}, would drop the carry): carry a part already held ("carry the '
+            'M12 nut over the bolt") or put it down there ("... and place it on the bolt")'
+        }
     for fixture in (Part.from_name(f) for f in entry["fixtures"]):
         if fixture.kind not in named_fixtures:
             continue
