@@ -225,6 +225,8 @@ def test_planner_refuses_a_place_the_scene_does_not_have(command: str, place: st
         ("Reach the nut on the shelf", "on the shelf"),
         ("Pick up the nut from the shelf", "from the shelf"),
         ("Put the nut on the shelf into the hole", "on the shelf"),
+        ("Lift the M12 nut off the shelf", "off the shelf"),
+        ("Pick up the M12 nut out of the drawer", "out of the drawer"),
     ],
 )
 def test_planner_refuses_a_start_the_scene_does_not_have(command: str, place: str) -> None:
@@ -240,6 +242,7 @@ def test_planner_refuses_a_start_the_scene_does_not_have(command: str, place: st
         # Each was planned without its last clause.
         ("Pick up the nut and place it on the bolt, then go home", "go home"),
         ("Pick up the nut and move back", "move back"),
+        ("Move back and grasp the M12 nut", "move back"),
     ],
 )
 def test_planner_refuses_a_move_to_nothing_of_the_scene(command: str, clause: str) -> None:
@@ -287,9 +290,24 @@ def test_planner_still_plans_a_carry_a_task_does(command: str, task: str) -> Non
         ("Pick up the nut on the table", "pick_nut_m12"),
         ("Pick up the nut from the table", "pick_nut_m12"),
         ("Put the nut that is on the table onto the bolt", "place_nut_m12"),
-        # A hand's move to a part written before or as a pronoun.
+        # A hand's move to a part written before or as a pronoun, or into the next clause.
         ("Go to the round peg and pick it up", "pick_peg_round"),
         ("Move to the M12 nut, then pick it up", "pick_nut_m12"),
+        ("Reach the M12 nut, then move there", "reach_nut_m12"),
+        ("Go and get the M12 nut", "pick_nut_m12"),
+        ("Reach out and grab the M12 nut", "pick_nut_m12"),
+        (
+            "Pick up the round peg, hover, and insert it into the round hole",
+            "pickplaceinsert_peg_round",
+        ),
+        ("Pick up the nut and move up", "pick_nut_m12"),
+        ("Pick up the M12 nut and place it on the bolt, then let go", "pickplace_nut_m12"),
+        # Where the part is, or which side of it: no place the scene lacks.
+        ("Reach the round peg in front of you", "reach_peg_round"),
+        ("Grasp the round peg at its base", "grasp_peg_round"),
+        ("Pick up the M12 nut from its current location", "pick_nut_m12"),
+        ("Move the gripper from the start to the M12 nut", "reach_nut_m12"),
+        ("Pick up the M12 nut from the worktable", "pick_nut_m12"),
         ("slide the M12 nut along the table to the bolt", "push_nut_m12"),
         # How or when, not where (read as places when the refusal came in).
         ("Put the nut on the bolt at once", "place_nut_m12"),

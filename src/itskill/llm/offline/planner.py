@@ -86,7 +86,8 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
     ),
     (rf"\balign\w*|\borient\w*|\bline\w* {_OBJ}up\b", ("align",)),
     (r"\bpush\w*|\bslide\w*|\bshove\w*|\bnudge\w*", ("push",)),
-    (r"\breach\w*|\bmove\w*|\bgo\b|\btouch\w*|\bapproach\w*|\bhover\w*", ()),
+    # Not "let go", a release.
+    (r"\breach\w*|\bmove\w*|(?<!\blet )\bgo\b|\btouch\w*|\bapproach\w*|\bhover\w*", ()),
     (_CARRY_VERB, ()),
 ]
 _IMPLIED = {"approach", "carry"}
@@ -334,6 +335,8 @@ _FILLER = _UNITS | {
     "fingers", "finger", "end", "effector", "same", "time", "both", "each", "every", "two",
     "held", "threaded", "standing", "sitting", "lying", "tight", "fast", "possible", "if",
     "necessary", "needed", "sure", "make", "nothing", "else",
+    # "..., then let go": a place ends with the fingers open ("go" is a verb elsewhere).
+    "let", "go",
 }  # fmt: skip
 # A clause that starts so describes a part ("..., which is on the bolt") and does nothing.
 # Not "that": "and after that fly to the moon" does something.
@@ -372,14 +375,24 @@ _PLACE_END = ((_TOWARD | _AT | _PLACE_WORDS) - {"of"}) | {
     "up", "down", "you", "i", "we", "me", "us", "can", "could", "should", "must", "would",
     "will", "shall", "may", "might", "if", "is", "are", "be", "do",
 }  # fmt: skip
-# What the parts stand on: "the nut on the table" says where it is, not a place the scene lacks.
-_SURFACES = {"table", "tabletop", "bench", "workbench", "desk", "surface"}
+# Where a part might be that this scene has none of: "the nut on the shelf" is not the nut on the
+# table. Only these are refused where a phrase says where a part is, not where it goes: such a
+# phrase names the part's own features too ("at its base", "in front of you").
+_ELSEWHERE = {"shelf", "shelves", "drawer", "box", "boxes", "tray", "bin", "cabinet", "floor",
+              "ground", "rack", "cupboard", "container", "basket", "bowl", "cup", "plate",
+              "counter", "conveyor", "pallet", "crate", "bag", "pocket"}  # fmt: skip
 # The verbs that only move the hand: reach, move to, go, hover, position the gripper.
 _HAND_ONLY = {k for k, (pattern, actions) in enumerate(_VERBS) if not actions} - {
     k for k, (pattern, _) in enumerate(_VERBS) if pattern == _CARRY_VERB
 }
-# Words that stand for a part named elsewhere in the command: "go to it", "move over the M16 one".
-_PRONOUNS = {"it", "them", "one", "ones"}
+# Words that stand for a part or place named elsewhere in the command: "go to it", "move over the
+# M16 one", "go there".
+_PRONOUNS = {"it", "them", "one", "ones", "there", "this", "that"}
+# A hand move up or down is part of the lift or place beside it ("pick up the nut and move up").
+_VERTICAL = {"up", "upward", "upwards", "higher", "down", "downward", "downwards", "lower"}
+# Where a hand move goes that is no part of the scene: "then go home", "move back".
+_NOWHERE = {"home", "back", "away", "start", "origin", "rest", "neutral", "idle", "initial",
+            "beginning", "aside"}  # fmt: skip
 _DESCRIBING = _FILLER | _STOP | _PLACE_WORDS | _TOWARD | _AT | _SMALL | _LARGE | set(_SHAPES)
 
 
@@ -451,14 +464,15 @@ def _place_phrases(
 ) -> list[tuple[str, str, bool]]:
     """The places one clause writes, each as (the words, their kind, whether they name a part or
     fixture of the scene). Kind: ``"to"`` where a part goes ("to the shelf"), ``"at"`` where a
-    part goes or is ("on the table"), ``"from"`` where a part is taken from. Words that name no
-    place ("screw it on", "at once", "to the left") are left out."""
+    part goes or is ("on the table"), ``"from"`` where a part is taken from ("from", "off" or
+    "out of the drawer"). Words that name no place ("screw it on", "at once", "to the left") are
+    left out."""
     places = []
     for i, (_, word) in enumerate(words):
         # "next to", "close to": a word of _AT, however "to" ends it.
         at_to = word in _TOWARD and i > 0 and words[i - 1][1] in _AT
         kind = "at" if word in _AT or at_to else "to" if word in _TOWARD else "from"
-        if kind == "from" and word != "from":
+        if kind == "from" and word not in ("from", "off", "out"):
             continue
         # The place's words: up to six, to the next word of place, verb or manner ("to line up
         # with the hole" has none; "on top of the table" reads on through "of").
@@ -495,7 +509,7 @@ def _unknown_place(command: str, kinds: set[str], places: list[Part]) -> str | N
             )
             if goes:
                 return f"{written!r} is no place of this scene: its places are the {labels}"
-            if not _SURFACES & set(written.split()):
+            if any(w in _ELSEWHERE or w.removesuffix("s") in _ELSEWHERE for w in written.split()):
                 return (
                     f"{written!r} is nowhere in this scene: the parts start on the table, and "
                     f"its places are the {labels}"
@@ -505,12 +519,18 @@ def _unknown_place(command: str, kinds: set[str], places: list[Part]) -> str | N
 
 def _aimless_move(command: str, kinds: set[str]) -> str | None:
     """Why the command cannot be planned if a clause only moves the hand and names nothing of
-    the scene to move to ("..., then go home" was dropped); None otherwise."""
+    the scene to move to ("..., then go home" was dropped); None otherwise. A move that leads
+    into the next clause ("go and get the nut", "reach out and grab it") is let through unless
+    it says where else it goes ("move back and ...")."""
     text = command.lower()
-    for words, verbs in _segments(text):
+    segments = _segments(text)
+    for k, (words, verbs) in enumerate(segments):
         if not verbs or any(v not in _HAND_ONLY for _, _, v in verbs):
             continue
-        if any(w.removesuffix("s") in kinds or w in _PRONOUNS for _, w in words):
+        said = {w for _, w in words}
+        if any(w.removesuffix("s") in kinds for w in said) or said & _PRONOUNS:
+            continue
+        if (k + 1 < len(segments) or said & _VERTICAL) and not said & _NOWHERE:
             continue
         clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
         return (
