@@ -461,5 +461,10 @@ def test_an_edited_run_config_is_refused_with_the_field(toy, tmp_path):
     with pytest.raises(ExperimentRunError, match=r"execution.workers: must be at most 1,024"):
         read_run_config(run)
     data["execution"]["workers"] = config.execution.workers
+    del data["name"]  # was read as the run named "config", after the file
+    (run / "config.json").write_text(json.dumps(data))
+    with pytest.raises(ExperimentRunError, match=r"config.json: name: missing \(required\)"):
+        read_run_config(run)
+    data["name"] = config.name
     (run / "config.json").write_text(json.dumps(data))
     assert read_run_config(run) == config  # as recorded, it passes

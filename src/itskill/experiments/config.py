@@ -214,7 +214,8 @@ def parse_experiment(data: dict[str, Any], path: Path, recorded: bool = False) -
     from itskill.transfer import METHODS
 
     raw = _table(path, "", data, _TOP)
-    for key in ("tasks", "methods", "steps", "eval"):
+    # A record always names its run: without one it would take the file's name, "config".
+    for key in ("tasks", "methods", "steps", "eval", *(("name",) if recorded else ())):
         if key not in raw:
             raise ExperimentConfigError(path, key, "missing (required)")
     tasks = _strings(path, "tasks", raw["tasks"])
