@@ -372,6 +372,7 @@ def test_out_of_range_numbers_and_the_current_directory_are_refused_before_any_w
         # A mistyped budget trained on for ever at an undecayed learning rate.
         (["train", "reach_nut_m12", "--steps", "1" + "0" * 12], "--steps"),
         (["transfer", "train", "pick_nut_m12", "--steps", "1" + "0" * 12], "--steps"),
+        (["skills", "pretrain", "--tasks", "reach_nut_m12", "--steps", "1" + "0" * 12], "--steps"),
         (["train", "reach_nut_m12", "--out", ""], "not the current one"),
         (["transfer", "train", "pick_nut_m12", "--out", "."], "not the current one"),
         (["train", "reach_nut_m12", "--steps", "64", "--out", "/proc/x"], "cannot use /proc/x"),

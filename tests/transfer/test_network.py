@@ -161,6 +161,21 @@ def test_bad_network_settings_are_clear_errors(tiny_sources, tmp_path: Path) -> 
         build(ITNPolicy, [two_stage], prior=[[1.0]] * 5)
     with pytest.raises(ValueError, match="at least one source"):
         build(ITNPolicy, [], prior=None)
+    # Built from Python, not only through transfer.toml: W went negative, a source ran twice.
+    with pytest.raises(ValueError, match=r"prior_weight must be in \[0, 1\], got 2.0"):
+        build(ITNPolicy, tiny_sources, prior_weight=2.0)
+    with pytest.raises(ValueError, match="a source is given twice"):
+        build(ITNPolicy, [tiny_sources[0]] * 2)
+
+
+def test_the_frozen_sources_stay_in_eval_mode_however_the_network_is_switched(
+    tiny_sources,
+) -> None:
+    policy = build(ITNPolicy, tiny_sources)
+    for module in (policy, policy.mlp_extractor):
+        module.train()
+        assert policy.mlp_extractor.actor.training
+        assert not any(s.training for s in policy.mlp_extractor.sources.modules())
 
 
 @pytest.mark.parametrize("algo", ["a2c", "ppo"])

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from transfer_helpers import make_source
 from typer.testing import CliRunner
 
 from itskill.cli import app
@@ -29,6 +30,7 @@ from itskill.transfer import (
     recorded_attention_trace,
     train_transfer,
 )
+from itskill.transfer.fusion import IncompatibleSourceError
 
 TARGET = "pickplace_nut_m12"
 SOURCES = "pick_nut_m12,place_nut_m12"
@@ -153,7 +155,7 @@ def test_a_run_from_before_the_residual_resumes_without_it(home: Path, tmp_path:
     for spec in record["source_specs"]:
         del spec["stage_map"]
     (out / "transfer.json").write_text(json.dumps(record))
-    with pytest.raises(ResumeMismatchError, match="'residual': False"):
+    with pytest.raises(ResumeMismatchError, match="config.residual=False"):
         run(out, "itn", steps=32)
     resumed = run(out, "itn", config=TransferConfig(residual=False), steps=32)
     assert resumed.resumed_from == 16 and resumed.num_timesteps == 32
@@ -291,3 +293,59 @@ def test_a_record_with_a_field_its_readers_cannot_use_is_refused(
     message = f"{tmp_path / 'transfer.json'}: {problem}"
     with pytest.raises(CheckpointError, match=re.escape(message)):
         _read_back(tmp_path, record)
+
+
+@pytest.mark.parametrize(
+    ("method", "stages", "problem"),
+    [
+        ("itn", (8, 8), "has 2 stages, the target 3"),
+        ("dfs", (8, 8, 8), "needs every source stage as wide as the target's"),
+    ],
+)
+def test_a_source_that_cannot_join_the_network_is_refused_before_anything_is_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, method: str, stages: tuple, problem: str
+) -> None:
+    # The record was written (and the analyzer asked) before the network refused the source,
+    # and that record then refused the corrected command.
+    from itskill.skills import Skill, SkillSpace
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    make_source(tmp_path / "odd", seed=0, stages=stages)
+    make_source(tmp_path / "pick", seed=1, stages=(256, 256, 128))
+    with SkillSpace() as space:
+        weights = "policy.safetensors"
+        space.add(Skill("odd", "place_nut_m12", "Place the nut", ("approach", "place"),
+                        str(tmp_path / "odd" / weights)))  # fmt: skip
+        space.add(Skill("pick", "pick_nut_m12", "Pick up the nut", ("approach", "grasp", "lift"),
+                        str(tmp_path / "pick" / weights)))  # fmt: skip
+    client, out = CountingClient(), tmp_path / "run"
+    with pytest.raises(IncompatibleSourceError, match=problem):
+        train_transfer(TARGET, method, "pick,odd", steps=16, algo="a2c", out=out, num_envs=2,
+                       client=client, logger=QUIET)  # fmt: skip
+    assert client.calls == 0 and not (out / "transfer.json").exists()
+    result = train_transfer(TARGET, method, "pick", steps=16, algo="a2c", out=out, num_envs=2,
+                            client=client, logger=QUIET)  # fmt: skip
+    assert result.num_timesteps == 16
+
+
+def test_a_checkpoint_without_its_transfer_record_is_not_resumed_with_other_sources(
+    home: Path, tmp_path: Path
+) -> None:
+    # It resumed with whatever sources the call named, and recorded them for the old network.
+    out = tmp_path / "run"
+    run(out, "itn")
+    (out / "transfer.json").unlink()
+    with pytest.raises(CheckpointError, match=r"transfer\.json: missing: the run's sources"):
+        train_transfer(TARGET, "itn", "grasp_nut_m12,lift_nut_m12", seed=0, steps=32, algo="a2c",
+                       out=out, num_envs=2, client=CountingClient(), logger=QUIET)  # fmt: skip
+    assert not (out / "transfer.json").exists()
+
+
+def test_a_resume_with_another_setting_names_the_setting(home: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    run(out, "itn")
+    changed = TransferConfig(prior_weight=0.9)
+    with pytest.raises(
+        ResumeMismatchError, match=r"config\.prior_weight=0\.5.*config\.prior_weight=0\.9"
+    ):
+        run(out, "itn", steps=32, config=changed)

@@ -283,10 +283,9 @@ def skills_pretrain(
     ] = None,
     steps: Annotated[
         int | None,
-        typer.Option(
-            min=1,
-            help="Env-steps per skill (default: the budget the shipped library records for "
-            "the skill, 300,000 for a task it lacks).",
+        steps_option(
+            "Env-steps per skill (default: the budget the shipped library records for the "
+            "skill, 300,000 for a task it lacks)."
         ),
     ] = None,
     algo: Annotated[str, typer.Option(help="a2c or ppo.")] = "ppo",

@@ -59,16 +59,8 @@ class FeatureFusion(nn.Module):
 class FeatureSum(nn.Module):
     """DFS: the target's stage output plus every source's, unweighted."""
 
-    def __init__(
-        self, source_widths: Sequence[Sequence[int]], target_widths: Sequence[int]
-    ) -> None:
+    def __init__(self) -> None:
         super().__init__()
-        for i, widths in enumerate(source_widths):
-            if tuple(widths) != tuple(target_widths):
-                raise IncompatibleSourceError(
-                    f"direct feature summation needs every source stage as wide as the target's: "
-                    f"source {i} has stages {list(widths)}, the target {list(target_widths)}"
-                )
 
     def forward(
         self,

@@ -223,6 +223,13 @@ class LateralExtractor(nn.Module):
         self.latent_dim_vf = self.latent_width
         self.latent_dim_pi = self.latent_width + (0 if performers is None else action_dim)
 
+    def train(self, mode: bool = True) -> LateralExtractor:
+        """Train mode for the target's modules; the frozen sources stay in eval mode, however
+        the policy or this extractor is switched."""
+        super().train(mode)
+        self.sources.eval()
+        return self
+
     def normalize(self, obs: torch.Tensor) -> torch.Tensor:
         return obs if self.obs_norm is None else self.obs_norm(obs.float())
 
@@ -318,6 +325,12 @@ class TransferPolicy(ActorCriticPolicy):
     ) -> None:
         if not sources:
             raise ValueError(f"{type(self).__name__} needs at least one source")
+        names = [s.get("name") for s in sources]
+        if len(set(names)) != len(names):
+            raise ValueError(f"a source is given twice: {names}")
+        if not 0.0 <= prior_weight <= 1.0:
+            # Outside it W is no convex combination: a source's weight can go negative.
+            raise ValueError(f"prior_weight must be in [0, 1], got {prior_weight}")
         if self.uses_prior:
             if prior is None:
                 raise ValueError(f"{type(self).__name__} needs the analyzer's contribution matrix")
@@ -344,16 +357,27 @@ class TransferPolicy(ActorCriticPolicy):
         # Read by _build_mlp_extractor, which the base constructor calls; a plain list so the
         # modules are registered once, inside the extractor.
         self._new_sources = [_build_source(s) for s in self.config.sources]
-        for spec, (src, _) in zip(self.config.sources, self._new_sources, strict=True):
-            if len(stage_widths(src)) != len(target.stages):
-                raise IncompatibleSourceError(
-                    f"source {spec['name']!r} has {len(stage_widths(src))} stages, the target "
-                    f"{len(target.stages)}: lateral connections join stage j to stage j"
-                )
+        self.check_sources(self.config.sources, target.stages)
         kwargs["ortho_init"] = False  # _build initialises everything but the sources
         kwargs.setdefault("activation_fn", ACTIVATIONS[activation])
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
         self.update_obs_stats = normalize_obs
+
+    @classmethod
+    def check_sources(
+        cls, sources: Sequence[Mapping[str, Any]], target_stages: Sequence[int]
+    ) -> None:
+        """:class:`IncompatibleSourceError` if one of ``sources`` (source specs, as recorded)
+        cannot join this network over a target of ``target_stages``: lateral connections join
+        stage j to stage j, so a source has as many stages as the target. Read from the recorded
+        shapes, so that a run can be refused before the analyzer is asked or anything written."""
+        for spec in sources:
+            widths = tuple(spec["policy"]["stages"])
+            if len(widths) != len(target_stages):
+                raise IncompatibleSourceError(
+                    f"source {spec['name']!r} has {len(widths)} stages, the target "
+                    f"{len(target_stages)}: lateral connections join stage j to stage j"
+                )
 
     # ------------------------------------------------------------------ construction
     def _build_parts(
@@ -439,12 +463,6 @@ class TransferPolicy(ActorCriticPolicy):
         if norm is not None and self.update_obs_stats:
             norm.update(obs)
         return super().forward(obs, deterministic)
-
-    def train(self, mode: bool = True) -> TransferPolicy:
-        super().train(mode)
-        if "mlp_extractor" in self._modules:
-            self.mlp_extractor.sources.eval()
-        return self
 
     # ------------------------------------------------------------------ transfer interface
     @property

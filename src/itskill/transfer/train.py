@@ -32,6 +32,7 @@ from itskill.rl.checkpoint import (
     class_path,
     read_record,
 )
+from itskill.rl.config import load_hyperparams
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import (
     CANNOT_RESUME,
@@ -126,8 +127,17 @@ _LEGACY_CONFIG = {"residual": False}
 
 def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
     old = {**old, "config": {**_LEGACY_CONFIG, **old["config"]}}
-    keys = ("target", "method", "algo", "seed", "sources_request", "k", "config")
-    require_same(_as_compared(old), _as_compared(new), keys, out, "transfer run")
+    keys = ("target", "method", "algo", "seed", "sources_request", "k")
+    have, want = _as_compared(old), _as_compared(new)
+    require_same(have, want, keys, out, "transfer run")
+    # Setting by setting, so that the message names the one that differs.
+    require_same(
+        {f"config.{k}": v for k, v in have["config"].items()},
+        {f"config.{k}": v for k, v in want["config"].items()},
+        [f"config.{k}" for k in want["config"]],
+        out,
+        "transfer run",
+    )
 
 
 def _as_compared(settings: dict[str, Any]) -> dict[str, Any]:
@@ -187,6 +197,7 @@ def prepare_transfer(
     client: LLMClient | None = None,
     config: TransferConfig | None = None,
     space: SkillSpace | None = None,
+    target_stages: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """The record of a transfer run in ``out`` (``transfer.json``): its sources, the analyzer's
     contribution matrix and the stages each source performs, resolved and written once.
@@ -194,7 +205,9 @@ def prepare_transfer(
     A record already in ``out`` is checked against these settings
     (:class:`~itskill.rl.train.ResumeMismatchError` if they differ) and returned without asking
     the analyzer again, so that whatever trains with this network (the run itself, or the reward
-    search's candidates before it) sees the same sources and matrix.
+    search's candidates before it) sees the same sources and matrix. Sources that cannot join the
+    method's network over a target of ``target_stages`` (default: the task's packaged
+    hyper-parameters) are refused before the analyzer is asked or anything is written.
     """
     spec, meth = get_task(target), get_method(method)
     config = config or load_transfer_config()
@@ -215,6 +228,9 @@ def prepare_transfer(
             min_success=config.min_success,
         )
         chosen = meth.select(chosen, config)
+        if target_stages is None:
+            target_stages = load_hyperparams(spec.family, algo, task=spec.id).policy.stages
+        meth.policy_class.check_sources([s.spec() for s in chosen], target_stages)
     if meth.uses_prior:
         if client is None:
             from itskill.llm.client import make_client
@@ -362,7 +378,16 @@ def train_transfer(
         eval_episodes=eval_episodes,
         own_files=(TRANSFER_FILE,),
     )
-    record = prepare_transfer(target, method, sources, seed, algo, out, client, config, space)
+    if setup.previous is not None and not (out / TRANSFER_FILE).is_file():
+        # Resumed with whatever sources this call names, the checkpoint's network would go on
+        # under a record of another one.
+        raise CheckpointError(
+            out / TRANSFER_FILE,
+            "missing: the run's sources and contribution matrix are unknown" + CANNOT_RESUME,
+        )
+    record = prepare_transfer(
+        target, method, sources, seed, algo, out, client, config, space, setup.hp.policy.stages
+    )
     _, policy_kwargs = transfer_network(record, config)
     if console is not None and record["sources"]:
         names = ", ".join(s["name"] for s in record["sources"])
