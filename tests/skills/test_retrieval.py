@@ -65,6 +65,22 @@ def test_insert_round_peg_ranks_first(library):
     assert sources[0][0].name == "insert_peg_round"
 
 
+def test_a_users_search_finds_the_skill_whose_command_it_is(library):
+    # `skills search "Pick up the round peg"` ranked carry_peg_round first and pick_peg_round
+    # eighth: 10 of the 47 shipped skills were not first for their own command.
+    misses = []
+    for skill in library.list():
+        top, _ = search(library, skill.description, k=1, match_description=True)[0]
+        if top.description != skill.description:
+            misses.append((skill.name, top.name))
+    assert misses == []
+    hits = search(library, "Pick up the round peg", k=1, match_description=True)
+    assert hits[0][0].name == "pick_peg_round"
+    # Source retrieval (the text with its actions) still takes the insert for the multi-step task.
+    sources = search(library, QUERY, k=1, exclude_tasks={"pickplaceinsert_peg_round"})
+    assert sources[0][0].name == "insert_peg_round"
+
+
 @pytest.mark.parametrize("query", ["", "   "])
 def test_a_blank_query_is_refused(home, query):
     # It ranked the skills by the embedding of nothing and returned the first k.
@@ -112,7 +128,7 @@ def test_rows_without_embeddings_are_filled_once(home, checkpoint, monkeypatch):
         monkeypatch.setattr(embeddings, "embed", lambda t: calls.append(len(t)) or real(t))
         assert search(space, "Pick up the nut", k=1)[0][1] > 0.5
         assert search(space, "Pick up the nut", k=1)[0][0].embedding_model == embeddings.MODEL_ID
-        assert calls == [1, 1, 1]  # The stale row once, then only queries.
+        assert calls == [2, 1, 1]  # The stale row's two texts once, then only queries.
 
 
 def fake_embed(texts: list[str]) -> np.ndarray:
@@ -146,16 +162,18 @@ def test_a_description_changed_while_embedding_is_not_stored_with_the_old_vector
         row = space.get("a")
         assert row.description == new
         assert row.embedding is None, f"the old text's vector stored as {row.embedding_model}"
+        assert row.description_embedding is None
 
         hit, _ = search(space, "Pick up the nut", k=1)[0]
         row = space.get("a")
         assert hit.description == row.description == new
         assert row.embedding_model == embeddings.MODEL_ID
         np.testing.assert_array_equal(row.embedding, fake_embed([skill_text(row)])[0])
+        np.testing.assert_array_equal(row.description_embedding, fake_embed([new])[0])
     assert calls == [
-        [skill_text(stale)],
+        [skill_text(stale), old],
         ["Pick up the nut"],
-        [skill_text(row)],
+        [skill_text(row), new],
         ["Pick up the nut"],
     ]
 

@@ -132,7 +132,8 @@ def skills_search(
     ] = None,
     as_json: JsonOpt = False,
 ) -> None:
-    """The skills most similar to QUERY (cosine similarity of sentence embeddings)."""
+    """The skills most similar to QUERY (cosine similarity of sentence embeddings, of a skill's
+    command or of its command with its actions, whichever is closer)."""
     from itskill.skills import open_skill_space, search
     from itskill.skills.retrieval import check_search
 
@@ -140,7 +141,7 @@ def skills_search(
     with user_errors():
         check_search(query, exclude)  # before the space is opened, which may create it
         with open_skill_space() as space:
-            hits = search(space, query, k=k, exclude_tasks=exclude)
+            hits = search(space, query, k=k, exclude_tasks=exclude, match_description=True)
     if as_json:
         print_json([{"score": score, **s.to_dict()} for s, score in hits])
         return

@@ -226,8 +226,9 @@ class Skill:
     directory, or ``package:<path>`` inside the package's shipped library (see
     :meth:`SkillSpace.checkpoint_path` and :meth:`SkillSpace.checkpoint_ref`), so neither the
     space nor the package is tied to where it was first installed.
-    ``embedding`` is the normalised vector of :func:`itskill.skills.retrieval.skill_text`, or None
-    for a row that predates embeddings (it is filled in by the first search).
+    ``embedding`` is the normalised vector of :func:`itskill.skills.retrieval.skill_text` and
+    ``description_embedding`` that of the description alone, or None for a row that predates them
+    (they are filled in by the first search).
     """
 
     name: str
@@ -245,6 +246,7 @@ class Skill:
     created: float | None = None  # Unix time
     embedding: np.ndarray | None = field(default=None, repr=False, compare=False)
     embedding_model: str | None = None
+    description_embedding: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields (without the embedding vector, which is data, not information)."""
@@ -328,13 +330,17 @@ MIGRATIONS: list[list[str]] = [
         "ALTER TABLE skills_v4 RENAME TO skills",
         "CREATE INDEX skills_task ON skills(task_id)",
     ],
+    # The description's own vector: a user's search for a skill's command finds that skill
+    # first (the text with its actions ranks a one-action neighbour above it).
+    ["ALTER TABLE skills ADD COLUMN description_embedding BLOB"],
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 OFFERED_TABLE_VERSION = 3
 
 _COLUMNS = (
     "id, name, task_id, description, actions, checkpoint, success_rate, success_ci_low, "
-    "success_ci_high, train_steps, train_wall_s, algo, seed, created, embedding, embedding_model"
+    "success_ci_high, train_steps, train_wall_s, algo, seed, created, embedding, embedding_model, "
+    "description_embedding"
 )
 
 
@@ -342,7 +348,10 @@ def _row_to_skill(row: sqlite3.Row) -> Skill:
     ci = None
     if row["success_ci_low"] is not None and row["success_ci_high"] is not None:
         ci = (row["success_ci_low"], row["success_ci_high"])
-    blob = row["embedding"]
+
+    def vector(blob: bytes | None) -> np.ndarray | None:
+        return None if blob is None else np.frombuffer(blob, dtype="<f4").copy()
+
     return Skill(
         id=row["id"],
         name=row["name"],
@@ -357,8 +366,9 @@ def _row_to_skill(row: sqlite3.Row) -> Skill:
         algo=row["algo"],
         seed=row["seed"],
         created=row["created"],
-        embedding=None if blob is None else np.frombuffer(blob, dtype="<f4").copy(),
+        embedding=vector(row["embedding"]),
         embedding_model=row["embedding_model"],
+        description_embedding=vector(row["description_embedding"]),
     )
 
 
@@ -638,8 +648,9 @@ class SkillSpace:
                     cur = conn.execute(
                         "INSERT INTO skills (name, task_id, description, actions, checkpoint, "
                         "success_rate, success_ci_low, success_ci_high, train_steps, "
-                        "train_wall_s, algo, seed, created, embedding, embedding_model) "
-                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                        "train_wall_s, algo, seed, created, embedding, embedding_model, "
+                        "description_embedding) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                         (
                             s.name,
                             s.task_id,
@@ -656,6 +667,7 @@ class SkillSpace:
                             created,
                             _blob(s.embedding),
                             s.embedding_model,
+                            _blob(s.description_embedding),
                         ),
                     )
                 except sqlite3.IntegrityError as err:
@@ -669,9 +681,9 @@ class SkillSpace:
 
     @_reporting_sqlite_errors
     def set_embeddings(self, skills: Iterable[Skill]) -> None:
-        """Store the ``embedding`` and ``embedding_model`` of existing skills (to fill rows that
-        have no vector, or another model's), each only where the row still has the skill's
-        description and actions.
+        """Store the ``embedding``, ``description_embedding`` and ``embedding_model`` of existing
+        skills (to fill rows that have no vectors, or another model's), each only where the row
+        still has the skill's description and actions.
 
         Embedding takes seconds, and another process may change the text meanwhile (which clears
         the row's vector, see :meth:`update`): the vector of the old text, stored under the
@@ -680,12 +692,13 @@ class SkillSpace:
         """
         with self._write() as conn:
             conn.executemany(
-                "UPDATE skills SET embedding = ?, embedding_model = ? "
+                "UPDATE skills SET embedding = ?, embedding_model = ?, description_embedding = ? "
                 "WHERE id = ? AND description = ? AND actions = ?",
                 [
                     (
                         _blob(s.embedding),
                         s.embedding_model,
+                        _blob(s.description_embedding),
                         s.id,
                         s.description,
                         _actions_json(s.actions),
@@ -746,12 +759,12 @@ class SkillSpace:
             new = replace(skill, **changes)
             check_measurements(new)
             if (new.description, new.actions) != (skill.description, skill.actions):
-                new = replace(new, embedding=None, embedding_model=None)
+                new = replace(new, embedding=None, embedding_model=None, description_embedding=None)
             ci_low, ci_high = new.success_ci if new.success_ci else (None, None)
             conn.execute(
                 "UPDATE skills SET task_id = ?, description = ?, actions = ?, success_rate = ?, "
                 "success_ci_low = ?, success_ci_high = ?, train_steps = ?, train_wall_s = ?, "
-                "embedding = ?, embedding_model = ? WHERE id = ?",
+                "embedding = ?, embedding_model = ?, description_embedding = ? WHERE id = ?",
                 (
                     new.task_id,
                     new.description,
@@ -763,6 +776,7 @@ class SkillSpace:
                     new.train_wall_s,
                     _blob(new.embedding),
                     new.embedding_model,
+                    _blob(new.description_embedding),
                     skill.id,
                 ),
             )
