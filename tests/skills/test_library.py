@@ -24,6 +24,7 @@ def _ship(
     tasks: tuple[str, ...],
     success: float = 0.9,
     actions: tuple[str, ...] = ("approach",),
+    seed: int = 0,
 ) -> None:
     """Write a shipped library of ``tasks`` (placeholder weights) with its manifest."""
     entries = []
@@ -39,6 +40,8 @@ def _ship(
                 checkpoint=f"{task}/policy.safetensors",
                 success=success,
                 steps=1000,
+                algo="ppo",
+                seed=seed,
             )
         )
     write_manifest(shipped, entries)
@@ -143,10 +146,12 @@ def test_an_upgrade_that_retrained_a_shipped_skill_updates_its_measurements(
         mine = space.get("pick_nut_m12")
         space.remove("pick_nut_m12")
         space.add(replace(mine, checkpoint=str(own), success_rate=0.3, id=None))
-    # The next release ships retrained weights for both, measured at 96%.
-    _ship(shipped, ("reach_nut_m12", "pick_nut_m12"), success=0.96)
+    # The next release ships retrained weights for both, measured at 96%, from another seed
+    # (which the record kept from the old run beside the new measurements).
+    _ship(shipped, ("reach_nut_m12", "pick_nut_m12"), success=0.96, seed=3)
     with open_skill_space() as space:
         assert space.get("reach_nut_m12").success_rate == 0.96
+        assert space.get("reach_nut_m12").seed == 3
         assert space.get("pick_nut_m12").success_rate == 0.3
 
 

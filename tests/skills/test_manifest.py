@@ -112,7 +112,9 @@ def test_bad_manifest_names_file(tmp_path):
         ("success_ci", [0.9, 0.1], "success_ci: low 0.9 is above high 0.1"),
         ("success_ci", [0.1, 1.5], "success_ci: [0.1, 1.5] is not an interval of rates"),
         ("success_ci", [0.1], "success_ci: expected [low, high]"),
-        ("budget", {"steps": -1}, "budget.steps: expected a whole number of at least 0"),
+        ("budget", {"steps": -1}, "budget.steps: expected a whole number from 0 to"),
+        # Past SQLite's integers: an OverflowError traceback when the skill was installed.
+        ("seed", 10**23, "seed: expected a whole number from 0 to 9,223,372,036,854,775,807"),
         ("budget", {"steps": 1.5}, "budget.steps: expected a whole number"),
         ("budget", {"wall_s": float("nan")}, "budget.wall_s: expected a finite number"),
         ("seed", True, "seed: expected a whole number"),

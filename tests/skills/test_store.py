@@ -165,7 +165,13 @@ def test_a_name_of_digits_is_refused(home, checkpoint):
 
 @pytest.mark.parametrize(
     ("name", "problem"),
-    [("", "'' is blank"), ("  ", "'  ' is blank"), (" pick ", "give it as 'pick'")],
+    [
+        ("", "'' is blank"),
+        ("  ", "'  ' is blank"),
+        (" pick ", "give it as 'pick'"),
+        # Accepted, then --sources read "mine,v2" as the skills "mine" and "v2".
+        ("mine,v2", "has a comma, which --sources reads as two names; give it as 'mine-v2'"),
+    ],
 )
 def test_a_name_that_sources_cannot_name_is_refused(home, checkpoint, name, problem):
     # "  " was added, and no --sources list could then name it (each name there is stripped).

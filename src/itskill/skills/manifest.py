@@ -27,6 +27,7 @@ from itskill.datafile import is_count, is_number
 from itskill.files import directory_lock, write_text
 from itskill.skills.admission import InadmissibleSkillError, check_admissible
 from itskill.skills.store import (
+    SQLITE_INTEGER_MAX,
     InvalidMeasurementError,
     InvalidSkillNameError,
     Skill,
@@ -186,8 +187,13 @@ def _count(value: Any, key: str, where: str) -> int | None:
     """``value`` as a whole number of at least 0 (None: not recorded)."""
     if value is None:
         return None
-    if not is_count(value):
-        raise ManifestError(f"{where}: {key}: expected a whole number of at least 0, got {value!r}")
+    if not is_count(value) or value > SQLITE_INTEGER_MAX:
+        # Larger than SQLite's integers, it passed here and failed with an OverflowError
+        # traceback when the skill was installed.
+        raise ManifestError(
+            f"{where}: {key}: expected a whole number from 0 to {SQLITE_INTEGER_MAX:,}, "
+            f"got {value!r}"
+        )
     return value
 
 

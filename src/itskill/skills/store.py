@@ -145,7 +145,7 @@ def check_skill_name(name: str) -> None:
     """Raise :class:`InvalidSkillNameError` unless ``name`` can name a skill wherever a skill is
     named: not blank, no whitespace around it (a name in ``--sources`` is stripped, so " pick"
     could never be given there), not all digits (``get`` and ``remove`` would take it for a
-    serial number)."""
+    serial number), no comma (``--sources`` separates names with commas)."""
     if not name.strip():
         raise InvalidSkillNameError(f"skill name {name!r} is blank; give it a name with a letter")
     if name != name.strip():
@@ -157,6 +157,11 @@ def check_skill_name(name: str) -> None:
         raise InvalidSkillNameError(
             f"skill name {name!r} is all digits, which reads as a serial number; "
             "give it a name with a letter"
+        )
+    if "," in name:
+        raise InvalidSkillNameError(
+            f"skill name {name!r} has a comma, which --sources reads as two names; "
+            f"give it as {name.replace(',', '-')!r}"
         )
 
 
@@ -213,8 +218,11 @@ UPDATABLE_FIELDS = (
     "success_ci",
     "train_steps",
     "train_wall_s",
+    "algo",
+    "seed",
 )
-"""What :meth:`SkillSpace.update` may change; the name, checkpoint and provenance stay."""
+"""What :meth:`SkillSpace.update` may change; the name and checkpoint stay. The algorithm and
+seed go with the measurements: a release that retrains a shipped skill changes all of them."""
 
 
 # ---------------------------------------------------------------------------- the record
@@ -741,7 +749,8 @@ class SkillSpace:
     @_reporting_sqlite_errors
     def update(self, key: int | str, **changes: Any) -> Skill:
         """Replace the given fields of a skill: ``task_id``, ``description``, ``actions`` or its
-        measurements (``success_rate``, ``success_ci``, ``train_steps``, ``train_wall_s``).
+        measurements and their training (``success_rate``, ``success_ci``, ``train_steps``,
+        ``train_wall_s``, ``algo``, ``seed``).
 
         A new description or action sequence clears the stored embedding, so the next search
         embeds the new text instead of retrieving the skill by the old one. Measurements that
@@ -764,7 +773,8 @@ class SkillSpace:
             conn.execute(
                 "UPDATE skills SET task_id = ?, description = ?, actions = ?, success_rate = ?, "
                 "success_ci_low = ?, success_ci_high = ?, train_steps = ?, train_wall_s = ?, "
-                "embedding = ?, embedding_model = ?, description_embedding = ? WHERE id = ?",
+                "algo = ?, seed = ?, embedding = ?, embedding_model = ?, description_embedding = ? "
+                "WHERE id = ?",
                 (
                     new.task_id,
                     new.description,
@@ -774,6 +784,8 @@ class SkillSpace:
                     ci_high,
                     new.train_steps,
                     new.train_wall_s,
+                    new.algo,
+                    new.seed,
                     _blob(new.embedding),
                     new.embedding_model,
                     _blob(new.description_embedding),
