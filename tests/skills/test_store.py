@@ -386,3 +386,23 @@ def test_a_path_that_cannot_hold_a_database_is_named_as_such(home):
         SkillSpace()
     assert not isinstance(err.value, CorruptDatabaseError)
     assert f"cannot use {home / 'skills.sqlite'} as the skill database" in str(err.value)
+
+
+def test_a_damaged_row_is_named_and_a_damaged_vector_embedded_again(home, checkpoint):
+    # Unreadable actions were a JSONDecodeError traceback on every list; a short vector a
+    # NumPy shape error on every search.
+    from itskill.skills import search
+
+    with SkillSpace() as space:
+        space.add(make_skill("a", Path(checkpoint)))
+        space.add(make_skill("b", Path(checkpoint)))
+        path = space.path
+    with sqlite3.connect(path) as conn:
+        conn.execute("UPDATE skills SET embedding = ? WHERE name = 'b'", (bytes(8),))
+    with SkillSpace() as space:
+        assert len(search(space, "Pick up the nut", k=2)) == 2
+        assert space.get("b").embedding.shape == (384,)
+    with sqlite3.connect(path) as conn:
+        conn.execute("""UPDATE skills SET actions = '["grasp"' WHERE name = 'a'""")
+    with SkillSpace() as space, pytest.raises(CorruptDatabaseError, match=r"skill 'a' \(id 1\)"):
+        space.list()

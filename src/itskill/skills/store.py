@@ -358,14 +358,27 @@ def _row_to_skill(row: sqlite3.Row) -> Skill:
         ci = (row["success_ci_low"], row["success_ci_high"])
 
     def vector(blob: bytes | None) -> np.ndarray | None:
-        return None if blob is None else np.frombuffer(blob, dtype="<f4").copy()
+        # A vector of another size is damage: None has the next search embed the text again.
+        if blob is None or len(blob) != 4 * EMBEDDING_DIM:
+            return None
+        return np.frombuffer(blob, dtype="<f4").copy()
+
+    try:
+        actions = json.loads(row["actions"])
+        if not isinstance(actions, list) or not all(isinstance(a, str) for a in actions):
+            raise ValueError(f"expected a list of action names, got {actions!r}")
+    except ValueError as err:
+        raise CorruptDatabaseError(
+            f"skill {row['name']!r} (id {row['id']}): its actions cannot be read ({err}); "
+            f"remove it (itskill skills remove {row['id']}) and add it again"
+        ) from err
 
     return Skill(
         id=row["id"],
         name=row["name"],
         task_id=row["task_id"],
         description=row["description"],
-        actions=tuple(json.loads(row["actions"])),
+        actions=tuple(actions),
         checkpoint=row["checkpoint"],
         success_rate=row["success_rate"],
         success_ci=ci,
