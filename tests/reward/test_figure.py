@@ -54,3 +54,14 @@ def test_a_band_of_one_seed_claims_no_interval(
     assert "chosen generated reward, retrained (1 seed, no interval)" in labels
     assert "expert reward, retrained (mean of 3 seeds, 95% CI)" in labels
     assert len(ax.patches) == 1  # the expert's interval band only
+
+
+def test_an_iteration_where_nothing_trained_is_drawn_without_dots(tmp_path: Path) -> None:
+    # Every sample of the first iteration rejected or failed: the figure raised "x and y must be
+    # the same size" at the end of the search, and again on every --resume.
+    summary = _summary(_band([0.5, 0.7], 0.3, 0.9), _band([0.6, 0.6], 0.6, 0.6))
+    failed = {"samples": [{"status": "failed", "error": "raised"}], "best_success": None}
+    summary["iterations"] = [failed, *summary["iterations"]]
+    summary["best"]["iteration"] = 1
+    out = figure.plot_fig6(summary, tmp_path / "fig6.png")
+    assert out.stat().st_size > 0

@@ -265,7 +265,16 @@ def test_runtime_errors_carry_the_line_and_message() -> None:
     source = wrap("x = ctx['no_such_key']")
     with pytest.raises(SandboxError) as err:
         compile_reward(source)(ctx())
-    assert "line 4" in str(err.value) and "KeyError: 'no_such_key'" in str(err.value)
+    # The line's text too: the model reads the failure, and the code it is sent has no numbers.
+    assert "line 4: x = ctx['no_such_key']" in str(err.value)
+    assert "KeyError: 'no_such_key'" in str(err.value)
+
+
+def test_a_huge_error_message_is_cut_before_it_is_fed_back() -> None:
+    # Ten million characters in the retry prompt: the endpoint refused it and the search ended.
+    with pytest.raises(SandboxError) as err:
+        compile_reward(wrap("assert False, 'a' * 10**7"))(ctx())
+    assert len(str(err.value)) < 2200 and "characters cut" in str(err.value)
 
 
 def test_the_context_is_read_only() -> None:
@@ -289,12 +298,17 @@ def test_the_context_is_read_only() -> None:
         ("z, {1: z}", "component names must be strings"),
         ("z, {'step': z}", "component name 'step' is taken by the training log"),
         ("z, {'a': 'text'}", "not numeric"),
+        # Past the time limit: NumPy's conversion of a list holding itself ran for hours in C.
+        ("a, {}", "total is a list of other things than numbers"),
+        # An OverflowError killed the probe's process; the model was told only that it died.
+        ("[10**400] * 3, {}", "total is not numeric: list (int too large to convert to float)"),
     ],
 )
 @pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning")
 def test_outputs_are_validated(returns: str, problem: str) -> None:
     source = (
-        f"import numpy as np\ndef compute_reward(ctx):\n    z = np.zeros(3)\n    return {returns}\n"
+        "import numpy as np\ndef compute_reward(ctx):\n    z = np.zeros(3)\n    a = []\n"
+        f"    a.append(a)\n    a.append(a)\n    return {returns}\n"
     )
     with pytest.raises(SandboxError) as err:
         compile_reward(source)(ctx())

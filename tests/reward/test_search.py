@@ -362,3 +362,31 @@ def test_the_choice_is_made_on_more_seeds_than_the_search_saw(
     final = json.loads((final_dir / "result.json").read_text())
     assert final["status"] == "ok"  # the chosen reward, trained for real on the final seed
     assert final["sha256"] == compile_reward(result.best_code.strip(), config.sandbox).sha256
+
+
+def test_a_worker_failure_is_not_fed_back_as_the_codes(
+    tmp_path: Path, quiet, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A full disk in sample 1's worker reached the next prompt as the reward's failure, and a
+    # paid request went to mending code that had nothing wrong with it.
+    import itskill.reward.search as search_module
+    from itskill.executors import JobResult
+
+    real = search_module.run_jobs
+
+    def disk_full_for_sample_1(fn, jobs, *args, **kwargs):
+        for res in real(fn, jobs, *args, **kwargs):
+            if Path(jobs[res.index][0].out).name == "sample_1":
+                res = JobResult(res.index, error=OSError(28, "No space left on device"))
+            yield res
+
+    monkeypatch.setattr(search_module, "run_jobs", disk_full_for_sample_1)
+    run = tmp_path / "run"
+    with FakeOpenAIServer([RAISES_LATER, GOOD, GOOD, GOOD]) as server:
+        client = search_client(run, "openai:fake-model", server.base_url)
+        generate_reward("pick_nut_m12", client, run, tiny_config(iterations=2, samples=2),
+                        compare_expert=False, console=quiet)  # fmt: skip
+        requests = server.requests
+    second = requests[1]["messages"][-1]["content"]
+    assert "<execution_error>" in second and "non-finite" in second
+    assert "No space left" not in second

@@ -34,6 +34,8 @@ def plot_fig6(summary: dict[str, Any], out: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
     for it, xi in zip(iterations, x, strict=True):
         values = [s["success"] for s in it["samples"] if s.get("status") == "ok"]
+        if not values:
+            continue  # nothing of the iteration trained (a scalar x with no y failed to draw)
         jitter = np.linspace(-0.12, 0.12, len(values)) if len(values) > 1 else 0.0
         ax.scatter(xi + jitter, values, s=12, color="0.6", zorder=2)
     best = np.array(

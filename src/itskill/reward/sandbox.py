@@ -479,28 +479,46 @@ def _deadline(seconds: float | None) -> Iterator[None]:
         thread.join()
 
 
-def _traceback_tail(err: BaseException, lines: int = 6) -> str:
+MESSAGE_MAX = 2000
+"""The most characters of an exception's message kept in a failure: the failure is fed back to
+the model, and a reward raising a ten-million-character message made a prompt the endpoint
+refused, which ended the whole search."""
+
+
+def _traceback_tail(err: BaseException, source: str, lines: int = 6) -> str:
+    """The reward's own frames of ``err`` (line number and the line of ``source``, which the
+    code is compiled from and no file holds) and its message, cut to :data:`MESSAGE_MAX`."""
+    code_lines = source.splitlines()
     frames = [
-        f"line {frame.lineno}: {frame.line}"
+        f"line {frame.lineno}: {code_lines[frame.lineno - 1].strip()}"
+        if frame.lineno and 0 < frame.lineno <= len(code_lines)
+        else f"line {frame.lineno}"
         for frame in traceback.extract_tb(err.__traceback__)
         if frame.filename == FILENAME
     ]
     message = "".join(traceback.format_exception_only(type(err), err)).strip()
+    if len(message) > MESSAGE_MAX:
+        message = f"{message[:MESSAGE_MAX]} ... ({len(message) - MESSAGE_MAX:,} characters cut)"
     return "\n".join([*frames[-lines:], message])
 
 
-def _run(fn, *args: Any, timeout: float | None) -> Any:
+def _run(fn, *args: Any, source: str, timeout: float | None) -> Any:
+    """``fn(*args)`` under the time limit; a failure as a :class:`SandboxError` that says why,
+    with the frames of ``source`` it passed through."""
     try:
         with _deadline(timeout):
             return fn(*args)
     except SandboxTimeout:
         raise
+    except RewardOutputError as err:
+        raise SandboxError(str(err)) from err
     except MemoryError as err:
         raise SandboxError(f"the reward code ran out of memory: {err}") from err
     except RecursionError as err:
-        raise SandboxError(f"the reward code recursed too deeply:\n{_traceback_tail(err)}") from err
+        tail = _traceback_tail(err, source)
+        raise SandboxError(f"the reward code recursed too deeply:\n{tail}") from err
     except Exception as err:
-        raise SandboxError(f"the reward code raised:\n{_traceback_tail(err)}") from err
+        raise SandboxError(f"the reward code raised:\n{_traceback_tail(err, source)}") from err
 
 
 def _read_only(ctx: Mapping[str, Any]) -> dict[str, Any]:
@@ -530,11 +548,15 @@ class SandboxedReward:
 
     def __call__(self, ctx: Mapping[str, Any]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         n = int(np.asarray(ctx["ee_pos"]).shape[0])
-        result = _run(self._fn, _read_only(ctx), timeout=self.config.call_timeout_s)
-        try:
-            return check_reward_output(result, n)
-        except RewardOutputError as err:
-            raise SandboxError(str(err)) from err
+
+        def checked(view: dict[str, Any]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+            # Under the same time limit as the code: converting what it returns runs its work
+            # too (a list that holds itself took NumPy's conversion past any limit).
+            return check_reward_output(self._fn(view), n)
+
+        return _run(
+            checked, _read_only(ctx), source=self.source, timeout=self.config.call_timeout_s
+        )
 
     def __getstate__(self) -> dict[str, Any]:
         # The function cannot be pickled; the source can, and is re-checked on arrival.
@@ -556,7 +578,7 @@ def compile_reward(source: str, config: SandboxConfig | None = None) -> Sandboxe
     except (ValueError, RecursionError, MemoryError) as err:
         raise SandboxViolation(f"the code cannot be compiled: {err}") from err
     namespace = _namespace()
-    _run(exec, code, namespace, timeout=config.call_timeout_s)
+    _run(exec, code, namespace, source=source, timeout=config.call_timeout_s)
     fn = namespace.get("compute_reward")
     if not callable(fn) or not hasattr(fn, "__code__"):
         raise SandboxError("the code defines no function compute_reward(ctx)")

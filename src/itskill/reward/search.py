@@ -216,7 +216,13 @@ class _Run:
 def _job_value(res: JobResult) -> dict[str, Any]:
     if res.ok:
         return res.value
-    return {"status": "failed", "error": f"worker error: {type(res.error).__name__}: {res.error}"}
+    # The job itself failed, not the reward it trained (that is a failed result of its own): a
+    # full disk or a lost worker, which is no fault of the code to feed back to the model.
+    return {
+        "status": "failed",
+        "error": f"worker error: {type(res.error).__name__}: {res.error}",
+        "worker_error": True,
+    }
 
 
 def _job_line(job: CandidateJob, result: dict[str, Any]) -> str:
@@ -627,10 +633,15 @@ def _search(
                 stats = by_sample[it_best["sample"]]["stats"]
                 best = {**it_best, "iteration": i, "code": code, "stats": stats}
                 write_text(out / BEST_FILE, code + "\n")
-            if not trained:  # every sample was rejected or failed: feed the last error back
-                last = samples[-1]
-                error = by_sample[last.index].get("error") if last.accepted else last.error
-                failure = (last.code, str(error))
+            # Every sample was rejected or failed: feed the last failure of the code itself back.
+            code_failures = [
+                (s.code, s.error if not s.accepted else by_sample[s.index].get("error"))
+                for s in samples
+                if not (s.accepted and by_sample[s.index].get("worker_error"))
+            ]
+            if not trained and code_failures:
+                code, error = code_failures[-1]
+                failure = (code, str(error))
             summary = {
                 "iteration": i,
                 "samples": entries,
