@@ -34,19 +34,21 @@ class RewardOutputError(ValueError):
 
 
 def _finite_vector(value: Any, n: int, what: str) -> np.ndarray:
-    if isinstance(value, list | tuple) and not all(
-        isinstance(v, int | float | np.number) for v in value
+    if isinstance(value, list | tuple) and any(
+        isinstance(v, list | tuple | dict | set) for v in value
     ):
-        # Nested lists are no vector, and NumPy's conversion of a list that holds itself ran
-        # for hours in C, where no time limit reaches.
+        # Nested containers are no vector, and NumPy's conversion of a list that holds itself
+        # ran for hours in C, where no time limit reaches.
         raise RewardOutputError(
-            f"{what} is a {type(value).__name__} of other things than numbers; expected {n} "
-            "numbers, one per environment"
+            f"{what} is a {type(value).__name__} of containers; expected {n} numbers, one per "
+            "environment"
         )
     try:
         array = np.array(value, dtype=np.float64)  # a copy: never a view of the context
     except (TypeError, ValueError, OverflowError) as err:
-        raise RewardOutputError(f"{what} is not numeric: {type(value).__name__} ({err})") from err
+        # NumPy's message quotes the value, which may be megabytes of it.
+        why = str(err)[:200]
+        raise RewardOutputError(f"{what} is not numeric: {type(value).__name__} ({why})") from err
     if array.shape != (n,):
         raise RewardOutputError(
             f"{what} has shape {array.shape}; expected ({n},), one per environment"

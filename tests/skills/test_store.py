@@ -406,3 +406,7 @@ def test_a_damaged_row_is_named_and_a_damaged_vector_embedded_again(home, checkp
         conn.execute("""UPDATE skills SET actions = '["grasp"' WHERE name = 'a'""")
     with SkillSpace() as space, pytest.raises(CorruptDatabaseError, match=r"skill 'a' \(id 1\)"):
         space.list()
+    # What the message advises works: the row is removed without being read.
+    with SkillSpace() as space:
+        assert space.remove(1).name == "a"
+        assert [s.name for s in space.list()] == ["b"]

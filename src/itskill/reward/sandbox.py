@@ -29,6 +29,7 @@ import builtins
 import ctypes
 import hashlib
 import math
+import re
 import signal
 import threading
 import traceback
@@ -488,7 +489,7 @@ refused, which ended the whole search."""
 def _traceback_tail(err: BaseException, source: str, lines: int = 6) -> str:
     """The reward's own frames of ``err`` (line number and the line of ``source``, which the
     code is compiled from and no file holds) and its message, cut to :data:`MESSAGE_MAX`."""
-    code_lines = source.splitlines()
+    code_lines = re.split(r"\r\n|\r|\n", source)  # as Python numbers lines (not at a form feed)
     frames = [
         f"line {frame.lineno}: {code_lines[frame.lineno - 1].strip()}"
         if frame.lineno and 0 < frame.lineno <= len(code_lines)
@@ -497,9 +498,14 @@ def _traceback_tail(err: BaseException, source: str, lines: int = 6) -> str:
         if frame.filename == FILENAME
     ]
     message = "".join(traceback.format_exception_only(type(err), err)).strip()
-    if len(message) > MESSAGE_MAX:
-        message = f"{message[:MESSAGE_MAX]} ... ({len(message) - MESSAGE_MAX:,} characters cut)"
-    return "\n".join([*frames[-lines:], message])
+    return "\n".join([*frames[-lines:], _cut(message)])
+
+
+def _cut(message: str) -> str:
+    """``message`` to at most :data:`MESSAGE_MAX` characters, saying how many were cut."""
+    if len(message) <= MESSAGE_MAX:
+        return message
+    return f"{message[:MESSAGE_MAX]} ... ({len(message) - MESSAGE_MAX:,} characters cut)"
 
 
 def _run(fn, *args: Any, source: str, timeout: float | None) -> Any:
@@ -511,7 +517,7 @@ def _run(fn, *args: Any, source: str, timeout: float | None) -> Any:
     except SandboxTimeout:
         raise
     except RewardOutputError as err:
-        raise SandboxError(str(err)) from err
+        raise SandboxError(_cut(str(err))) from err
     except MemoryError as err:
         raise SandboxError(f"the reward code ran out of memory: {err}") from err
     except RecursionError as err:

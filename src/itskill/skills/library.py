@@ -34,7 +34,7 @@ def open_skill_space(
     space = SkillSpace(path, config)
     try:
         library = store.SHIPPED_LIBRARY  # looked up per call: tests point it elsewhere
-        if (library / MANIFEST_NAME).is_file():
+        if (library / MANIFEST_NAME).is_file() and _readable(space):
             entries = read_manifest(library)
             _repoint_to_package(space, library, entries)
             new = {e.name for e in entries} - space.offered_shipped()
@@ -48,6 +48,17 @@ def open_skill_space(
         space.close()  # the caller gets no space to close
         raise
     return space
+
+
+def _readable(space: SkillSpace) -> bool:
+    """Whether every row of ``space`` reads. One damaged past reading is named, with how to
+    remove it, by the command's own read; the shipped library's upkeep, which reads every row,
+    waits until it is gone (it failed every command, ``skills remove`` included)."""
+    try:
+        space.list()
+    except store.CorruptDatabaseError:
+        return False
+    return True
 
 
 def shipped_budgets() -> dict[str, int]:

@@ -54,18 +54,19 @@ def skill_text(skill: Skill) -> str:
 
 def with_embeddings(skills: Sequence[Skill], needs: Callable[[Skill], bool]) -> list[Skill]:
     """``skills``, each one for which ``needs`` is true with the vectors of its
-    :func:`skill_text` and of its description from the current model (embedded in one batch),
-    the others as given."""
+    :func:`skill_text` and of its description from the current model, the others as given."""
     todo = [i for i, s in enumerate(skills) if needs(s)]
     out = list(skills)
     if todo:
-        texts = [skill_text(skills[i]) for i in todo]
-        vecs = embeddings.embed(texts + [skills[i].description for i in todo])
+        # Two batches: a text's vector then comes out as it did before descriptions were
+        # embedded too (batched with other texts, its last bits differ), so sources rank as then.
+        texts = embeddings.embed([skill_text(skills[i]) for i in todo])
+        described = embeddings.embed([skills[i].description for i in todo])
         for row, i in enumerate(todo):
             out[i] = replace(
                 skills[i],
-                embedding=vecs[row],
-                description_embedding=vecs[len(todo) + row],
+                embedding=texts[row],
+                description_embedding=described[row],
                 embedding_model=embeddings.MODEL_ID,
             )
     return out

@@ -744,11 +744,19 @@ class SkillSpace:
 
     @_reporting_sqlite_errors
     def remove(self, key: int | str) -> Skill:
-        """Delete a skill by id or name; returns what was deleted. The checkpoint file stays."""
+        """Delete a skill by id or name; returns what was deleted. The checkpoint file stays.
+        A row damaged past reading is removed too (what a :class:`CorruptDatabaseError` about
+        it advises), returned without its actions."""
         with self._write() as conn:
-            skill = self._get(conn, key)
-            conn.execute("DELETE FROM skills WHERE id = ?", (skill.id,))
-        return skill
+            row = self._get_row(conn, key)
+            conn.execute("DELETE FROM skills WHERE id = ?", (row["id"],))
+        try:
+            return _row_to_skill(row)
+        except CorruptDatabaseError:
+            return Skill(
+                row["name"], row["task_id"], row["description"], (), row["checkpoint"],
+                id=row["id"],
+            )  # fmt: skip
 
     @_reporting_sqlite_errors
     def set_checkpoint(self, key: int | str, checkpoint: str) -> Skill:
@@ -814,6 +822,10 @@ class SkillSpace:
         return self._get(self._conn, key)
 
     def _get(self, conn: sqlite3.Connection, key: int | str) -> Skill:
+        return _row_to_skill(self._get_row(conn, key))
+
+    @staticmethod
+    def _get_row(conn: sqlite3.Connection, key: int | str) -> sqlite3.Row:
         value: int | str | None
         if isinstance(key, int) or is_serial_number(key):
             column, value = "id", _sqlite_integer(key)
@@ -826,7 +838,7 @@ class SkillSpace:
         if found is None:
             names = [r[0] for r in conn.execute("SELECT name FROM skills ORDER BY id")]
             raise UnknownSkillError(key, names)
-        return _row_to_skill(found)
+        return found
 
     @_reporting_sqlite_errors
     def list(self, task_id: str | None = None) -> list[Skill]:
