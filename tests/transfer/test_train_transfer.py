@@ -155,7 +155,7 @@ def test_a_run_from_before_the_residual_resumes_without_it(home: Path, tmp_path:
     for spec in record["source_specs"]:
         del spec["stage_map"]
     (out / "transfer.json").write_text(json.dumps(record))
-    with pytest.raises(ResumeMismatchError, match="config.residual=False"):
+    with pytest.raises(ResumeMismatchError, match=r"config\.residual=False"):
         run(out, "itn", steps=32)
     resumed = run(out, "itn", config=TransferConfig(residual=False), steps=32)
     assert resumed.resumed_from == 16 and resumed.num_timesteps == 32
