@@ -390,3 +390,30 @@ def test_a_worker_failure_is_not_fed_back_as_the_codes(
     second = requests[1]["messages"][-1]["content"]
     assert "<execution_error>" in second and "non-finite" in second
     assert "No space left" not in second
+
+
+def test_each_paid_request_is_on_record_before_the_next(tmp_path: Path, quiet) -> None:
+    # Usage was written once a whole iteration's samples were in: killed with -9 in between, the
+    # requests already paid for were replayed from the cache on resume and counted as free.
+    run = tmp_path / "run"
+
+    class Watching:
+        """The run's client, noting the requests usage.json holds when each request starts."""
+
+        def __init__(self, inner) -> None:
+            self.inner, self.on_record = inner, []
+
+        def __getattr__(self, name: str):
+            return getattr(self.inner, name)
+
+        def complete(self, messages, n=1, *, purpose, temperature=1.0):
+            usage = run / "usage.json"
+            recorded = json.loads(usage.read_text())["total"]["requests"] if usage.is_file() else 0
+            self.on_record.append(recorded)
+            return self.inner.complete(messages, n, purpose=purpose, temperature=temperature)
+
+    with FakeOpenAIServer([SYNTAX_ERROR, GOOD]) as server:
+        client = Watching(search_client(run, "openai:fake-model", server.base_url))
+        generate_reward("pick_nut_m12", client, run, tiny_config(samples=1),
+                        compare_expert=False, console=quiet)  # fmt: skip
+    assert client.on_record == [0, 1]  # the regeneration starts with the first request on record

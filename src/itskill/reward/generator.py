@@ -14,6 +14,7 @@ The probe runs the code in a child process under the sandbox's limits
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -121,14 +122,22 @@ def generate_samples(
     sandbox: SandboxConfig,
     max_regenerations: int,
     temperature: float = 1.0,
+    after_request: Callable[[], object] | None = None,
 ) -> list[Sample]:
     """``k`` samples for ``messages``, each regenerated with its error up to ``max_regenerations``
-    times. The requests are made in a fixed order, so a rerun replays them from the reply cache."""
+    times. The requests are made in a fixed order, so a rerun replays them from the reply cache.
+    ``after_request`` is called after each request (a run records its usage there: killed
+    mid-generation, the requests paid for would be replayed from the cache as free ones)."""
+
+    def ask(request: list[Message], n: int) -> list[str]:
+        replies = client.complete(request, n=n, purpose="reward", temperature=temperature)
+        if after_request is not None:
+            after_request()
+        return replies
+
     samples = []
     with Probe(contexts, sandbox) as probe:
-        for index, reply in enumerate(
-            client.complete(messages, n=k, purpose="reward", temperature=temperature)
-        ):
+        for index, reply in enumerate(ask(messages, k)):
             sample = Sample(index)
             while True:
                 code = extract_code(reply)
@@ -141,6 +150,6 @@ def generate_samples(
                     {"role": "assistant", "content": reply},
                     {"role": "user", "content": execution_error_feedback(code, error)},
                 ]
-                reply = client.complete(retry, n=1, purpose="reward", temperature=temperature)[0]
+                reply = ask(retry, 1)[0]
             samples.append(sample)
     return samples

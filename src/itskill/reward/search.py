@@ -594,8 +594,8 @@ def _search(
                 config.sandbox,
                 config.max_regenerations,
                 config.temperature,
+                after_request=run.usage.save,
             )
-            run.usage.save()
             it_dir = out / f"iter_{i}"
             for sample in samples:
                 _write_sample(it_dir / f"sample_{sample.index}", sample)
