@@ -468,3 +468,25 @@ def test_an_edited_run_config_is_refused_with_the_field(toy, tmp_path):
     data["name"] = config.name
     (run / "config.json").write_text(json.dumps(data))
     assert read_run_config(run) == config  # as recorded, it passes
+
+
+def test_a_relative_run_directory_reaches_ray_workers_as_an_absolute_path(
+    toy, tmp_path, monkeypatch
+):
+    # A Ray worker runs from a working directory of its own: a relative run directory had it
+    # write the cells there, on a cluster node the driver never reads.
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'itskill[ray]')")
+    import itskill.experiments.runner as runner_module
+    from itskill.executors import run_jobs
+
+    outs: list[Path] = []
+
+    def on_this_machine(fn, jobs, executor, workers, address):
+        outs.extend(Path(out) for *_, out in jobs)
+        return run_jobs(fn, jobs, "local", 1, None)
+
+    monkeypatch.setattr(runner_module, "run_jobs", on_this_machine)
+    monkeypatch.chdir(tmp_path)
+    config, path = toy
+    run_experiment(config, Path("run"), "ray", 1, source_file=path, console=quiet())
+    assert outs and all(out.is_absolute() and out.is_relative_to(tmp_path) for out in outs)

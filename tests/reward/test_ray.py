@@ -39,3 +39,31 @@ def test_ray_executor_trains_the_candidates(tmp_path: Path, local_ray, quiet) ->
         result_file = run / "iter_0" / f"sample_{k}" / "result.json"
         assert json.loads(result_file.read_text())["env_steps"] == 128
     assert len(list((run / "final").glob("generated_*_seed1/result.json"))) == 1
+
+
+def test_a_relative_run_directory_reaches_ray_workers_as_an_absolute_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, quiet
+) -> None:
+    # A Ray worker runs from a working directory of its own: a relative run directory had it
+    # write the candidates' results there, on a cluster node the driver never reads.
+    import itskill.reward.search as search_module
+    from itskill.executors import run_jobs
+
+    outs: list[Path] = []
+
+    def on_this_machine(fn, jobs, executor, workers, address):
+        outs.extend(Path(job.out) for (job,) in jobs)
+        return run_jobs(fn, jobs, "local", 1, None)
+
+    monkeypatch.setattr(search_module, "run_jobs", on_this_machine)
+    monkeypatch.chdir(tmp_path)
+    with FakeOpenAIServer([GOOD]) as server:
+        generate_reward(
+            "pick_nut_m12",
+            search_client(Path("run"), "openai:fake-model", server.base_url),
+            Path("run"),
+            tiny_config(samples=1, executor="ray"),
+            compare_expert=False,
+            console=quiet,
+        )
+    assert outs and all(out.is_absolute() and out.is_relative_to(tmp_path) for out in outs)

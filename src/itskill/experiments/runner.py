@@ -356,6 +356,10 @@ def run_experiment(
         ray_address = config.execution.ray_address
     # Before the run is recorded: settings that cannot run leave no run to --resume.
     check_executor(ex, workers, ray_address)
+    if ex == "ray":
+        # Ray runs a cell on any node, from a working directory of its own: a relative run
+        # directory would have it write there (every node must see the run at the same path).
+        run_dir = run_dir.absolute()
     # Before the directory is checked or written.
     busy = ExperimentRunError(
         f"{run_dir} is in use by another itskill experiment run on this machine; wait for it "

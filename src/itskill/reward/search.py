@@ -483,7 +483,9 @@ def generate_reward(
     """
     config = config or RewardSearchConfig()
     console = console or Console(stderr=True, emoji=False)
-    out = Path(out)
+    # Ray runs a candidate on any node, from a working directory of its own: a relative run
+    # directory would have it write there (every node must see the run at the same path).
+    out = Path(out).absolute() if config.executor == "ray" else Path(out)
     resolve_target(target)  # an unknown task id fails before anything is written
     check_executor(config.executor, config.workers, config.ray_address)  # so does a bad executor
     header = {
