@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import string
 import sys
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +57,38 @@ def placeholders(text: str) -> list[str]:
         return [f for _, f, _, _ in string.Formatter().parse(text) if f is not None]
     except ValueError as err:
         raise ValueError(f"{err} (write literal braces as {{{{ and }}}})") from err
+
+
+def check_format_text(
+    path: str | Path,
+    where: str,
+    value: Any,
+    sample: Mapping[str, Any],
+    error: type[DataFileError],
+    exact: bool = False,
+) -> str:
+    """``value`` if it is a non-blank :meth:`str.format` text whose placeholders are names of
+    ``sample`` (every one of them when ``exact``) and which ``sample`` fills, or ``error``
+    saying what is wrong: a phrase or code template of a data file would otherwise fail with a
+    ``KeyError`` (or a format spec it does not take, ``{object:d}``) only once it is used."""
+    if not isinstance(value, str) or not value.strip():
+        raise error(path, where, f"expected a non-empty string, got {value!r}")
+    try:
+        names = placeholders(value)
+    except ValueError as err:
+        raise error(path, where, str(err)) from err
+    known = ", ".join("{" + name + "}" for name in sorted(sample))
+    for name in names:
+        if name not in sample:
+            raise error(path, where, f"unknown placeholder {{{name}}}; known: {known}")
+    missing = sorted(set(sample) - set(names)) if exact else []
+    if missing:
+        raise error(path, where, f"missing placeholder {{{missing[0]}}}")
+    try:
+        value.format(**sample)
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as err:
+        raise error(path, where, f"cannot be filled: {err}") from err
+    return value
 
 
 def read_toml(path: str | Path, error: type[DataFileError] = DataFileError) -> dict[str, Any]:

@@ -19,7 +19,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import DataFileError, check_table, placeholders, read_toml
+from itskill.datafile import DataFileError, check_format_text, check_table, read_toml
 from itskill.llm.client import LLMClient, Message
 from itskill.llm.prompts import planner_messages, task_description
 from itskill.llm.replies import JSONReplyError, parse_json_reply
@@ -104,36 +104,6 @@ def plan_data_path() -> Path:
     return Path(str(resources.files("itskill.reward") / "data" / "plan.toml"))
 
 
-def _fields_of(path: Path, where: str, text: str) -> set[str]:
-    """The ``{placeholder}`` names of ``text``; :class:`PlanDataError` for broken braces."""
-    try:
-        return set(placeholders(text))
-    except ValueError as err:
-        raise PlanDataError(path, where, str(err)) from err
-
-
-def _check_text(path: Path, where: str, value: Any, allowed: frozenset[str], exact: bool) -> str:
-    """``value`` as a non-blank string whose placeholders are among ``allowed`` (all of them
-    when ``exact``): the sentence is filled with :meth:`str.format`, which would raise
-    ``KeyError`` on an unknown name only once a plan is written."""
-    if not isinstance(value, str) or not value.strip():
-        raise PlanDataError(path, where, f"expected a non-empty string, got {value!r}")
-    fields = _fields_of(path, where, value)
-    unknown = sorted(fields - allowed)
-    if unknown:
-        known = ", ".join("{" + f + "}" for f in sorted(allowed))
-        raise PlanDataError(path, where, f"unknown placeholder {{{unknown[0]}}}; known: {known}")
-    missing = sorted(allowed - fields) if exact else []
-    if missing:
-        raise PlanDataError(path, where, f"missing placeholder {{{missing[0]}}}")
-    try:
-        # What a name check cannot see: a format spec the text does not take ({object:d}).
-        value.format(**dict.fromkeys(allowed, "the M12 nut"))
-    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as err:
-        raise PlanDataError(path, where, f"cannot be filled: {err}") from err
-    return value
-
-
 def load_plan_data(path: Path) -> dict[str, Any]:
     """The plan data in ``path``, every entry checked (:class:`PlanDataError` names the first
     problem): ``ordinals`` a list of words, ``correction`` a note with ``{problem}``, ``phrases``
@@ -152,10 +122,13 @@ def load_plan_data(path: Path) -> dict[str, Any]:
         # would make "First, ..." read ", ...".
         if not isinstance(word, str) or not word.strip():
             raise PlanDataError(path, f"ordinals[{k}]", f"expected a word, got {word!r}")
-    _check_text(path, "correction", data.get("correction"), CORRECTION_FIELDS, exact=True)
+    # Tried with a part's name in every placeholder, as a plan fills them.
+    correction = dict.fromkeys(CORRECTION_FIELDS, "the M12 nut")
+    check_format_text(path, "correction", data.get("correction"), correction, PlanDataError, True)
     phrases = check_table(path, "phrases", data["phrases"], PlanDataError)
+    phrase_fields = dict.fromkeys(PHRASE_FIELDS, "the M12 nut")
     for action, phrase in phrases.items():
-        _check_text(path, f"phrases.{action}", phrase, PHRASE_FIELDS, exact=False)
+        check_format_text(path, f"phrases.{action}", phrase, phrase_fields, PlanDataError)
     return data
 
 

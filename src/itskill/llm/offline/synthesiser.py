@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from itskill.datafile import DataFileError, check_table, is_number, placeholders, read_toml
+from itskill.datafile import DataFileError, check_format_text, check_table, is_number, read_toml
 from itskill.llm.offline.blocks import fenced
 from itskill.tasks.predicates import PREDICATES, PredicateError, parse
 
@@ -146,28 +146,6 @@ def _number_range(
         raise VocabularyError(path, where, f"low {low} is above high {high}")
 
 
-def _code_text(
-    path: Path, where: str, value: Any, sample: dict[str, Any], allowed: Sequence[str]
-) -> None:
-    """``value`` as a non-blank string that :meth:`str.format` fills from fields named in
-    ``allowed`` (tried with ``sample``), so that a bad placeholder is this file's error, not a
-    ``KeyError`` in the middle of writing a reward."""
-    if not isinstance(value, str) or not value.strip():
-        raise VocabularyError(path, where, f"expected a non-empty string, got {value!r}")
-    known = ", ".join("{" + name + "}" for name in allowed)
-    try:
-        names = placeholders(value)
-    except ValueError as err:
-        raise VocabularyError(path, where, str(err)) from err
-    for name in names:
-        if name not in allowed:
-            raise VocabularyError(path, where, f"unknown placeholder {{{name}}}; known: {known}")
-    try:
-        value.format(**sample)
-    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as err:
-        raise VocabularyError(path, where, f"cannot be filled: {err}") from err
-
-
 def _check_names(
     path: Path, where: str, value: Any, terms: dict[str, Any], empty: bool = False
 ) -> None:
@@ -212,10 +190,9 @@ def _check_term(path: Path, name: str, term: Any) -> None:
         # The temperature divides the distance: 0 would make every value NaN.
         _number(path, f"{where}.temperature", term["temperature"], positive=True)
     sample = {"i": 0, "j": 0, **STAGE_FIELDS}
-    allowed = ["i", "j", *STAGE_FIELDS]
     for key in ("doc", "distance", "value", *_TERM_OPTIONAL):
         if key in term:
-            _code_text(path, f"{where}.{key}", term[key], sample, allowed)
+            check_format_text(path, f"{where}.{key}", term[key], sample, VocabularyError)
 
 
 def check_vocabulary(data: dict[str, Any], path: Path) -> dict[str, Any]:
@@ -248,8 +225,8 @@ def check_vocabulary(data: dict[str, Any], path: Path) -> dict[str, Any]:
         raise VocabularyError(path, "predicates", f"must cover exactly {sorted(PREDICATES)}")
     for name, code in data["predicates"].items():
         params = list(inspect.signature(PREDICATES[name]).parameters)[1:]  # drop ctx
-        allowed = list(dict.fromkeys(["i", "j", *params]))
-        _code_text(path, f"predicates.{name}", code, dict.fromkeys(allowed, 0), allowed)
+        sample = dict.fromkeys(["i", "j", *params], 0)
+        check_format_text(path, f"predicates.{name}", code, sample, VocabularyError)
     defaults = data["defaults"]
     _exact_keys(path, "defaults", defaults, _DEFAULT_KEYS)
     if defaults["transform"] not in _TRANSFORMS:
