@@ -128,12 +128,6 @@ def parse_reply(
     return validate_matrix(rows, len(segments), len(sources)), str(reasoning)
 
 
-def retry_message(error: str, m: int, n: int) -> str:
-    """The follow-up that tells the model what was wrong with its reply."""
-    # A prompt template like the others: checked, and overridable with ITSKILL_PROMPTS_DIR.
-    return analyzer_retry(error, m, n)
-
-
 def analyze(
     target: dict[str, Any],
     sources: list[dict[str, Any]],
@@ -159,7 +153,7 @@ def analyze(
             messages = [
                 *messages,
                 {"role": "assistant", "content": reply},
-                {"role": "user", "content": retry_message(problem, len(segments), len(names))},
+                {"role": "user", "content": analyzer_retry(problem, len(segments), len(names))},
             ]
             continue
         return ContributionMatrix(matrix, tuple(segments), tuple(names), reasoning, client.name)

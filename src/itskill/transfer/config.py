@@ -51,6 +51,14 @@ def _out_of_range(name: str, value: Any) -> str | None:
     return next((want for test, want in _RULES.get(name, ()) if not test(value)), None)
 
 
+def check_setting(name: str, value: Any) -> None:
+    """``ValueError`` if ``value`` is outside the range of :class:`TransferConfig` field
+    ``name``: for the settings a transfer network is also built with from Python."""
+    want = _out_of_range(name, value)
+    if want is not None:
+        raise ValueError(f"{name} must be {want}, got {value}")
+
+
 @dataclass(frozen=True)
 class TransferConfig:
     """How sources are chosen and how the transfer network is shaped (see transfer.toml)."""
@@ -67,9 +75,7 @@ class TransferConfig:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            want = _out_of_range(f.name, getattr(self, f.name))
-            if want is not None:
-                raise ValueError(f"{f.name} must be {want}, got {getattr(self, f.name)}")
+            check_setting(f.name, getattr(self, f.name))
         object.__setattr__(self, "fusion_hidden", tuple(int(w) for w in self.fusion_hidden))
 
     def to_dict(self) -> dict[str, Any]:

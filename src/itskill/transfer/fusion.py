@@ -57,10 +57,8 @@ class FeatureFusion(nn.Module):
 
 
 class FeatureSum(nn.Module):
-    """DFS: the target's stage output plus every source's, unweighted."""
-
-    def __init__(self) -> None:
-        super().__init__()
+    """DFS: the target's stage output plus every source's, unweighted (the sources' widths are
+    checked against the target's by :meth:`itskill.transfer.dfs.DFSPolicy.check_sources`)."""
 
     def forward(
         self,

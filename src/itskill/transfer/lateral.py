@@ -65,6 +65,7 @@ from itskill.sim.layout import MAX_STAGES
 from itskill.sim.vec_env import action_space, observation_space
 from itskill.transfer.analyzer import validate_matrix
 from itskill.transfer.attention import STAGE_SLICE
+from itskill.transfer.config import check_setting
 from itskill.transfer.fusion import IncompatibleSourceError
 from itskill.transfer.sources import freeze, load_source
 
@@ -328,9 +329,8 @@ class TransferPolicy(ActorCriticPolicy):
         names = [s.get("name") for s in sources]
         if len(set(names)) != len(names):
             raise ValueError(f"a source is given twice: {names}")
-        if not 0.0 <= prior_weight <= 1.0:
-            # Outside it W is no convex combination: a source's weight can go negative.
-            raise ValueError(f"prior_weight must be in [0, 1], got {prior_weight}")
+        # Outside [0, 1] W is no convex combination: a source's weight can go negative.
+        check_setting("prior_weight", prior_weight)
         if self.uses_prior:
             if prior is None:
                 raise ValueError(f"{type(self).__name__} needs the analyzer's contribution matrix")
