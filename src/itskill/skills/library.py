@@ -24,7 +24,7 @@ from itskill.skills.manifest import (
     read_manifest,
     read_manifest_or_empty,
 )
-from itskill.skills.store import UPDATABLE_FIELDS, SkillSpace, SkillSpaceConfig
+from itskill.skills.store import UPDATABLE_FIELDS, Skill, SkillSpace, SkillSpaceConfig
 
 
 def open_skill_space(
@@ -34,9 +34,9 @@ def open_skill_space(
     space = SkillSpace(path, config)
     try:
         library = store.SHIPPED_LIBRARY  # looked up per call: tests point it elsewhere
-        if (library / MANIFEST_NAME).is_file() and _readable(space):
+        if (library / MANIFEST_NAME).is_file() and (stored := _stored(space)) is not None:
             entries = read_manifest(library)
-            _repoint_to_package(space, library, entries)
+            _repoint_to_package(space, library, entries, stored)
             new = {e.name for e in entries} - space.offered_shipped()
             if new:
                 # The package's own policies are checked by its tests (every shipped skill
@@ -50,15 +50,14 @@ def open_skill_space(
     return space
 
 
-def _readable(space: SkillSpace) -> bool:
-    """Whether every row of ``space`` reads. One damaged past reading is named, with how to
-    remove it, by the command's own read; the shipped library's upkeep, which reads every row,
-    waits until it is gone (it failed every command, ``skills remove`` included)."""
+def _stored(space: SkillSpace) -> list[Skill] | None:
+    """Every skill of ``space``; None if a row is damaged past reading. Such a row is named, with
+    how to remove it, by the command's own read; the shipped library's upkeep, which reads every
+    row, waits until it is gone (it failed every command, ``skills remove`` included)."""
     try:
-        space.list()
+        return space.list()
     except store.CorruptDatabaseError:
-        return False
-    return True
+        return None
 
 
 def shipped_budgets() -> dict[str, int]:
@@ -74,10 +73,13 @@ def shipped_budgets() -> dict[str, int]:
     return budgets
 
 
-def _repoint_to_package(space: SkillSpace, library: Path, entries: list[ManifestEntry]) -> None:
+def _repoint_to_package(
+    space: SkillSpace, library: Path, entries: list[ManifestEntry], skills: list[Skill]
+) -> None:
     """Point shipped skills recorded by the absolute path of some itskill install (releases
-    before ``package:`` paths) at this package's copy, so a reinstall elsewhere keeps them."""
-    stored = {s.name: s for s in space.list()}
+    before ``package:`` paths) at this package's copy, so a reinstall elsewhere keeps them.
+    ``skills`` are the space's, as read at its opening."""
+    stored = {s.name: s for s in skills}
     for entry in entries:
         skill = stored.get(entry.name)
         if skill is None or not Path(skill.checkpoint).is_absolute():
