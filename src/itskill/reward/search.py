@@ -635,15 +635,17 @@ def _search(
                 stats = by_sample[it_best["sample"]]["stats"]
                 best = {**it_best, "iteration": i, "code": code, "stats": stats}
                 write_text(out / BEST_FILE, code + "\n")
-            # Every sample was rejected or failed: feed the last failure of the code itself back.
-            code_failures = [
-                (s.code, s.error if not s.accepted else by_sample[s.index].get("error"))
-                for s in samples
-                if not (s.accepted and by_sample[s.index].get("worker_error"))
-            ]
-            if not trained and code_failures:
-                code, error = code_failures[-1]
-                failure = (code, str(error))
+            if not trained:
+                # Every sample was rejected or failed: feed the last failure of the code itself
+                # back, not a worker's own (a full disk is no fault of the code).
+                code_failures = [
+                    (s.code, s.error if not s.accepted else by_sample[s.index].get("error"))
+                    for s in samples
+                    if not (s.accepted and by_sample[s.index].get("worker_error"))
+                ]
+                if code_failures:
+                    code, error = code_failures[-1]
+                    failure = (code, str(error))
             summary = {
                 "iteration": i,
                 "samples": entries,
