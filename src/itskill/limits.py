@@ -24,6 +24,14 @@ reward candidate): a thousand times the paper's transfer runs (1M). The learning
 the budget, so a mistyped huge one trains on at an undecayed rate for ever instead of failing at
 once; a budget this size takes weeks on any machine we know of."""
 
+
+def check_steps(steps: int, name: str = "steps") -> None:
+    """``ValueError`` unless ``steps`` (an env-step budget, given as ``name``) is from 1 to
+    :data:`STEPS_MAX`."""
+    if not 1 <= steps <= STEPS_MAX:
+        raise ValueError(f"{name} must be between 1 and {STEPS_MAX:,}, got {steps:,}")
+
+
 DEPTH_MAX = 16
 """The most stages (hidden layers) of a policy network: the paper's has three, and the transfer
 network takes a lateral connection and a fusion block per stage of every source."""

@@ -56,7 +56,14 @@ from itskill.files import (
     some_of,
     write_json,
 )
-from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX, SEED_MAX, SOURCES_MAX, STEPS_MAX
+from itskill.limits import (
+    EPISODES_MAX,
+    NUM_ENVS_MAX,
+    SEED_MAX,
+    SOURCES_MAX,
+    STEPS_MAX,
+    check_steps,
+)
 from itskill.llm.usage_log import UsageLog
 
 EVAL_SEED = 10_000
@@ -402,8 +409,10 @@ def learn(
         raise LearnError(f"unknown budget {budget!r}; expected one of {list(budgets)}")
     b = budgets[budget]
     if steps is not None:
-        if not 1 <= steps <= STEPS_MAX:
-            raise LearnError(f"--steps must be between 1 and {STEPS_MAX:,}, got {steps:,}")
+        try:
+            check_steps(steps, "--steps")
+        except ValueError as err:
+            raise LearnError(str(err)) from err
         b = replace(b, transfer=replace(b.transfer, steps=steps))
     if min_success is not None:
         if not 0.0 <= min_success <= 1.0:

@@ -30,7 +30,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from itskill.datafile import read_toml
 from itskill.errors import PicklableError
 from itskill.files import some_of, write_json
-from itskill.limits import SEED_MAX, STEPS_MAX
+from itskill.limits import SEED_MAX, check_steps
 from itskill.reward_contract import EXPERT, RewardOutputError, check_reward_output
 from itskill.rl.checkpoint import (
     BEST_DIR,
@@ -493,8 +493,7 @@ def check_training(
     """
     if algo not in ALGO_CLASSES:
         raise HyperparamError("algo", "algo", f"expected one of {list(ALGOS)}, got {algo!r}")
-    if not 1 <= steps <= STEPS_MAX:
-        raise ValueError(f"steps must be between 1 and {STEPS_MAX:,}, got {steps:,}")
+    check_steps(steps)
     if not 0 <= seed <= SEED_MAX:
         raise ValueError(f"seed must be between 0 and {SEED_MAX}, got {seed}")
     for name, value in (("eval_every", eval_every), ("eval_episodes", eval_episodes)):

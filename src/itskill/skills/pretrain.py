@@ -32,7 +32,7 @@ from pathlib import Path
 
 from itskill.executors import Executor, run_jobs
 from itskill.files import read_json, write_json
-from itskill.limits import STEPS_MAX
+from itskill.limits import check_steps
 from itskill.reward_contract import EXPERT
 from itskill.rl.checkpoint import (
     POLICY_FILE,
@@ -107,8 +107,7 @@ class PretrainConfig:
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:  # checked here, not in each worker after the pool started
             raise ValueError(f"algo must be one of {', '.join(ALGOS)}, got {self.algo!r}")
-        if not 1 <= self.steps <= STEPS_MAX:
-            raise ValueError(f"steps must be between 1 and {STEPS_MAX:,}, got {self.steps:,}")
+        check_steps(self.steps)
         if self.seeds < 1:
             raise ValueError(f"seeds must be at least 1, got {self.seeds}")
         if self.select_episodes < 1:

@@ -1,0 +1,28 @@
+"""The bounds of itskill.limits, as the entry points that take a step budget apply them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from itskill.limits import STEPS_MAX, check_steps
+from itskill.rl.train import check_training
+from itskill.skills.pretrain import PretrainConfig
+
+PAST = "steps must be between 1 and 1,000,000,000, got 1,000,000,000,000"
+
+
+def test_a_step_budget_past_the_cap_is_refused_wherever_it_is_given(tmp_path: Path) -> None:
+    # A mistyped 10^12 trained on for ever at an undecayed learning rate.
+    check_steps(STEPS_MAX)
+    for refused in (
+        lambda: check_steps(10**12),
+        lambda: PretrainConfig(steps=10**12),
+        lambda: check_training("reach_nut_m12", "ppo", 10**12, 0, "expert", tmp_path / "run"),
+    ):
+        with pytest.raises(ValueError, match=PAST):
+            refused()
+    with pytest.raises(ValueError, match="--steps must be between 1 and"):
+        check_steps(0, "--steps")
+    assert not (tmp_path / "run").exists()
