@@ -35,15 +35,13 @@ BACKEND = "offline rule-based backend"
 
 # What a verb acts on: "it", "them" or "the" and up to three words ("the held M12 nut").
 _OBJ = r"(?:it |them |the (?:\w+ ){0,3})?"
-_CARRY_VERB = (
-    r"\bcarry\w*|\btransport\w*|\bbring\w*|\bhold\w*"
-    r"|\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?) (?:over|above|to)\b"
-)
+# The verbs that carry a held part, a move of the part, and such a move somewhere.
+_CARRYING = r"\bcarry\w*|\btransport\w*|\bbring\w*"
+_MOVE_PART = r"\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?)"
+_MOVE_PART_TO = rf"{_MOVE_PART} (?:over|above|to)\b"
+_CARRY_VERB = rf"{_CARRYING}|\bhold\w*|{_MOVE_PART_TO}"
 # A carry that takes the part somewhere ("bring it to the bolt"; not "hold it", which keeps it).
-_CARRY_TO = (
-    rf"\bcarry\w*|\btransport\w*|\bbring\w*|\bhold\w* {_OBJ}(?:over|above)\b"
-    r"|\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?) (?:over|above|to)\b"
-)
+_CARRY_TO = rf"{_CARRYING}|\bhold\w* {_OBJ}(?:over|above)\b|{_MOVE_PART_TO}"
 # verb phrase -> distinguishing actions; a "?" suffix marks an action that may be absent. Earlier
 # patterns claim their words first: "position the gripper" is a move, not a place.
 _VERBS: list[tuple[str, tuple[str, ...]]] = [
@@ -354,7 +352,7 @@ _PUTTING = {
 }  # fmt: skip
 # "Move" is a reach ("move to the nut") but with a part after it moves the part, as
 # :data:`_CARRY_VERB` reads "move it over": "move the nut under the table" puts it there.
-_MOVES_PART = r"\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?)\b"
+_MOVES_PART = rf"{_MOVE_PART}\b"
 # Words a place may end in that are no place of their own: "on top of the bolt", "screw it to the
 # bottom", "in place", "push it to the left", "into the round one", "lift it up to 30 mm".
 _NOT_A_PLACE = {"top", "bottom", "front", "back", "side", "middle", "centre", "center", "end",
