@@ -16,6 +16,7 @@ from typing import Literal
 
 import mujoco
 
+from itskill.datafile import is_number
 from itskill.errors import PicklableError
 
 STEEL_DENSITY = 7850.0
@@ -215,15 +216,10 @@ class PartSpecError(PicklableError, ValueError):
         self.part, self.field, self.problem = part, field, problem
 
 
-def _is_real(value: object) -> bool:
-    """A finite int or float, not a bool (TOML's ``true`` would otherwise be 1 m)."""
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def _sizes(name: str, **values: float) -> None:
     """Each of ``values`` is a length in metres: finite, above 0, below :data:`MAX_PART_SIZE`."""
     for key, value in values.items():
-        if not _is_real(value) or not 0 < value < MAX_PART_SIZE:
+        if not is_number(value) or not 0 < value < MAX_PART_SIZE:
             raise PartSpecError(
                 name,
                 key,
@@ -253,7 +249,7 @@ def _check_rgba(name: str, rgba: tuple[float, ...]) -> None:
     if (
         not isinstance(rgba, tuple | list)
         or len(rgba) != 4
-        or not all(_is_real(v) and 0 <= v <= 1 for v in rgba)
+        or not all(is_number(v) and 0 <= v <= 1 for v in rgba)
     ):
         raise PartSpecError(
             name, "rgba", f"expected [red, green, blue, alpha], each 0 to 1, got {list(rgba)!r}"
