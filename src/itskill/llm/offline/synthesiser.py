@@ -135,9 +135,7 @@ def _number(path: Path, where: str, value: Any, positive: bool = False) -> float
     return float(value)
 
 
-def _number_range(
-    path: Path, where: str, value: Any, positive: bool = False, most: float | None = None
-) -> None:
+def _number_range(path: Path, where: str, value: Any, positive: bool = False) -> None:
     """``value`` as ``[low, high]``, numbers as :func:`_number` takes, ``low <= high``."""
     if not isinstance(value, list) or len(value) != 2:
         raise VocabularyError(path, where, f"expected [low, high], got {value!r}")
