@@ -373,6 +373,8 @@ def test_out_of_range_numbers_and_the_current_directory_are_refused_before_any_w
         (["train", "reach_nut_m12", "--steps", "1" + "0" * 12], "--steps"),
         (["transfer", "train", "pick_nut_m12", "--steps", "1" + "0" * 12], "--steps"),
         (["skills", "pretrain", "--tasks", "reach_nut_m12", "--steps", "1" + "0" * 12], "--steps"),
+        (["train", "reach_nut_m12", "--algo", "sac"], "expected one of a2c, ppo"),
+        (["transfer", "train", "pick_nut_m12", "--algo", "sac"], "expected one of a2c, ppo"),
         (["train", "reach_nut_m12", "--out", ""], "not the current one"),
         (["transfer", "train", "pick_nut_m12", "--out", "."], "not the current one"),
         (["train", "reach_nut_m12", "--steps", "64", "--out", "/proc/x"], "cannot use /proc/x"),

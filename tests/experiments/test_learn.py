@@ -383,6 +383,7 @@ def test_budget_threshold_outside_zero_to_one_is_rejected(tmp_path):
         (("steps = 256\nnum_envs = 2\neval_every", "steps = 0\nnum_envs = 2\neval_every"),
          "test.transfer.steps: must be positive"),
         (('method = "itn"', 'method = "xyz"'), "test.transfer.method: expected one of"),
+        (('algo = "a2c"', 'algo = "sac"'), "test.transfer.algo: expected one of ['a2c', 'ppo']"),
         (("iterations = 1", "iterations = 0"), "test.reward"),
         (("[test.evaluation]", "[test.evaluation]\nseeds = 3"), "test.evaluation"),
         (("compare_expert = false", "compare_expert = 1"), "compare_expert: expected a boolean"),

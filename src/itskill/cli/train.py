@@ -56,10 +56,11 @@ def train_cmd(
     ] = None,
 ) -> None:
     """Train a policy with A2C or PPO; rerun the same command to resume from the last checkpoint."""
+    from itskill.rl.config import ALGOS
     from itskill.rl.train import train
 
-    if algo not in ("a2c", "ppo"):
-        raise typer.BadParameter("expected a2c or ppo", param_hint="--algo")
+    if algo not in ALGOS:
+        raise typer.BadParameter(f"expected one of {', '.join(ALGOS)}", param_hint="--algo")
     try:
         with user_errors():
             result = train(

@@ -102,13 +102,14 @@ def transfer_train(
 ) -> None:
     """Train TARGET with a transfer method; rerun the same command to resume."""
     from itskill.llm.client import make_client, model_spec
+    from itskill.rl.config import ALGOS
     from itskill.transfer import METHODS, train_transfer
     from itskill.transfer.train import asks_analyzer
 
     if method not in METHODS:
         raise typer.BadParameter(f"expected one of {', '.join(METHODS)}", param_hint="--method")
-    if algo not in ("a2c", "ppo"):
-        raise typer.BadParameter("expected a2c or ppo", param_hint="--algo")
+    if algo not in ALGOS:
+        raise typer.BadParameter(f"expected one of {', '.join(ALGOS)}", param_hint="--algo")
     try:
         with user_errors():
             cfg = _config(config, k, sources)

@@ -42,10 +42,10 @@ from itskill.limits import (
 from itskill.llm.client import UnknownModelError, model_spec
 from itskill.reward.config import check_seeds
 from itskill.reward_contract import EXPERT
+from itskill.rl.config import ALGOS
 from itskill.rl.train import RewardLoadError, load_reward
 from itskill.tasks import UnknownTaskError, get_task
 
-ALGOS = ("a2c", "ppo")
 AUTO = "auto"
 MAX_NAME_BYTES = 100
 """Well inside the file systems' 255 bytes per directory name, and a path one can still read."""

@@ -65,6 +65,7 @@ from itskill.limits import (
     check_steps,
 )
 from itskill.llm.usage_log import UsageLog
+from itskill.rl.config import ALGOS
 
 EVAL_SEED = 10_000
 """Seed of the final evaluation's episodes: other initial states than training's."""
@@ -222,8 +223,8 @@ def _budget(path: Path, name: str, raw: Any) -> LearnBudget:
     )
     if transfer.method not in METHODS:
         raise BudgetError(path, f"{where}.method", f"expected one of {list(METHODS)}")
-    if transfer.algo not in ("a2c", "ppo"):
-        raise BudgetError(path, f"{where}.algo", "expected a2c or ppo")
+    if transfer.algo not in ALGOS:
+        raise BudgetError(path, f"{where}.algo", f"expected one of {list(ALGOS)}")
     reward = check_table(path, f"{name}.reward", raw.get("reward", {}), BudgetError)
     ev = raw.get("evaluation", {})
     check_table(path, f"{name}.evaluation", ev, BudgetError, {"episodes", "min_success"})
