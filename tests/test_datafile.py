@@ -12,6 +12,7 @@ import pytest
 from itskill.datafile import (
     DataFileError,
     check_like,
+    check_nonnegative,
     check_positive,
     check_table,
     check_type,
@@ -137,3 +138,24 @@ def test_a_count_out_of_its_bounds_says_which(value, problem) -> None:
     with pytest.raises(DataFileError, match=problem):
         check_positive("f.toml", "n", value, DataFileError, most=1000)
     assert check_positive("f.toml", "n", 1000, DataFileError, most=1000) == 1000
+
+
+@pytest.mark.parametrize(
+    ("value", "positive", "problem"),
+    [
+        (-0.5, False, r"expected a finite number >= 0 \(USD\), got -0.5"),
+        (0, True, r"expected a finite number > 0 \(USD\), got 0"),
+        (True, False, "got True"),  # TOML's true is no price
+        (math.nan, False, "got nan"),
+        (10**400, False, "got 1000"),  # past a float's range
+        ("1", False, "got '1'"),
+    ],
+)
+def test_an_amount_below_its_bound_or_no_number_is_refused(value, positive, problem) -> None:
+    with pytest.raises(DataFileError, match=problem):
+        check_nonnegative("f.toml", "price", value, DataFileError, positive, unit="USD")
+
+
+def test_an_amount_within_its_bound_is_returned_as_a_float() -> None:
+    assert check_nonnegative("f.toml", "w", 0, DataFileError) == 0.0
+    assert isinstance(check_nonnegative("f.toml", "w", 3, DataFileError, positive=True), float)

@@ -161,6 +161,24 @@ def check_positive(
     return value
 
 
+def check_nonnegative(
+    path: str | Path,
+    where: str,
+    value: Any,
+    error: type[DataFileError],
+    positive: bool = False,
+    unit: str = "",
+) -> float:
+    """``value`` as a float if it is a finite number >= 0 (> 0 when ``positive``: a divisor's),
+    or ``error`` saying so, with ``unit`` (such as "USD per 1M tokens") in the message."""
+    if not is_number(value) or value < 0 or (positive and value == 0):
+        want = "a finite number > 0" if positive else "a finite number >= 0"
+        if unit:
+            want += f" ({unit})"
+        raise error(path, where, f"expected {want}, got {value!r}")
+    return float(value)
+
+
 def check_table(
     path: str | Path,
     where: str,

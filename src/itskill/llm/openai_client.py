@@ -26,7 +26,7 @@ from urllib.parse import urlsplit
 
 import openai
 
-from itskill.datafile import DataFileError, check_table, is_number, read_toml
+from itskill.datafile import DataFileError, check_nonnegative, check_table, read_toml
 from itskill.llm.client import BASE_URL_ENV, BaseClient, LLMError, LLMUnavailableError, Message
 
 OPENAI_URL = "https://api.openai.com/v1"
@@ -85,19 +85,15 @@ def load_prices(path: Path | None = None) -> dict[str, tuple[float, float]]:
     for model, entry in models.items():
         where = f"models.{model}"
         check_table(source, where, entry, PriceFileError, ("input", "output"))
-        pair = []
-        for key in ("input", "output"):
-            value = entry.get(key)
-            # A cost is summed into every usage report: NaN or a negative price would make it
-            # meaningless, and a string one would fail only once a model answered.
-            if not is_number(value) or value < 0:
-                raise PriceFileError(
-                    source,
-                    f"{where}.{key}",
-                    f"expected a finite number >= 0 (USD per 1M tokens), got {value!r}",
-                )
-            pair.append(float(value))
-        prices[model] = (pair[0], pair[1])
+        # A cost is summed into every usage report: NaN or a negative price would make it
+        # meaningless, and a string one would fail only once a model answered.
+        input_price, output_price = (
+            check_nonnegative(
+                source, f"{where}.{key}", entry.get(key), PriceFileError, unit="USD per 1M tokens"
+            )
+            for key in ("input", "output")
+        )
+        prices[model] = (input_price, output_price)
     return prices
 
 

@@ -28,7 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from itskill.datafile import DataFileError, check_format_text, check_table, is_number, read_toml
+from itskill.datafile import (
+    DataFileError,
+    check_format_text,
+    check_nonnegative,
+    check_table,
+    read_toml,
+)
 from itskill.llm.offline.blocks import fenced
 from itskill.tasks.predicates import PREDICATES, PredicateError, parse
 
@@ -127,19 +133,14 @@ def _exact_keys(path: Path, where: str, table: dict[str, Any], keys: Sequence[st
             raise VocabularyError(path, f"{where}.{key}", "missing")
 
 
-def _number(path: Path, where: str, value: Any, positive: bool = False) -> float:
-    """``value`` as a finite number >= 0 (> 0 when ``positive``: a divisor or a logarithm's)."""
-    if not is_number(value) or value < 0 or (positive and value == 0):
-        want = "a finite number > 0" if positive else "a finite number >= 0"
-        raise VocabularyError(path, where, f"expected {want}, got {value!r}")
-    return float(value)
-
-
 def _number_range(path: Path, where: str, value: Any, positive: bool = False) -> None:
-    """``value`` as ``[low, high]``, numbers as :func:`_number` takes, ``low <= high``."""
+    """``value`` as ``[low, high]``, numbers as :func:`check_nonnegative` takes, ``low <= high``."""
     if not isinstance(value, list) or len(value) != 2:
         raise VocabularyError(path, where, f"expected [low, high], got {value!r}")
-    low, high = (_number(path, f"{where}[{k}]", v, positive) for k, v in enumerate(value))
+    low, high = (
+        check_nonnegative(path, f"{where}[{k}]", v, VocabularyError, positive)
+        for k, v in enumerate(value)
+    )
     if low > high:
         raise VocabularyError(path, where, f"low {low} is above high {high}")
 
@@ -183,10 +184,12 @@ def _check_term(path: Path, name: str, term: Any) -> None:
                 f"{where}.{key}",
                 f"not used by a {kind!r} term; it takes {', '.join(needed + _TERM_OPTIONAL)}",
             )
-    _number(path, f"{where}.weight", term["weight"])
+    check_nonnegative(path, f"{where}.weight", term["weight"], VocabularyError)
     if kind == "distance":
         # The temperature divides the distance: 0 would make every value NaN.
-        _number(path, f"{where}.temperature", term["temperature"], positive=True)
+        check_nonnegative(
+            path, f"{where}.temperature", term["temperature"], VocabularyError, positive=True
+        )
     sample = {"i": 0, "j": 0, **STAGE_FIELDS}
     for key in ("doc", "distance", "value", *_TERM_OPTIONAL):
         if key in term:
@@ -234,7 +237,7 @@ def check_vocabulary(data: dict[str, Any], path: Path) -> dict[str, Any]:
             f"expected one of {', '.join(_TRANSFORMS)}, got {defaults['transform']!r}",
         )
     for key in _DEFAULT_KEYS[1:]:
-        _number(path, f"defaults.{key}", defaults[key])
+        check_nonnegative(path, f"defaults.{key}", defaults[key], VocabularyError)
     variation = data["variation"]
     _exact_keys(
         path, "variation", variation, ("temperature_factor", "weight_factor", "tanh_probability")
@@ -242,7 +245,12 @@ def check_vocabulary(data: dict[str, Any], path: Path) -> dict[str, Any]:
     # Temperature factors are drawn log-uniformly: 0 has no logarithm.
     _number_range(path, "variation.temperature_factor", variation["temperature_factor"], True)
     _number_range(path, "variation.weight_factor", variation["weight_factor"])
-    if _number(path, "variation.tanh_probability", variation["tanh_probability"]) > 1:
+    if (
+        check_nonnegative(
+            path, "variation.tanh_probability", variation["tanh_probability"], VocabularyError
+        )
+        > 1
+    ):
         raise VocabularyError(
             path,
             "variation.tanh_probability",
@@ -251,7 +259,7 @@ def check_vocabulary(data: dict[str, Any], path: Path) -> dict[str, Any]:
     retune = data["retune"]
     _exact_keys(path, "retune", retune, (*_RETUNE_FACTORS, "temperature_range", "weight_range"))
     for key in _RETUNE_FACTORS:
-        _number(path, f"retune.{key}", retune[key])
+        check_nonnegative(path, f"retune.{key}", retune[key], VocabularyError)
     # Temperatures are clamped into this range and divide distances: its low end must be > 0.
     _number_range(path, "retune.temperature_range", retune["temperature_range"], True)
     _number_range(path, "retune.weight_range", retune["weight_range"])
