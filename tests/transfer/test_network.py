@@ -136,6 +136,7 @@ def test_nia_uses_the_prior_as_fixed_weights_and_dfs_sums(tiny_sources) -> None:
     nia = build(NIAPolicy, tiny_sources)
     att = nia.attention(obs_at(1))
     assert att["raw"] is None
+    np.testing.assert_array_equal(nia.attention(obs_at(1).numpy())["weights"], att["weights"])
     np.testing.assert_allclose(att["weights"], np.tile(PRIOR[1], (4, 1)), atol=1e-6)
     assert not hasattr(nia.mlp_extractor.weighting, "mix")
 

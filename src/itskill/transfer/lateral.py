@@ -491,10 +491,11 @@ class TransferPolicy(ActorCriticPolicy):
         ex = self.mlp_extractor
         if ex.weighting is None:
             raise ValueError(f"{type(self).__name__} has no contribution weights")
-        x = torch.as_tensor(np.asarray(obs), dtype=torch.float32).reshape(-1, self.features_dim)
+        x = torch.as_tensor(obs, dtype=torch.float32, device=self.device)
+        x = x.reshape(-1, self.features_dim)
         _, actions = ex.source_outputs(x)
         raw, weights = ex.contribution(x, actions)
         return {
-            "raw": None if raw is None else raw.numpy(),
-            "weights": weights.numpy(),
+            "raw": None if raw is None else raw.cpu().numpy(),
+            "weights": weights.cpu().numpy(),
         }
