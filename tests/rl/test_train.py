@@ -109,7 +109,9 @@ def test_the_best_evaluated_policy_is_kept_across_a_resume(
     assert first.best is not None and first.best["env_steps"] == 192
     assert first.best["success"] == 0.75 and first.best["episodes"] == 2
     assert torch.equal(load_policy(out / "best").action_net.weight, evaluated[2])
-    assert not torch.equal(load_policy(out).action_net.weight, evaluated[2])
+    # Evaluations fall between updates: the last one saw the weights the run ended with.
+    assert torch.equal(load_policy(out).action_net.weight, evaluated[3])
+    assert not torch.equal(evaluated[1], evaluated[2])
 
     second = _train(out, reach_reward, 384, eval_every=64, eval_episodes=2)
     assert second.best is not None and second.best["env_steps"] == 384
@@ -317,6 +319,43 @@ def test_an_update_cut_short_leaves_its_rollout_uncounted(
     assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 64
     monkeypatch.undo()
     assert _train(out, reach_reward, 192).num_timesteps == 192
+
+
+def test_an_evaluation_is_labelled_with_the_steps_its_policy_learned_from(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # Rollouts of 64 env-steps, evaluations due every 100: each waits for the update, so the
+    # row at 128 holds the policy of 128 env-steps (in the middle of a rollout, at 100, the
+    # policy had learned from 64).
+    fake, _ = _scripted_evaluate(iter([0.5] * 10))
+    monkeypatch.setattr(eval_callback, "evaluate", fake)
+    out = tmp_path / "run"
+    _train(out, reach_reward, 256, eval_every=100, eval_episodes=2)
+    assert _eval_steps(out) == [128, 256]
+
+
+def test_ctrl_c_before_a_resumed_sessions_first_rollout_keeps_its_steps(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # Cut short while the session's logging starts, the checkpoint was saved at 0 env-steps and
+    # the resumed run then dropped the first session's curve.
+    from itskill.rl import logger
+
+    out = tmp_path / "run"
+    _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
+    original = logger.MetricsCallback._on_training_start
+
+    def interrupting(self):
+        original(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(logger.MetricsCallback, "_on_training_start", interrupting)
+    with pytest.raises(KeyboardInterrupt):
+        _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 128
+    monkeypatch.undo()
+    done = _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    assert done.resumed_from == 128 and _eval_steps(out) == [64, 128, 192, 256]
 
 
 def test_missing_and_corrupt_checkpoints(tmp_path: Path, reach_reward: Path) -> None:
@@ -584,6 +623,8 @@ def test_an_evaluation_cut_short_by_ctrl_c_is_made_up_on_resume(
         with pytest.raises(KeyboardInterrupt):
             _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
     assert _eval_steps(out) == [64, 128, 192]
+    # The last update was done: the run is finished but for its final evaluation.
+    assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 256
     done = _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
     assert done.num_timesteps == 256 and _eval_steps(out) == [64, 128, 192, 256]
     assert done.best is not None and done.best["env_steps"] == 256

@@ -85,7 +85,8 @@ EVAL_ENVS = 25
 
 
 class DeterministicEvalCallback(BaseCallback):
-    """Evaluate the deterministic policy every ``every`` env-steps over ``episodes`` episodes.
+    """Evaluate the deterministic policy over ``episodes`` episodes at the first update after
+    every ``every`` env-steps, and at the end.
 
     With ``meta`` (the run's checkpoint metadata), the best policy so far is written to
     ``run_dir/best`` after each evaluation that matches or beats it. With ``at_start``, a run that
@@ -137,10 +138,14 @@ class DeterministicEvalCallback(BaseCallback):
             self.evaluate()
 
     def _on_step(self) -> bool:
-        if self.num_timesteps >= self._next:
-            self._next += self.every
-            self.evaluate()
         return True
+
+    def _on_rollout_start(self) -> None:
+        # Between updates, so a row's env_steps are exactly those its policy learned from (in
+        # the middle of a rollout the policy has not yet learned from the steps since its start).
+        if self.num_timesteps >= self._next:
+            self._next = (self.num_timesteps // self.every + 1) * self.every
+            self.evaluate()
 
     def _on_training_end(self) -> None:
         if self._last_evaluated != self.num_timesteps:

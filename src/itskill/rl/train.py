@@ -273,20 +273,19 @@ class CheckpointCallback(BaseCallback):
     """Saves a checkpoint at the start of the first rollout after every ``every`` env-steps.
 
     A rollout starts once the previous one's update is done, so a checkpoint's step count is
-    exactly the env-steps its weights learned from. ``trained`` keeps that count between
-    checkpoints for an interrupted run: the steps of a rollout cut short were never learned from.
+    exactly the env-steps its weights learned from. ``trained`` keeps that count for an
+    interrupted run: ``start`` (the model's count as the session begins) until the first
+    rollout, then the count at the start of each rollout (the steps of a rollout or an update
+    cut short are not counted), and every step once the last update is done (an interrupt in the
+    final evaluation keeps the finished run finished).
     """
 
     def __init__(
-        self, run_dir: Path, every: int, meta: Mapping[str, Any], clock: WallClock
+        self, run_dir: Path, every: int, meta: Mapping[str, Any], clock: WallClock, start: int
     ) -> None:
         super().__init__()
         self.run_dir, self.every, self.meta, self.clock = run_dir, every, dict(meta), clock
-        self._last = 0
-        self.trained = 0
-
-    def _on_training_start(self) -> None:
-        self._last = self.trained = self.num_timesteps
+        self._last = self.trained = start
 
     def _on_step(self) -> bool:
         return True
@@ -296,6 +295,10 @@ class CheckpointCallback(BaseCallback):
         if self.num_timesteps - self._last >= self.every:
             _save(self.model, self.run_dir, self.meta, self.clock)
             self._last = self.num_timesteps
+
+    def _on_training_end(self) -> None:
+        # Runs before the evaluation callback's final evaluation (the callbacks' order).
+        self.trained = self.num_timesteps
 
 
 def require_same(
@@ -681,7 +684,9 @@ def _learn(
     way; the last metrics row logged. Ctrl-C saves a checkpoint before it stops the run."""
     run_dir, meta = setup.run_dir, setup.meta
     metrics = MetricsCallback(env, run_dir, setup.steps, logger, console, clock)
-    checkpoints = CheckpointCallback(run_dir, setup.hp.checkpoint_every, meta, clock)
+    checkpoints = CheckpointCallback(
+        run_dir, setup.hp.checkpoint_every, meta, clock, start=model.num_timesteps
+    )
     callbacks: list[BaseCallback] = [metrics, checkpoints]
     if setup.eval_every:
         callbacks.append(
@@ -709,8 +714,8 @@ def _learn(
         metrics.close()
         if not isinstance(err, KeyboardInterrupt):
             raise
-        # Counting the cut-short rollout would have the resumed run collect whole rollouts on
-        # top and stop past `steps`, with that rollout's steps never learned from.
+        # Counting a rollout whose collection was cut short would have the resumed run collect
+        # whole rollouts on top and stop past `steps`, with that rollout never learned from.
         model.num_timesteps = checkpoints.trained
         _save(model, run_dir, meta, clock)
         (console or Console(stderr=True, emoji=False)).print(
