@@ -227,6 +227,17 @@ def test_an_empty_policy_is_a_usage_error_not_the_current_directory(tmp_path, mo
         assert "checkpoint.json" not in result.output
 
 
+def test_scripted_names_the_controller_even_beside_a_folder_of_that_name(
+    tmp_path, monkeypatch
+):
+    # The folder was taken for a training run: "scripted/checkpoint.json: missing".
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scripted").mkdir()
+    result = runner.invoke(app, ["eval", "reach_nut_m12", "--episodes", "1", "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["policy"] == "scripted"
+
+
 def test_eval_scripted_json():
     args = ["eval", "reach_nut_m12", "--episodes", "3", "--num-envs", "2", "--json"]
     result = runner.invoke(app, args)
@@ -369,6 +380,7 @@ def test_out_of_range_numbers_and_the_current_directory_are_refused_before_any_w
         (["train", "reach_nut_m12", "--seed", str(2**32)], "--seed"),
         (["transfer", "train", "pick_nut_m12", "--seed", "-3"], "--seed"),
         (["eval", "reach_nut_m12", "--episodes", "9" * 23], "--episodes"),
+        (["eval", "reach_nut_m12", "--num-envs", "5000"], "--num-envs"),
         # A mistyped budget trained on for ever at an undecayed learning rate.
         (["train", "reach_nut_m12", "--steps", "1" + "0" * 12], "--steps"),
         (["transfer", "train", "pick_nut_m12", "--steps", "1" + "0" * 12], "--steps"),

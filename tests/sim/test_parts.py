@@ -6,7 +6,7 @@ import pickle
 
 import pytest
 
-from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PartSpecError, PegSpec
+from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PartSpecError, PegSpec, fits
 
 NUT = {"name": "n", "across_flats": 0.018, "height": 0.0108, "thread_diameter": 0.012,
        "pitch": 0.00175}  # fmt: skip
@@ -40,3 +40,17 @@ def test_a_part_value_out_of_range_names_its_field(cls, valid, change, field):
     back = pickle.loads(pickle.dumps(err.value))  # it crosses process boundaries like the rest
     assert (back.part, back.field, back.problem) == (err.value.part, field, err.value.problem)
     assert isinstance(err.value, ValueError)  # callers that caught ValueError still do
+
+
+def test_a_part_fits_the_fixtures_it_goes_onto_or_into():
+    nut, bolt = NutSpec(**NUT), BoltSpec(**BOLT)
+    rect_peg = PegSpec(**PEG)
+    round_hole = HoleSpec(**HOLE)
+    round_peg = PegSpec(name="r", shape="round", diameter=0.004, length=0.05)
+    assert fits(nut, bolt) and fits(round_peg, round_hole)
+    # Within a float's rounding of the thread still fits (the thread coupling's own rule).
+    assert fits(nut, BoltSpec(**(BOLT | {"pitch": 0.00175 + 1e-13})))
+    assert not fits(nut, BoltSpec(**(BOLT | {"thread_diameter": 0.016, "pitch": 0.002})))
+    assert not fits(nut, round_hole) and not fits(round_peg, bolt)
+    assert not fits(rect_peg, round_hole)
+    assert not fits(PegSpec(name="w", shape="round", diameter=0.006, length=0.05), round_hole)

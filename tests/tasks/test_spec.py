@@ -68,7 +68,7 @@ BROKEN = {
     "unknown_predicate": (('done = "grasped(0)"', 'done = "flying(0)"'), "stages[1]", "flying"),
     "unknown_part": (('objects = ["nut_m12"]', 'objects = ["nut_m99"]'), "objects", "nut_m99"),
     "init_count": (
-        ('objects = ["nut_m12"]', 'objects = ["nut_m12", "nut_m16"]'),
+        ('objects = ["nut_m12"]', 'objects = ["nut_m12", "nut_m12"]'),
         "init.objects",
         "expected 2",
     ),
@@ -128,6 +128,29 @@ BROKEN = {
         "script[0]",
         "object slot",
     ),
+    # float() reads nan: the controller's first action was NaN, then an SVD error.
+    "script nan": (
+        ("max_steps = 60", 'max_steps = 60\nscript = ["lift nan"]'),
+        "script[0]",
+        "finite",
+    ),
+    # The observation's stage one-hot has 8 slots: it loaded, then failed in BatchEnv.
+    "nine stages": (
+        (
+            '  { name = "grasp", done = "grasped(0)" },\n',
+            '  { name = "grasp", done = "grasped(0)" },\n' * 8,
+        ),
+        "stages",
+        "9 stages; at most 8",
+    ),
+    # Read as lifted(0, 3): the height went into the first optional argument.
+    "empty argument": (('success = "lifted(0, 3)', 'success = "lifted(0,, 3)'), "success", "empty"),
+    # A nut meant for another thread's bolt: the task loaded and succeeded never.
+    "part misfits its fixture": (
+        ('objects = ["nut_m12"]', 'objects = ["nut_m16"]'),
+        "object_fixture[0]",
+        "nut_m16 does not fit fixture 0 (bolt_m12)",
+    ),
 }
 
 
@@ -150,11 +173,33 @@ def test_malformed_task_file_names_the_file_and_the_field(tmp_path, parts, case)
 )
 def test_a_part_started_on_a_bolt_must_screw_onto_it(tmp_path, parts, nut, problem):
     # It loaded, then failed at the first reset with a bare StopIteration or AttributeError.
-    text = VALID.replace('objects = ["nut_m12"]', f'objects = ["{nut}"]').replace(
-        '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }', '{ mode = "bolt" }'
+    # The part is meant for the second fixture, a hole it fits, and started on the bolt.
+    text = (
+        VALID.replace('objects = ["nut_m12"]', f'objects = ["{nut}"]')
+        .replace(
+            'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]',
+            'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }, '
+            '{ part = "hole_round_4mm", xy = [0.55, -0.12] }]\nobject_fixture = [1]',
+        )
+        .replace(
+            '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }',
+            '{ mode = "bolt", fixture = 0 }',
+        )
     )
+    if nut == "nut_m16":
+        text = text.replace('"hole_round_4mm"', '"bolt_m16"')
     with pytest.raises(TaskFileError, match=f"init.objects\\[0\\].mode.*{nut} {problem}"):
         load_task_file(write(tmp_path, text), parts)
+
+
+def test_a_fixture_predicate_in_a_task_without_fixtures_is_refused(tmp_path, parts):
+    # Its fixture slots read as zeros: "above the fixture" meant above the robot's base.
+    text = VALID.replace(
+        'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]', "fixtures = []"
+    ).replace('done = "grasped(0)"', 'done = "grasped(0) and above_fixture(0)"')
+    with pytest.raises(TaskFileError, match=r"stages\[1\]\.done.*above_fixture needs a fixture"):
+        load_task_file(write(tmp_path, text), parts)
+    load_task_file(write(tmp_path, text.replace(" and above_fixture(0)", "")), parts)
 
 
 def test_tasks_that_are_not_task_tables_name_the_file(tmp_path, parts):
@@ -345,6 +390,14 @@ def test_unknown_predicate_lists_known_ones():
 def test_malformed_expression_is_a_predicate_error(text):
     with pytest.raises(PredicateError):
         parse(text)
+
+
+def test_terms_may_be_joined_across_lines():
+    # A multi-line TOML string breaks the line at "and"; "not" took any whitespace already.
+    assert parse("grasped(0) and\n  not\tupright(0)").terms == (
+        (False, "grasped", (0.0,)),
+        (True, "upright", (0.0,)),
+    )
 
 
 # ---------------------------------------------------------------------- stages

@@ -29,6 +29,7 @@ from itskill.cli.common import (
     user_errors,
 )
 from itskill.files import write_json
+from itskill.limits import NUM_ENVS_MAX
 
 if TYPE_CHECKING:
     from itskill.tasks.evaluate import EvalResult
@@ -58,7 +59,9 @@ def eval_cmd(
     policy: PolicyOpt = SCRIPTED,
     episodes: Annotated[int, episodes_option("Episodes to count.")] = 100,
     seed: SeedOpt = 0,
-    num_envs: Annotated[int, typer.Option(min=1, help="Environments stepped together.")] = 16,
+    num_envs: Annotated[
+        int, typer.Option(min=1, max=NUM_ENVS_MAX, help="Environments stepped together.")
+    ] = 16,
     starts: Annotated[
         Path | None,
         typer.Option(

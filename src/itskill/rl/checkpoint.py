@@ -55,7 +55,13 @@ from itskill.rl.clock import EVAL_WALL_KEY, TRAIN_WALL_KEY
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.sim.vec_env import action_space, observation_space
-from itskill.tasks.evaluate import CheckpointError, Policy, PolicyActor, PolicyFactory
+from itskill.tasks.evaluate import (
+    SCRIPTED,
+    CheckpointError,
+    Policy,
+    PolicyActor,
+    PolicyFactory,
+)
 from itskill.tasks.spec import TaskSpec
 
 MODEL_FILE = "model.zip"
@@ -375,8 +381,10 @@ class TrainedPolicy(PolicyActor):
 
 
 def as_policy(ref: str | Path | Policy | PolicyFactory) -> str | Path | Policy | PolicyFactory:
-    """A training run directory becomes a policy factory; anything else is returned unchanged."""
-    if isinstance(ref, str | Path) and Path(ref).is_dir():
+    """A training run directory becomes a policy factory; anything else is returned unchanged.
+    ``"scripted"`` names the task's controller even where a folder of that name exists (which
+    ``./scripted`` reaches)."""
+    if isinstance(ref, str | Path) and ref != SCRIPTED and Path(ref).is_dir():
         run_dir = Path(ref)
         read_meta(run_dir)  # fail early, before any environment is built
 

@@ -199,6 +199,24 @@ PartSpec = NutSpec | PegSpec
 FixtureSpec = BoltSpec | HoleSpec
 
 
+def fits(part: PartSpec, fixture: FixtureSpec) -> bool:
+    """Whether ``part`` goes onto or into ``fixture``: a nut onto a bolt of its thread (the
+    thread coupling joins only those), a peg into a hole of its shape and at least its size."""
+    if isinstance(part, NutSpec):
+        return (
+            isinstance(fixture, BoltSpec)
+            and math.isclose(part.thread_diameter, fixture.thread_diameter)
+            and math.isclose(part.pitch, fixture.pitch)
+        )
+    return (
+        isinstance(fixture, HoleSpec)
+        and part.shape == fixture.shape
+        and part.diameter <= fixture.diameter
+        and part.width <= fixture.width
+        and part.depth <= fixture.depth
+    )
+
+
 @dataclass(frozen=True)
 class PlacedFixture:
     """A fixture at a fixed table position (x, y) with a yaw (radians)."""

@@ -33,6 +33,7 @@ from itskill.sim.parts import (
     build_hole,
     build_nut,
     build_peg,
+    fits,
 )
 
 TIMESTEP = 0.004
@@ -178,16 +179,6 @@ def _add_fixture(spec: mujoco.MjSpec, index: int, placed: PlacedFixture) -> None
         build_hole(body, placed.part)
 
 
-def _compatible(nut: PartSpec, placed: PlacedFixture) -> bool:
-    bolt = placed.part
-    return (
-        isinstance(nut, NutSpec)
-        and isinstance(bolt, BoltSpec)
-        and math.isclose(nut.thread_diameter, bolt.thread_diameter)
-        and math.isclose(nut.pitch, bolt.pitch)
-    )
-
-
 def _add_thread_equalities(spec: mujoco.MjSpec, obj: int, fix: int, nut: NutSpec, placed) -> None:
     bolt: BoltSpec = placed.part
     seat_center = bolt.seat_z + nut.height / 2
@@ -240,7 +231,7 @@ def build_scene(scene_spec: SceneSpec) -> Scene:
         (i, j)
         for i, part in enumerate(scene_spec.objects)
         for j, placed in enumerate(scene_spec.fixtures)
-        if _compatible(part, placed)
+        if isinstance(part, NutSpec) and fits(part, placed.part)
     ]
     for i, j in pairs:
         _add_thread_equalities(spec, i, j, scene_spec.objects[i], scene_spec.fixtures[j])

@@ -92,8 +92,6 @@ class BatchEnv(VecEnv):
         return [None] * self.num_envs
 
     def reset(self) -> np.ndarray:
-        if self._seeds[0] is not None:
-            self._rngs = self._make_rngs(self._seeds[0])
         self._reset_seeds()
         self._reset_options()
         for e in range(self.num_envs):

@@ -123,6 +123,13 @@ PREDICATES: dict[str, Callable[..., np.ndarray]] = {
     )
 }  # fmt: skip
 
+FIXTURE_PREDICATES = frozenset(
+    {"over_fixture", "above_fixture", "engaged", "seated", "inserted", "aligned", "removed",
+     "displaced"}
+)  # fmt: skip
+"""The predicates that measure an object against its fixture: meaningless in a task without
+one, whose fixture slots read as zeros (a fixture at the robot's base)."""
+
 _TERM = re.compile(r"^(not\s+)?([a-z_]+)\(([^()]*)\)$")
 
 
@@ -147,6 +154,10 @@ class Expression:
     @property
     def objects(self) -> set[int]:
         return {int(args[0]) for _, _, args in self.terms}
+
+    @property
+    def names(self) -> set[str]:
+        return {name for _, name, _ in self.terms}
 
 
 _SIGNED = {"dx", "dy"}
@@ -181,7 +192,8 @@ def _check_args(term: str, name: str, args: tuple[float, ...]) -> None:
 def parse(source: str) -> Expression:
     """Parse ``source``; raise :class:`PredicateError` saying what is wrong."""
     terms = []
-    for raw in source.split(" and "):
+    # Any whitespace around "and": a multi-line TOML string breaks lines there.
+    for raw in re.split(r"\s+and\s+", source.strip()):
         match = _TERM.match(raw.strip())
         if not match:
             raise PredicateError(
@@ -191,8 +203,12 @@ def parse(source: str) -> Expression:
         if name not in PREDICATES:
             known = ", ".join(sorted(PREDICATES))
             raise PredicateError(f"unknown predicate {name!r}; known: {known}")
+        pieces = arg_text.split(",") if arg_text.strip() else []
+        if not all(a.strip() for a in pieces):
+            # "lifted(0,,0.03)" would read the height as the first optional argument.
+            raise PredicateError(f"{raw.strip()!r}: an argument is empty")
         try:
-            args = tuple(float(a) for a in arg_text.split(",") if a.strip())
+            args = tuple(float(a) for a in pieces)
         except ValueError as err:
             raise PredicateError(f"{raw.strip()!r}: arguments must be numbers") from err
         if not args:

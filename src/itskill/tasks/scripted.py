@@ -4,6 +4,11 @@ A script is a list of steps, each ``"primitive arg ..."``; ``I`` is an object sl
 
 ``reach I``
     Move the open fingers onto object ``I``.
+``hover I [H]``
+    Move the grip point ``H`` metres over object ``I``'s fixture point (default 0.05) and stay.
+``grasp I``
+    Turn the open fingers to object ``I``'s grip faces at its grip point and close them, without
+    lifting.
 ``pick I [Z]``
     Hover over object ``I`` with the fingers turned to its grip faces, descend, close, and lift
     until the part's bottom is ``Z`` metres above the table (default 0.06).
@@ -488,6 +493,9 @@ def compile_script(spec: TaskSpec) -> list[Phase]:
             numbers = [float(a) for a in args]
         except ValueError as err:
             raise bad("arguments must be numbers") from err
+        # float() reads "nan" and "inf", which became NaN actions that broke the simulation.
+        if not all(math.isfinite(v) for v in numbers):
+            raise bad("arguments must be finite numbers")
         call_args: list = []
         if needs_object:
             if (

@@ -21,6 +21,7 @@ from itskill.datafile import DataFileError, check_table, check_type, is_number, 
 from itskill.errors import PicklableError
 from itskill.sim.context import max_grip_offset
 from itskill.sim.controller import ControllerConfig
+from itskill.sim.layout import MAX_STAGES
 from itskill.sim.parts import (
     BoltSpec,
     HoleSpec,
@@ -28,6 +29,7 @@ from itskill.sim.parts import (
     PartSpecError,
     PegSpec,
     PlacedFixture,
+    fits,
 )
 from itskill.sim.scene import SceneSpec
 from itskill.sim.task import (
@@ -40,7 +42,7 @@ from itskill.sim.task import (
     check_start_shares,
     default_object_fixture,
 )
-from itskill.tasks.predicates import Expression, PredicateError, parse
+from itskill.tasks.predicates import FIXTURE_PREDICATES, Expression, PredicateError, parse
 
 TASKS_DIR_ENV = "ITSKILL_TASKS_DIR"
 _PART_KINDS = {"nut": NutSpec, "bolt": BoltSpec, "peg": PegSpec, "hole": HoleSpec}
@@ -359,6 +361,15 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         raise TaskFileError(
             path, f"task {task_id!r}.object_fixture", "one fixture index per object"
         )
+    for k, f in enumerate(object_fixture if fixtures else ()):
+        # A nut meant for another thread's bolt, or a peg for a hole it does not fit, made a
+        # task whose success could never happen.
+        if not fits(objects[k], fixtures[f].part):
+            raise TaskFileError(
+                path,
+                f"task {task_id!r}.object_fixture[{k}]",
+                f"{objects[k].name} does not fit fixture {f} ({fixtures[f].part.name})",
+            )
 
     init = _parse_init(
         _Reader(path, f"task {task_id!r}.init", r.get("init", dict)),
@@ -375,6 +386,11 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         bad = [i for i in expr.objects if not 0 <= i < len(objects)]
         if bad:
             raise TaskFileError(path, where, f"object slot {bad[0]} does not exist")
+        against_fixture = sorted(expr.names & FIXTURE_PREDICATES)
+        if against_fixture and not fixtures:
+            raise TaskFileError(
+                path, where, f"{against_fixture[0]} needs a fixture; the task has none"
+            )
         return expr
 
     stages = []
@@ -384,6 +400,11 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         stages.append(Stage(_text(sr, "name"), expression(sr.get("done", str), sr.where + ".done")))
     if not stages:
         raise TaskFileError(path, f"task {task_id!r}.stages", "at least one stage is required")
+    if len(stages) > MAX_STAGES:
+        # The observation's stage one-hot has that many slots (itskill.sim.layout).
+        raise TaskFileError(
+            path, f"task {task_id!r}.stages", f"{len(stages)} stages; at most {MAX_STAGES}"
+        )
     actions = r.strings("actions")
     if not actions or not all(a.strip() for a in actions):
         raise TaskFileError(
@@ -552,10 +573,7 @@ def _parse_init(
             part, seat = objects[k], fixtures[fixture].part
             if mode == "hole" and not isinstance(part, PegSpec):
                 raise TaskFileError(path, orr.where + ".mode", f"{part.name} is not a peg")
-            if mode == "bolt" and not (
-                isinstance(part, NutSpec)
-                and (part.thread_diameter, part.pitch) == (seat.thread_diameter, seat.pitch)
-            ):
+            if mode == "bolt" and not fits(part, seat):
                 raise TaskFileError(
                     path,
                     orr.where + ".mode",
