@@ -227,9 +227,7 @@ def test_an_empty_policy_is_a_usage_error_not_the_current_directory(tmp_path, mo
         assert "checkpoint.json" not in result.output
 
 
-def test_scripted_names_the_controller_even_beside_a_folder_of_that_name(
-    tmp_path, monkeypatch
-):
+def test_scripted_names_the_controller_even_beside_a_folder_of_that_name(tmp_path, monkeypatch):
     # The folder was taken for a training run: "scripted/checkpoint.json: missing".
     monkeypatch.chdir(tmp_path)
     (tmp_path / "scripted").mkdir()

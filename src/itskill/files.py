@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -38,6 +39,13 @@ def replaced_whole(path: Path) -> Iterator[Path]:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def copy_whole(source: Path, path: Path) -> None:
+    """Copy the file ``source`` to ``path`` whole (:func:`replaced_whole`): a copy cut short
+    leaves ``path`` as it was, never truncated."""
+    with replaced_whole(path) as tmp:
+        shutil.copyfile(source, tmp)
 
 
 def write_text(path: Path, text: str) -> None:

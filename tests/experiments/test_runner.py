@@ -490,3 +490,41 @@ def test_a_relative_run_directory_reaches_ray_workers_as_an_absolute_path(
     config, path = toy
     run_experiment(config, Path("run"), "ray", 1, source_file=path, console=quiet())
     assert outs and all(out.is_absolute() and out.is_relative_to(tmp_path) for out in outs)
+
+
+def test_a_reward_file_edited_between_sessions_is_refused_and_cells_train_the_runs_copy(tmp_path):
+    # Only paths were compared: the cells still to train learned the edited reward, the
+    # finished ones kept the old, and the report averaged the two.
+    reward = tmp_path / "r.py"
+    reward.write_text(
+        "import numpy as np\n\ndef compute_reward(ctx):\n"
+        "    d = np.linalg.norm(ctx['obj_to_ee'][:, 0], axis=-1)\n"
+        "    return -d, {'distance': -d}\n"
+    )
+    path = tmp_path / "toy.toml"
+    path.write_text(
+        TOY.replace(
+            'methods = ["itn", "no_transfer"]\nseeds = 2', 'methods = ["no_transfer"]\nseeds = [0]'
+        )
+        + '[reward]\npickplace_nut_m12 = "r.py"\n'
+    )
+    run = tmp_path / "run"
+    run_experiment(load_experiment(path), run, "local", 1, console=quiet())
+    copy = run / "rewards" / "pickplace_nut_m12.py"
+    assert copy.read_bytes() == reward.read_bytes()
+    meta = json.loads(
+        (run / "cells/pickplace_nut_m12/no_transfer/seed_0/checkpoint.json").read_text()
+    )
+    assert meta["reward"]["path"] == str(copy.resolve())
+
+    original = reward.read_text()
+    reward.write_text(
+        original.replace("-d, {", "-2 * d, {").replace("'distance': -d", "'distance': -2 * d")
+    )
+    path.write_text(path.read_text().replace("seeds = [0]", "seeds = [0, 1]"))
+    with pytest.raises(ExperimentRunError, match=r"r\.py: changed since .* pickplace_nut_m12"):
+        run_experiment(load_experiment(path), run, "local", 1, resume=True, console=quiet())
+    assert not (run / "cells/pickplace_nut_m12/no_transfer/seed_1").exists()
+    reward.write_text(original)
+    summary = run_experiment(load_experiment(path), run, "local", 1, resume=True, console=quiet())
+    assert [c.seed for c in summary.finished] == [1]

@@ -51,6 +51,7 @@ from itskill.files import (
     Check,
     CorruptFileError,
     check_shape,
+    copy_whole,
     held_alone,
     read_json,
     some_of,
@@ -868,7 +869,7 @@ def _add_skill(
             src = policy_dir(run_dir, transfer)
             for file in (POLICY_FILE, META_FILE, "transfer.json"):
                 if (src / file).is_file():
-                    shutil.copyfile(src / file, store / file)
+                    copy_whole(src / file, store / file)
             selection = transfer["selection"] or {}
             skill = Skill(
                 name=name,

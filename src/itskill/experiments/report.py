@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -63,7 +62,7 @@ from itskill.experiments.runner import (
     finished_result,
     read_run_config,
 )
-from itskill.files import CorruptFileError, read_json
+from itskill.files import CorruptFileError, copy_whole, read_json
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
@@ -306,7 +305,7 @@ def experiment_report(
         # them from when its own report is written.
         for cell in cells(config):
             if (cell.dir(run_dir) / TRACE_FILE).is_file():
-                shutil.copyfile(cell.dir(run_dir) / TRACE_FILE, cell.dir(out) / TRACE_FILE)
+                copy_whole(cell.dir(run_dir) / TRACE_FILE, cell.dir(out) / TRACE_FILE)
     md, html_path = out / REPORT_MD, out / REPORT_HTML
     write_document(doc, md, html_path)
     return ReportFiles(md, html_path, tuple(notes))
@@ -359,13 +358,12 @@ def _copy_results(config: ExperimentConfig, run_dir: Path, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     for name in RUN_FILES:
         if (run_dir / name).is_file():
-            shutil.copyfile(run_dir / name, out / name)
+            copy_whole(run_dir / name, out / name)
     for cell in cells(config):
         src, dst = cell.dir(run_dir), cell.dir(out)
         for name in CELL_FILES:
             if (src / name).is_file():
-                dst.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(src / name, dst / name)
+                copy_whole(src / name, dst / name)
             else:  # gone from the run since the last copy (an error file once the cell finished)
                 (dst / name).unlink(missing_ok=True)
 

@@ -19,7 +19,6 @@ worker that trained the cell, atomically, so a killed run loses only the cells i
 from __future__ import annotations
 
 import os
-import shutil
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -37,7 +36,16 @@ from itskill.experiments.config import (
     parse_experiment,
 )
 from itskill.experiments.provenance import Sessions
-from itskill.files import CorruptFileError, held_alone, read_json, some_of, write_json
+from itskill.files import (
+    CorruptFileError,
+    copy_whole,
+    held_alone,
+    read_json,
+    some_of,
+    write_json,
+    write_text,
+)
+from itskill.reward_contract import EXPERT
 
 CELLS_DIR = "cells"
 RESULT_FILE = "result.json"
@@ -46,6 +54,8 @@ SOURCES_FILE = "sources.json"
 PROVENANCE_FILE = "provenance.json"
 EXPERIMENT_FILE = "experiment.toml"
 ERROR_FILE = "error.txt"
+REWARDS_DIR = "rewards"
+"""The run's copy of each task's reward file (``<task>.py``), which its cells train with."""
 
 
 class ExperimentRunError(ValueError):
@@ -197,6 +207,23 @@ def _recorded_run(
                 "new or empty directory"
             )
     return None
+
+
+def reward_copy(run_dir: Path, task: str) -> Path:
+    """Where the run keeps the reward file it trains ``task`` with."""
+    return run_dir / REWARDS_DIR / f"{task}.py"
+
+
+def _check_rewards_unchanged(config: ExperimentConfig, run_dir: Path) -> None:
+    """Refuse a resume whose reward file was edited since the run copied it: the cells still to
+    train would learn another reward than the finished ones, and the report mix the two."""
+    for task, reward in config.reward.items():
+        copy = reward_copy(run_dir, task)
+        if reward != EXPERT and copy.is_file() and Path(reward).read_bytes() != copy.read_bytes():
+            raise ExperimentRunError(
+                f"{reward}: changed since {run_dir} started training {task} with it (that "
+                f"version is in {copy}); put it back to resume, or use another --out"
+            )
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -381,6 +408,7 @@ def _run(
 ) -> RunSummary:
     """:func:`run_experiment`'s run, once ``run_dir`` is this session's alone."""
     old = _recorded_run(config, run_dir, resume, source_file)
+    _check_rewards_unchanged(config, run_dir)
     # Before the run is recorded: a source that cannot be found leaves no run to --resume.
     sources = resolve_all_sources(config, run_dir, source_file)
     summary = RunSummary(run_dir)
@@ -403,8 +431,11 @@ def _run(
         # config.json first: from then on the directory is a run, which --resume completes.
         write_json(run_dir / CONFIG_FILE, record.to_dict())
         write_json(run_dir / SOURCES_FILE, sources)
+        for task, reward in config.reward.items():
+            if reward != EXPERT and not reward_copy(run_dir, task).is_file():
+                copy_whole(Path(reward), reward_copy(run_dir, task))
         if source_file is not None and not _same_file(source_file, run_dir / EXPERIMENT_FILE):
-            shutil.copyfile(source_file, run_dir / EXPERIMENT_FILE)
+            copy_whole(source_file, run_dir / EXPERIMENT_FILE)
     for cell in todo:
         # A failure of an earlier session is retried now: the report must not call it failed.
         (cell.dir(run_dir) / ERROR_FILE).unlink(missing_ok=True)
@@ -415,7 +446,11 @@ def _run(
                 algo=config.algo,
                 steps=config.steps,
                 num_envs=config.num_envs,
-                reward=config.reward[cell.task],
+                reward=(
+                    EXPERT
+                    if config.reward[cell.task] == EXPERT
+                    else str(reward_copy(run_dir, cell.task))
+                ),
                 sources=tuple(sources.get(cell.task, ())),
                 llm=config.llm,
                 eval_every=config.eval.every,
@@ -458,8 +493,7 @@ def _run(
                 else:
                     message = f"{type(res.error).__name__}: {res.error}"
                     summary.failed[cell] = message
-                    cell.dir(run_dir).mkdir(parents=True, exist_ok=True)
-                    (cell.dir(run_dir) / ERROR_FILE).write_text(message + "\n")
+                    write_text(cell.dir(run_dir) / ERROR_FILE, message + "\n")
                     progress.console.print(
                         f"[red]failed[/red] {cell.name}: {escape(message)}", highlight=False
                     )

@@ -27,7 +27,6 @@ import hashlib
 import importlib
 import json
 import platform
-import shutil
 import signal
 import threading
 from collections.abc import Iterable, Iterator, Mapping
@@ -47,6 +46,7 @@ from itskill.files import (
     Check,
     CorruptFileError,
     check_shape,
+    copy_whole,
     read_json,
     replaced_whole,
     write_text,
@@ -294,8 +294,7 @@ def export_policy(run_dir: str | Path, target: str | Path) -> Path:
     # Often over a skill in use (pretraining into the library): each file is replaced whole, and
     # Ctrl-C waits for the pair, so no reader finds truncated weights or a record of others.
     with interrupts_deferred():
-        with replaced_whole(target / POLICY_FILE) as tmp:
-            shutil.copyfile(source / POLICY_FILE, tmp)
+        copy_whole(source / POLICY_FILE, target / POLICY_FILE)
         write_text(target / META_FILE, json.dumps(meta, indent=2) + "\n")
     return target
 
