@@ -169,6 +169,23 @@ def test_a_run_committed_without_its_policies_still_gets_a_report(run, tmp_path)
     assert any("no video" in n and "checkpoint.json" in n for n in files.notes)
 
 
+def test_a_run_of_a_task_not_defined_here_still_gets_a_report(run, tmp_path):
+    # A run made on another machine with its own task file: the report raised UnknownTaskError.
+    import shutil
+
+    kept = tmp_path / "kept"
+    shutil.copytree(run, kept)
+    for name in ("config.json", "sources.json"):
+        path = kept / name
+        path.write_text(path.read_text().replace(TASK, "elsewhere_task"))
+    (kept / "cells" / TASK).rename(kept / "cells" / "elsewhere_task")
+    files = experiment_report(kept, tmp_path / "report")
+    text = files.markdown.read_text()
+    assert "Success at fractions of the budget (Table II)" in text
+    assert "No video: the task is not defined here" in text
+    assert (tmp_path / "report" / "figures" / "stages_elsewhere_task.png").is_file()
+
+
 def test_a_report_written_elsewhere_can_be_written_again_from_its_own_directory(run, tmp_path):
     # The directory committed to results/: the report and the run's small files, no weights.
     out = tmp_path / "results"

@@ -36,7 +36,9 @@ def test_packaged_file_loads(family: str) -> None:
         ("[nutbolt.ppo]\nent_coef = -0.01\n", "nutbolt.ppo.ent_coef", "0 or more"),
         ("[nutbolt.ppo]\nvf_coef = -1\n", "nutbolt.ppo.vf_coef", "0 or more"),
         ("[nutbolt.ppo]\nlearning_rate = -3e-4\n", "nutbolt.ppo.learning_rate", "positive"),
-        ("[nutbolt.ppo]\nbatch_size = 0\n", "nutbolt.ppo.batch_size", "positive"),
+        ("[nutbolt.ppo]\nbatch_size = 0\n", "nutbolt.ppo.batch_size", "2 or more"),
+        # SB3's PPO asserted batch_size > 1 after the environments were built.
+        ("[nutbolt.ppo]\nbatch_size = 1\n", "nutbolt.ppo.batch_size", "2 or more"),
         ("[nutbolt.demos]\nepochs = 0\n", "nutbolt.demos.epochs", "positive"),
         ("[nutbolt.policy]\nobs_clip = 0\n", "nutbolt.policy.obs_clip", "positive"),
         ("[nutbolt.policy]\nstages = [1, 'x']\n", "nutbolt.policy.stages", "list of integers"),
@@ -311,3 +313,11 @@ def test_overrides_take_the_upper_bounds() -> None:
     with pytest.raises(HyperparamError) as info:
         load_hyperparams("nutbolt", "ppo", overrides={"n_epochs": 5000})
     assert info.value.where == "overrides.ppo.n_epochs" and "at most 1,000" in info.value.problem
+
+
+def test_a_ppo_rollout_of_one_sample_is_refused() -> None:
+    # The batch is cut to the rollout: 1 x 1 made a minibatch of one, an AssertionError in SB3.
+    with pytest.raises(HyperparamError, match=r"at least 2 samples a rollout") as info:
+        load_hyperparams("nutbolt", "ppo", overrides={"n_steps": 1, "num_envs": 1})
+    assert info.value.path == "overrides"
+    assert load_hyperparams("nutbolt", "a2c", overrides={"n_steps": 1, "num_envs": 1}).num_envs == 1

@@ -63,6 +63,27 @@ def test_a_run_starts_from_the_skill_it_is_given(tmp_path: Path) -> None:
     assert steps == ["0", "32"]
 
 
+def test_a_start_interrupted_before_its_first_update_is_evaluated_at_0_once(
+    tmp_path: Path, monkeypatch
+) -> None:
+    # The resumed session evaluated the starting policy again: two rows at 0, and a wasted
+    # evaluation.
+    from stable_baselines3 import PPO
+
+    def interrupted(self):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "run"
+    monkeypatch.setattr(PPO, "train", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _train(out)
+    monkeypatch.undo()
+    assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 0
+    _train(out)
+    steps = [row.split(",")[0] for row in (out / "eval.csv").read_text().splitlines()[1:]]
+    assert steps == ["0", "32"]
+
+
 def test_a_resume_needs_the_same_starting_policy(tmp_path: Path) -> None:
     out = tmp_path / "run"
     _train(out)

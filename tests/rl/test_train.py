@@ -688,3 +688,23 @@ def test_a_checkpoint_torn_between_its_files_resumes_from_the_model(
     steps = [row["step"] for row in read_metrics(out)]
     assert 128 in steps and steps == sorted(set(steps))
     assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 256
+
+
+def test_a_run_directory_in_training_elsewhere_is_refused_and_left_as_it_is(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    # Two sessions on one --out wrote every metrics row twice and kept whichever model saved
+    # last.
+    from itskill.files import directory_lock
+    from itskill.transfer import train_transfer
+
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    with directory_lock(out, "train"):
+        with pytest.raises(ResumeMismatchError, match="in use by another itskill training"):
+            _train(out, reach_reward, 128)
+        with pytest.raises(ResumeMismatchError, match="in use by another itskill training"):
+            train_transfer("pick_nut_m12", "no_transfer", out=out, steps=128)
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert _train(out, reach_reward, 128).resumed_from == 64

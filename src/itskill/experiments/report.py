@@ -183,13 +183,18 @@ def video_section(
 ) -> None:
     """A rollout video of the policy in ``run_dir``; says why when it cannot render."""
     from itskill.rl.checkpoint import CheckpointError, as_policy
-    from itskill.tasks import get_task
+    from itskill.tasks import UnknownTaskError, get_task
     from itskill.tasks.render import RenderError, record
 
     out = videos / f"{task}_{label}.mp4"
     try:
         # as_policy reads only checkpoint.json; missing weights are found once record loads them.
         res = record(get_task(task), as_policy(run_dir), out, episodes=1, seed=0)
+    except UnknownTaskError as err:
+        # A run made on another machine, with a task file that is not here.
+        notes.append(f"no video: {err}")
+        doc.add(Paragraph(f"No video: the task is not defined here ({err})."))
+        return
     except CheckpointError as err:
         # Committed results keep curves and results, not policies: the report still gets written.
         notes.append(f"no video: {err}")
@@ -544,7 +549,7 @@ def _progress_section(
 ) -> None:
     """Subtasks finished per evaluation episode: shows which method gets further into the task
     while success is still 0 for all of them."""
-    from itskill.tasks import get_task
+    from itskill.tasks import UnknownTaskError, get_task
 
     by_method: dict[str, list] = {}
     for method in config.methods:
@@ -558,12 +563,15 @@ def _progress_section(
             by_method.setdefault(method, []).append(curve)
     if not by_method:
         return
-    n_stages = len(get_task(task).stages)
+    try:
+        subtasks = f"the {len(get_task(task).stages)} subtasks"
+    except UnknownTaskError:  # a run made on another machine, with a task file not here
+        subtasks = "the subtasks"
     fig = plot_learning_curves(
         _mean_bands(by_method, config.report.grid_points),
         f"{task}: subtasks finished ({config.algo.upper()})",
         figures / f"stages_{task}.png",
-        ylabel=f"fraction of the {n_stages} subtasks finished",
+        ylabel=f"fraction of {subtasks} finished",
     )
     doc.add(
         Heading("Subtasks finished", 3),
@@ -577,7 +585,7 @@ def _progress_section(
         doc,
         config,
         by_method,
-        f"fraction of the {n_stages} subtasks finished; mean [95% t-interval, cut to 0–100%]",
+        f"fraction of {subtasks} finished; mean [95% t-interval, cut to 0–100%]",
     )
 
 

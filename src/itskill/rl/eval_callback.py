@@ -130,11 +130,13 @@ class DeterministicEvalCallback(BaseCallback):
             # A run resumed from an older release keeps its file's columns.
             self._columns = next(csv.reader(fh))
         due = self.num_timesteps // self.every * self.every
-        if (self.at_start and self.num_timesteps == 0) or (
-            due > 0 and (last_evaluated(self.run_dir) or -1) < due
+        last = last_evaluated(self.run_dir)
+        if (self.at_start and self.num_timesteps == 0 and last is None) or (
+            due > 0 and (last or -1) < due
         ):
-            # At the start of a warm-started run; or an evaluation a Ctrl-C or crash cut short
-            # (the checkpoint was saved past its step, so it would not come round again).
+            # At the start of a warm-started run, unless a session stopped before its first
+            # update evaluated it already; or an evaluation a Ctrl-C or crash cut short (the
+            # checkpoint was saved past its step, so it would not come round again).
             self.evaluate()
 
     def _on_step(self) -> bool:

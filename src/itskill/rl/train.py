@@ -13,6 +13,7 @@ import json
 import runpy
 import shutil
 from collections.abc import Callable, Collection, Iterable, Mapping
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from itskill.datafile import read_toml
 from itskill.errors import PicklableError
-from itskill.files import some_of, write_json
+from itskill.files import held_alone, some_of, write_json
 from itskill.limits import SEED_MAX, check_steps
 from itskill.reward_contract import EXPERT, RewardOutputError, check_reward_output
 from itskill.rl.checkpoint import (
@@ -156,9 +157,10 @@ class TrainResult:
     """What :func:`train` did: where, and how many env-steps in total (an interrupted run raises
     ``KeyboardInterrupt`` after saving its checkpoint instead of returning).
 
-    ``wall_s`` is the run's training wall time over every session (a resumed run adds the time
-    recorded in its checkpoint; work after the last checkpoint of a crashed session is not
-    counted, it was thrown away); ``session_wall_s`` is this call's.
+    ``wall_s`` is the run's wall time over every session, its evaluations included (a resumed
+    run adds the time recorded in its checkpoint; work after the last checkpoint of a crashed
+    session is not counted, it was thrown away); ``session_wall_s`` is this call's. The
+    learning curve's ``wall_s`` (``eval.csv``) leaves the evaluations out.
     """
 
     run_dir: Path
@@ -427,23 +429,40 @@ def train(
     hyper-parameters' ``init`` table, its critic is fitted to the policy's returns first, the
     observation normaliser keeps the statistics it came with, and the starting policy is
     evaluated at env-step 0, so the best policy kept is never worse than the one it started from.
+
+    ``out`` is this call's alone while it runs (:func:`training_alone`).
     """
-    setup = check_training(
-        task,
-        algo,
-        steps,
-        seed,
-        reward,
-        out,
-        num_envs,
-        hyperparams,
-        overrides,
-        policy_class,
-        init,
-        eval_every,
-        eval_episodes,
+    with training_alone(out):
+        setup = check_training(
+            task,
+            algo,
+            steps,
+            seed,
+            reward,
+            out,
+            num_envs,
+            hyperparams,
+            overrides,
+            policy_class,
+            init,
+            eval_every,
+            eval_episodes,
+        )
+        return run_training(setup, policy_kwargs, logger, n_threads, console)
+
+
+def training_alone(out: str | Path) -> AbstractContextManager[None]:
+    """Hold the run directory ``out`` for one training session of this machine, or raise
+    :class:`ResumeMismatchError` at once: two sessions on one directory wrote every metrics row
+    twice and left the checkpoint of whichever saved last."""
+    return held_alone(
+        Path(out),
+        "train",
+        ResumeMismatchError(
+            f"{out} is in use by another itskill training on this machine; wait for it to end, "
+            "or stop it and rerun the command to resume"
+        ),
     )
-    return run_training(setup, policy_kwargs, logger, n_threads, console)
 
 
 @dataclass(frozen=True)

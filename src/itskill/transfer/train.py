@@ -12,7 +12,6 @@ describes itself.
 
 from __future__ import annotations
 
-import shutil
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,7 +20,7 @@ from typing import Any
 from rich.console import Console
 from stable_baselines3.common.policies import ActorCriticPolicy
 
-from itskill.files import Check, write_json
+from itskill.files import Check, copy_whole, write_json
 from itskill.llm.client import LLMClient
 from itskill.reward.candidate import CandidateNetwork
 from itskill.rl.checkpoint import (
@@ -42,6 +41,7 @@ from itskill.rl.train import (
     check_training,
     require_same,
     run_training,
+    training_alone,
 )
 from itskill.skills import SkillSpace
 from itskill.tasks import UnknownTaskError, get_task
@@ -354,53 +354,57 @@ def train_transfer(
     i.e. ``$ITSKILL_LLM_MODEL`` or the offline backend). ``reward``, ``num_envs``,
     ``eval_every``, ``eval_episodes``, ``n_threads``, ``hyperparams`` and ``overrides`` are
     :func:`itskill.rl.train.train`'s. Rerunning on the same ``out`` resumes; a run refused (its
-    settings, its reward, or another run already in ``out``) leaves ``out`` as it was.
+    settings, its reward, another run already in ``out``, or another session training there)
+    leaves ``out`` as it was.
     """
     config = config or load_transfer_config()
     out = Path(out)
     spec, meth = get_task(target), get_method(method)
-    # A record already in out, then the trainer, check the run before a record is written: a
-    # refused run (another run in out, a bad seed or reward file) must leave out as it was, with
-    # no transfer.json to block the next command.
-    _recorded(out, _settings(spec, meth, sources, seed, algo, config))
-    setup = check_training(
-        spec.id,
-        algo,
-        steps,
-        seed,
-        reward,
-        out,
-        num_envs,
-        hyperparams,
-        overrides,
-        policy_class=meth.policy_class,
-        eval_every=eval_every,
-        eval_episodes=eval_episodes,
-        own_files=(TRANSFER_FILE,),
-    )
-    if setup.previous is not None and not (out / TRANSFER_FILE).is_file():
-        # Resumed with whatever sources this call names, the checkpoint's network would go on
-        # under a record of another one.
-        raise CheckpointError(
-            out / TRANSFER_FILE,
-            "missing: the run's sources and contribution matrix are unknown" + CANNOT_RESUME,
+    with training_alone(out):
+        # A record already in out, then the trainer, check the run before a record is written: a
+        # refused run (another run in out, a bad seed or reward file) must leave out as it was, with
+        # no transfer.json to block the next command.
+        _recorded(out, _settings(spec, meth, sources, seed, algo, config))
+        setup = check_training(
+            spec.id,
+            algo,
+            steps,
+            seed,
+            reward,
+            out,
+            num_envs,
+            hyperparams,
+            overrides,
+            policy_class=meth.policy_class,
+            eval_every=eval_every,
+            eval_episodes=eval_episodes,
+            own_files=(TRANSFER_FILE,),
         )
-    record = prepare_transfer(
-        target, method, sources, seed, algo, out, client, config, space, setup.hp.policy.stages
-    )
-    _, policy_kwargs = transfer_network(record, config)
-    if console is not None and record["sources"]:
-        names = ", ".join(s["name"] for s in record["sources"])
-        # Not markup: skill names are the user's text ('pick[/v2]').
-        console.print(f"{record['method']} on {record['target']}: sources {names}", markup=False)
-    result = run_training(
-        setup,
-        policy_kwargs,
-        logger=logger or LoggerConfig(progress=progress),
-        n_threads=n_threads,
-        console=console,
-    )
-    if result.best is not None:
-        # The kept best policy describes itself like the run does (method, sources, prior).
-        shutil.copyfile(out / TRANSFER_FILE, out / BEST_DIR / TRANSFER_FILE)
-    return result
+        if setup.previous is not None and not (out / TRANSFER_FILE).is_file():
+            # Resumed with whatever sources this call names, the checkpoint's network would go on
+            # under a record of another one.
+            raise CheckpointError(
+                out / TRANSFER_FILE,
+                "missing: the run's sources and contribution matrix are unknown" + CANNOT_RESUME,
+            )
+        record = prepare_transfer(
+            target, method, sources, seed, algo, out, client, config, space, setup.hp.policy.stages
+        )
+        _, policy_kwargs = transfer_network(record, config)
+        if console is not None and record["sources"]:
+            names = ", ".join(s["name"] for s in record["sources"])
+            # Not markup: skill names are the user's text ('pick[/v2]').
+            console.print(
+                f"{record['method']} on {record['target']}: sources {names}", markup=False
+            )
+        result = run_training(
+            setup,
+            policy_kwargs,
+            logger=logger or LoggerConfig(progress=progress),
+            n_threads=n_threads,
+            console=console,
+        )
+        if result.best is not None:
+            # The kept best policy describes itself like the run does (method, sources, prior).
+            copy_whole(out / TRANSFER_FILE, out / BEST_DIR / TRANSFER_FILE)
+        return result
