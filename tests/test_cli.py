@@ -275,6 +275,23 @@ def test_eval_from_other_starts_finds_where_a_skill_stops_working(tmp_path):
     assert "3.5 mm off" in table.stdout and "0/8 = 0%" in table.stdout
 
 
+def test_a_start_the_arm_cannot_reach_is_refused_by_name(tmp_path):
+    # Within the controller's workspace box, but out of the arm's reach: the hand settled
+    # wherever the inverse kinematics stopped and the episodes went on from there.
+    starts = tmp_path / "starts.toml"
+    starts.write_text(
+        '[[start]]\nname = "far corner"\n'
+        "ee = { x = [0.4, 0.75], y = [-0.35, 0.0], z = [0.15, 0.45] }\n"
+    )
+    result = runner.invoke(app, ["eval", "reach_nut_m12", "--starts", str(starts)])
+    assert result.exit_code == 2, result.output
+    assert (
+        f"{starts}: start 'far corner': reach_nut_m12's start: the arm cannot reach the "
+        "hand position (0.75, -0.35, 0.15) m" in flat(result.output)
+    )
+    assert "Traceback" not in result.output
+
+
 @pytest.mark.parametrize(
     ("method", "message"),
     [("foo", "unknown transfer method 'foo'"), ("no_transfer", "no_transfer trains no source")],

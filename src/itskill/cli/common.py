@@ -166,6 +166,7 @@ USER_ERRORS: tuple[tuple[str, str], ...] = (
     ("itskill.rl.demos", "DemoError"),
     ("itskill.rl.train", "ResumeMismatchError"),
     ("itskill.rl.train", "RewardLoadError"),
+    ("itskill.sim.batch", "UnreachableStartError"),
     ("itskill.skills.store", "SkillSpaceError"),
     ("itskill.tasks.evaluate", "CheckpointError"),
     ("itskill.tasks.render", "RenderError"),

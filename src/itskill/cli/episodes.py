@@ -75,6 +75,7 @@ def eval_cmd(
 ) -> None:
     """Evaluate a policy: success rate over N episodes with its 95% interval."""
     from itskill.rl.checkpoint import as_policy
+    from itskill.sim.batch import UnreachableStartError
     from itskill.tasks import get_task
     from itskill.tasks.evaluate import evaluate
     from itskill.tasks.spec import load_starts
@@ -91,7 +92,10 @@ def eval_cmd(
         variants = [("the task's own start", spec), *load_starts(starts, spec)]
         rows = []
         for name, variant in variants:
-            result = evaluate(variant, ref, episodes=episodes, seed=seed, num_envs=num_envs)
+            try:
+                result = evaluate(variant, ref, episodes=episodes, seed=seed, num_envs=num_envs)
+            except UnreachableStartError as err:
+                raise UnreachableStartError(f"{starts}: start {name!r}: {err}") from err
             rows.append({"start": name, **result.to_dict()})
             err_console.print(f"{name}: {result.success_rate:.0%}", highlight=False, markup=False)
     if as_json:

@@ -9,6 +9,7 @@ GIL, so each worker steps its shard of environments in parallel. The environment
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -47,6 +48,13 @@ DIVERGENCE_WARNINGS = (
 )
 NUT_GRIP_YAW = math.pi / 6
 """A nut's yaw relative to the hand at which two flats face the fingers."""
+REACH_TOLERANCE = 0.002
+"""How far (m) the grip point may end from a start's hand position: the inverse kinematics
+gets every packaged start within 1 mm."""
+
+
+class UnreachableStartError(ValueError):
+    """A start whose hand positions the arm cannot reach."""
 
 
 class BatchSim:
@@ -88,6 +96,9 @@ class BatchSim:
         self._home_rot = self._home_rotation()
         self._q_low = self.model.jnt_range[:7, 0] + 0.01
         self._q_high = self.model.jnt_range[:7, 1] - 0.01
+        self.check_reachable(task.init, f"{task.name}'s start")
+        for start in task.training_starts:
+            self.check_reachable(start.init, f"{task.name}'s training start {start.name!r}")
 
         n, nv = num_envs, self.model.nv
         # Kinematics of each environment's commanded posture q_des: grip point, its rotation and
@@ -243,6 +254,30 @@ class BatchSim:
     @property
     def cfg_closed(self) -> float:
         return float(self.model.actuator_ctrlrange[7, 0])
+
+    def check_reachable(self, init: InitSpec, what: str) -> None:
+        """Raise :class:`UnreachableStartError` unless the arm reaches every corner of ``init``'s
+        box of hand positions, at both ends of its yaw range (the box a reset samples from).
+
+        A start outside the arm's reach did not fail: the hand settled wherever the inverse
+        kinematics stopped (behind the base, or with the physics diverging), and the episode
+        went on from there.
+        """
+        hand = next((o for o in init.objects if o.mode in HAND_MODES), None)
+        box = (hand.x, hand.y, hand.z) if hand else (init.ee_x, init.ee_y, init.ee_z)
+        d = mujoco.MjData(self.model)
+        corners = itertools.product(*((r.low, r.high) for r in (*box, init.ee_yaw)))
+        for x, y, z, yaw in corners:
+            goal = np.array([x, y, z])
+            self._solve_ik(d, goal, yaw)
+            mujoco.mj_kinematics(self.model, d)
+            miss = float(np.linalg.norm(d.site_xpos[self.scene.grip_site] - goal))
+            if miss > REACH_TOLERANCE:
+                raise UnreachableStartError(
+                    f"{what}: the arm cannot reach the hand position ({x:g}, {y:g}, {z:g}) m "
+                    f"with yaw {yaw:g} rad (it ends {miss * 1000:.0f} mm away); narrow the "
+                    "start's ranges"
+                )
 
     def _solve_ik(
         self, d: mujoco.MjData, pos: np.ndarray, yaw: float, iters: int = 60
