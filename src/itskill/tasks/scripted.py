@@ -45,11 +45,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from itskill.sim.batch import NUT_GRIP_YAW
 from itskill.sim.context import wrap_angle
 from itskill.sim.controller import ControllerConfig
 from itskill.sim.parts import NutSpec, PegSpec
 from itskill.sim.scene import TIMESTEP
-from itskill.tasks.predicates import fixture_offset
+from itskill.tasks.predicates import fixture_offset, hole_depth
 from itskill.tasks.spec import TaskSpec
 
 Ctx = dict[str, np.ndarray]
@@ -158,7 +159,7 @@ class _Part:
     @property
     def yaw_offset(self) -> float:
         """Part yaw minus hand yaw at which the fingers close on grip faces."""
-        return math.pi / 6 if self.is_nut else 0.0
+        return NUT_GRIP_YAW if self.is_nut else 0.0
 
     @property
     def grip_offset(self) -> float:
@@ -335,8 +336,7 @@ def _place(part: _Part) -> list[Phase]:
 
 def _insert(part: _Part) -> list[Phase]:
     def down(ctx, rows, st):
-        fix = ctx["obj_fixture"][rows, part.index].astype(int)
-        depth = ctx["fix_pos"][rows, fix, 2] - ctx["seat_z"][rows, fix]
+        depth = hole_depth(ctx, part.index)[rows]
         return _servo_part(part, -0.8 * depth, ctx, rows), _fixture_yaw_goal(part, ctx, rows)
 
     def entrance(ctx, rows, st):
