@@ -145,6 +145,21 @@ BROKEN = {
     ),
     # Read as lifted(0, 3): the height went into the first optional argument.
     "empty argument": (('success = "lifted(0, 3)', 'success = "lifted(0,, 3)'), "success", "empty"),
+    # Parts started inside the bolt or under the table: the physics held them stuck, or pushed
+    # them away at the first step, and the episodes measured 0% without a word.
+    "part inside fixture": (
+        ("x = [0.45, 0.58], y = [-0.14, -0.02] }", "x = [0.45, 0.58], y = [-0.14, 0.12] }"),
+        "init.objects[0]",
+        "nut_m12 can start inside bolt_m12",
+    ),
+    "part under the table": (
+        (
+            '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }',
+            '{ mode = "gripper", x = 0.5, z = 0.011, hold = -0.011 }',
+        ),
+        "init.objects[0].z",
+        "bottom would start under the table",
+    ),
     # A nut meant for another thread's bolt: the task loaded and succeeded never.
     "part misfits its fixture": (
         ('objects = ["nut_m12"]', 'objects = ["nut_m16"]'),
@@ -782,3 +797,22 @@ def test_actions_without_a_stage_and_carry_stages_still_load(tmp_path, parts):
     text = text.replace('{ name = "approach"', '{ name = "carry"')
     (task,) = load_task_file(write(tmp_path, text), parts)
     assert [s.name for s in task.stages] == ["carry", "grasp"]
+
+
+def test_two_parts_that_can_start_in_one_place_are_refused(tmp_path, parts):
+    text = (
+        VALID.replace('objects = ["nut_m12"]', 'objects = ["nut_m12", "nut_m16"]')
+        .replace(
+            'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]',
+            'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }, '
+            '{ part = "bolt_m16", xy = [0.55, -0.25] }]',
+        )
+        .replace(
+            '  { mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] },\n',
+            '  { mode = "table", x = [0.45, 0.5], y = [-0.14, -0.02] },\n'
+            '  { mode = "table", x = [0.52, 0.58], y = [-0.1, -0.02] },\n',
+        )
+    )
+    with pytest.raises(TaskFileError, match=r"objects\[1\].*nut_m16 can start inside nut_m12"):
+        load_task_file(write(tmp_path, text), parts)
+    load_task_file(write(tmp_path, text.replace("x = [0.52, 0.58]", "x = [0.54, 0.58]")), parts)

@@ -67,6 +67,11 @@ class NutSpec:
         return self.across_flats
 
     @property
+    def radius(self) -> float:
+        """How far the part reaches from its axis on the table: a hex nut's corners."""
+        return self.across_flats / math.sqrt(3)
+
+    @property
     def widest_grasp(self) -> float:
         """The widest side the fingers may hold the part across: its across-flats."""
         return self.across_flats
@@ -108,6 +113,11 @@ class BoltSpec:
     def tip_z(self) -> float:
         return self.head_height + self.shank_length
 
+    @property
+    def radius(self) -> float:
+        """How far the bolt reaches from its axis on the table: its head."""
+        return self.head_diameter / 2
+
     def __post_init__(self) -> None:
         _sizes(
             self.name,
@@ -142,6 +152,13 @@ class PegSpec:
         return self.diameter if self.shape == "round" else self.depth
 
     @property
+    def radius(self) -> float:
+        """How far the peg reaches from its axis: its radius, a rectangle's half-diagonal."""
+        return (
+            self.diameter / 2 if self.shape == "round" else math.hypot(self.width, self.depth) / 2
+        )
+
+    @property
     def widest_grasp(self) -> float:
         """The widest side the fingers may hold the part across: a rectangular peg's longer
         side (held across it, it is as firmly held as across its thickness)."""
@@ -174,6 +191,15 @@ class HoleSpec:
     @property
     def entrance_z(self) -> float:
         return self.hole_depth
+
+    @property
+    def radius(self) -> float:
+        """How far the block reaches from the hole's axis: its wall's outside (a rectangular
+        block's corners)."""
+        if self.shape == "round":
+            return self.diameter / 2 + self.clearance + self.wall
+        extra = self.clearance + self.wall
+        return math.hypot(self.width / 2 + extra, self.depth / 2 + extra)
 
     def __post_init__(self) -> None:
         _check_shape(

@@ -619,6 +619,7 @@ def _parse_init(
         raise TaskFileError(
             path, ir.where + ".objects", "at most one object can start in the gripper"
         )
+    _check_parts_apart(path, ir.where, obj_inits, objects, fixtures)
     return InitSpec(
         ee_x=er.range("x", (0.45, 0.45), _REACH["x"]),
         ee_y=er.range("y", (0.0, 0.0), _REACH["y"]),
@@ -626,6 +627,49 @@ def _parse_init(
         ee_yaw=er.range("yaw", (0.0, 0.0), _HAND_YAW),
         objects=tuple(obj_inits),
     )
+
+
+def _gap(x: Range, y: Range, other_x: Range, other_y: Range) -> float:
+    """The least distance between a point of the box ``x`` × ``y`` and one of the other box."""
+    dx = max(x.low - other_x.high, other_x.low - x.high, 0.0)
+    dy = max(y.low - other_y.high, other_y.low - y.high, 0.0)
+    return math.hypot(dx, dy)
+
+
+def _check_parts_apart(
+    path: Path,
+    where: str,
+    inits: list[ObjectInit],
+    objects: tuple[NutSpec | PegSpec, ...],
+    fixtures: tuple[PlacedFixture, ...],
+) -> None:
+    """Refuse a start that can put a part on the table inside a fixture or another part, or a
+    held part's bottom under the table: the physics pushed them apart at the first step, or
+    held them stuck, and the episodes measured 0% without a word."""
+    for k, (init, part) in enumerate(zip(inits, objects, strict=True)):
+        at = f"{where}.objects[{k}]"
+        if init.mode == "gripper" and init.z.low + init.hold.low < part.height / 2 - 1e-6:
+            raise TaskFileError(
+                path, at + ".z", f"{part.name}'s bottom would start under the table (z + hold "
+                f"must be at least half its height, {part.height / 2:g} m)",
+            )  # fmt: skip
+        if init.mode != "table":
+            continue
+        others = [
+            (f.part.name, Range(f.xy[0], f.xy[0]), Range(f.xy[1], f.xy[1]), f.part.radius)
+            for f in fixtures
+        ] + [
+            (objects[j].name, inits[j].x, inits[j].y, objects[j].radius)
+            for j in range(k)
+            if inits[j].mode == "table"
+        ]
+        for name, x, y, radius in others:
+            gap, need = _gap(init.x, init.y, x, y), part.radius + radius
+            if gap < need:
+                raise TaskFileError(
+                    path, at, f"{part.name} can start inside {name}: its x and y ranges come "
+                    f"within {gap * 1000:.1f} mm of it, {need * 1000:.1f} mm keeps them apart",
+                )  # fmt: skip
 
 
 def init_table(init: InitSpec) -> dict[str, Any]:
