@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import itskill.tasks.spec as spec_module
-from itskill.tasks import TaskFileError, UnknownTaskError, all_tasks, get_task
+from itskill.tasks import TaskFileError, UnknownTaskError, all_tasks, get_task, make_batch_env
 from itskill.tasks.predicates import PREDICATES, PredicateError, parse
 from itskill.tasks.spec import load_parts, load_task_file
 
@@ -214,7 +214,16 @@ def test_a_fixture_predicate_in_a_task_without_fixtures_is_refused(tmp_path, par
     ).replace('done = "grasped(0)"', 'done = "grasped(0) and above_fixture(0)"')
     with pytest.raises(TaskFileError, match=r"stages\[1\]\.done.*above_fixture needs a fixture"):
         load_task_file(write(tmp_path, text), parts)
-    load_task_file(write(tmp_path, text.replace(" and above_fixture(0)", "")), parts)
+    (task,) = load_task_file(write(tmp_path, text.replace(" and above_fixture(0)", "")), parts)
+    # Nor do its observations: an object was measured against a fixture at the robot's base.
+    env = make_batch_env(task, num_envs=2, seed=0)
+    try:
+        env.reset()
+        ctx = env.context()
+    finally:
+        env.close()
+    for key in ("obj_to_fix", "yaw_error", "seat_gap", "insertion_depth", "engaged"):
+        assert not ctx[key].any(), key
 
 
 def test_tasks_that_are_not_task_tables_name_the_file(tmp_path, parts):
@@ -486,8 +495,6 @@ def test_a_starts_file_changes_only_what_it_names(tmp_path):
     assert off.init.ee_yaw == insert.init.ee_yaw
     assert (high.init.ee_yaw.low, high.init.objects[0].z.low) == (0.3, 0.065)
     assert (off.id, off.stages, off.success) == (insert.id, insert.stages, insert.success)
-
-    from itskill.tasks import make_batch_env
 
     env = make_batch_env(off, num_envs=4, seed=0)
     try:

@@ -182,6 +182,9 @@ class BatchSim:
         self.is_peg[:k] = [isinstance(p, PegSpec) for p in self._objects]
         self.obj_fixture_index = np.zeros(MAX_OBJECTS)
         self.obj_fixture_index[:k] = fidx
+        # In a scene without fixtures an object is measured against none: its fixture terms
+        # read zero, as an empty slot's do (not distances to a fixture at the robot's base).
+        self.obj_fix_mask = self.obj_mask * float(bool(self._fixtures))
 
     def _home_rotation(self) -> np.ndarray:
         data = mujoco.MjData(self.model)
@@ -472,10 +475,11 @@ class BatchSim:
 
         bottom_centre = obj_pos.copy()
         bottom_centre[..., 2] = bottom
-        obj_to_fix = (self.obj_fix_pos[None] - bottom_centre) * om[..., None]
+        fm = self.obj_fix_mask[None]
+        obj_to_fix = (self.obj_fix_pos[None] - bottom_centre) * fm[..., None]
         period = np.where(self.yaw_period > 0, self.yaw_period, 1.0)
         yaw_error = (
-            np.where(self.yaw_period > 0, wrap_angle(obj_yaw - self.obj_fix_yaw, period), 0.0) * om
+            np.where(self.yaw_period > 0, wrap_angle(obj_yaw - self.obj_fix_yaw, period), 0.0) * fm
         )
 
         engaged = np.zeros((n, MAX_OBJECTS), dtype=bool)
@@ -516,7 +520,7 @@ class BatchSim:
             "yaw_error": yaw_error,
             "engaged": engaged.astype(np.float64),
             "insertion_depth": depth,
-            "seat_gap": (bottom - self.obj_seat_z[None]) * om,
+            "seat_gap": (bottom - self.obj_seat_z[None]) * fm,
             "thread_lead": np.broadcast_to(self.obj_lead, (n, MAX_OBJECTS)).copy(),
             "n_stages": np.full(n, float(self.task.n_stages)),
             "time_frac": np.asarray(step_count, dtype=np.float64) / self.task.max_steps,
