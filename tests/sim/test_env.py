@@ -35,6 +35,20 @@ def test_task_env_passes_gymnasium_env_checker():
     env.close()
 
 
+def test_task_env_refuses_a_render_mode_it_cannot_render_and_says_when_physics_diverged():
+    with pytest.raises(ValueError, match=r"render_mode must be one of \['rgb_array'\]"):
+        make_env("pick_nut_m12", render_mode="human")  # it rendered nothing, silently
+    env = make_env("pick_nut_m12")
+    env.reset(seed=0)
+    *_, info = env.step(np.zeros(5))
+    assert info["unstable"] is False
+    env.data.qvel[env.batch.sim.scene.obj_dof[0][0]] = 1e20
+    _, _, terminated, truncated, info = env.step(np.zeros(5))
+    # A Gymnasium user could not tell a diverged episode from one that ran out of time.
+    assert truncated and not terminated and info["unstable"] is True
+    env.close()
+
+
 # ---------------------------------------------------------------------- seeding
 def test_task_env_reset_is_deterministic_by_seed():
     a, b = make_env("pick_nut_m12"), make_env("pick_nut_m12")

@@ -29,6 +29,12 @@ class TaskEnv(gym.Env):
         width: int = 640,
         height: int = 480,
     ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            # "human" silently rendered nothing.
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                f"got {render_mode!r}"
+            )
         self.task = task
         self.batch = BatchEnv(task, num_envs=1, reward_fn=reward_fn, n_threads=1)
         self.observation_space = observation_space()
@@ -53,6 +59,8 @@ class TaskEnv(gym.Env):
             "is_success": bool(res.success[0]),
             "stage": int(res.context["stage"][0]),
             "reward_components": {k: float(np.asarray(v)[0]) for k, v in res.components.items()},
+            # The physics diverged: the episode is truncated, not timed out (BatchSim.unstable).
+            "unstable": bool(self.batch.sim.unstable[0]),
         }
         return (
             res.obs[0],
