@@ -532,7 +532,7 @@ def test_paths_and_start_names_with_brackets_are_printed_as_typed(tmp_path, monk
     assert result.exit_code == 0, result.output
     assert unspaced(f"reach_nut_m12 with {policy}: success") in unspaced(result.output)
     starts = tmp_path / "starts.toml"
-    starts.write_text('[[start]]\nname = "[red]nudged"\nobjects = [{ x = 0.55, y = 0.12 }]\n')
+    starts.write_text('[[start]]\nname = "[red]nudged"\nobjects = [{ x = 0.5, y = -0.05 }]\n')
     table = runner.invoke(app, [*eval_args, "--starts", str(starts)])
     assert table.exit_code == 0, table.output
     assert "[red]nudged: " in table.output and "│ [red]nudged" in table.output

@@ -324,14 +324,14 @@ def test_an_update_cut_short_leaves_its_rollout_uncounted(
 def test_an_evaluation_is_labelled_with_the_steps_its_policy_learned_from(
     tmp_path: Path, reach_reward: Path, monkeypatch
 ) -> None:
-    # Rollouts of 64 env-steps, evaluations due every 100: each waits for the update, so the
-    # row at 128 holds the policy of 128 env-steps (in the middle of a rollout, at 100, the
-    # policy had learned from 64).
+    # Rollouts of 64 env-steps, evaluations due every 100: each is taken between updates, at
+    # the last one before its step (the row at 100 held the policy of 64 env-steps), so that a
+    # curve has a row by each due step (Table II reads the success at 20% of the budget).
     fake, _ = _scripted_evaluate(iter([0.5] * 10))
     monkeypatch.setattr(eval_callback, "evaluate", fake)
     out = tmp_path / "run"
     _train(out, reach_reward, 256, eval_every=100, eval_episodes=2)
-    assert _eval_steps(out) == [128, 256]
+    assert _eval_steps(out) == [64, 192, 256]
 
 
 def test_ctrl_c_before_a_resumed_sessions_first_rollout_keeps_its_steps(

@@ -68,7 +68,7 @@ BROKEN = {
     "unknown_predicate": (('done = "grasped(0)"', 'done = "flying(0)"'), "stages[1]", "flying"),
     "unknown_part": (('objects = ["nut_m12"]', 'objects = ["nut_m99"]'), "objects", "nut_m99"),
     "init_count": (
-        ('objects = ["nut_m12"]', 'objects = ["nut_m12", "nut_m12"]'),
+        ('objects = ["nut_m12"]', 'objects = ["nut_m12", "nut_m16"]'),
         "init.objects",
         "expected 2",
     ),
@@ -160,11 +160,14 @@ BROKEN = {
         "init.objects[0].z",
         "bottom would start under the table",
     ),
-    # A nut meant for another thread's bolt: the task loaded and succeeded never.
-    "part misfits its fixture": (
-        ('objects = ["nut_m12"]', 'objects = ["nut_m16"]'),
-        "object_fixture[0]",
-        "nut_m16 does not fit fixture 0 (bolt_m12)",
+    # A step to the fixture in a task without one steered to the robot's base.
+    "fixture step without fixture": (
+        (
+            'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]',
+            'fixtures = []\nscript = ["pick 0", "carry 0"]',
+        ),
+        "script[1]",
+        "carry needs a fixture; the task has none",
     ),
 }
 
@@ -205,6 +208,15 @@ def test_a_part_started_on_a_bolt_must_screw_onto_it(tmp_path, parts, nut, probl
         text = text.replace('"hole_round_4mm"', '"bolt_m16"')
     with pytest.raises(TaskFileError, match=f"init.objects\\[0\\].mode.*{nut} {problem}"):
         load_task_file(write(tmp_path, text), parts)
+
+
+def test_a_part_measured_against_a_fixture_it_does_not_fit_is_refused(tmp_path, parts):
+    # A nut meant for another thread's bolt: the task loaded and succeeded never.
+    misfit = VALID.replace('objects = ["nut_m12"]', 'objects = ["nut_m16"]')
+    with pytest.raises(TaskFileError, match=r"object_fixture\[0\].*nut_m16 does not fit fixture 0"):
+        load_task_file(write(tmp_path, misfit.replace('grasped(0)"\n', 'engaged(0)"\n')), parts)
+    # Only picked up, it may stand beside any fixture (a distractor, scenery).
+    load_task_file(write(tmp_path, misfit), parts)
 
 
 def test_a_fixture_predicate_in_a_task_without_fixtures_is_refused(tmp_path, parts):

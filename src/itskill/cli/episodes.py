@@ -89,12 +89,14 @@ def eval_cmd(
             result = evaluate(spec, ref, episodes=episodes, seed=seed, num_envs=num_envs)
             _print_eval(result, spec, as_json)
             return
-        variants = [("the task's own start", spec), *load_starts(starts, spec)]
+        own = "the task's own start"
         rows = []
-        for name, variant in variants:
+        for name, variant in [(own, spec), *load_starts(starts, spec)]:
             try:
                 result = evaluate(variant, ref, episodes=episodes, seed=seed, num_envs=num_envs)
             except UnreachableStartError as err:
+                if name == own:
+                    raise
                 raise UnreachableStartError(f"{starts}: start {name!r}: {err}") from err
             rows.append({"start": name, **result.to_dict()})
             err_console.print(f"{name}: {result.success_rate:.0%}", highlight=False, markup=False)

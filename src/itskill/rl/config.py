@@ -197,8 +197,9 @@ _RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
         lambda v: 1 <= v <= EPISODES_MAX, f"a positive value, at most {EPISODES_MAX:,}"
     ),
     "n_steps": (lambda v: 1 <= v <= N_STEPS_MAX, f"a positive value, at most {N_STEPS_MAX:,}"),
-    # PPO normalises the advantages over a minibatch, which one sample cannot be.
-    "batch_size": (lambda v: 2 <= v <= BATCH_SIZE_MAX, f"2 or more, at most {BATCH_SIZE_MAX:,}"),
+    "batch_size": (
+        lambda v: 1 <= v <= BATCH_SIZE_MAX, f"a positive value, at most {BATCH_SIZE_MAX:,}"
+    ),
     **dict.fromkeys(
         ("n_epochs", "epochs"),
         (lambda v: 1 <= v <= EPOCHS_MAX, f"a positive value, at most {EPOCHS_MAX:,}"),
@@ -383,12 +384,17 @@ def load_hyperparams(
         # Fewer environments than the family's (a small machine, a reward-search candidate)
         # shrink the rollout below a minibatch: train on the whole rollout at once instead.
         rollout = hp.algo_config.n_steps * hp.num_envs
-        if rollout < 2:
-            raise HyperparamError(
-                "overrides" if overrides else path,
-                f"{family}.{algo}.n_steps",
-                "PPO needs at least 2 samples a rollout (n_steps x num_envs), got 1",
-            )
         batch = min(hp.algo_config.batch_size, rollout)
+        if batch < 2:
+            # PPO normalises the advantages over a minibatch, which one sample cannot be (SB3
+            # asserted so once the environments were built).
+            ppo = hp.algo_config
+            raise HyperparamError(
+                path,
+                f"{family}.{algo}",
+                f"PPO needs minibatches of 2 or more samples; batch_size {ppo.batch_size} with a "
+                f"rollout of n_steps {ppo.n_steps} x num_envs {hp.num_envs}"
+                + (" (the overrides included)" if overrides else ""),
+            )
         hp = replace(hp, algo_config=replace(hp.algo_config, batch_size=batch))
     return hp

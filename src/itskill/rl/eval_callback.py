@@ -2,8 +2,10 @@
 
 Training success (from the exploring policy) understates what the policy can do; the figures users
 compare (env-steps to 80% success, Table II-style success at budget fractions) come from the
-deterministic policy on episodes it did not train on. Every ``every`` env-steps this callback runs
-:func:`itskill.tasks.evaluate.evaluate` on the live policy and appends a row to ``eval.csv``.
+deterministic policy on episodes it did not train on. For every multiple of ``every`` env-steps
+this callback runs :func:`itskill.tasks.evaluate.evaluate` on the live policy between two
+updates, at the last one at or before that step, and appends a row to ``eval.csv`` labelled
+with the env-steps the policy learned from.
 
 Given the run's metadata, it also keeps the best policy so far in ``best/``: PPO can lose a level
 it reached (docs/experiments.md), and a user wants the policy the run was best at, not only its
@@ -85,8 +87,8 @@ EVAL_ENVS = 25
 
 
 class DeterministicEvalCallback(BaseCallback):
-    """Evaluate the deterministic policy over ``episodes`` episodes at the first update after
-    every ``every`` env-steps, and at the end.
+    """Evaluate the deterministic policy over ``episodes`` episodes for every ``every``
+    env-steps (between updates, at the last one at or before each multiple), and at the end.
 
     With ``meta`` (the run's checkpoint metadata), the best policy so far is written to
     ``run_dir/best`` after each evaluation that matches or beats it. With ``at_start``, a run that
@@ -119,7 +121,6 @@ class DeterministicEvalCallback(BaseCallback):
         self._best: tuple[float, float] | None = None
 
     def _on_training_start(self) -> None:
-        self._next = (self.num_timesteps // self.every + 1) * self.every
         kept = read_selection(self.run_dir)
         if kept is not None:
             self._best = (float(kept["success"]), float(kept.get("stages_done", 0.0)))
@@ -129,25 +130,34 @@ class DeterministicEvalCallback(BaseCallback):
         with open(self.path, newline="") as fh:
             # A run resumed from an older release keeps its file's columns.
             self._columns = next(csv.reader(fh))
-        due = self.num_timesteps // self.every * self.every
+        self._rollout = getattr(self.model, "n_steps", 1) * self.model.n_envs
         last = last_evaluated(self.run_dir)
-        if (self.at_start and self.num_timesteps == 0 and last is None) or (
-            due > 0 and (last or -1) < due
-        ):
-            # At the start of a warm-started run, unless a session stopped before its first
-            # update evaluated it already; or an evaluation a Ctrl-C or crash cut short (the
-            # checkpoint was saved past its step, so it would not come round again).
+        if self.at_start and self.num_timesteps == 0 and last is None:
+            # A warm-started run, unless a session stopped before its first update evaluated
+            # it already.
             self.evaluate()
+            last = 0
+        # The steps a row covers are those up to the end of the rollout after it; the first due
+        # step past them is the next to evaluate for. One a Ctrl-C or crash cut short (the
+        # checkpoint was saved past its row) is due at once.
+        self._next = self._due_from(-1 if last is None else last)
+
+    def _due_from(self, evaluated: int) -> int:
+        """The first multiple of ``every`` (from ``every`` on) that an evaluation at env-step
+        ``evaluated`` leaves to a later one: those before the end of the next rollout it covers."""
+        covered = evaluated + self._rollout if evaluated >= 0 else 0
+        return max(self.every, -(-covered // self.every) * self.every)
 
     def _on_step(self) -> bool:
         return True
 
     def _on_rollout_start(self) -> None:
-        # Between updates, so a row's env_steps are exactly those its policy learned from (in
-        # the middle of a rollout the policy has not yet learned from the steps since its start).
-        if self.num_timesteps >= self._next:
-            self._next = (self.num_timesteps // self.every + 1) * self.every
+        # Between updates, so a row's env_steps are exactly those its policy learned from; at
+        # the last update at or before the due step, so a curve has a row by each multiple of
+        # `every` (Table II reads the success at such fractions of the budget).
+        if self._next < self.num_timesteps + self._rollout:
             self.evaluate()
+            self._next = self._due_from(self.num_timesteps)
 
     def _on_training_end(self) -> None:
         if self._last_evaluated != self.num_timesteps:

@@ -194,11 +194,11 @@ class HoleSpec:
 
     @property
     def radius(self) -> float:
-        """How far the block reaches from the hole's axis: its wall's outside (a rectangular
-        block's corners)."""
-        if self.shape == "round":
-            return self.diameter / 2 + self.clearance + self.wall
+        """How far the block reaches from the hole's axis: the outside corners of its wall (a
+        polygon of ``segments`` sides around a round hole)."""
         extra = self.clearance + self.wall
+        if self.shape == "round":
+            return (self.diameter / 2 + extra) / math.cos(math.pi / self.segments)
         return math.hypot(self.width / 2 + extra, self.depth / 2 + extra)
 
     def __post_init__(self) -> None:
@@ -234,12 +234,14 @@ def fits(part: PartSpec, fixture: FixtureSpec) -> bool:
             and math.isclose(part.thread_diameter, fixture.thread_diameter)
             and math.isclose(part.pitch, fixture.pitch)
         )
+    # The bore is the hole's size plus its clearance on each side.
+    room = 2 * fixture.clearance if isinstance(fixture, HoleSpec) else 0.0
     return (
         isinstance(fixture, HoleSpec)
         and part.shape == fixture.shape
-        and part.diameter <= fixture.diameter
-        and part.width <= fixture.width
-        and part.depth <= fixture.depth
+        and part.diameter <= fixture.diameter + room
+        and part.width <= fixture.width + room
+        and part.depth <= fixture.depth + room
     )
 
 

@@ -477,6 +477,15 @@ _PRIMITIVES: dict[str, tuple[Callable[..., list[Phase]], bool, int]] = {
 }
 
 
+FIXTURE_STEPS = frozenset({"hover", "carry", "place", "insert", "screw", "unscrew", "push"})
+"""The primitives that move a part to or about its fixture."""
+
+
+def fixture_step_slots(script: tuple[str, ...]) -> set[int]:
+    """The object slots a (compiled, so valid) script takes to their fixtures."""
+    return {int(float(step.split()[1])) for step in script if step.split()[0] in FIXTURE_STEPS}
+
+
 def compile_script(spec: TaskSpec) -> list[Phase]:
     """Expand ``spec.script`` into phases; :class:`ScriptError` names any bad step."""
     phases: list[Phase] = []
@@ -489,6 +498,9 @@ def compile_script(spec: TaskSpec) -> list[Phase]:
         if name not in _PRIMITIVES:
             raise bad(f"unknown primitive {name!r}; known: {', '.join(_PRIMITIVES)}")
         builder, needs_object, extra = _PRIMITIVES[name]
+        if name in FIXTURE_STEPS and not spec.fixtures:
+            # It steered to the fixture slot's zeros: the robot's base.
+            raise bad(f"{name} needs a fixture; the task has none")
         try:
             numbers = [float(a) for a in args]
         except ValueError as err:

@@ -361,15 +361,6 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         raise TaskFileError(
             path, f"task {task_id!r}.object_fixture", "one fixture index per object"
         )
-    for k, f in enumerate(object_fixture if fixtures else ()):
-        # A nut meant for another thread's bolt, or a peg for a hole it does not fit, made a
-        # task whose success could never happen.
-        if not fits(objects[k], fixtures[f].part):
-            raise TaskFileError(
-                path,
-                f"task {task_id!r}.object_fixture[{k}]",
-                f"{objects[k].name} does not fit fixture {f} ({fixtures[f].part.name})",
-            )
 
     init = _parse_init(
         _Reader(path, f"task {task_id!r}.init", r.get("init", dict)),
@@ -471,6 +462,7 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
         training_starts=tuple(starts),
     )
     _check_script(path, spec)
+    _check_parts_fit(path, spec)
     return spec
 
 
@@ -523,6 +515,30 @@ def _check_script(path: Path, spec: TaskSpec) -> None:
         compile_script(spec)
     except ScriptError as err:
         raise TaskFileError(path, f"task {spec.id!r}.script[{err.index}]", err.problem) from err
+
+
+def _check_parts_fit(path: Path, spec: TaskSpec) -> None:
+    """Each part the task measures against its fixture (a fixture predicate, a script step that
+    goes to the fixture) fits it: a nut meant for another thread's bolt, or a peg for a hole it
+    does not fit, made a task whose success could never happen. A part the task only picks up
+    may stand beside any fixture."""
+    from itskill.tasks.scripted import fixture_step_slots
+
+    measured = {
+        int(args[0])
+        for expr in (*(stage.done for stage in spec.stages), spec.success)
+        for _, name, args in expr.terms
+        if name in FIXTURE_PREDICATES
+    } | fixture_step_slots(spec.script)
+    for k in sorted(measured):
+        placed = spec.fixtures[spec.object_fixture[k]]
+        if not fits(spec.objects[k], placed.part):
+            raise TaskFileError(
+                path,
+                f"task {spec.id!r}.object_fixture[{k}]",
+                f"{spec.objects[k].name} does not fit fixture {spec.object_fixture[k]} "
+                f"({placed.part.name}), which the task measures it against",
+            )
 
 
 def _parse_init(
@@ -653,7 +669,8 @@ def _check_parts_apart(
                 path, at + ".z", f"{part.name}'s bottom would start under the table (z + hold "
                 f"must be at least half its height, {part.height / 2:g} m)",
             )  # fmt: skip
-        if init.mode != "table":
+        # A part between the open fingers stands on the table at the hand's x and y.
+        if init.mode not in ("table", "fingers"):
             continue
         others = [
             (f.part.name, Range(f.xy[0], f.xy[0]), Range(f.xy[1], f.xy[1]), f.part.radius)
@@ -661,7 +678,7 @@ def _check_parts_apart(
         ] + [
             (objects[j].name, inits[j].x, inits[j].y, objects[j].radius)
             for j in range(k)
-            if inits[j].mode == "table"
+            if inits[j].mode in ("table", "fingers")
         ]
         for name, x, y, radius in others:
             gap, need = _gap(init.x, init.y, x, y), part.radius + radius
