@@ -22,3 +22,13 @@ python benchmarks/reward_at_budget.py \
   --reward results/reward_search/pickplace_nut_m12_itn/current_settings/best_reward.py \
   --seeds --with-earlier --results results/reward_search/pickplace_nut_m12_itn/current_settings
 # (today the first call would take --results .../current_settings --with-earlier directly)
+# Seeds 6-10 of the same comparison, 2026-12-06 (a later session: the code of commit 075febe,
+# in a worktree; tests and review helpers shared the 2 vCPUs part of the time; 63.8 minutes for
+# the ten runs, two at a time), kept in a directory of their own, copied here (generated/seed_6
+# ...), then summarised with seeds 1-5 from the kept files:
+ITSKILL_HOME=runs/home_rab python benchmarks/reward_at_budget.py \
+  --reward results/reward_search/pickplace_nut_m12_itn/current_settings/best_reward.py \
+  --seeds 6 7 8 9 10 --workers 2 --out runs/rab --results runs/rab_seeds610
+python benchmarks/reward_at_budget.py \
+  --reward results/reward_search/pickplace_nut_m12_itn/current_settings/best_reward.py \
+  --seeds --with-earlier --results results/reward_search/pickplace_nut_m12_itn/current_settings
