@@ -332,6 +332,28 @@ def test_an_evaluation_is_labelled_with_the_steps_its_policy_learned_from(
     out = tmp_path / "run"
     _train(out, reach_reward, 256, eval_every=100, eval_episodes=2)
     assert _eval_steps(out) == [64, 192, 256]
+    # A step due at the budget is left to the evaluation at the end (it cost one more).
+    _train(tmp_path / "200", reach_reward, 200, eval_every=100, eval_episodes=2)
+    assert _eval_steps(tmp_path / "200") == [64, 256]
+
+
+def test_a_run_evaluated_in_the_middle_of_rollouts_resumes_without_a_gap(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # Releases before 2026-12-06 labelled a row with the step it fell due at, mid-rollout: such
+    # a row covers that step only, not the rest of the rollout after it.
+    fake, _ = _scripted_evaluate(iter([0.5] * 20))
+    monkeypatch.setattr(eval_callback, "evaluate", fake)
+    out = tmp_path / "run"
+    _train(out, reach_reward, 128, eval_every=50, eval_episodes=2)
+    rows = (out / "eval.csv").read_text().splitlines()
+    old = [
+        rows[0],
+        *(f"{step},{r.split(',', 1)[1]}" for step, r in zip((50, 100), rows[1:3], strict=True)),
+    ]
+    (out / "eval.csv").write_text("\n".join(old) + "\n")
+    _train(out, reach_reward, 256, eval_every=50, eval_episodes=2)
+    assert _eval_steps(out) == [50, 100, 128, 192, 256]
 
 
 def test_ctrl_c_before_a_resumed_sessions_first_rollout_keeps_its_steps(

@@ -54,5 +54,7 @@ def test_a_part_fits_the_fixtures_it_goes_onto_or_into():
     assert not fits(nut, round_hole) and not fits(round_peg, bolt)
     assert not fits(rect_peg, round_hole)
     assert not fits(PegSpec(name="w", shape="round", diameter=0.006, length=0.05), round_hole)
-    # The bore is the hole's size plus its clearance on each side: 5 mm here.
+    # The bore is the hole's size plus its clearance on each side: 5 mm here, which a peg of
+    # 5 mm jams in.
     assert fits(PegSpec(name="w", shape="round", diameter=0.0045, length=0.05), round_hole)
+    assert not fits(PegSpec(name="w", shape="round", diameter=0.005, length=0.05), round_hole)

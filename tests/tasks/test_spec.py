@@ -213,10 +213,23 @@ def test_a_part_started_on_a_bolt_must_screw_onto_it(tmp_path, parts, nut, probl
 def test_a_part_measured_against_a_fixture_it_does_not_fit_is_refused(tmp_path, parts):
     # A nut meant for another thread's bolt: the task loaded and succeeded never.
     misfit = VALID.replace('objects = ["nut_m12"]', 'objects = ["nut_m16"]')
-    with pytest.raises(TaskFileError, match=r"object_fixture\[0\].*nut_m16 does not fit fixture 0"):
+    with pytest.raises(TaskFileError, match=r"objects\[0\].*nut_m16 does not fit fixture 0"):
         load_task_file(write(tmp_path, misfit.replace('grasped(0)"\n', 'engaged(0)"\n')), parts)
-    # Only picked up, it may stand beside any fixture (a distractor, scenery).
+    # Only picked up, or measured only beside it, it may stand by any fixture.
     load_task_file(write(tmp_path, misfit), parts)
+    beside = misfit.replace('grasped(0)"\n', 'not engaged(0) and above_fixture(0, 0.05, 0.1)"\n')
+    load_task_file(write(tmp_path, beside), parts)
+
+
+def test_a_peg_started_in_a_hole_it_does_not_fit_is_refused(tmp_path, parts):
+    # It started stuck in the middle of a bore narrower than itself.
+    text = (
+        VALID.replace('objects = ["nut_m12"]', 'objects = ["peg_rect_16mm"]')
+        .replace('part = "bolt_m12"', 'part = "hole_round_4mm"')
+        .replace('{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }', '{ mode = "hole" }')
+    )
+    with pytest.raises(TaskFileError, match=r"init.objects\[0\].mode.*peg_rect_16mm does not fit"):
+        load_task_file(write(tmp_path, text), parts)
 
 
 def test_a_fixture_predicate_in_a_task_without_fixtures_is_refused(tmp_path, parts):

@@ -254,6 +254,11 @@ def _layer(
 ) -> Hyperparams:
     """``base`` with the fields of one family or task table applied, every one checked."""
     check_table(path, where, table, HyperparamError, allowed)
+    batch = table.get("ppo", {}).get("batch_size") if algo == "ppo" else None
+    if isinstance(batch, int) and not isinstance(batch, bool) and batch == 1:
+        # PPO normalises the advantages over a minibatch, which one sample cannot be (SB3
+        # asserted so once the environments were built); the warm start's batches may be 1.
+        raise HyperparamError(path, f"{where}.ppo.batch_size", "must be 2 or more for PPO, got 1")
     top = {
         k: _check_value(path, f"{where}.{k}", table[k], getattr(base, k))
         for k in _FAMILY_KEYS
@@ -385,16 +390,14 @@ def load_hyperparams(
         # shrink the rollout below a minibatch: train on the whole rollout at once instead.
         rollout = hp.algo_config.n_steps * hp.num_envs
         batch = min(hp.algo_config.batch_size, rollout)
-        if batch < 2:
-            # PPO normalises the advantages over a minibatch, which one sample cannot be (SB3
-            # asserted so once the environments were built).
-            ppo = hp.algo_config
+        if rollout < 2:
+            # A minibatch of one sample, as above.
+            table = f"{family}.tasks.{task}" if task in per_task else family
             raise HyperparamError(
                 path,
-                f"{family}.{algo}",
-                f"PPO needs minibatches of 2 or more samples; batch_size {ppo.batch_size} with a "
-                f"rollout of n_steps {ppo.n_steps} x num_envs {hp.num_envs}"
-                + (" (the overrides included)" if overrides else ""),
+                f"{table}.{algo}.n_steps",
+                f"PPO needs 2 or more samples a rollout; n_steps {hp.algo_config.n_steps} x "
+                f"num_envs {hp.num_envs}" + (" (the overrides included)" if overrides else ""),
             )
         hp = replace(hp, algo_config=replace(hp.algo_config, batch_size=batch))
     return hp

@@ -717,6 +717,7 @@ def _learn(
                 meta=meta,
                 at_start=evaluate_at_start,
                 clock=clock,
+                budget=setup.steps,
             )
         )
     try:

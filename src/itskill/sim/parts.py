@@ -234,15 +234,14 @@ def fits(part: PartSpec, fixture: FixtureSpec) -> bool:
             and math.isclose(part.thread_diameter, fixture.thread_diameter)
             and math.isclose(part.pitch, fixture.pitch)
         )
-    # The bore is the hole's size plus its clearance on each side.
-    room = 2 * fixture.clearance if isinstance(fixture, HoleSpec) else 0.0
-    return (
-        isinstance(fixture, HoleSpec)
-        and part.shape == fixture.shape
-        and part.diameter <= fixture.diameter + room
-        and part.width <= fixture.width + room
-        and part.depth <= fixture.depth + room
-    )
+    # The bore is the hole's size plus its clearance on each side; a peg of the bore's own
+    # size jams (as a nut without bore clearance does).
+    if not isinstance(fixture, HoleSpec) or part.shape != fixture.shape:
+        return False
+    room = 2 * fixture.clearance
+    if part.shape == "round":
+        return part.diameter < fixture.diameter + room
+    return part.width < fixture.width + room and part.depth < fixture.depth + room
 
 
 @dataclass(frozen=True)

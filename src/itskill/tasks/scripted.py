@@ -481,9 +481,18 @@ FIXTURE_STEPS = frozenset({"hover", "carry", "place", "insert", "screw", "unscre
 """The primitives that move a part to or about its fixture."""
 
 
-def fixture_step_slots(script: tuple[str, ...]) -> set[int]:
-    """The object slots a (compiled, so valid) script takes to their fixtures."""
-    return {int(float(step.split()[1])) for step in script if step.split()[0] in FIXTURE_STEPS}
+def fitting_step_slots(spec: TaskSpec) -> set[int]:
+    """The object slots ``spec``'s (compiled, so valid) script puts on or into their fixtures:
+    inserted, screwed down, or a nut placed on its bolt's thread."""
+    slots = set()
+    for step in spec.script:
+        name, *args = step.split()
+        slot = int(float(args[0])) if args else -1
+        if name in ("insert", "screw") or (
+            name == "place" and isinstance(spec.objects[slot], NutSpec)
+        ):
+            slots.add(slot)
+    return slots
 
 
 def compile_script(spec: TaskSpec) -> list[Phase]:

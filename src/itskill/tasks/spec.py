@@ -517,27 +517,31 @@ def _check_script(path: Path, spec: TaskSpec) -> None:
         raise TaskFileError(path, f"task {spec.id!r}.script[{err.index}]", err.problem) from err
 
 
-def _check_parts_fit(path: Path, spec: TaskSpec) -> None:
-    """Each part the task measures against its fixture (a fixture predicate, a script step that
-    goes to the fixture) fits it: a nut meant for another thread's bolt, or a peg for a hole it
-    does not fit, made a task whose success could never happen. A part the task only picks up
-    may stand beside any fixture."""
-    from itskill.tasks.scripted import fixture_step_slots
+_FIT_PREDICATES = frozenset({"engaged", "seated", "inserted"})
+"""The predicates that hold only for a part on or in its fixture."""
 
-    measured = {
+
+def _check_parts_fit(path: Path, spec: TaskSpec) -> None:
+    """Each part the task must put on or into its fixture (a predicate that holds only there, or
+    a script step that does it) fits it: a nut meant for another thread's bolt, or a peg for a
+    hole it does not fit, made a task whose success could never happen. A part the task only
+    picks up, carries over or pushes beside a fixture may be any part."""
+    from itskill.tasks.scripted import fitting_step_slots
+
+    to_fit = {
         int(args[0])
         for expr in (*(stage.done for stage in spec.stages), spec.success)
-        for _, name, args in expr.terms
-        if name in FIXTURE_PREDICATES
-    } | fixture_step_slots(spec.script)
-    for k in sorted(measured):
+        for negated, name, args in expr.terms
+        if name in _FIT_PREDICATES and not negated
+    } | fitting_step_slots(spec)
+    for k in sorted(to_fit):
         placed = spec.fixtures[spec.object_fixture[k]]
         if not fits(spec.objects[k], placed.part):
             raise TaskFileError(
                 path,
-                f"task {spec.id!r}.object_fixture[{k}]",
+                f"task {spec.id!r}.objects[{k}]",
                 f"{spec.objects[k].name} does not fit fixture {spec.object_fixture[k]} "
-                f"({placed.part.name}), which the task measures it against",
+                f"({placed.part.name}), where the task puts it",
             )
 
 
@@ -587,8 +591,10 @@ def _parse_init(
                     path, orr.where + ".fixture", f"mode {mode!r} needs a {want.__name__} fixture"
                 )
             part, seat = objects[k], fixtures[fixture].part
-            if mode == "hole" and not isinstance(part, PegSpec):
-                raise TaskFileError(path, orr.where + ".mode", f"{part.name} is not a peg")
+            if mode == "hole" and not fits(part, seat):
+                # A peg wider than the bore started stuck inside it.
+                what = "does not fit" if isinstance(part, PegSpec) else "is not a peg for"
+                raise TaskFileError(path, orr.where + ".mode", f"{part.name} {what} {seat.name}")
             if mode == "bolt" and not fits(part, seat):
                 raise TaskFileError(
                     path,
