@@ -11,6 +11,7 @@ import pytest
 from rich.console import Console
 
 from itskill.experiments.config import load_experiment
+from itskill.experiments.report import experiment_report
 from itskill.experiments.runner import (
     RESULT_FILE,
     Cell,
@@ -528,3 +529,6 @@ def test_a_reward_file_edited_between_sessions_is_refused_and_cells_train_the_ru
     reward.write_text(original)
     summary = run_experiment(load_experiment(path), run, "local", 1, resume=True, console=quiet())
     assert [c.seed for c in summary.finished] == [1]
+    # A report's copy of the run keeps the reward its cells trained with.
+    experiment_report(run, tmp_path / "copy", video=False)
+    assert (tmp_path / "copy" / "rewards" / "pickplace_nut_m12.py").read_text() == original

@@ -55,6 +55,7 @@ from itskill.experiments.runner import (
     EXPERIMENT_FILE,
     PROVENANCE_FILE,
     RESULT_FILE,
+    REWARDS_DIR,
     SOURCES_FILE,
     Cell,
     ExperimentRunError,
@@ -83,7 +84,9 @@ CELL_FILES = (
 """What a report reads from a run and its cells, weights aside: a report written elsewhere copies
 these beside itself, so it can be written again from its own directory (without the video). The
 rl and transfer layers' names are spelled out: importing them would load torch for every report."""
-OUT_NAMES = (REPORT_MD, REPORT_HTML, FIGURES_DIR, VIDEOS_DIR, *RUN_FILES, CELLS_DIR)
+OUT_NAMES = (
+    REPORT_MD, REPORT_HTML, FIGURES_DIR, VIDEOS_DIR, *RUN_FILES, REWARDS_DIR, CELLS_DIR
+)  # fmt: skip
 """What a report written outside its run puts in its directory."""
 
 
@@ -232,8 +235,9 @@ def experiment_report(
 ) -> ReportFiles:
     """Write ``report.md`` and ``report.html`` (and ``figures/``, ``videos/``) for a run.
 
-    With ``out`` outside the run, the run's small files (:data:`RUN_FILES`, :data:`CELL_FILES`,
-    no weights) are copied there as well: the directory to commit to ``results/``. Such an
+    With ``out`` outside the run, the run's small files (:data:`RUN_FILES`, its reward copies,
+    :data:`CELL_FILES`, no weights) are copied there as well: the directory to commit to
+    ``results/``. Such an
     ``out`` must hold none of :data:`OUT_NAMES`, or be an earlier report copy of the same run,
     written again: its ``provenance.json`` starts with the same session (command and start
     time, which stay as the run is resumed, moved or copied; two runs of one file differ) and
@@ -364,6 +368,8 @@ def _copy_results(config: ExperimentConfig, run_dir: Path, out: Path) -> None:
     for name in RUN_FILES:
         if (run_dir / name).is_file():
             copy_whole(run_dir / name, out / name)
+    for reward in sorted((run_dir / REWARDS_DIR).glob("*.py")):  # what the cells trained with
+        copy_whole(reward, out / REWARDS_DIR / reward.name)
     for cell in cells(config):
         src, dst = cell.dir(run_dir), cell.dir(out)
         for name in CELL_FILES:
