@@ -237,11 +237,11 @@ def experiment_report(
 
     With ``out`` outside the run, the run's small files (:data:`RUN_FILES`, its reward copies,
     :data:`CELL_FILES`, no weights) are copied there as well: the directory to commit to
-    ``results/``. Such an
-    ``out`` must hold none of :data:`OUT_NAMES`, or be an earlier report copy of the same run,
-    written again: its ``provenance.json`` starts with the same session (command and start
-    time, which stay as the run is resumed, moved or copied; two runs of one file differ) and
-    its cells hold only :data:`CELL_FILES` (a run directory also holds weights and logs there).
+    ``results/``. Such an ``out`` must hold none of :data:`OUT_NAMES`, or be an earlier report
+    copy of the same run, written again: its ``provenance.json`` starts with the same session
+    (command and start time, which stay as the run is resumed, moved or copied; two runs of one
+    file differ) and its cells hold only :data:`CELL_FILES` (a run directory also holds weights
+    and logs there).
     Anything else (another run, a run directory, the user's own ``report.md``) is refused with
     :class:`ReportError` before anything is written.
     """
