@@ -39,6 +39,7 @@ def test_packaged_file_loads(family: str) -> None:
         ("[nutbolt.ppo]\nbatch_size = 0\n", "nutbolt.ppo.batch_size", "positive"),
         # SB3's PPO asserted batch_size > 1 after the environments were built.
         ("[nutbolt.ppo]\nbatch_size = 1\n", "nutbolt.ppo.batch_size", "2 or more for PPO"),
+        ("[nutbolt.tasks.pick_nut_m12]\nppo = 3\n", "nutbolt.tasks.pick_nut_m12.ppo", "a table"),
         # A task table's, whichever task or algorithm the file is loaded for.
         (
             "[nutbolt.tasks.pick_nut_m12.ppo]\nbatch_size = 1\n",
@@ -325,7 +326,7 @@ def test_a_ppo_rollout_of_one_sample_is_refused() -> None:
     # The batch is cut to the rollout: 1 x 1 made a minibatch of one, an AssertionError in SB3.
     with pytest.raises(HyperparamError, match=r"n_steps 1 x num_envs 1 \(the overrides") as info:
         load_hyperparams("nutbolt", "ppo", overrides={"n_steps": 1, "num_envs": 1})
-    assert info.value.where == "nutbolt.ppo.n_steps"
+    assert info.value.where == "n_steps x num_envs"
     # The warm start's behaviour cloning takes minibatches of one.
     demos = load_hyperparams("nutbolt", "ppo", overrides={"demos": {"batch_size": 1}})
     assert demos.demos.batch_size == 1

@@ -58,3 +58,6 @@ def test_a_part_fits_the_fixtures_it_goes_onto_or_into():
     # 5 mm jams in.
     assert fits(PegSpec(name="w", shape="round", diameter=0.0045, length=0.05), round_hole)
     assert not fits(PegSpec(name="w", shape="round", diameter=0.005, length=0.05), round_hole)
+    # Not even where the bore's float rounds a hair above the peg (0.002 + 2 * 0.0007).
+    tight = HoleSpec(**(HOLE | {"diameter": 0.002, "clearance": 0.0007}))
+    assert not fits(PegSpec(name="w", shape="round", diameter=0.0034, length=0.05), tight)

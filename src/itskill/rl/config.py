@@ -254,7 +254,8 @@ def _layer(
 ) -> Hyperparams:
     """``base`` with the fields of one family or task table applied, every one checked."""
     check_table(path, where, table, HyperparamError, allowed)
-    batch = table.get("ppo", {}).get("batch_size") if algo == "ppo" else None
+    ppo = table.get("ppo") if algo == "ppo" else None
+    batch = ppo.get("batch_size") if isinstance(ppo, dict) else None  # else _build names it
     if isinstance(batch, int) and not isinstance(batch, bool) and batch == 1:
         # PPO normalises the advantages over a minibatch, which one sample cannot be (SB3
         # asserted so once the environments were built); the warm start's batches may be 1.
@@ -391,13 +392,14 @@ def load_hyperparams(
         rollout = hp.algo_config.n_steps * hp.num_envs
         batch = min(hp.algo_config.batch_size, rollout)
         if rollout < 2:
-            # A minibatch of one sample, as above.
-            table = f"{family}.tasks.{task}" if task in per_task else family
+            # A minibatch of one sample, as above. The two values may come from different
+            # tables (the family's, the task's) or the overrides.
             raise HyperparamError(
                 path,
-                f"{table}.{algo}.n_steps",
-                f"PPO needs 2 or more samples a rollout; n_steps {hp.algo_config.n_steps} x "
-                f"num_envs {hp.num_envs}" + (" (the overrides included)" if overrides else ""),
+                "n_steps x num_envs",
+                f"PPO needs 2 or more samples a rollout; {family}'s settings for {task or algo} "
+                f"give n_steps {hp.algo_config.n_steps} x num_envs {hp.num_envs}"
+                + (" (the overrides included)" if overrides else ""),
             )
         hp = replace(hp, algo_config=replace(hp.algo_config, batch_size=batch))
     return hp

@@ -88,8 +88,7 @@ EVAL_ENVS = 25
 
 class DeterministicEvalCallback(BaseCallback):
     """Evaluate the deterministic policy over ``episodes`` episodes for every ``every``
-    env-steps (between updates, at the last one at or before each multiple, one at or past the
-    run's ``budget`` left to the evaluation at the end), and at the end.
+    env-steps (between updates, at the last one at or before each multiple), and at the end.
 
     With ``meta`` (the run's checkpoint metadata), the best policy so far is written to
     ``run_dir/best`` after each evaluation that matches or beats it. With ``at_start``, a run that
@@ -110,10 +109,9 @@ class DeterministicEvalCallback(BaseCallback):
         meta: Mapping[str, Any] | None = None,
         at_start: bool = False,
         clock: WallClock | None = None,
-        budget: int | None = None,
     ) -> None:
         super().__init__()
-        self.at_start, self.budget = at_start, budget
+        self.at_start = at_start
         self.spec, self.run_dir, self.path = spec, Path(run_dir), Path(run_dir) / EVAL_FILE
         self.every, self.episodes, self.seed = every, episodes, seed
         self.meta = None if meta is None else dict(meta)
@@ -143,7 +141,8 @@ class DeterministicEvalCallback(BaseCallback):
         # step past them is the next to evaluate for. One a Ctrl-C or crash cut short (the
         # checkpoint was saved past its row) is due at once. A row off the rollouts' boundaries
         # was written in the middle of a rollout, as releases before 2026-12-06 did: it covers
-        # its own due step only.
+        # its own due step only. (Such a row that fell on a boundary, with `every` shorter than
+        # a rollout, is read as a new one and can leave one due step unevaluated.)
         if last is not None and last % self._rollout:
             self._next = max(self.every, (last // self.every + 1) * self.every)
         else:
@@ -162,9 +161,7 @@ class DeterministicEvalCallback(BaseCallback):
         # Between updates, so a row's env_steps are exactly those its policy learned from; at
         # the last update at or before the due step, so a curve has a row by each multiple of
         # `every` (Table II reads the success at such fractions of the budget).
-        # A step due at or past the budget is left to the evaluation at the end, a rollout on.
-        due = self.budget is None or self._next < self.budget
-        if due and self._next < self.num_timesteps + self._rollout:
+        if self._next < self.num_timesteps + self._rollout:
             self.evaluate()
             self._next = self._due_from(self.num_timesteps)
 

@@ -717,7 +717,6 @@ def _learn(
                 meta=meta,
                 at_start=evaluate_at_start,
                 clock=clock,
-                budget=setup.steps,
             )
         )
     try:

@@ -227,7 +227,7 @@ FixtureSpec = BoltSpec | HoleSpec
 
 def fits(part: PartSpec, fixture: FixtureSpec) -> bool:
     """Whether ``part`` goes onto or into ``fixture``: a nut onto a bolt of its thread (the
-    thread coupling joins only those), a peg into a hole of its shape and at least its size."""
+    thread coupling joins only those), a peg into a hole of its shape narrower than the bore."""
     if isinstance(part, NutSpec):
         return (
             isinstance(fixture, BoltSpec)
@@ -239,9 +239,13 @@ def fits(part: PartSpec, fixture: FixtureSpec) -> bool:
     if not isinstance(fixture, HoleSpec) or part.shape != fixture.shape:
         return False
     room = 2 * fixture.clearance
+
+    def narrower(size: float, hole: float) -> bool:
+        return size < hole + room and not math.isclose(size, hole + room)
+
     if part.shape == "round":
-        return part.diameter < fixture.diameter + room
-    return part.width < fixture.width + room and part.depth < fixture.depth + room
+        return narrower(part.diameter, fixture.diameter)
+    return narrower(part.width, fixture.width) and narrower(part.depth, fixture.depth)
 
 
 @dataclass(frozen=True)
