@@ -525,10 +525,15 @@ def test_a_reward_file_edited_between_sessions_is_refused_and_cells_train_the_ru
     path.write_text(path.read_text().replace("seeds = [0]", "seeds = [0, 1]"))
     with pytest.raises(ExperimentRunError, match=r"r\.py: changed since .* pickplace_nut_m12"):
         run_experiment(load_experiment(path), run, "local", 1, resume=True, console=quiet())
+    # A run from before the copies were kept: its cells' checkpoints say what they trained with.
+    copy.unlink()
+    with pytest.raises(ExperimentRunError, match="checkpoints record another sha256"):
+        run_experiment(load_experiment(path), run, "local", 1, resume=True, console=quiet())
     assert not (run / "cells/pickplace_nut_m12/no_transfer/seed_1").exists()
     reward.write_text(original)
     summary = run_experiment(load_experiment(path), run, "local", 1, resume=True, console=quiet())
     assert [c.seed for c in summary.finished] == [1]
+    assert copy.read_text() == original
     # A report's copy of the run keeps the reward its cells trained with.
     experiment_report(run, tmp_path / "copy", video=False)
     assert (tmp_path / "copy" / "rewards" / "pickplace_nut_m12.py").read_text() == original

@@ -18,6 +18,7 @@ worker that trained the cell, atomically, so a killed run loses only the cells i
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -216,14 +217,34 @@ def reward_copy(run_dir: Path, task: str) -> Path:
 
 def _check_rewards_unchanged(config: ExperimentConfig, run_dir: Path) -> None:
     """Refuse a resume whose reward file was edited since the run copied it: the cells still to
-    train would learn another reward than the finished ones, and the report mix the two."""
+    train would learn another reward than the finished ones, and the report mix the two. A run
+    from before the copies were kept is checked against what its cells' checkpoints record."""
     for task, reward in config.reward.items():
-        copy = reward_copy(run_dir, task)
-        if reward != EXPERT and copy.is_file() and Path(reward).read_bytes() != copy.read_bytes():
+        if reward == EXPERT:
+            continue
+        now, copy = Path(reward).read_bytes(), reward_copy(run_dir, task)
+        if copy.is_file():
+            changed, version = now != copy.read_bytes(), f"that version is in {copy}"
+        else:
+            trained = _trained_reward_hashes(run_dir, task)
+            changed = bool(trained) and hashlib.sha256(now).hexdigest() not in trained
+            version = "its cells' checkpoints record another sha256"
+        if changed:
             raise ExperimentRunError(
-                f"{reward}: changed since {run_dir} started training {task} with it (that "
-                f"version is in {copy}); put it back to resume, or use another --out"
+                f"{reward}: changed since {run_dir} started training {task} with it ({version}); "
+                "put it back to resume, or use another --out"
             )
+
+
+def _trained_reward_hashes(run_dir: Path, task: str) -> set[str]:
+    """The sha256 of the reward file every cell of ``task`` with a checkpoint trained with."""
+    hashes = set()
+    for meta in (run_dir / CELLS_DIR / task).glob("*/*/checkpoint.json"):
+        try:
+            hashes.add(str(read_json(meta)["reward"]["sha256"]))
+        except (CorruptFileError, KeyError, TypeError):
+            continue  # a damaged checkpoint is the cell's own error when it resumes
+    return hashes
 
 
 def _same_file(a: Path, b: Path) -> bool:
