@@ -215,14 +215,17 @@ def reward_copy(run_dir: Path, task: str) -> Path:
     return run_dir / REWARDS_DIR / f"{task}.py"
 
 
+def _reward_files(config: ExperimentConfig) -> dict[str, Path]:
+    """Task -> the reward file the experiment names for it (the expert reward's tasks left out)."""
+    return {task: Path(reward) for task, reward in config.reward.items() if reward != EXPERT}
+
+
 def _check_rewards_unchanged(config: ExperimentConfig, run_dir: Path) -> None:
     """Refuse a resume whose reward file was edited since the run copied it: the cells still to
     train would learn another reward than the finished ones, and the report mix the two. A run
     from before the copies were kept is checked against what its cells' checkpoints record."""
-    for task, reward in config.reward.items():
-        if reward == EXPERT:
-            continue
-        now, copy = Path(reward).read_bytes(), reward_copy(run_dir, task)
+    for task, reward in _reward_files(config).items():
+        now, copy = reward.read_bytes(), reward_copy(run_dir, task)
         if copy.is_file():
             changed, version = now != copy.read_bytes(), f"that version is in {copy}"
         else:
@@ -452,14 +455,15 @@ def _run(
         # config.json first: from then on the directory is a run, which --resume completes.
         write_json(run_dir / CONFIG_FILE, record.to_dict())
         write_json(run_dir / SOURCES_FILE, sources)
-        for task, reward in config.reward.items():
-            if reward != EXPERT and not reward_copy(run_dir, task).is_file():
-                copy_whole(Path(reward), reward_copy(run_dir, task))
+        for task, reward in _reward_files(config).items():
+            if not reward_copy(run_dir, task).is_file():
+                copy_whole(reward, reward_copy(run_dir, task))
         if source_file is not None and not _same_file(source_file, run_dir / EXPERIMENT_FILE):
             copy_whole(source_file, run_dir / EXPERIMENT_FILE)
     for cell in todo:
         # A failure of an earlier session is retried now: the report must not call it failed.
         (cell.dir(run_dir) / ERROR_FILE).unlink(missing_ok=True)
+    rewards = _reward_files(config)
     jobs = [
         (
             cell,
@@ -467,11 +471,7 @@ def _run(
                 algo=config.algo,
                 steps=config.steps,
                 num_envs=config.num_envs,
-                reward=(
-                    EXPERT
-                    if config.reward[cell.task] == EXPERT
-                    else str(reward_copy(run_dir, cell.task))
-                ),
+                reward=str(reward_copy(run_dir, cell.task)) if cell.task in rewards else EXPERT,
                 sources=tuple(sources.get(cell.task, ())),
                 llm=config.llm,
                 eval_every=config.eval.every,

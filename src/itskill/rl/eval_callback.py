@@ -146,12 +146,13 @@ class DeterministicEvalCallback(BaseCallback):
         if last is not None and last % self._rollout:
             self._next = max(self.every, (last // self.every + 1) * self.every)
         else:
-            self._next = self._due_from(-1 if last is None else last)
+            self._next = self._due_from(last)
 
-    def _due_from(self, evaluated: int) -> int:
+    def _due_from(self, evaluated: int | None) -> int:
         """The first multiple of ``every`` (from ``every`` on) that an evaluation at env-step
-        ``evaluated`` leaves to a later one: those before the end of the next rollout it covers."""
-        covered = evaluated + self._rollout if evaluated >= 0 else 0
+        ``evaluated`` (None: none yet) leaves to a later one: those before the end of the next
+        rollout it covers."""
+        covered = 0 if evaluated is None else evaluated + self._rollout
         return max(self.every, -(-covered // self.every) * self.every)
 
     def _on_step(self) -> bool:

@@ -651,6 +651,11 @@ def _parse_init(
     )
 
 
+_ON_TABLE = ("table", "fingers")
+"""The start modes that stand a part on the table: at its x and y, or between the open fingers
+at the hand's."""
+
+
 def _gap(x: Range, y: Range, other_x: Range, other_y: Range) -> float:
     """The least distance between a point of the box ``x`` × ``y`` and one of the other box."""
     dx = max(x.low - other_x.high, other_x.low - x.high, 0.0)
@@ -675,8 +680,7 @@ def _check_parts_apart(
                 path, at + ".z", f"{part.name}'s bottom would start under the table (z + hold "
                 f"must be at least half its height, {part.height / 2:g} m)",
             )  # fmt: skip
-        # A part between the open fingers stands on the table at the hand's x and y.
-        if init.mode not in ("table", "fingers"):
+        if init.mode not in _ON_TABLE:
             continue
         others = [
             (f.part.name, Range(f.xy[0], f.xy[0]), Range(f.xy[1], f.xy[1]), f.part.radius)
@@ -684,7 +688,7 @@ def _check_parts_apart(
         ] + [
             (objects[j].name, inits[j].x, inits[j].y, objects[j].radius)
             for j in range(k)
-            if inits[j].mode in ("table", "fingers")
+            if inits[j].mode in _ON_TABLE
         ]
         for name, x, y, radius in others:
             gap, need = _gap(init.x, init.y, x, y), part.radius + radius
