@@ -11,11 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from stable_baselines3.common.save_util import load_from_zip_file
 from typer.testing import CliRunner
 
 from itskill.cli import app
 from itskill.rl import eval_callback
 from itskill.rl.checkpoint import as_policy, best_policy_dir, load_policy
+from itskill.rl.config import HyperparamError
 from itskill.rl.logger import LoggerConfig, read_metrics
 from itskill.rl.train import ResumeMismatchError, RewardLoadError, RewardSource, train
 from itskill.tasks import get_task
@@ -28,11 +30,13 @@ QUIET = LoggerConfig(progress=False, tensorboard=False, min_steps_per_row=1)
 TASK = "reach_nut_m12"
 
 
-def _train(out: Path, reward: Path, steps: int, algo: str = "ppo", **kw):
-    overrides = FAST_PPO if algo == "ppo" else {"n_steps": 4}
+def _train(
+    out: Path, reward: Path, steps: int, algo: str = "ppo", overrides: dict | None = None, **kw
+):
+    fast = FAST_PPO if algo == "ppo" else {"n_steps": 4}
     return train(
         TASK, algo, steps, seed=1, reward=reward, out=out, num_envs=4,
-        overrides=overrides, logger=QUIET, **kw,
+        overrides={**fast, **(overrides or {})}, logger=QUIET, **kw,
     )  # fmt: skip
 
 
@@ -605,6 +609,34 @@ def test_a_task_table_of_the_hyperparameter_file_reaches_its_training(
     meta = json.loads((out / "checkpoint.json").read_text())
     assert meta["hyperparams"]["policy"]["log_std_init"] == -1.5
     np.testing.assert_allclose(load_policy(out).log_std.detach().numpy(), -1.5, atol=0.05)
+
+
+def _square_averages(run_dir: Path) -> torch.Tensor:
+    """Every running average of squared gradients the run's RMSprop holds, in one tensor."""
+    _, params, _ = load_from_zip_file(run_dir / "model.zip", device="cpu")
+    state = params["policy.optimizer"]["state"].values()
+    return torch.cat([s["square_avg"].flatten() for s in state])
+
+
+def test_a2c_with_tensorflows_rmsprop_keeps_it_across_a_resume(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    out, tf_like = tmp_path / "tf", {"rms_prop_tf_like": True}
+    _train(out, reach_reward, 16, algo="a2c", overrides=tf_like)
+    # TensorFlow's averages start at 1, so after an update of clipped gradients they are near
+    # it; torch's start at 0 and stay orders of magnitude below.
+    assert _square_averages(out).min() > 0.98
+    _train(out, reach_reward, 32, algo="a2c", overrides=tf_like)
+    assert _square_averages(out).min() > 0.97
+    torch_out = tmp_path / "torch"
+    _train(torch_out, reach_reward, 16, algo="a2c")
+    assert _square_averages(torch_out).max() < 0.1
+
+
+def test_tensorflows_rmsprop_needs_rmsprop(tmp_path: Path, reach_reward: Path) -> None:
+    with pytest.raises(HyperparamError, match="rms_prop_tf_like needs use_rms_prop"):
+        tf_without_rms_prop = {"use_rms_prop": False, "rms_prop_tf_like": True}
+        _train(tmp_path / "run", reach_reward, 16, algo="a2c", overrides=tf_without_rms_prop)
 
 
 def _scripted_evaluate(scores, interrupt_at=()):

@@ -15,6 +15,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
+from stable_baselines3.common.sb2_compat.rmsprop_tf_like import RMSpropTFLike
 from stable_baselines3.common.utils import LinearSchedule
 
 from itskill.datafile import DataFileError, check_like, check_table, read_toml
@@ -57,6 +58,10 @@ class _AlgoConfig:
             kw["learning_rate"] = LinearSchedule(kw["learning_rate"], 0.0, 1.0)
         return kw
 
+    def optimizer_kwargs(self) -> dict[str, Any]:
+        """``policy_kwargs`` that choose the policy's optimiser; empty: the algorithm's own."""
+        return {}
+
 
 @dataclass(frozen=True)
 class A2CConfig(_AlgoConfig):
@@ -71,9 +76,34 @@ class A2CConfig(_AlgoConfig):
     max_grad_norm: float = 0.5
     use_rms_prop: bool = True
     rms_prop_eps: float = 1e-5
+    rms_prop_tf_like: bool = False
+    """RMSprop as TensorFlow computes it (Stable-Baselines3's ``RMSpropTFLike``), the optimiser of
+    the A2C results of OpenAI Baselines and Stable-Baselines 2: the running average of squared
+    gradients starts at 1 instead of 0, so the first updates are small rather than a full
+    ``learning_rate`` per weight, and the epsilon sits inside the square root. Needs
+    ``use_rms_prop``."""
     normalize_advantage: bool = False
     lr_schedule: str = "constant"
     """One of :data:`LR_SCHEDULES`."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.rms_prop_tf_like and not self.use_rms_prop:
+            raise ValueError("rms_prop_tf_like needs use_rms_prop = true")
+
+    def sb3_kwargs(self) -> dict[str, Any]:
+        kw = super().sb3_kwargs()
+        del kw["rms_prop_tf_like"]  # an optimiser class, passed with the policy's arguments
+        return kw
+
+    def optimizer_kwargs(self) -> dict[str, Any]:
+        if not self.rms_prop_tf_like:
+            return {}
+        # SB3's A2C builds torch's RMSprop with these same alpha and weight decay.
+        return {
+            "optimizer_class": RMSpropTFLike,
+            "optimizer_kwargs": {"alpha": 0.99, "eps": self.rms_prop_eps, "weight_decay": 0.0},
+        }
 
 
 @dataclass(frozen=True)

@@ -647,7 +647,11 @@ def _new_model(
     model = ALGO_CLASSES[setup.algo](
         setup.policy_class,
         train_env,
-        policy_kwargs={**hp.policy.policy_kwargs(), **dict(policy_kwargs or {})},
+        policy_kwargs={
+            **hp.policy.policy_kwargs(),
+            **hp.algo_config.optimizer_kwargs(),
+            **dict(policy_kwargs or {}),
+        },
         seed=seed,
         device="cpu",
         verbose=0,
