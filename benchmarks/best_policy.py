@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from itskill.curves import read_curve
 from itskill.executors import run_jobs
-from itskill.experiments.analysis import read_curve
 from itskill.experiments.learn import EVAL_SEED
 from itskill.files import write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy, read_meta

@@ -36,8 +36,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from itskill.curves import Curve, read_curve
 from itskill.executors import EXECUTORS, run_jobs
-from itskill.experiments.analysis import Curve, read_curve, time_to_threshold
+from itskill.experiments.analysis import time_to_threshold
 from itskill.files import replaced_whole, write_json
 from itskill.rl.train import train
 from itskill.stats import mean_interval

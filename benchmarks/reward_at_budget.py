@@ -33,19 +33,18 @@ from typing import Any
 
 import numpy as np
 
+from itskill.curves import EVAL_FILE, read_curve
 from itskill.executors import run_jobs
 from itskill.experiments.analysis import (
     common_grid,
     estimate,
     mean_band,
-    read_curve,
     time_to_threshold,
 )
 from itskill.experiments.learn import EVAL_SEED
 from itskill.experiments.plots import plot_learning_curves
 from itskill.files import read_json, replaced_whole, write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy
-from itskill.rl.eval_callback import EVAL_FILE
 from itskill.stats import format_rate_interval
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import evaluate

@@ -577,8 +577,8 @@ def test_user_errors_names_each_class_where_it_is_defined():
 
 def _user_error_examples() -> list[Exception]:
     """An error of each kind the user can act on, as the commands raise them."""
+    from itskill.curves import CurveError
     from itskill.executors import ExecutorError
-    from itskill.experiments.analysis import CurveError
     from itskill.experiments.config import ExperimentConfigError
     from itskill.experiments.learn import BudgetError, LearnError
     from itskill.experiments.report import ReportError

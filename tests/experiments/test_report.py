@@ -391,7 +391,8 @@ def test_the_papers_gain_is_judged_by_the_interval_against_no_transfer():
 def test_a_gain_neither_method_reached_is_explained_not_computed():
     import numpy as np
 
-    from itskill.experiments.analysis import Curve, time_to_threshold
+    from itskill.curves import Curve
+    from itskill.experiments.analysis import time_to_threshold
     from itskill.experiments.report import _gain_explanation
 
     never = Curve(np.array([100.0, 200.0]), np.zeros(2), np.array([1.0, 2.0]), 200.0)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from itskill.reward.feedback import EPISODE_RETURN, component_stats, eval_curve, peak_success
+from itskill.reward.feedback import EPISODE_RETURN, component_stats, peak_success
 
 METRICS = """\
 step,wall_s,updates,episodes,success_rate,ep_return,ep_length,steps_per_s,0.approach/reach,stage_bonus
@@ -15,20 +15,11 @@ step,wall_s,updates,episodes,success_rate,ep_return,ep_length,steps_per_s,0.appr
 3072,3.0,1,0,,,,905,0.2,
 """
 
-EVAL = """\
-env_steps,wall_s,success,ci_low,ci_high,mean_length
-1024,1.0,0.0,0.0,0.1,60
-2048,2.0,0.4,0.2,0.6,60
-3072,3.0,0.2,0.1,0.4,60
-"""
 
-
-def _run(tmp_path: Path, name: str, metrics: str = METRICS, evals: str | None = EVAL) -> Path:
+def _run(tmp_path: Path, name: str, metrics: str = METRICS) -> Path:
     run = tmp_path / name
     run.mkdir()
     (run / "metrics.csv").write_text(metrics)
-    if evals is not None:
-        (run / "eval.csv").write_text(evals)
     return run
 
 
@@ -48,16 +39,12 @@ def test_component_stats_pool_the_windows_of_every_seed(tmp_path: Path) -> None:
     assert stats["0.approach/reach"]["mean"] == pytest.approx((0.6 + 1.4) / 6)
 
 
-def test_eval_curve_and_peak_success(tmp_path: Path) -> None:
-    run = _run(tmp_path, "a")
-    curve = eval_curve(run)
-    assert curve == [(1024, 0.0), (2048, 0.4), (3072, 0.2)]
-    assert peak_success(curve) == pytest.approx(0.4)
+def test_peak_success_is_the_best_evaluation() -> None:
+    assert peak_success([(1024, 0.0), (2048, 0.4), (3072, 0.2)]) == pytest.approx(0.4)
+    assert peak_success([]) == 0.0
 
 
 def test_a_run_without_files_has_no_stats(tmp_path: Path) -> None:
     run = tmp_path / "empty"
     run.mkdir()
     assert component_stats([run]) == {}
-    assert eval_curve(run) == []
-    assert peak_success([]) == 0.0

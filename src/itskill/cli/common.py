@@ -154,7 +154,7 @@ USER_ERRORS: tuple[tuple[str, str], ...] = (
     # learn budgets) reports through a subclass of this one.
     ("itskill.datafile", "DataFileError"),
     ("itskill.executors", "ExecutorError"),
-    ("itskill.experiments.analysis", "CurveError"),
+    ("itskill.curves", "CurveError"),
     ("itskill.experiments.learn", "LearnError"),
     ("itskill.experiments.report", "ReportError"),
     ("itskill.experiments.runner", "ExperimentRunError"),

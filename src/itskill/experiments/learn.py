@@ -35,8 +35,8 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
+from itskill.curves import read_curve
 from itskill.datafile import DataFileError, check_positive, check_table, check_type, read_toml
-from itskill.experiments.analysis import read_curve
 from itskill.experiments.learn_layout import (
     LEARN_FILE,
     REWARD_DIR,

@@ -19,17 +19,14 @@ from typing import Any
 
 import numpy as np
 
+from itskill.curves import EVAL_FILE, Curve, CurveError, read_curve
 from itskill.experiments.analysis import (
-    EVAL_FILE,
     Band,
-    Curve,
-    CurveError,
     Gain,
     Threshold,
     best_evaluation,
     common_grid,
     mean_band,
-    read_curve,
     success_at_fractions,
     threshold_gain,
     time_to_threshold,

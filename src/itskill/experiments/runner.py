@@ -28,8 +28,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from itskill.curves import read_curve
 from itskill.executors import check_executor, run_jobs
-from itskill.experiments.analysis import read_curve, time_to_threshold
+from itskill.experiments.analysis import time_to_threshold
 from itskill.experiments.config import (
     AUTO,
     ExperimentConfig,

@@ -126,7 +126,8 @@ def run_candidate(job: CandidateJob) -> dict[str, Any]:
 
 def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
     # Imported here, not at the top: the worker that only supervises the child needs none of it.
-    from itskill.reward.feedback import component_stats, eval_curve, peak_success
+    from itskill.curves import CurveError, read_curve
+    from itskill.reward.feedback import component_stats, peak_success
     from itskill.rl.checkpoint import as_policy
     from itskill.rl.eval_callback import EVAL_ENVS, EVAL_SEED
     from itskill.rl.logger import LoggerConfig
@@ -165,7 +166,11 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
             eval_episodes=job.eval_episodes,
             **network,
         )
-        curve = eval_curve(job.train_dir(seed))
+        try:
+            done = read_curve(job.train_dir(seed), job.steps)
+            curve = [(int(s), float(v)) for s, v in zip(done.steps, done.success, strict=True)]
+        except CurveError:  # no evaluation yet
+            curve = []
         if not curve or curve[-1][0] < result.num_timesteps:
             # Interrupted between the last checkpoint and its evaluation: evaluate it now, with
             # the evaluation callback's episodes, so the final policy always counts.

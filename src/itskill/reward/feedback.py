@@ -14,7 +14,6 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from itskill.reward_contract import LOG_COLUMNS
-from itskill.rl.eval_callback import EVAL_FILE
 
 EPISODE_RETURN = "episode_return"
 """Key of the total reward (return per episode) in the statistics, beside the components."""
@@ -55,16 +54,6 @@ def component_stats(run_dirs: Iterable[Path]) -> dict[str, dict[str, float]]:
         name: {"max": max(v), "mean": sum(v) / len(v), "min": min(v)}
         for name, v in sorted(series.items())
     }
-
-
-def eval_curve(run_dir: Path) -> list[tuple[int, float]]:
-    """``(env-steps, deterministic success)`` of every evaluation in ``run_dir``'s ``eval.csv``."""
-    curve = []
-    for row in _rows(Path(run_dir) / EVAL_FILE):
-        success = _float(row.get("success"))
-        if success is not None:
-            curve.append((int(float(row["env_steps"])), success))
-    return curve
 
 
 def peak_success(curve: list[tuple[int, float]]) -> float:

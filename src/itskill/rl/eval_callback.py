@@ -26,18 +26,12 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from itskill.curves import EVAL_COLUMNS, EVAL_FILE
 from itskill.rl.checkpoint import BEST_DIR, META_FILE, save_checkpoint
 from itskill.rl.clock import WallClock
 from itskill.rl.logger import drop_rows_after
 from itskill.tasks.evaluate import PolicyActor, evaluate
 from itskill.tasks.spec import TaskSpec
-
-EVAL_FILE = "eval.csv"
-EVAL_COLUMNS = (
-    "env_steps", "wall_s", "success", "ci_low", "ci_high", "mean_length", "stages_done"
-)  # fmt: skip
-"""``stages_done``: subtasks finished at the end of an episode, as a fraction of the task's."""
-
 
 SELECTION_KEY = "selection"
 """``best/checkpoint.json`` field: the evaluation row that chose the policy, with its episodes."""

@@ -28,6 +28,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from itskill.curves import EVAL_FILE
 from itskill.datafile import read_toml
 from itskill.errors import PicklableError
 from itskill.files import held_alone, some_of, write_json
@@ -49,7 +50,6 @@ from itskill.rl.clock import TRAIN_WALL_KEY, WallClock
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, default_path, load_hyperparams
 from itskill.rl.demos import DEMOS_FILE, warm_start
 from itskill.rl.eval_callback import (
-    EVAL_FILE,
     DeterministicEvalCallback,
     last_evaluated,
     read_selection,
