@@ -387,3 +387,19 @@ def test_refining_reports_the_runs_own_budget_and_keeps_a_skill_it_does_not_beat
     same = "the library's skill on the same episodes (100.0%; 0 won, 0 lost, p = 1)"
     assert f"not clearly better than {same}, not replaced" in output
     assert not (library / "reach_nut_m12").exists()
+
+
+def test_a_damaged_shipped_library_is_a_warning_and_the_users_skills_still_list(
+    home, tmp_path, monkeypatch, checkpoint
+):
+    assert add(checkpoint, "reach_nut_m12", "--name", "mine").exit_code == 0
+    library = tmp_path / "damaged"
+    library.mkdir()
+    (library / "manifest.json").write_text('{"skills": [')
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", library)
+    result = runner.invoke(app, ["skills", "list", "--json"])
+    assert result.exit_code == 0, result.output
+    assert [s["name"] for s in json.loads(result.stdout)] == ["mine"]
+    warning = " ".join(result.stderr.split())
+    assert warning.startswith("warning: the shipped skill library is damaged")
+    assert "manifest.json: not valid JSON" in warning and "reinstall itskill" in warning

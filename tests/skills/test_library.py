@@ -8,11 +8,12 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from itskill.rl import load_policy
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.skills import ManifestEntry, open_skill_space, read_manifest, write_manifest
-from itskill.skills.library import shipped_budgets
+from itskill.skills.library import ShippedLibraryWarning, shipped_budgets
 from itskill.skills.manifest import REFINED_KEY
 from itskill.skills.store import OFFERED_MARKER_SUFFIX
 from itskill.skills.store import SHIPPED_LIBRARY as SHIPPED
@@ -92,6 +93,33 @@ def test_a_new_database_gets_the_whole_library_again(tmp_path, monkeypatch, home
     path.unlink()
     with open_skill_space() as space:
         assert sorted(s.name for s in space.list()) == ["pick_nut_m12", "reach_nut_m12"]
+
+
+@pytest.mark.parametrize(
+    ("damage", "problem"),
+    [
+        (lambda shipped: (shipped / "manifest.json").write_text("{"), "not valid JSON"),
+        (lambda shipped: (shipped / "manifest.json").write_bytes(b"\xff\xfe"), "not UTF-8"),
+        (lambda shipped: (shipped / "grasp_nut_m12" / "policy.safetensors").unlink(), "grasp"),
+    ],
+)
+def test_a_damaged_shipped_library_leaves_the_space_usable(
+    tmp_path, monkeypatch, home, damage, problem
+) -> None:
+    shipped = tmp_path / "shipped"
+    _ship(shipped, ("reach_nut_m12",))
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", shipped)
+    with open_skill_space() as space:
+        space.add(replace(space.get("reach_nut_m12"), name="mine"))
+    # A release that ships a new skill, installed damaged.
+    _ship(shipped, ("reach_nut_m12", "grasp_nut_m12"))
+    damage(shipped)
+    with pytest.warns(ShippedLibraryWarning, match=problem), open_skill_space() as space:
+        assert sorted(s.name for s in space.list()) == ["mine", "reach_nut_m12"]
+    # Mended (reinstalled), the space gets the new skill it was not given.
+    _ship(shipped, ("reach_nut_m12", "grasp_nut_m12"))
+    with open_skill_space() as space:
+        assert sorted(s.name for s in space.list()) == ["grasp_nut_m12", "mine", "reach_nut_m12"]
 
 
 def _as_an_older_release_left_it(path: Path, marker: str) -> None:

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, TextIO
 
 import typer
 from rich.console import Console
@@ -22,6 +23,24 @@ console = Console(emoji=False)
 
 # Soft wrap: a long path in an error message must stay copyable, not be folded at 80 columns.
 err_console = Console(stderr=True, soft_wrap=True, emoji=False)
+_python_showwarning = warnings.showwarning
+
+
+def show_warning_line(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: TextIO | None = None,
+    line: str | None = None,
+) -> None:
+    """``warnings.showwarning`` for the commands: itskill's own warnings as one yellow line on
+    stderr (the source line that raised one means nothing to a user), others as Python shows
+    them."""
+    if category.__module__.partition(".")[0] == "itskill":
+        err_console.print(f"[yellow]warning:[/yellow] {escape(str(message))}", highlight=False)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
 
 
 USAGE_ERROR = 2

@@ -13,6 +13,7 @@ with it.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 from itskill.skills import store
@@ -20,6 +21,7 @@ from itskill.skills.manifest import (
     MANIFEST_NAME,
     REFINED_KEY,
     ManifestEntry,
+    ManifestError,
     install_library,
     read_manifest,
     read_manifest_or_empty,
@@ -27,23 +29,41 @@ from itskill.skills.manifest import (
 from itskill.skills.store import UPDATABLE_FIELDS, Skill, SkillSpace, SkillSpaceConfig
 
 
+class ShippedLibraryWarning(UserWarning):
+    """The package's skill library is damaged: the skill space opened without its upkeep."""
+
+
 def open_skill_space(
     path: Path | str | None = None, config: SkillSpaceConfig | None = None
 ) -> SkillSpace:
-    """Open the skill space, registering the shipped skills it has not been offered yet."""
+    """Open the skill space, registering the shipped skills it has not been offered yet.
+
+    A damaged shipped library (its manifest unreadable, a checkpoint it names gone) gives a
+    :class:`ShippedLibraryWarning` and the space as it is: the user's own skills, and those
+    registered before, stay usable while the installation is mended.
+    """
     space = SkillSpace(path, config)
     try:
         library = store.SHIPPED_LIBRARY  # looked up per call: tests point it elsewhere
         if (library / MANIFEST_NAME).is_file() and (stored := _stored(space)) is not None:
-            entries = read_manifest(library)
-            _repoint_to_package(space, library, entries, stored)
-            new = {e.name for e in entries} - space.offered_shipped()
-            if new:
-                # The package's own policies are checked by its tests (every shipped skill
-                # loads and acts), not again at a first open, where it would cost 8 CPU-seconds.
-                install_library(space, library, only=new, check=False)
-                space.record_offered_shipped(new)
-            _refresh_shipped(space, library, entries)
+            try:
+                entries = read_manifest(library)
+                _repoint_to_package(space, library, entries, stored)
+                new = {e.name for e in entries} - space.offered_shipped()
+                if new:
+                    # The package's own policies are checked by its tests (every shipped
+                    # skill loads and acts), not again at a first open, where it would cost
+                    # 8 CPU-seconds.
+                    install_library(space, library, only=new, check=False)
+                    space.record_offered_shipped(new)
+                _refresh_shipped(space, library, entries)
+            except ManifestError as err:
+                warnings.warn(
+                    f"the shipped skill library is damaged ({err}); its skills are left as "
+                    "they are in the skill space: reinstall itskill to mend it",
+                    ShippedLibraryWarning,
+                    stacklevel=2,
+                )
     except BaseException:
         space.close()  # the caller gets no space to close
         raise

@@ -201,9 +201,13 @@ def read_manifest(library_dir: Path | str) -> list[ManifestEntry]:
     """The entries of ``<library_dir>/manifest.json``."""
     path = Path(library_dir) / MANIFEST_NAME
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError as err:
         raise ManifestError(f"{path}: no manifest (not a skill library directory)") from err
+    except OSError as err:
+        raise ManifestError(f"{path}: cannot be read: {err.strerror or err}") from err
+    except UnicodeDecodeError as err:
+        raise ManifestError(f"{path}: not UTF-8 text (byte {err.start})") from err
     except json.JSONDecodeError as err:
         raise ManifestError(f"{path}: not valid JSON ({err})") from err
     if not isinstance(data, dict) or not isinstance(data.get("skills"), list):
