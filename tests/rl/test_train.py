@@ -302,6 +302,26 @@ def test_interrupt_saves_checkpoint(tmp_path: Path, reach_reward: Path, monkeypa
     assert [row["step"] for row in read_metrics(out)][-1] == 256
 
 
+def test_ctrl_c_as_the_last_metrics_row_is_written_keeps_the_finished_run_finished(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # The checkpoint was saved at the last rollout's start, and the resumed run learned that
+    # rollout a second time.
+    from itskill.rl import logger
+
+    def interrupting(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(logger.MetricsCallback, "_on_training_end", interrupting)
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        _train(out, reach_reward, 128)
+    assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 128
+    monkeypatch.undo()
+    done = _train(out, reach_reward, 128)
+    assert done.num_timesteps == 128 and done.session_wall_s == 0.0
+
+
 def test_an_update_cut_short_leaves_its_rollout_uncounted(
     tmp_path: Path, reach_reward: Path, monkeypatch
 ) -> None:

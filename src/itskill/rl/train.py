@@ -299,7 +299,6 @@ class CheckpointCallback(BaseCallback):
             self._last = self.num_timesteps
 
     def _on_training_end(self) -> None:
-        # Runs before the evaluation callback's final evaluation (the callbacks' order).
         self.trained = self.num_timesteps
 
 
@@ -710,7 +709,9 @@ def _learn(
     checkpoints = CheckpointCallback(
         run_dir, setup.hp.checkpoint_every, meta, clock, start=model.num_timesteps
     )
-    callbacks: list[BaseCallback] = [metrics, checkpoints]
+    # The checkpoints' first: at the end of training they mark the run finished before the last
+    # metrics row and the final evaluation, so Ctrl-C in either keeps it finished.
+    callbacks: list[BaseCallback] = [checkpoints, metrics]
     if setup.eval_every:
         callbacks.append(
             DeterministicEvalCallback(
