@@ -20,6 +20,7 @@ from itskill.rl.checkpoint import as_policy, best_policy_dir, load_policy
 from itskill.rl.config import HyperparamError
 from itskill.rl.logger import LoggerConfig, read_metrics
 from itskill.rl.train import ResumeMismatchError, RewardLoadError, RewardSource, train
+from itskill.sim.layout import OBSERVATION_VERSION
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import CheckpointError, EvalResult, RandomPolicy, evaluate
 
@@ -441,6 +442,18 @@ def test_missing_and_corrupt_checkpoints(tmp_path: Path, reach_reward: Path) -> 
     with pytest.raises(CheckpointError, match="do not fit"):
         load_policy(out)
     meta_file.write_text(meta)
+    assert load_policy(out).obs_norm.count.item() > 0
+    # Trained on what a slice held before: refused, where its size alone matched.
+    assert data["obs_version"] == OBSERVATION_VERSION
+    meta_file.write_text(json.dumps({**json.loads(meta), "obs_version": OBSERVATION_VERSION - 1}))
+    with pytest.raises(CheckpointError, match="observation layout version 1, this release"):
+        load_policy(out)
+    with pytest.raises(CheckpointError, match="observation layout version 1"):
+        _train(out, reach_reward, 128)
+    # Written before the version was recorded: loads as before.
+    meta_file.write_text(
+        json.dumps({k: v for k, v in json.loads(meta).items() if k != "obs_version"})
+    )
     assert load_policy(out).obs_norm.count.item() > 0
 
 

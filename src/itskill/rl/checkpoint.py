@@ -53,7 +53,7 @@ from itskill.files import (
 )
 from itskill.rl.clock import EVAL_WALL_KEY, TRAIN_WALL_KEY
 from itskill.rl.policy import PolicyConfig, StagedActorCriticPolicy
-from itskill.sim.layout import OBSERVATION_LAYOUT
+from itskill.sim.layout import OBSERVATION_LAYOUT, OBSERVATION_VERSION
 from itskill.sim.vec_env import action_space, observation_space
 from itskill.tasks.evaluate import (
     SCRIPTED,
@@ -89,6 +89,7 @@ META_FIELDS: dict[str, Check] = {
     "seed": _COUNT,
     "num_timesteps": _COUNT,
     "obs_size": _COUNT,
+    "obs_version": _COUNT,
     "action_size": _COUNT,
     "policy": OBJECT,
     "policy_class": STRING,
@@ -181,6 +182,7 @@ def _save_checkpoint(
         **meta,
         "num_timesteps": int(model.num_timesteps),
         "obs_size": OBSERVATION_LAYOUT.size,
+        "obs_version": OBSERVATION_VERSION,
         "action_size": int(action_space().shape[0]),
         "policy": model.policy.config.to_dict(),
         "versions": versions(),
@@ -248,6 +250,13 @@ def read_meta(run_dir: str | Path) -> dict[str, Any]:
             path,
             f"observation size {meta['obs_size']}, "
             f"the current layout has {OBSERVATION_LAYOUT.size}",
+        )
+    if meta.get("obs_version", OBSERVATION_VERSION) != OBSERVATION_VERSION:
+        raise CheckpointError(
+            path,
+            f"trained on observation layout version {meta['obs_version']}, this release "
+            f'observes version {OBSERVATION_VERSION} (docs/simulation.md, "Observation"): '
+            "the policy would see other values than it learned from; retrain it",
         )
     return meta
 

@@ -14,6 +14,13 @@ import numpy as np
 from itskill.sim.context import MAX_FIXTURES, MAX_OBJECTS
 
 MAX_STAGES = 8
+OBSERVATION_VERSION = 2
+"""Raised whenever what a slice holds changes without the vector's size changing, which a
+policy trained on the old values cannot notice: checkpoints record it, and one of another
+version is refused. 2 (2026-12-06): in a scene without fixtures, each part's ``to_fix`` and
+``yaw_error`` read zero (before, they measured to a fixture at the robot's base). Checkpoints
+from before versions were recorded hold none, and load: every packaged task has a fixture, so
+their observations did not change."""
 
 
 @dataclass(frozen=True)
