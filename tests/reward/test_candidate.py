@@ -40,3 +40,31 @@ def test_a_candidate_past_its_wall_clock_limit_is_stopped_and_recorded(tmp_path:
     stamp = path.stat().st_mtime_ns
     assert run_candidate(_job(tmp_path / "cand", timeout_s=300)) == result
     assert path.stat().st_mtime_ns == stamp
+
+
+def _rerun_with_evaluations(tmp_path: Path, rows: str) -> dict:
+    """The candidate's result once more, its finished run's ``eval.csv`` holding ``rows``."""
+    job = _job(tmp_path / "cand", timeout_s=300)
+    assert run_candidate(job)["status"] == "ok"
+    (tmp_path / "cand" / "result.json").unlink()
+    eval_file = job.train_dir(0) / "eval.csv"
+    header = eval_file.read_text().splitlines()[0]
+    eval_file.write_text(f"{header}\n{rows}")
+    return run_candidate(job)
+
+
+def test_a_candidates_success_leaves_out_evaluations_a_resumed_session_replaced(
+    tmp_path: Path,
+) -> None:
+    # The first session evaluated at 128 (90%) and died with its checkpoint at 64; the resumed
+    # one evaluated 64 and 128 again. The 90% belonged to a policy thrown away.
+    rows = "128,2,0.9,0,1,60,0\n64,1,0.2,0,1,60,0\n128,2,0.5,0,1,60,0\n"
+    result = _rerun_with_evaluations(tmp_path, rows)
+    assert result["status"] == "ok"
+    assert result["success"] == 0.5 and result["runs"][0]["curve"] == [(64, 0.2), (128, 0.5)]
+
+
+def test_a_candidate_whose_evaluations_are_damaged_fails_naming_the_file(tmp_path: Path) -> None:
+    result = _rerun_with_evaluations(tmp_path, "64,1,0.2,0,1,60,0\n128,2\n")
+    assert result["status"] == "failed"
+    assert "eval.csv: not a number" in result["error"]

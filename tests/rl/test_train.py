@@ -666,6 +666,21 @@ def test_a2c_with_tensorflows_rmsprop_keeps_it_across_a_resume(
     assert _square_averages(torch_out).max() < 0.1
 
 
+def test_a_run_from_before_tensorflows_rmsprop_resumes_only_with_torchs(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    out = tmp_path / "run"
+    _train(out, reach_reward, 16, algo="a2c")
+    meta_file = out / "checkpoint.json"
+    meta = json.loads(meta_file.read_text())
+    del meta["hyperparams"]["a2c"]["rms_prop_tf_like"]  # as releases before it wrote
+    meta_file.write_text(json.dumps(meta))
+    # Its model.zip restores torch's RMSprop whatever the settings say.
+    with pytest.raises(ResumeMismatchError, match=r"a2c\.rms_prop_tf_like: False -> True"):
+        _train(out, reach_reward, 32, algo="a2c", overrides={"rms_prop_tf_like": True})
+    assert _train(out, reach_reward, 32, algo="a2c").num_timesteps == 32
+
+
 def test_tensorflows_rmsprop_needs_rmsprop(tmp_path: Path, reach_reward: Path) -> None:
     with pytest.raises(HyperparamError, match="rms_prop_tf_like needs use_rms_prop"):
         tf_without_rms_prop = {"use_rms_prop": False, "rms_prop_tf_like": True}

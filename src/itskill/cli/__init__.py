@@ -28,7 +28,7 @@ app = typer.Typer(
 
 
 @app.callback()
-def _stop_like_ctrl_c() -> None:
+def _before_every_command() -> None:
     """Robot manipulation skills on MuJoCo Franka tasks (hex nuts on bolts, pegs in holes)."""
     # A batch scheduler's or `kill`'s SIGTERM, and a closed terminal's SIGHUP, stop a command as
     # Ctrl-C does: the training in progress saves its checkpoint and the run can be resumed.
@@ -39,6 +39,7 @@ def _stop_like_ctrl_c() -> None:
     for sig in (signal.SIGTERM, signal.SIGHUP):
         if signal.getsignal(sig) is not signal.SIG_IGN:
             signal.signal(sig, signal.default_int_handler)
+    # itskill's own warnings (a damaged shipped library) as one line, not Python's two.
     warnings.showwarning = show_warning_line
 
 

@@ -2,8 +2,9 @@
 
 The paper's strategy-optimisation stage records the maximum success rate and every subtask's and
 the total reward through training; the model then retunes each subtask's temperature. Here they
-come from the training run's files: ``metrics.csv`` (one row per update, the mean of every reward
-component over its steps, the episode return) and ``eval.csv`` (deterministic evaluations).
+come from the training run's ``metrics.csv`` (one row per update, the mean of every reward
+component over its steps, the episode return); the success rates from its deterministic
+evaluations, which :func:`itskill.curves.read_curve` reads.
 """
 
 from __future__ import annotations

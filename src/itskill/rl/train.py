@@ -356,17 +356,21 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
 
 _RESUMABLE_CHANGES = ("checkpoint_every",)
 """Hyper-parameters a resumed run may change: they do not touch what it learns."""
+_ADDED_SETTINGS: dict[str, Any] = {"a2c.rms_prop_tf_like": False}
+"""Settings later releases added, with the value every run before them trained with: a checkpoint
+without one ran with that value (its optimiser is restored from ``model.zip`` as it was)."""
 
 
 def _changed(have: Mapping[str, Any], want: Mapping[str, Any], prefix: str = "") -> list[str]:
-    """``key: old -> new`` for each setting in both that differs (a setting a later release added
-    is not in an older checkpoint, and is not a change)."""
+    """``key: old -> new`` for each setting that differs. A setting an older checkpoint lacks is
+    a change only where :data:`_ADDED_SETTINGS` records what it trained with; other such settings
+    came with the features they switch, which the older run did not have."""
     out = []
-    for key in have.keys() & want.keys():
+    for key, new in want.items():
         name = f"{prefix}{key}"
-        if name in _RESUMABLE_CHANGES:
+        if name in _RESUMABLE_CHANGES or (key not in have and name not in _ADDED_SETTINGS):
             continue
-        old, new = have[key], want[key]
+        old = have[key] if key in have else _ADDED_SETTINGS[name]
         if isinstance(old, Mapping) and isinstance(new, Mapping):
             out += _changed(old, new, f"{name}.")
         elif old != new:
@@ -710,7 +714,8 @@ def _learn(
         run_dir, setup.hp.checkpoint_every, meta, clock, start=model.num_timesteps
     )
     # The checkpoints' first: at the end of training they mark the run finished before the last
-    # metrics row and the final evaluation, so Ctrl-C in either keeps it finished.
+    # metrics row and the final evaluation, so Ctrl-C in either keeps it finished (cut short
+    # while written, the last window's metrics row is lost; a finished run trains no more).
     callbacks: list[BaseCallback] = [checkpoints, metrics]
     if setup.eval_every:
         callbacks.append(

@@ -38,9 +38,10 @@ def open_skill_space(
 ) -> SkillSpace:
     """Open the skill space, registering the shipped skills it has not been offered yet.
 
-    A damaged shipped library (its manifest unreadable, a checkpoint it names gone) gives a
-    :class:`ShippedLibraryWarning` and the space as it is: the user's own skills, and those
-    registered before, stay usable while the installation is mended.
+    A damaged shipped library (its manifest unreadable, or the checkpoint of a shipped skill not
+    yet registered gone) gives a :class:`ShippedLibraryWarning` and the space as it is: the
+    user's own skills, and those registered before, stay usable while the installation is
+    mended. (A registered skill whose checkpoint is gone fails where it is used, naming it.)
     """
     space = SkillSpace(path, config)
     try:
@@ -62,7 +63,9 @@ def open_skill_space(
                     f"the shipped skill library is damaged ({err}); its skills are left as "
                     "they are in the skill space: reinstall itskill to mend it",
                     ShippedLibraryWarning,
-                    stacklevel=2,
+                    # Its own line, not the caller's: Python shows a warning once per line
+                    # that raises it, and a command may open the space from several places.
+                    stacklevel=1,
                 )
     except BaseException:
         space.close()  # the caller gets no space to close
