@@ -81,7 +81,8 @@ class A2CConfig(_AlgoConfig):
     the A2C results of OpenAI Baselines and Stable-Baselines 2: the running average of squared
     gradients starts at 1 instead of 0, so the first updates are small rather than a full
     ``learning_rate`` per weight, and the epsilon sits inside the square root. Needs
-    ``use_rms_prop``."""
+    ``use_rms_prop``. On Pick (nut M12) it learned far slower than torch's (docs/training.md, "A2C
+    settings screened"), so the packaged file leaves it off."""
     normalize_advantage: bool = False
     lr_schedule: str = "constant"
     """One of :data:`LR_SCHEDULES`."""
