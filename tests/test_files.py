@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from itskill.files import is_unusable_path, path_error_message, write_text
+from itskill.files import foreign_entries, is_unusable_path, path_error_message, write_text
 
 
 def test_a_write_that_fails_keeps_the_old_file_and_leaves_no_temporary(
@@ -86,3 +86,11 @@ def test_a_directory_held_by_another_session_is_refused_and_one_session_may_nest
         other.acquire(timeout=0)
     other.acquire(timeout=0)  # let go once the outer block ended
     other.release()
+
+
+def test_foreign_entries_leave_out_what_the_caller_and_file_browsers_own(tmp_path: Path) -> None:
+    assert foreign_entries(tmp_path / "nowhere") == []
+    for name in ("plan.json", ".DS_Store", "network", "notes.txt"):
+        (tmp_path / name).write_text("")
+    assert foreign_entries(tmp_path) == ["network", "notes.txt", "plan.json"]
+    assert foreign_entries(tmp_path, lambda name: name == "network") == ["notes.txt", "plan.json"]

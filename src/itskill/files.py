@@ -192,6 +192,21 @@ def some_of(names: Sequence[str], most: int = 3) -> str:
     return ", ".join(names[:most]) + more
 
 
+BROWSER_FILES = frozenset({".DS_Store", "Thumbs.db", "desktop.ini"})
+"""What a file browser leaves in a folder it showed: not the user's files."""
+
+
+def foreign_entries(directory: Path, ours: Callable[[str], bool] = lambda name: False) -> list[str]:
+    """The names, sorted, of the entries of ``directory`` that ``ours`` does not claim and no
+    file browser left (:data:`BROWSER_FILES`); none where it is not a directory. A new run asks
+    this of its ``--out``: a run there would read another's files, or overwrite the user's."""
+    if not directory.is_dir():
+        return []
+    return sorted(
+        e.name for e in directory.iterdir() if e.name not in BROWSER_FILES and not ours(e.name)
+    )
+
+
 def run_path(run_dir: Path, recorded: str, default: str) -> Path:
     """A path a run's record names, found in the run as it is now: against ``run_dir`` if it is
     there; else at ``default``, its usual place in ``run_dir`` (records from before paths were

@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 
 from itskill.cli import app
 from itskill.reward import RewardSearchError, generate_reward, load_search, search_client
+from itskill.reward.search import check_new_run
 
 # The files `show` reads; the trainings' directories are left behind when a test copies the run.
 RUN_FILES = ["config.json", "plan.json", "usage.json", "summary.json", "best_reward.py",
@@ -174,6 +175,14 @@ def test_a_new_search_refuses_a_directory_of_other_files(tmp_path: Path) -> None
     assert result.exit_code == 2
     assert "holds plan.json and is not a reward search" in " ".join(result.output.split())
     assert [p.name for p in run.iterdir()] == ["plan.json"]
+
+
+def test_a_new_search_takes_a_folder_a_file_browser_has_shown(tmp_path: Path) -> None:
+    (tmp_path / ".DS_Store").write_bytes(b"\0")
+    check_new_run(tmp_path)
+    (tmp_path / "plan.json").write_text("{}")
+    with pytest.raises(RewardSearchError, match=r"holds plan\.json and is not a reward search"):
+        check_new_run(tmp_path)
 
 
 def test_a_finished_search_without_its_chosen_reward_says_where_it_is(

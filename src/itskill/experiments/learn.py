@@ -52,6 +52,7 @@ from itskill.files import (
     CorruptFileError,
     check_shape,
     copy_whole,
+    foreign_entries,
     held_alone,
     read_json,
     some_of,
@@ -339,10 +340,9 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
             )
     elif not resume and run_dir.exists() and not run_dir.is_dir():
         raise LearnError(f"{run_dir} is a file: give --out a new or empty directory")
-    elif not resume and run_dir.exists() and any(run_dir.iterdir()):
+    elif not resume and (found := foreign_entries(run_dir)):
         # A step finds its files from an earlier session by name: another run's plan.json or
         # sources.json there would be taken for this run's, and the user's files overwritten.
-        found = sorted(p.name for p in run_dir.iterdir())
         raise LearnError(
             f"{run_dir}: holds {some_of(found)} and is not a learn run (no {LEARN_FILE}); a new "
             "run would read or overwrite the files there: give --out a new or empty directory"
@@ -352,7 +352,7 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
         # mistyped --out must be said, as `experiment run --resume` says it.
         if not run_dir.exists():
             why = "no such directory"
-        elif run_dir.is_dir() and not any(run_dir.iterdir()):
+        elif run_dir.is_dir() and not foreign_entries(run_dir):
             why = "the directory is empty"
         else:
             why = f"no {LEARN_FILE}"

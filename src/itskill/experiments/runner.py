@@ -41,6 +41,7 @@ from itskill.experiments.provenance import Sessions
 from itskill.files import (
     CorruptFileError,
     copy_whole,
+    foreign_entries,
     held_alone,
     read_json,
     some_of,
@@ -196,18 +197,15 @@ def _recorded_run(
         raise ExperimentRunError(
             f"{run_dir}: not a directory; give --out a new or empty directory for the run"
         )
-    if run_dir.is_dir():
-        foreign = sorted(
-            p.name
-            for p in run_dir.iterdir()
-            if source_file is None or not _same_file(p, source_file)
+    foreign = foreign_entries(
+        run_dir, lambda name: source_file is not None and _same_file(run_dir / name, source_file)
+    )
+    if foreign:
+        raise ExperimentRunError(
+            f"{run_dir}: holds {some_of(foreign)} and is not an experiment run "
+            f"(no {CONFIG_FILE}); a new run would overwrite or mix with them: give --out a "
+            "new or empty directory"
         )
-        if foreign:
-            raise ExperimentRunError(
-                f"{run_dir}: holds {some_of(foreign)} and is not an experiment run "
-                f"(no {CONFIG_FILE}); a new run would overwrite or mix with them: give --out a "
-                "new or empty directory"
-            )
     return None
 
 

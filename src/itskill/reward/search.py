@@ -45,6 +45,7 @@ import itskill
 from itskill.executors import JobResult, check_executor, default_workers, run_jobs
 from itskill.files import (
     check_shape,
+    foreign_entries,
     held_alone,
     read_json,
     some_of,
@@ -249,11 +250,7 @@ def check_new_run(out: Path) -> None:
     and the reply cache (a caller that writes those into ``out`` before the search checks
     first)."""
     if not (out / CONFIG_FILE).exists():
-        others = (
-            sorted(p.name for p in out.iterdir() if p.name not in (NETWORK_DIR, CACHE_DIR))
-            if out.is_dir()
-            else []
-        )
+        others = foreign_entries(out, lambda name: name in (NETWORK_DIR, CACHE_DIR))
         if others:
             # A learn or training run there was overwritten (its plan.json, summary.json) and
             # could no longer be resumed.

@@ -31,7 +31,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from itskill.curves import EVAL_FILE
 from itskill.datafile import read_toml
 from itskill.errors import PicklableError
-from itskill.files import held_alone, some_of, write_json
+from itskill.files import foreign_entries, held_alone, some_of, write_json
 from itskill.limits import SEED_MAX, check_steps
 from itskill.reward_contract import EXPERT, RewardOutputError, check_reward_output
 from itskill.rl.checkpoint import (
@@ -108,10 +108,6 @@ checkpoint leaves some of them, which a new run there starts again: ``best/`` is
 metrics truncated."""
 
 
-_BROWSER_FILES = frozenset({".DS_Store", "Thumbs.db", "desktop.ini"})
-"""What a file browser leaves in a folder it showed: not the user's files."""
-
-
 def _foreign_entries(run_dir: Path, own: frozenset[str]) -> list[str]:
     """Entries of ``run_dir``, and of its ``best/``, that neither training nor its caller
     (``own``) writes; the temporary file of an atomic write of one of them, cut short, is the
@@ -119,20 +115,15 @@ def _foreign_entries(run_dir: Path, own: frozenset[str]) -> list[str]:
     allowed = RUN_ENTRIES | own
 
     def ours(name: str) -> bool:
-        if name in allowed or name in _BROWSER_FILES:
+        if name in allowed:
             return True
         if not (name.startswith(".") and name.endswith(".tmp")):
             return False
         stem, _, pid = name[1:].removesuffix(".tmp").rpartition(".")
         return pid.isdigit() and stem in allowed
 
-    def foreign(folder: Path) -> list[str]:
-        return sorted(
-            str(entry.relative_to(run_dir)) for entry in folder.iterdir() if not ours(entry.name)
-        )
-
-    best = run_dir / BEST_DIR
-    return foreign(run_dir) + (foreign(best) if best.is_dir() else [])
+    best = [f"{BEST_DIR}/{name}" for name in foreign_entries(run_dir / BEST_DIR, ours)]
+    return foreign_entries(run_dir, ours) + best
 
 
 @dataclass(frozen=True)
