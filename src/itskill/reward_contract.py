@@ -59,6 +59,14 @@ def _finite_vector(value: Any, n: int, what: str) -> np.ndarray:
     return array
 
 
+COMPONENTS_MAX = 64
+"""The most components a reward may return: each is a column of every training log row and a
+line of the feedback sent back to the language model."""
+COMPONENT_NAME_MAX = 100
+"""The longest component name: a name of 100,000 characters made a feedback prompt of 20 million,
+and one past 131,072 a ``metrics.csv`` that Python's CSV reader refuses."""
+
+
 def check_reward_output(result: Any, n: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """``result`` of a reward call on ``n`` environments, checked and converted to float64:
     ``(total, components)`` with a finite value per environment in each array, or
@@ -71,10 +79,19 @@ def check_reward_output(result: Any, n: int) -> tuple[np.ndarray, dict[str, np.n
     total = _finite_vector(total, n, "total")
     if not isinstance(components, dict):
         raise RewardOutputError(f"components must be a dict; got {type(components).__name__}")
+    if len(components) > COMPONENTS_MAX:
+        raise RewardOutputError(
+            f"{len(components)} components; at most {COMPONENTS_MAX} (one per reward term)"
+        )
     checked = {}
     for key, value in components.items():
         if not isinstance(key, str):
-            raise RewardOutputError(f"component names must be strings; got {key!r}")
+            raise RewardOutputError(f"component names must be strings; got {type(key).__name__}")
+        if len(key) > COMPONENT_NAME_MAX or not key.isprintable() or not key:
+            raise RewardOutputError(
+                f"component name {key[:40]!r}{'...' if len(key) > 40 else ''} must be 1 to "
+                f"{COMPONENT_NAME_MAX} printable characters"
+            )
         if key in LOG_COLUMNS:
             raise RewardOutputError(
                 f"component name {key!r} is taken by the training log; use another name"

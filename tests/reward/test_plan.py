@@ -142,6 +142,15 @@ def test_a_model_that_says_it_cannot_ground_the_command() -> None:
         assert len(server.requests) == 1
 
 
+@pytest.mark.parametrize("empty", ["null", '""'])
+def test_a_plan_with_an_empty_error_key_is_a_plan(empty: str) -> None:
+    # A model in JSON mode writes every key it was shown; this one was refused, not retried.
+    reply = VALID.replace('"notes": ""', f'"notes": "", "error": {empty}')
+    assert f'"error": {empty}' in reply
+    with FakeOpenAIServer([reply]) as server:
+        assert plan_command("pick up the nut", _openai(server)).task == "pick_nut_m12"
+
+
 def test_a_refused_command_names_the_closest_tasks() -> None:
     with FakeOpenAIServer(['{"error": "which nut?"}']) as server, pytest.raises(PlanError) as info:
         plan_command("pick up the nut", _openai(server))

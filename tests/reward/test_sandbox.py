@@ -172,6 +172,22 @@ ESCAPES = {
     # The allowlist checks np.NAME: through an alias, a method name reached numpy's own.
     "numpy_alias": ("n = np\nd = n.dtype", "'np' may only be used as np.NAME"),
     "numpy_as_argument": ("x = max(np, 1)", "'np' may only be used as np.NAME"),
+    # Bound to another value, np.NAME was checked against numpy's list, not the methods': an
+    # array's every method was open.
+    "np_as_parameter": (
+        "def f(np):\n    return np.trace()\nx = f(ctx['ee_pos'])",
+        "'np' may only be bound",
+    ),
+    "np_as_function": ("def np():\n    return 0", "'np' may only be bound by its import"),
+    "math_as_star_argument": ("def f(*math):\n    return 0", "'math' may only be bound"),
+    "np_from_math": ("from math import pi as np", "'np' may only be bound by its import"),
+    "np_as_loop_target": ("for np in range(3):\n    pass", "assigning to 'np'"),
+    # The checker itself raised, killing the probe's process with a traceback.
+    "power_of_a_power_bomb": ("x = 2 ** 2 ** 1100", "power too large (2 ** a 1101-bit number)"),
+    "product_of_powers_bomb": (
+        "x = (2**4000 * 2**4000 * 2**4000 * 2**4000) ** 2",
+        "constant too large (a 8001-bit",
+    ),
 }
 
 
@@ -315,6 +331,11 @@ def test_the_context_is_read_only() -> None:
         ("z, {'a': z * np.nan}", "components['a'] has 3 non-finite"),
         ("z, {1: z}", "component names must be strings"),
         ("z, {'step': z}", "component name 'step' is taken by the training log"),
+        # Every name is a log column and a line of feedback: 200 names of 100,000 characters
+        # made a feedback prompt of 20 million characters.
+        ("z, {'c' * 101: z}", "component name 'cccc"),
+        ("z, {'a\\nb': z}", "must be 1 to 100 printable characters"),
+        ("z, {str(i): z for i in range(65)}", "65 components; at most 64"),
         ("z, {'a': 'text'}", "not numeric"),
         # Past the time limit: NumPy's conversion of a list holding itself ran for hours in C.
         ("a, {}", "total is a list of containers"),

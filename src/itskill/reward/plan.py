@@ -245,7 +245,9 @@ def plan_command(command: str, client: LLMClient, attempts: int = PLAN_ATTEMPTS)
         reply = client.complete(messages, n=1, purpose="plan", temperature=0.0)[0]
         try:
             data = parse_json_reply(reply)
-            if "error" in data:
+            # A model in JSON mode often writes every key it was shown: "error": null beside a
+            # plan is no refusal.
+            if data.get("error"):
                 raise PlanError(
                     f"cannot plan {command!r} ({client.name}): {data['error']}. "
                     + known_text(command)

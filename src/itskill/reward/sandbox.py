@@ -169,7 +169,7 @@ MAX_CONSTANT_ELEMENTS = 10**8
 """Largest constant size for a repeated sequence, a range or an array constructor."""
 MAX_INT_BITS = 4096
 """Largest integer a constant power may produce."""
-_SIZED_NUMPY = {"zeros", "ones", "full", "empty"}
+_SIZED_NUMPY = {"zeros", "ones", "full"}
 """Constructors whose first argument is the shape."""
 _REPEATING_NUMPY = {"tile", "repeat"}
 """Functions whose first argument is repeated by the others."""
@@ -178,6 +178,11 @@ _LIKE_NUMPY = {"empty_like", "zeros_like", "ones_like", "full_like"}
 
 def _violation(node: ast.AST, what: str) -> SandboxViolation:
     return SandboxViolation(f"line {getattr(node, 'lineno', '?')}: {what}")
+
+
+def _shown(value: int) -> str:
+    """``value`` for a message: Python refuses to print an integer of over 4,300 digits."""
+    return str(value) if value.bit_length() <= 64 else f"a {value.bit_length()}-bit number"
 
 
 def _const_int(node: ast.AST) -> int | None:
@@ -194,15 +199,26 @@ def _const_int(node: ast.AST) -> int | None:
         if isinstance(node.op, ast.Pow):
             if right < 0:
                 return None
-            if abs(left) > 1 and right * math.log2(abs(left)) > MAX_INT_BITS:
-                raise _violation(node, f"constant power too large ({left} ** {right})")
+            # Compared before the float product, which overflows for a huge exponent.
+            if abs(left) > 1 and (
+                right > MAX_INT_BITS or right * math.log2(abs(left)) > MAX_INT_BITS
+            ):
+                raise _violation(
+                    node, f"constant power too large ({_shown(left)} ** {_shown(right)})"
+                )
             return left**right
         if isinstance(node.op, ast.Mult):
-            return left * right
-        if isinstance(node.op, ast.Add):
-            return left + right
-        if isinstance(node.op, ast.Sub):
-            return left - right
+            value = left * right
+        elif isinstance(node.op, ast.Add):
+            value = left + right
+        elif isinstance(node.op, ast.Sub):
+            value = left - right
+        else:
+            return None
+        if value.bit_length() > MAX_INT_BITS:
+            # Products of allowed powers grow without bound: 2**4000 * 2**4000 * ...
+            raise _violation(node, f"constant too large ({_shown(value)})")
+        return value
     return None
 
 
@@ -291,26 +307,34 @@ class _Checker(ast.NodeVisitor):
         for alias in node.names:
             if alias.name not in MATH_ALLOWED:
                 raise _violation(node, f"math.{alias.name} is not allowed")
-            self._check_name(node, alias.asname or alias.name)
+            self._check_binding(node, alias.asname or alias.name)
 
     def visit_FunctionDef(self, node: ast.FunctionDef) -> None:
         if node.decorator_list:
             raise _violation(node, "decorators are not allowed")
         if node.returns is not None:
             node.returns = None  # annotations are never evaluated by the sandbox
-        self._check_name(node, node.name)
+        self._check_binding(node, node.name)
         for arg in node.args.posonlyargs + node.args.args + node.args.kwonlyargs:
-            self._check_name(arg, arg.arg)
+            self._check_binding(arg, arg.arg)
             arg.annotation = None
         for arg in (node.args.vararg, node.args.kwarg):
             if arg is not None:
-                self._check_name(arg, arg.arg)
+                self._check_binding(arg, arg.arg)
                 arg.annotation = None
         self.generic_visit(node)
 
     def _check_name(self, node: ast.AST, name: str) -> None:
         if name.startswith("_"):
             raise _violation(node, f"names starting with '_' are not allowed ({name!r})")
+
+    def _check_binding(self, node: ast.AST, name: str) -> None:
+        """A name the code binds (a function, an argument, an import alias): ``np`` and
+        ``math`` only by their imports, since ``np.X`` is checked against numpy's allowlist
+        whatever ``np`` holds (a parameter named ``np`` would open every method of an array)."""
+        self._check_name(node, name)
+        if name in ("np", "math"):
+            raise _violation(node, f"{name!r} may only be bound by its import")
 
     def visit_Name(self, node: ast.Name) -> None:
         self._check_name(node, node.id)
@@ -357,7 +381,7 @@ class _Checker(ast.NodeVisitor):
         if isinstance(node.op, ast.Mult):
             size = _elements(node)
             if size is not None and size > MAX_CONSTANT_ELEMENTS:
-                raise _violation(node, f"sequence repeated to {size} elements is too large")
+                raise _violation(node, f"sequence repeated to {_shown(size)} elements is too large")
         self.generic_visit(node)
 
     def visit_Call(self, node: ast.Call) -> None:
@@ -373,7 +397,7 @@ class _Checker(ast.NodeVisitor):
                 ]
         for size in sizes:
             if size is not None and size > MAX_CONSTANT_ELEMENTS:
-                raise _violation(node, f"constant size {size} is too large")
+                raise _violation(node, f"constant size {_shown(size)} is too large")
         self.generic_visit(node)
 
 
