@@ -456,3 +456,32 @@ def test_the_commands_refuse_an_empty_base_url(
     assert result.exit_code == 2, result.output
     assert "error: the endpoint URL is empty" in " ".join(result.output.split())
     assert not list(tmp_path.iterdir())  # no run left behind to be refused or resumed
+
+
+def test_a_reply_with_a_lone_surrogate_is_cached_and_replayed(tmp_path: Path) -> None:
+    # It could not be written to the cache (UTF-8) or sent back in the next request, and the
+    # run stopped with a traceback after the reply had been paid for.
+    with FakeOpenAIServer(["code \ud800 here"]) as server:
+        first = client(server, cache_dir=tmp_path).complete(MESSAGES, n=1, purpose="reward")
+    assert first == ["code ? here"]
+    assert client(server, cache_dir=tmp_path).complete(MESSAGES, n=1, purpose="reward") == first
+
+
+def test_a_refusal_echoing_a_newline_is_not_about_n() -> None:
+    # The echoed prompt's "\n" read as the parameter n: n was dropped for good, and every later
+    # request of K samples cost K prompts.
+    refusal = Status(400, "Input should be a valid string [input_value='write three rewards\\n']")
+    with FakeOpenAIServer([refusal]) as server:
+        c = client(server)
+        with pytest.raises(LLMError, match="rejected the request"):
+            c.complete(MESSAGES, n=2, purpose="reward")
+    assert c.n_supported is not False
+
+
+def test_choices_and_usage_that_are_not_openais_shape_are_named_or_not_counted() -> None:
+    c = OpenAIClient("fake-model", base_url="http://127.0.0.1:9/v1", retry=FAST)
+    reply = SimpleNamespace(choices=[SimpleNamespace(message=SimpleNamespace(content=["x"]))])
+    with pytest.raises(LLMError, match="content is list, not text"):
+        c._texts(reply)
+    c._account(SimpleNamespace(usage=SimpleNamespace(prompt_tokens="n/a", completion_tokens=7)))
+    assert c.usage.prompt_tokens == 0 and c.usage.completion_tokens == 7

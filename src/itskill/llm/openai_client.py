@@ -35,9 +35,9 @@ LOCAL_DUMMY_KEY = "sk-no-key-needed"
 RETRY_STATUSES = frozenset({408, 409, 429})
 """Statuses below 500 asked again, as the SDK's own policy does: a request timeout, a lock
 timeout, a rate limit."""
-_ABOUT_N = re.compile(r"(?<![\w-])n(?![\w-])|completion choice")
+_ABOUT_N = re.compile(r"(?<![\w\\-])n(?![\w-])|completion choice")
 """A refusal that names the ``n`` parameter, or the choices it counts (llama.cpp: "Only one
-completion choice is allowed")."""
+completion choice is allowed"); not the ``\\n`` of a prompt a validation error echoes."""
 
 
 @dataclass(frozen=True)
@@ -266,7 +266,18 @@ class OpenAIClient(BaseClient):
                 f"{self.base_url} did not answer like an OpenAI-compatible endpoint ({got}); "
                 "check --base-url (or OPENAI_BASE_URL): it should end in /v1"
             )
-        return [(getattr(c.message, "content", None) or "") for c in choices]
+        texts = []
+        for choice in choices:
+            content = getattr(getattr(choice, "message", None), "content", None)
+            if content is not None and not isinstance(content, str):
+                raise LLMError(
+                    f"{self.base_url} did not answer like an OpenAI-compatible endpoint (a "
+                    f"choice's message content is {type(content).__name__}, not text)"
+                )
+            # A lone UTF-16 surrogate cannot be written to the reply cache or sent back in the
+            # next request: the run stopped after the reply was paid for.
+            texts.append((content or "").encode("utf-8", "replace").decode("utf-8"))
+        return texts
 
     def _backoff(self, attempt: int, err: Exception) -> float:
         wait = min(self.retry.backoff_max_s, self.retry.backoff_initial_s * 2**attempt)
@@ -279,11 +290,17 @@ class OpenAIClient(BaseClient):
     def _account(self, response: Any) -> None:
         self.usage.requests += 1
         usage = getattr(response, "usage", None)
-        prompt = int(getattr(usage, "prompt_tokens", 0) or 0)
-        completion = int(getattr(usage, "completion_tokens", 0) or 0)
+        prompt, completion = (
+            _count(getattr(usage, k, 0)) for k in ("prompt_tokens", "completion_tokens")
+        )
         self.usage.prompt_tokens += prompt
         self.usage.completion_tokens += completion
         self.usage.cost_usd += (prompt * self.price[0] + completion * self.price[1]) / 1e6
+
+
+def _count(value: Any) -> int:
+    """A token count as the server sent it; 0 for one that is not a whole number."""
+    return value if isinstance(value, int) and not isinstance(value, bool) and value > 0 else 0
 
 
 def _about_n(err: openai.APIStatusError) -> bool:
