@@ -14,6 +14,7 @@ The probe runs the code in a child process under the sandbox's limits
 from __future__ import annotations
 
 import re
+import textwrap
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,22 +28,33 @@ from itskill.reward.sandbox import SandboxConfig
 from itskill.sim.task import Context
 from itskill.tasks import make_batch_env
 
-_FENCE = re.compile(r"```[ \t]*([A-Za-z0-9_+-]*)[ \t]*\n(.*?)(?:```|\Z)", re.DOTALL)
+_FENCE = re.compile(
+    r"^[ \t]*```[ \t]*([A-Za-z0-9_+-]*)[^\n]*\n(.*?)(?:^[ \t]*```|\Z)", re.DOTALL | re.MULTILINE
+)
+"""A fenced block: opened at the start of a line (indented inside a list item too), its language
+tag followed by anything (```` ```python title=reward.py ````); unclosed (a reply cut off by the
+token limit), it runs to the end of the reply."""
+_PYTHON = ("python", "py", "python3", "")
 
 
 def extract_code(reply: str) -> str:
     """The reward code in a reply.
 
-    The first fenced block that defines ``compute_reward``; else the first ``python`` block; else
-    the whole reply (a model that answers with bare code). An unclosed fence (a reply cut off by
-    the token limit) runs to the end of the reply.
+    The first fenced block that defines ``compute_reward``, a Python or untagged one before
+    any other (a ```` ```diff ```` of the change, written first, is not the code); else the
+    first ``python`` block; else the whole reply (a model that answers with bare code). A block
+    indented inside a list item is dedented; Windows line endings are read as Unix ones.
     """
-    blocks = [(m.group(1).lower(), m.group(2)) for m in _FENCE.finditer(reply)]
-    for _, code in blocks:
-        if "def compute_reward" in code:
-            return code.strip()
+    reply = reply.replace("\r\n", "\n")
+    blocks = [(m.group(1).lower(), textwrap.dedent(m.group(2))) for m in _FENCE.finditer(reply)]
+    defining = sorted(
+        (block for block in blocks if "def compute_reward" in block[1]),
+        key=lambda block: block[0] not in _PYTHON,
+    )
+    if defining:
+        return defining[0][1].strip()
     for lang, code in blocks:
-        if lang in ("python", "py", "python3"):
+        if lang in _PYTHON[:3]:
             return code.strip()
     return reply.strip()
 

@@ -1,0 +1,44 @@
+"""Taking the reward code out of a model's reply."""
+
+from __future__ import annotations
+
+import pytest
+
+from itskill.reward.generator import extract_code
+
+CODE = "def compute_reward(ctx):\n    if ctx:\n        return 1\n    return 0"
+FENCE = "```"
+
+
+@pytest.mark.parametrize(
+    ("reply", "why"),
+    [
+        (f"Here it is:\n{FENCE}python\n{CODE}\n{FENCE}\nDone.", "a python block"),
+        (f"{FENCE}\n{CODE}\n{FENCE}", "an untagged block"),
+        (f"{FENCE}python\nx = 1\n{FENCE}\n{FENCE}python\n{CODE}\n{FENCE}", "the block defining it"),
+        (CODE, "bare code"),
+        (f"{FENCE}python\n{CODE}", "a block cut off by the token limit"),
+        # Each of these ended in a syntax error in the sandbox, costing a regeneration.
+        (
+            "1. The reward:\n   "
+            + FENCE
+            + "python\n"
+            + "\n".join("   " + line for line in CODE.splitlines())
+            + "\n   "
+            + FENCE,
+            "a block indented in a list item",
+        ),
+        (f"Sure:\r\n{FENCE}python\r\n{CODE}\r\n{FENCE}\r\n".replace("\n    ", "\r\n    "), "CRLF"),
+        (f"{FENCE}python title=reward.py\n{CODE}\n{FENCE}", "text after the language tag"),
+        (
+            f"{FENCE}diff\n- def compute_reward(ctx): old\n{FENCE}\n{FENCE}python\n{CODE}\n{FENCE}",
+            "a diff of the change before the code",
+        ),
+    ],
+)
+def test_the_code_is_found(reply: str, why: str) -> None:
+    assert extract_code(reply) == CODE, why
+
+
+def test_a_python_block_without_compute_reward_is_taken_before_the_whole_reply() -> None:
+    assert extract_code(f"Words.\n{FENCE}python\nx = 1\n{FENCE}") == "x = 1"
