@@ -109,6 +109,9 @@ def test_analyzer_prompt_and_its_checks() -> None:
         ("{catalogue} {command} {extra}", "unknown field {extra}"),
         ("{catalogue} {command} {{json}} {0.__class__}", "not a plain name"),
         ("{catalogue} {command} {", "literal braces"),
+        # Accepted, then a ValueError with a traceback while the prompt was built.
+        ("{catalogue} {command:d}", "cannot be filled with text: Unknown format code 'd'"),
+        ("{catalogue} {command:{catalogue}}", "cannot be filled with text"),
     ],
 )
 def test_a_broken_template_is_named(text: str, problem: str) -> None:

@@ -142,6 +142,11 @@ def check_template(name: str, text: str, where: Path | str = "") -> None:
     missing = sorted(expected - set(fields))
     if missing:
         raise PromptError(f"{label}: missing field(s) {', '.join('{' + m + '}' for m in missing)}")
+    try:
+        # A format spec or conversion ({command:d}) fails only when the prompt is built.
+        text.format(**dict.fromkeys(expected, "text"))
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as err:
+        raise PromptError(f"{label}: cannot be filled with text: {err}") from err
 
 
 def render(name: str, **fields: str) -> str:
