@@ -507,3 +507,37 @@ def test_an_edited_config_json_is_a_report_error_not_a_format_traceback(tmp_path
     result = CliRunner().invoke(app, ["report", str(run), "--no-video"])
     assert result.exit_code == 2, result.output
     assert "Traceback" not in result.output
+
+
+def test_a_learn_report_of_dfs_says_it_has_no_attention_weights_rather_than_failing(tmp_path):
+    # Its attention was traced like ITN's: "attention trace of ... failed: ValueError" in the
+    # notes and "No attention figure: ValueError ..." in the report, as if the run were broken.
+    from itskill.experiments.report import learn_report
+
+    learn_dir = tmp_path / "learn"
+    train_transfer(
+        TASK, "dfs", "pick_nut_m12,place_nut_m12", steps=16, algo="a2c",
+        out=learn_dir / "transfer", num_envs=2, eval_every=8, eval_episodes=2, n_threads=1,
+        progress=False,
+    )  # fmt: skip
+    (learn_dir / "reward").mkdir()
+    (learn_dir / "reward" / "best_reward.py").write_text("def reward(obs):\n    return 0.0\n")
+    summary = {
+        "command": "Pick up the nut and place it on the bolt",
+        "budget": "test",
+        "plan": {"task": TASK, "objects": ["nut", "bolt"], "subtasks": ["pick", "place"],
+                 "actions": ["approach", "grasp", "lift", "approach", "place"]},
+        "reward": {"iterations": 1, "samples": 1, "llm": "offline", "best_success": 0.0,
+                   "run_dir": "reward", "best_path": "reward/best_reward.py"},
+        "transfer": {"run_dir": "transfer", "policy_dir": "transfer/best", "method": "dfs",
+                     "algo": "a2c", "steps": 16, "wall_s": 1.0, "final_success": 0.0,
+                     "sources": ["pick_nut_m12", "place_nut_m12"], "contribution": None},
+        "evaluation": {"success_rate": 0.0, "episodes": 4, "ci_low": 0.0, "ci_high": 0.49},
+        "video": False,
+    }  # fmt: skip
+    files = learn_report(learn_dir, summary)
+    text = " ".join(files.markdown.read_text().split())
+    assert "DFS has no attention weights" in text
+    assert "No attention figure" not in text
+    assert not any("attention" in note for note in files.notes), files.notes
+    assert not (learn_dir / "figures" / f"attention_{TASK}.png").exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from typer.testing import CliRunner
 from itskill.cli import app
 from itskill.llm.client import make_client
 from itskill.rl.checkpoint import CheckpointError, as_policy, load_policy, read_meta
+from itskill.rl.config import HyperparamError
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.rl.train import ResumeMismatchError, train
@@ -349,3 +351,79 @@ def test_a_resume_with_another_setting_names_the_setting(home: Path, tmp_path: P
         ResumeMismatchError, match=r"config\.prior_weight=0\.5.*config\.prior_weight=0\.9"
     ):
         run(out, "itn", steps=32, config=changed)
+
+
+def test_a_run_that_trained_nothing_yet_names_a_source_retrained_since_its_record(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Its network was built with the retrained source's shape and no weights, and every attempt
+    # (the run, each of the reward search's candidates) failed at the first step, a traceback.
+    from itskill.skills import Skill, SkillSpace
+    from itskill.transfer import search_network
+    from itskill.transfer.sources import SourceError
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    skill_dir = tmp_path / "pick"
+    make_source(skill_dir, seed=1, stages=(256, 256, 128))
+    with SkillSpace() as space:
+        space.add(Skill("pick", "pick_nut_m12", "Pick up the nut", ("approach", "grasp", "lift"),
+                        str(skill_dir / "policy.safetensors")))  # fmt: skip
+    client, fresh, trained = CountingClient(), tmp_path / "fresh", tmp_path / "trained"
+
+    def train_on(out: Path, steps: int):
+        return train_transfer(TARGET, "itn", "pick", steps=steps, algo="a2c", out=out,
+                              num_envs=2, client=client, logger=QUIET)  # fmt: skip
+
+    # The record alone, as `itskill learn` writes it before its reward search.
+    search_network(TARGET, "itn", fresh, "pick", algo="a2c", client=client)
+    assert train_on(trained, 16).num_timesteps == 16
+    shutil.rmtree(skill_dir)
+    make_source(skill_dir, seed=2, stages=(256, 256, 128))  # the skill retrained in place
+    before = _files(fresh)
+
+    stale = (
+        f"{fresh / 'transfer.json'}: the weights of source skill(s) 'pick' changed or are gone "
+        "since this record chose them"
+    )
+    with pytest.raises(SourceError, match=re.escape(stale)) as raised:
+        train_on(fresh, 16)
+    assert "start it in another --out, or delete transfer.json there" in str(raised.value)
+    with pytest.raises(SourceError, match=re.escape(stale)):
+        search_network(TARGET, "itn", fresh, "pick", algo="a2c", client=client)
+    args = ["transfer", "train", TARGET, "--sources", "pick", "--algo", "a2c", "--steps", "16",
+            "--num-envs", "2", "--out", str(fresh)]  # fmt: skip
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2 and "delete transfer.json there" in " ".join(res.output.split())
+    assert _files(fresh) == before
+    # A run with a checkpoint resumes: the checkpoint carries the weights it trained with.
+    assert train_on(trained, 32).resumed_from == 16
+
+
+def test_a_task_whose_hyperparameters_warm_start_it_transfers_from_its_sources_alone(
+    home: Path, tmp_path: Path
+) -> None:
+    # place_nut_m12's packaged table asks for scripted demonstrations: every method with sources
+    # was refused ("a warm start needs a StagedActorCriticPolicy"), and No_Transfer started from
+    # the script's clone, no longer the from-scratch baseline the methods are measured against.
+    for method in ("itn", "no_transfer"):
+        out = tmp_path / method
+        result = train_transfer("place_nut_m12", method, "auto", steps=16, algo="a2c", out=out,
+                                num_envs=2, client=CountingClient(), logger=QUIET)  # fmt: skip
+        assert result.num_timesteps == 16
+        assert read_meta(out)["hyperparams"]["demos"]["episodes"] == 0
+    # So does a reward search's candidate on the same network (the expert reward's, in process).
+    from itskill.reward.candidate import CandidateJob, _train_and_measure
+    from itskill.reward.sandbox import SandboxConfig
+    from itskill.transfer import search_network
+
+    network = search_network("place_nut_m12", "itn", tmp_path / "search", algo="a2c",
+                             client=CountingClient())  # fmt: skip
+    job = CandidateJob("place_nut_m12", tmp_path / "candidate", None, (0,), 16, 2, "a2c", 16, 1,
+                       1, SandboxConfig(), 300.0, network)  # fmt: skip
+    assert _train_and_measure(job)["env_steps"] == 16
+    assert read_meta(job.train_dir(0))["hyperparams"]["demos"]["episodes"] == 0
+    # Demonstrations the caller asks for are theirs to ask for.
+    with pytest.raises(HyperparamError, match="a warm start needs a StagedActorCriticPolicy"):
+        train_transfer("place_nut_m12", "itn", "auto", steps=16, algo="a2c",
+                       out=tmp_path / "asked", num_envs=2, client=CountingClient(), logger=QUIET,
+                       overrides={"demos": {"episodes": 5}})  # fmt: skip

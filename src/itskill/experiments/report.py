@@ -668,6 +668,8 @@ def _verdict(measured: Gain, paper: float) -> str:
 def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
     """The single-run report of ``itskill learn``: plan, reward, sources, curve, attention,
     evaluation and the skill added (``summary`` is the pipeline's ``summary.json``)."""
+    from itskill.transfer import get_method
+
     learn_dir = Path(learn_dir)
     figures, videos = learn_dir / FIGURES_DIR, learn_dir / VIDEOS_DIR
     notes: list[str] = []
@@ -741,9 +743,21 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
         doc.add(Figure(fig, "Deterministic success against env-steps during training."))
     except CurveError as err:
         notes.append(str(err))
-    if transfer["method"] != "no_transfer":
+    method = get_method(transfer["method"])
+    if method.uses_sources:
         doc.add(Heading("Attention over one episode", 3))
-        attention_section(doc, kept, plan["task"], figures, notes)
+        # The methods that use the analyzer's prior are the ones that weight their sources (ITN
+        # and PST by attention corrected by it, NIA by the prior itself); tracing any other
+        # fails, and the failure would read as a fault of the run.
+        if method.uses_prior:
+            attention_section(doc, kept, plan["task"], figures, notes)
+        else:
+            doc.add(
+                Paragraph(
+                    f"{method_label(method.name)} has no attention weights: it merges the "
+                    "sources' features without weighting them, so there is no attention figure."
+                )
+            )
     ev = summary["evaluation"]
     doc.add(Heading("Evaluation"))
     chosen = transfer.get("selection")

@@ -52,12 +52,15 @@ class CandidateNetwork:
     source skills, analyzer prior): trained from scratch at a candidate's budget, every reward
     for such a task scores 0% and the search cannot tell them apart. ``policy_class`` must be
     importable in a worker process (it travels by name); ``label`` names the network in logs and
-    in the run's ``config.json``.
+    in the run's ``config.json``; ``overrides`` are the hyper-parameter overrides every training
+    on it takes (:func:`itskill.rl.train.train`'s: a transfer network's turn off the task's
+    scripted warm start, which only the trainer's own network can take).
     """
 
     policy_class: type
     policy_kwargs: Mapping[str, Any] | None
     label: str
+    overrides: Mapping[str, Any] | None = None
 
     def describe(self) -> dict[str, str]:
         """The network as the run's ``config.json`` records it: class path and label."""
@@ -149,6 +152,7 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
         network = {
             "policy_class": job.network.policy_class,
             "policy_kwargs": job.network.policy_kwargs,
+            "overrides": job.network.overrides,
         }
     runs = []
     for seed in job.seeds:

@@ -119,7 +119,7 @@ def _build_source(spec: Mapping[str, Any]) -> tuple[ActorCriticPolicy, bool]:
     for key in ("name", "policy_class", "policy"):
         if key not in spec:
             raise ValueError(f"a source entry lacks {key!r}: {dict(spec)!r}")
-    if _weights_on_disk(spec):
+    if weights_on_disk(spec):
         return load_source(dict(spec)), True
     # Gone, or retrained since the network was specified: built as recorded, so that the saved
     # checkpoint a resumed run or an evaluation loads next brings the weights it trained with.
@@ -127,9 +127,11 @@ def _build_source(spec: Mapping[str, Any]) -> tuple[ActorCriticPolicy, bool]:
     return freeze(policy_from_meta(spec["policy_class"], spec["policy"], where)), False
 
 
-def _weights_on_disk(spec: Mapping[str, Any]) -> bool:
+def weights_on_disk(spec: Mapping[str, Any]) -> bool:
     """Whether the source's run directory holds the weights ``spec`` was made with (a spec
-    written before it recorded their hash takes whatever is there)."""
+    written before it recorded their hash takes whatever is there): if not, a network built
+    from ``spec`` has that source's shape but not its weights, and acts only once a saved
+    checkpoint is loaded into it."""
     run_dir = spec.get("run_dir")
     if not run_dir or not (Path(run_dir) / META_FILE).is_file():
         return False

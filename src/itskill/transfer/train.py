@@ -13,7 +13,7 @@ describes itself.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ from itskill.llm.client import LLMClient
 from itskill.reward.candidate import CandidateNetwork
 from itskill.rl.checkpoint import (
     BEST_DIR,
+    META_FILE,
     OBJECT,
     STRING,
     CheckpointError,
@@ -48,8 +49,9 @@ from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer.analyzer import ContributionMatrix, analyze
 from itskill.transfer.config import TransferConfig, load_transfer_config
+from itskill.transfer.lateral import weights_on_disk
 from itskill.transfer.methods import Method, get_method
-from itskill.transfer.sources import AUTO, SourceSkill, parse_keys, resolve_sources
+from itskill.transfer.sources import AUTO, SourceError, SourceSkill, parse_keys, resolve_sources
 from itskill.transfer.stages import fill_performers, stage_map, stage_performers
 
 TRANSFER_FILE = "transfer.json"
@@ -187,6 +189,25 @@ def _recorded(out: Path, settings: dict[str, Any]) -> dict[str, Any] | None:
     return old
 
 
+def _check_untrained_sources(out: Path, record: dict[str, Any]) -> None:
+    """:class:`SourceError` if ``out`` holds no checkpoint and a source of its ``record`` no
+    longer has the weights the record chose (a skill retrained, replaced or removed since).
+
+    A checkpoint carries the weights its network trained with, so a run that has one resumes
+    whatever became of its skills; without one, the network is built from the skills on disk,
+    and a source it cannot read would refuse to act at the first step of every attempt."""
+    if (out / META_FILE).is_file():
+        return
+    changed = [repr(s.get("name")) for s in record["source_specs"] if not weights_on_disk(s)]
+    if changed:
+        raise SourceError(
+            f"{out / TRANSFER_FILE}: the weights of source skill(s) {', '.join(changed)} changed "
+            "or are gone since this record chose them (a skill retrained, replaced or removed); "
+            "the run has trained nothing yet: start it in another --out, or delete "
+            f"{TRANSFER_FILE} there to choose its sources anew"
+        )
+
+
 def prepare_transfer(
     target: str,
     method: str,
@@ -205,7 +226,9 @@ def prepare_transfer(
     A record already in ``out`` is checked against these settings
     (:class:`~itskill.rl.train.ResumeMismatchError` if they differ) and returned without asking
     the analyzer again, so that whatever trains with this network (the run itself, or the reward
-    search's candidates before it) sees the same sources and matrix. Sources that cannot join the
+    search's candidates before it) sees the same sources and matrix; while ``out`` holds no
+    checkpoint, a source whose weights changed since the record was written is a
+    :class:`~itskill.transfer.sources.SourceError`. Sources that cannot join the
     method's network over a target of ``target_stages`` (default: the task's packaged
     hyper-parameters) are refused before the analyzer is asked or anything is written.
     """
@@ -215,6 +238,7 @@ def prepare_transfer(
     record = _settings(spec, meth, sources, seed, algo, config)
     old = _recorded(out, record)
     if old is not None:
+        _check_untrained_sources(out, old)
         return old
     chosen: list[SourceSkill] = []
     matrix: ContributionMatrix | None = None
@@ -321,7 +345,20 @@ def search_network(
     record = prepare_transfer(target, method, sources, seed, algo, out, client, config, space)
     policy_class, policy_kwargs = transfer_network(record, config)
     names = ", ".join(s["name"] for s in record["sources"])
-    return CandidateNetwork(policy_class, policy_kwargs, f"{record['method']} over {names}")
+    label = f"{record['method']} over {names}"
+    return CandidateNetwork(policy_class, policy_kwargs, label, _without_scripted_start(None))
+
+
+def _without_scripted_start(overrides: dict[str, Any] | None) -> dict[str, Any]:
+    """``overrides`` with the task's scripted warm start off (``demos.episodes = 0``) unless they
+    set it themselves: a transfer run starts from its sources, or for No_Transfer from nothing,
+    which keeps it the from-scratch baseline the methods are measured against (a task table's
+    demonstrations would otherwise warm-start it alone, and refuse every network with sources)."""
+    ov = dict(overrides or {})
+    demos = ov.get("demos", {})
+    if isinstance(demos, Mapping):  # anything else is refused by the hyper-parameters, named
+        ov["demos"] = {"episodes": 0, **demos}
+    return ov
 
 
 def train_transfer(
@@ -353,9 +390,10 @@ def train_transfer(
     ids/names. ``client`` answers the analyzer (default: :func:`itskill.llm.client.make_client`,
     i.e. ``$ITSKILL_LLM_MODEL`` or the offline backend). ``reward``, ``num_envs``,
     ``eval_every``, ``eval_episodes``, ``n_threads``, ``hyperparams`` and ``overrides`` are
-    :func:`itskill.rl.train.train`'s. Rerunning on the same ``out`` resumes; a run refused (its
-    settings, its reward, another run already in ``out``, or another session training there)
-    leaves ``out`` as it was.
+    :func:`itskill.rl.train.train`'s, except that a transfer run never warm-starts from the task's
+    scripted demonstrations (``demos.episodes`` is 0 unless ``overrides`` set it). Rerunning on
+    the same ``out`` resumes; a run refused (its settings, its reward, another run already in
+    ``out``, or another session training there) leaves ``out`` as it was.
     """
     config = config or load_transfer_config()
     out = Path(out)
@@ -374,7 +412,7 @@ def train_transfer(
             out,
             num_envs,
             hyperparams,
-            overrides,
+            _without_scripted_start(overrides),
             policy_class=meth.policy_class,
             eval_every=eval_every,
             eval_episodes=eval_episodes,
