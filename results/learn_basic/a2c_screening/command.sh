@@ -65,3 +65,10 @@ for v in vf1 tflike sde; do
     --eval-every 20000 --eval-episodes 50 --workers 2 \
     --hyperparams results/learn_basic/a2c_screening/$v/hyperparams.toml --out runs/a2c_screening/$v
 done
+# The same session, later: lower learning rates (RMSprop 4e-4; Adam 2e-4 with normalised
+# advantages, stopped after seeds 0 and 1). Runs in /work/runs/scr31/<variant>/out.
+for v in lr4e4 adam2e4; do
+  python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos a2c --seeds 0 1 2 --steps 300000 \
+    --eval-every 20000 --eval-episodes 50 --workers 2 \
+    --hyperparams results/learn_basic/a2c_screening/$v/hyperparams.toml --out runs/a2c_screening/$v
+done
