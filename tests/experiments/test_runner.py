@@ -537,3 +537,16 @@ def test_a_reward_file_edited_between_sessions_is_refused_and_cells_train_the_ru
     # A report's copy of the run keeps the reward its cells trained with.
     experiment_report(run, tmp_path / "copy", video=False)
     assert (tmp_path / "copy" / "rewards" / "pickplace_nut_m12.py").read_text() == original
+
+
+def test_pst_with_no_source_to_leave_out_is_refused_before_any_cell(tmp_path):
+    # Each PST cell failed on its own, after the other methods' cells had trained for hours.
+    from itskill.experiments.config import ExperimentConfigError
+
+    path = tmp_path / "toy.toml"
+    path.write_text("k = 1\n" + TOY.replace('["itn", "no_transfer"]', '["itn", "pst"]'))
+    run = tmp_path / "run"
+    with pytest.raises(ExperimentConfigError) as err:
+        run_experiment(load_experiment(path), run, "local", 1, source_file=path, console=quiet())
+    assert str(err.value).startswith(f"{path}: k: pst on pickplace_nut_m12: PST keeps 1 of the 1")
+    assert not (run / "config.json").exists()

@@ -329,7 +329,7 @@ def resolve_all_sources(
     :class:`ExperimentConfigError` naming ``sources.<task>`` and the file (``source_file``, else
     the run's copy of it or its ``config.json``).
     """
-    from itskill.transfer import get_method, resolve_sources
+    from itskill.transfer import get_method, load_transfer_config, resolve_sources
     from itskill.transfer.sources import SourceError
 
     path = run_dir / SOURCES_FILE
@@ -355,6 +355,16 @@ def resolve_all_sources(
             raise ExperimentConfigError(
                 _experiment_file(run_dir, source_file), f"sources.{task}", str(err)
             ) from err
+        for method in config.methods:
+            # As its cells will choose (PST keeps a subset, refusing to keep them all): said
+            # now, not by every such cell failing after hours of the others.
+            try:
+                get_method(method).select(chosen, load_transfer_config())
+            except SourceError as err:
+                where = "k" if wanted == AUTO else f"sources.{task}"
+                raise ExperimentConfigError(
+                    _experiment_file(run_dir, source_file), where, f"{method} on {task}: {err}"
+                ) from err
         found[task] = [s.name for s in chosen]
     return found
 
