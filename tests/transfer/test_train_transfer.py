@@ -427,3 +427,25 @@ def test_a_task_whose_hyperparameters_warm_start_it_transfers_from_its_sources_a
         train_transfer("place_nut_m12", "itn", "auto", steps=16, algo="a2c",
                        out=tmp_path / "asked", num_envs=2, client=CountingClient(), logger=QUIET,
                        overrides={"demos": {"episodes": 5}})  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        # Three rows for five stages: stages 3 and 4 took row 2's weights, without a word.
+        (lambda c: c.update(matrix=c["matrix"][:3], segments=c["segments"][:3]), "are not the"),
+        (lambda c: c["matrix"][0].__setitem__(0, float("nan")), "contribution: "),
+        (lambda c: [row.append(0.0) for row in c["matrix"]], "contribution: "),
+    ],
+)
+def test_a_contribution_matrix_that_does_not_fit_the_task_is_refused_naming_the_record(
+    home: Path, tmp_path: Path, edit, problem: str
+) -> None:
+    out = tmp_path / "run"
+    run(out, "itn")
+    record = json.loads((out / "transfer.json").read_text())
+    edit(record["contribution"])
+    (out / "transfer.json").write_text(json.dumps(record))
+    with pytest.raises(CheckpointError, match=re.escape(problem)) as err:
+        run(out, "itn", steps=32)
+    assert str(err.value).startswith(f"{out / 'transfer.json'}: contribution: ")

@@ -47,7 +47,7 @@ from itskill.rl.train import (
 from itskill.skills import SkillSpace
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.spec import TaskSpec
-from itskill.transfer.analyzer import ContributionMatrix, analyze
+from itskill.transfer.analyzer import ContributionMatrix, analyze, validate_matrix
 from itskill.transfer.config import TransferConfig, load_transfer_config
 from itskill.transfer.lateral import weights_on_disk
 from itskill.transfer.methods import Method, get_method
@@ -186,7 +186,30 @@ def _recorded(out: Path, settings: dict[str, Any]) -> dict[str, Any] | None:
     except CheckpointError as err:
         raise CheckpointError(err.path, err.problem + CANNOT_RESUME) from err
     _check_resume(old, settings, out)
+    _check_contribution(out / TRANSFER_FILE, old)
     return old
+
+
+def _check_contribution(path: Path, record: dict[str, Any]) -> None:
+    """:class:`CheckpointError` unless the record's contribution matrix is one for its target's
+    stages and its sources: a row per stage, a column per source, each row a distribution. A
+    hand-edited matrix, or one of a task file whose stages changed since, was applied to the
+    wrong stages without a word (fewer rows), or stopped the run with a traceback."""
+    contribution = record["contribution"]
+    if contribution is None:
+        return
+    stages = [st.name for st in get_task(record["target"]).stages]
+    names = [s["name"] for s in record["sources"]]
+    if contribution.get("segments", stages) != stages:
+        raise CheckpointError(
+            path,
+            f"contribution: its segments {contribution['segments']} are not the stages of "
+            f"{record['target']}, {stages}" + CANNOT_RESUME,
+        )
+    try:
+        validate_matrix(contribution["matrix"], len(stages), len(names))
+    except ValueError as err:
+        raise CheckpointError(path, f"contribution: {err}" + CANNOT_RESUME) from err
 
 
 def _check_untrained_sources(out: Path, record: dict[str, Any]) -> None:
