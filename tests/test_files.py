@@ -90,7 +90,11 @@ def test_a_directory_held_by_another_session_is_refused_and_one_session_may_nest
 
 def test_foreign_entries_leave_out_what_the_caller_and_file_browsers_own(tmp_path: Path) -> None:
     assert foreign_entries(tmp_path / "nowhere") == []
-    for name in ("plan.json", ".DS_Store", "network", "notes.txt"):
+    # A write a kill cut short left its temporary file: a learn or reward search killed before
+    # its first file was whole could not be started again until the user deleted it.
+    for name in ("plan.json", ".DS_Store", "network", "notes.txt", ".config.json.4242.tmp"):
         (tmp_path / name).write_text("")
-    assert foreign_entries(tmp_path) == ["network", "notes.txt", "plan.json"]
-    assert foreign_entries(tmp_path, lambda name: name == "network") == ["notes.txt", "plan.json"]
+    (tmp_path / ".notes.tmp").write_text("")  # not a name an itskill write uses: the user's
+    assert foreign_entries(tmp_path) == [".notes.tmp", "network", "notes.txt", "plan.json"]
+    own = foreign_entries(tmp_path, lambda name: name in ("network", ".notes.tmp"))
+    assert own == ["notes.txt", "plan.json"]

@@ -30,6 +30,11 @@ class CurveError(PicklableError, ValueError):
         self.path, self.problem = str(path), problem
 
 
+class NoEvaluationsError(CurveError):
+    """A run with no evaluation to read: no evaluation file, or one stopped before its first row
+    (any other :class:`CurveError` is a damaged file)."""
+
+
 @dataclass(frozen=True)
 class Curve:
     """One run's deterministic success against env-steps, with cumulative training wall time.
@@ -65,7 +70,9 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
     """
     path = Path(run_dir) / EVAL_FILE
     if not path.is_file():
-        raise CurveError(path, "missing: the run was not trained with evaluations (eval_every)")
+        raise NoEvaluationsError(
+            path, "missing: the run was not trained with evaluations (eval_every)"
+        )
     try:
         # Decoded whole, so a damaged byte's offset is the file's, not one of a read buffer's.
         reader = csv.DictReader(io.StringIO(path.read_bytes().decode("utf-8"), newline=""))
@@ -85,7 +92,7 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
         raise CurveError(path, f"not a number: {err}") from err
     if not raw:
         # A run stopped before its first evaluation: no curve to plot or reach a threshold on.
-        raise CurveError(path, "no evaluations")
+        raise NoEvaluationsError(path, "no evaluations")
     kept: list[list[float]] = []  # [step, wall over the run, success]
     offset = 0.0
     for step, wall, success in raw:

@@ -33,7 +33,7 @@ def replaced_whole(path: Path) -> Iterator[Path]:
     ``path`` is left as it was."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # see is_partial_write
     try:
         yield tmp
         os.replace(tmp, path)
@@ -196,14 +196,26 @@ BROWSER_FILES = frozenset({".DS_Store", "Thumbs.db", "desktop.ini"})
 """What a file browser leaves in a folder it showed: not the user's files."""
 
 
+def is_partial_write(name: str) -> bool:
+    """Whether ``name`` is the temporary file of a :func:`replaced_whole` write that a kill cut
+    short (``.NAME.PID.tmp``): itskill's, never the user's."""
+    if not (name.startswith(".") and name.endswith(".tmp")):
+        return False
+    stem, _, pid = name[1:].removesuffix(".tmp").rpartition(".")
+    return bool(stem) and pid.isdigit()
+
+
 def foreign_entries(directory: Path, ours: Callable[[str], bool] = lambda name: False) -> list[str]:
-    """The names, sorted, of the entries of ``directory`` that ``ours`` does not claim and no
-    file browser left (:data:`BROWSER_FILES`); none where it is not a directory. A new run asks
-    this of its ``--out``: a run there would read another's files, or overwrite the user's."""
+    """The names, sorted, of the entries of ``directory`` that ``ours`` does not claim, no file
+    browser left (:data:`BROWSER_FILES`) and no cut-short write of itskill's left
+    (:func:`is_partial_write`); none where it is not a directory. A new run asks this of its
+    ``--out``: a run there would read another's files, or overwrite the user's."""
     if not directory.is_dir():
         return []
     return sorted(
-        e.name for e in directory.iterdir() if e.name not in BROWSER_FILES and not ours(e.name)
+        e.name
+        for e in directory.iterdir()
+        if e.name not in BROWSER_FILES and not is_partial_write(e.name) and not ours(e.name)
     )
 
 

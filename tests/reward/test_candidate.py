@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from replies import GOOD
 
 from itskill.reward.candidate import CandidateJob, run_candidate
@@ -49,7 +50,7 @@ def _rerun_with_evaluations(tmp_path: Path, rows: str) -> dict:
     (tmp_path / "cand" / "result.json").unlink()
     eval_file = job.train_dir(0) / "eval.csv"
     header = eval_file.read_text().splitlines()[0]
-    eval_file.write_text(f"{header}\n{rows}")
+    eval_file.write_bytes(f"{header}\n{rows}".encode("utf-8", "surrogateescape"))
     return run_candidate(job)
 
 
@@ -64,7 +65,13 @@ def test_a_candidates_success_leaves_out_evaluations_a_resumed_session_replaced(
     assert result["success"] == 0.5 and result["runs"][0]["curve"] == [(64, 0.2), (128, 0.5)]
 
 
-def test_a_candidate_whose_evaluations_are_damaged_fails_naming_the_file(tmp_path: Path) -> None:
-    result = _rerun_with_evaluations(tmp_path, "64,1,0.2,0,1,60,0\n128,2\n")
+@pytest.mark.parametrize(
+    ("rows", "problem"),
+    [("64,1,0.2,0,1,60,0\n128,2\n", "not a number"), ("64,1,0.2,0,1,60,\udcff\n", "not UTF-8")],
+)
+def test_a_candidate_whose_evaluations_are_damaged_fails_naming_the_file(
+    tmp_path: Path, rows: str, problem: str
+) -> None:
+    result = _rerun_with_evaluations(tmp_path, rows)
     assert result["status"] == "failed"
-    assert "eval.csv: not a number" in result["error"]
+    assert f"eval.csv: {problem}" in result["error"]

@@ -18,6 +18,9 @@ FENCE = "```"
         (f"{FENCE}python\nx = 1\n{FENCE}\n{FENCE}python\n{CODE}\n{FENCE}", "the block defining it"),
         (CODE, "bare code"),
         (f"{FENCE}python\n{CODE}", "a block cut off by the token limit"),
+        (f"{FENCE}python\n{CODE}{FENCE}", "a fence closed at the end of the last code line"),
+        (f"Here is the reward: {FENCE}python\n{CODE}\n{FENCE}", "a fence opened after text"),
+        (f"Use {FENCE}np.where{FENCE} to gate.\n{FENCE}python\n{CODE}\n{FENCE}", "inline"),
         # Each of these ended in a syntax error in the sandbox, costing a regeneration.
         (
             "1. The reward:\n   "

@@ -35,9 +35,10 @@ LOCAL_DUMMY_KEY = "sk-no-key-needed"
 RETRY_STATUSES = frozenset({408, 409, 429})
 """Statuses below 500 asked again, as the SDK's own policy does: a request timeout, a lock
 timeout, a rate limit."""
-_ABOUT_N = re.compile(r"(?<![\w\\-])n(?![\w-])|completion choice")
+_ABOUT_N = re.compile(r"(?<![\w-])n(?![\w-])|completion choice")
 """A refusal that names the ``n`` parameter, or the choices it counts (llama.cpp: "Only one
-completion choice is allowed"); not the ``\\n`` of a prompt a validation error echoes."""
+completion choice is allowed"), read with every escaped ``\\n`` made a space: the newline of a
+prompt a validation error echoes is not the parameter."""
 
 
 @dataclass(frozen=True)
@@ -306,7 +307,7 @@ def _count(value: Any) -> int:
 def _about_n(err: openai.APIStatusError) -> bool:
     """Whether a refused multi-sample request was refused for its ``n``: the error's ``param``
     (OpenAI's error body names the field), else its message."""
-    return err.param == "n" or _ABOUT_N.search(_detail(err)) is not None
+    return err.param == "n" or _ABOUT_N.search(_detail(err).replace("\\n", " ")) is not None
 
 
 def _detail(err: Exception) -> str:

@@ -129,10 +129,10 @@ def run_candidate(job: CandidateJob) -> dict[str, Any]:
 
 def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
     # Imported here, not at the top: the worker that only supervises the child needs none of it.
-    from itskill.curves import read_curve
+    from itskill.curves import NoEvaluationsError, read_curve
     from itskill.reward.feedback import component_stats, peak_success
     from itskill.rl.checkpoint import as_policy
-    from itskill.rl.eval_callback import EVAL_ENVS, EVAL_SEED, last_evaluated
+    from itskill.rl.eval_callback import EVAL_ENVS, EVAL_SEED
     from itskill.rl.logger import LoggerConfig
     from itskill.rl.train import RewardSource, train
     from itskill.tasks import get_task
@@ -170,12 +170,13 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
             eval_episodes=job.eval_episodes,
             **network,
         )
-        curve = []
-        if last_evaluated(job.train_dir(seed)) is not None:
+        try:
             # A damaged file raises, naming itself: the candidate fails rather than being
             # measured on its final policy alone.
             done = read_curve(job.train_dir(seed), job.steps)
             curve = [(int(s), float(v)) for s, v in zip(done.steps, done.success, strict=True)]
+        except NoEvaluationsError:
+            curve = []
         if not curve or curve[-1][0] < result.num_timesteps:
             # Interrupted between the last checkpoint and its evaluation: evaluate it now, with
             # the evaluation callback's episodes, so the final policy always counts.

@@ -29,11 +29,16 @@ from itskill.sim.task import Context
 from itskill.tasks import make_batch_env
 
 _FENCE = re.compile(
-    r"^[ \t]*```[ \t]*([A-Za-z0-9_+-]*)[^\n]*\n(.*?)(?:^[ \t]*```|\Z)", re.DOTALL | re.MULTILINE
+    r"^[ \t]*```[ \t]*([A-Za-z0-9_+-]*)[^\n]*\n(.*?)(?:^[ \t]*```|```[ \t]*$|\Z)",
+    re.DOTALL | re.MULTILINE,
 )
-"""A fenced block: opened at the start of a line (indented inside a list item too), its language
-tag followed by anything (```` ```python title=reward.py ````); unclosed (a reply cut off by the
-token limit), it runs to the end of the reply."""
+"""A fenced block as Markdown writes it: opened at the start of a line (indented inside a list
+item too), its language tag followed by anything (```` ```python title=reward.py ````), closed on
+a line of its own or at the end of the last code line; unclosed (a reply cut off by the token
+limit), it runs to the end of the reply."""
+_LOOSE_FENCE = re.compile(r"```[ \t]*([A-Za-z0-9_+-]*)[ \t]*\n(.*?)(?:```|\Z)", re.DOTALL)
+"""A fence anywhere on a line ("Here it is: ```python"), tried when no block of :data:`_FENCE`
+defines the reward: read first, it would take ```` ```inline``` ```` prose for a block."""
 _PYTHON = ("python", "py", "python3", "")
 
 
@@ -46,14 +51,17 @@ def extract_code(reply: str) -> str:
     indented inside a list item is dedented; Windows line endings are read as Unix ones.
     """
     reply = reply.replace("\r\n", "\n")
-    blocks = [(m.group(1).lower(), textwrap.dedent(m.group(2))) for m in _FENCE.finditer(reply)]
-    defining = sorted(
-        (block for block in blocks if "def compute_reward" in block[1]),
-        key=lambda block: block[0] not in _PYTHON,
-    )
-    if defining:
-        return defining[0][1].strip()
-    for lang, code in blocks:
+    found = []
+    for fence in (_FENCE, _LOOSE_FENCE):
+        blocks = [(m[1].lower(), textwrap.dedent(m[2])) for m in fence.finditer(reply)]
+        defining = sorted(
+            (block for block in blocks if "def compute_reward" in block[1]),
+            key=lambda block: block[0] not in _PYTHON,
+        )
+        if defining:
+            return defining[0][1].strip()
+        found += blocks
+    for lang, code in found:
         if lang in _PYTHON[:3]:
             return code.strip()
     return reply.strip()

@@ -57,7 +57,7 @@ class MetricsWriter:
         self.jsonl_path = run_dir / "metrics.jsonl"
         self._columns: list[str] | None = None
         if self.csv_path.exists():
-            with open(self.csv_path, newline="") as fh:
+            with open(self.csv_path, newline="", encoding="utf-8", errors="replace") as fh:
                 header = next(csv.reader(fh), None)
             self._columns = header or None
 
@@ -118,7 +118,8 @@ def drop_rows_after(path: Path, step: int) -> int:
     a crash goes too."""
     if not path.exists():
         return 0
-    with open(path, newline="") as fh:
+    # A damaged byte is kept as U+FFFD: the rows around it still say where the run was.
+    with open(path, newline="", encoding="utf-8", errors="replace") as fh:
         rows = list(csv.reader(fh))
     if not rows:
         return 0

@@ -110,18 +110,8 @@ metrics truncated."""
 
 def _foreign_entries(run_dir: Path, own: frozenset[str]) -> list[str]:
     """Entries of ``run_dir``, and of its ``best/``, that neither training nor its caller
-    (``own``) writes; the temporary file of an atomic write of one of them, cut short, is the
-    run's own (:func:`itskill.files.replaced_whole` names it ``.NAME.PID.tmp``)."""
-    allowed = RUN_ENTRIES | own
-
-    def ours(name: str) -> bool:
-        if name in allowed:
-            return True
-        if not (name.startswith(".") and name.endswith(".tmp")):
-            return False
-        stem, _, pid = name[1:].removesuffix(".tmp").rpartition(".")
-        return pid.isdigit() and stem in allowed
-
+    (``own``) writes (:func:`itskill.files.foreign_entries`)."""
+    ours = (RUN_ENTRIES | own).__contains__
     best = [f"{BEST_DIR}/{name}" for name in foreign_entries(run_dir / BEST_DIR, ours)]
     return foreign_entries(run_dir, ours) + best
 

@@ -33,6 +33,10 @@ class ShippedLibraryWarning(UserWarning):
     """The package's skill library is damaged: the skill space opened without its upkeep."""
 
 
+_DAMAGE_SHOWN: set[str] = set()
+"""The shipped library's problems this process has warned of."""
+
+
 def open_skill_space(
     path: Path | str | None = None, config: SkillSpaceConfig | None = None
 ) -> SkillSpace:
@@ -59,14 +63,16 @@ def open_skill_space(
                     space.record_offered_shipped(new)
                 _refresh_shipped(space, library, entries)
             except ManifestError as err:
-                warnings.warn(
-                    f"the shipped skill library is damaged ({err}); its skills are left as "
-                    "they are in the skill space: reinstall itskill to mend it",
-                    ShippedLibraryWarning,
-                    # Its own line, not the caller's: Python shows a warning once per line
-                    # that raises it, and a command may open the space from several places.
-                    stacklevel=1,
-                )
+                # Once per process and problem: a command opens the space from several places,
+                # and Python's own once-per-line rule is reset by any catch_warnings.
+                if str(err) not in _DAMAGE_SHOWN:
+                    _DAMAGE_SHOWN.add(str(err))
+                    warnings.warn(
+                        f"the shipped skill library is damaged ({err}); its skills are left as "
+                        "they are in the skill space: reinstall itskill to mend it",
+                        ShippedLibraryWarning,
+                        stacklevel=2,
+                    )
     except BaseException:
         space.close()  # the caller gets no space to close
         raise

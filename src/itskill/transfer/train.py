@@ -374,9 +374,10 @@ def search_network(
 
 def _without_scripted_start(overrides: dict[str, Any] | None) -> dict[str, Any]:
     """``overrides`` with the task's scripted warm start off (``demos.episodes = 0``) unless they
-    set it themselves: a transfer run starts from its sources, or for No_Transfer from nothing,
-    which keeps it the from-scratch baseline the methods are measured against (a task table's
-    demonstrations would otherwise warm-start it alone, and refuse every network with sources)."""
+    set it themselves, for a network with sources: it starts from them, and cannot take the
+    staged policy's clone of the script (a task table's demonstrations refused every such
+    network). No_Transfer, the target network alone, keeps its task's settings, as its reward
+    search's candidates on that network do and as runs before this rule trained."""
     ov = dict(overrides or {})
     demos = ov.get("demos", {})
     if isinstance(demos, Mapping):  # anything else is refused by the hyper-parameters, named
@@ -413,10 +414,10 @@ def train_transfer(
     ids/names. ``client`` answers the analyzer (default: :func:`itskill.llm.client.make_client`,
     i.e. ``$ITSKILL_LLM_MODEL`` or the offline backend). ``reward``, ``num_envs``,
     ``eval_every``, ``eval_episodes``, ``n_threads``, ``hyperparams`` and ``overrides`` are
-    :func:`itskill.rl.train.train`'s, except that a transfer run never warm-starts from the task's
-    scripted demonstrations (``demos.episodes`` is 0 unless ``overrides`` set it). Rerunning on
-    the same ``out`` resumes; a run refused (its settings, its reward, another run already in
-    ``out``, or another session training there) leaves ``out`` as it was.
+    :func:`itskill.rl.train.train`'s, except that a method with sources never warm-starts from
+    the task's scripted demonstrations (``demos.episodes`` is 0 unless ``overrides`` set it).
+    Rerunning on the same ``out`` resumes; a run refused (its settings, its reward, another run
+    already in ``out``, or another session training there) leaves ``out`` as it was.
     """
     config = config or load_transfer_config()
     out = Path(out)
@@ -435,7 +436,7 @@ def train_transfer(
             out,
             num_envs,
             hyperparams,
-            _without_scripted_start(overrides),
+            _without_scripted_start(overrides) if meth.uses_sources else overrides,
             policy_class=meth.policy_class,
             eval_every=eval_every,
             eval_episodes=eval_episodes,
