@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from itskill.curves import CurveError, read_curve
+from itskill.curves import CurveError, NoEvaluationsError, read_curve
 
 
 def test_read_curve_drops_rows_superseded_by_a_resumed_session(tmp_path):
@@ -34,17 +34,20 @@ def test_read_curve_keeps_a_clock_that_goes_on_across_sessions(tmp_path):
 
 
 def test_read_curve_errors_name_the_file_and_problem(tmp_path):
-    with pytest.raises(CurveError, match=r"eval\.csv: missing"):
+    # Not evaluated yet (the reward search then measures the final policy) is told apart from
+    # a damaged file (the candidate fails, naming it).
+    with pytest.raises(NoEvaluationsError, match=r"eval\.csv: missing"):
         read_curve(tmp_path, 100)
     (tmp_path / "eval.csv").write_text("env_steps,success\n100,0.5\n")
-    with pytest.raises(CurveError, match="missing column"):
+    with pytest.raises(CurveError, match="missing column") as damaged:
         read_curve(tmp_path, 100)
+    assert not isinstance(damaged.value, NoEvaluationsError)
     (tmp_path / "eval.csv").write_text("env_steps,wall_s,success\n100,x,0.5\n")
     with pytest.raises(CurveError, match="not a number"):
         read_curve(tmp_path, 100)
     # A run stopped before its first evaluation: read as an empty curve, the report failed.
     (tmp_path / "eval.csv").write_text("env_steps,wall_s,success\n")
-    with pytest.raises(CurveError, match=r"eval\.csv: no evaluations"):
+    with pytest.raises(NoEvaluationsError, match=r"eval\.csv: no evaluations"):
         read_curve(tmp_path, 100)
     # A damaged byte: the report notes the cell's file instead of stopping with a traceback.
     (tmp_path / "eval.csv").write_bytes(b"env_steps,wall_s,success\n100,1,0.5\n\xff\xfe,2,0.6\n")
