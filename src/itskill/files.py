@@ -48,9 +48,10 @@ def copy_whole(source: Path, path: Path) -> None:
         shutil.copyfile(source, tmp)
 
 
-def write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` whole (:func:`replaced_whole`), synced to disk first."""
-    with replaced_whole(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+def write_text(path: Path, text: str, errors: str = "strict") -> None:
+    """Write ``text`` to ``path`` whole (:func:`replaced_whole`), synced to disk first, in UTF-8
+    (``errors`` as :func:`open` takes it: ``surrogateescape`` writes back bytes read with it)."""
+    with replaced_whole(path) as tmp, open(tmp, "w", encoding="utf-8", errors=errors) as fh:
         fh.write(text)
         fh.flush()
         os.fsync(fh.fileno())

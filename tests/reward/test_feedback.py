@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from itskill.curves import CurveError
 from itskill.reward.feedback import EPISODE_RETURN, component_stats, peak_success
 
 METRICS = """\
@@ -48,3 +49,12 @@ def test_a_run_without_files_has_no_stats(tmp_path: Path) -> None:
     run = tmp_path / "empty"
     run.mkdir()
     assert component_stats([run]) == {}
+
+
+def test_a_damaged_metrics_file_is_named(tmp_path: Path) -> None:
+    # The trainer now gets past a damaged byte; the candidate then failed here, unnamed.
+    run = tmp_path / "a"
+    run.mkdir()
+    (run / "metrics.csv").write_bytes(METRICS.encode() + b"4096,\xff\n")
+    with pytest.raises(CurveError, match=r"metrics\.csv: not UTF-8 text"):
+        component_stats([run])

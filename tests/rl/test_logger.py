@@ -6,8 +6,16 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
-from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter, read_metrics
+from itskill.curves import CurveError, read_curve
+from itskill.rl.logger import (
+    LoggerConfig,
+    MetricsCallback,
+    MetricsWriter,
+    drop_rows_after,
+    read_metrics,
+)
 
 
 def test_episodes_from_a_training_start_are_left_out_of_the_success_rate(tmp_path: Path) -> None:
@@ -81,3 +89,14 @@ def test_a_run_started_again_gets_the_header_of_its_own_reward(tmp_path: Path) -
     header, *rows = fresh.csv_path.read_text().splitlines()
     assert header.split(",")[-1] == "reach" and "foo" not in header
     assert len(rows) == 1
+
+
+def test_rows_dropped_on_resume_keep_a_damaged_byte_for_the_reports_to_name(tmp_path) -> None:
+    # Resuming over a damaged byte stopped with a traceback; read with replacement, the rewrite
+    # then turned the byte into U+FFFD for good and the reports could no longer name it.
+    path = tmp_path / "eval.csv"
+    path.write_bytes(b"env_steps,wall_s,success\n64,1,0.\xff\n128,2,0.5\n192,3,0.6\n")
+    assert drop_rows_after(path, 128) == 2
+    assert path.read_bytes() == b"env_steps,wall_s,success\r\n64,1,0.\xff\r\n128,2,0.5\r\n"
+    with pytest.raises(CurveError, match=r"not UTF-8 text \(byte 33\)"):
+        read_curve(tmp_path, 192)

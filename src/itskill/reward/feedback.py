@@ -14,6 +14,7 @@ import math
 from collections.abc import Iterable
 from pathlib import Path
 
+from itskill.curves import CurveError
 from itskill.reward_contract import LOG_COLUMNS
 
 EPISODE_RETURN = "episode_return"
@@ -30,8 +31,11 @@ def _float(text: str | None) -> float | None:
 def _rows(path: Path) -> list[dict[str, str]]:
     if not path.is_file():
         return []
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+    except UnicodeDecodeError as err:  # the candidate fails, naming the file
+        raise CurveError(path, f"not UTF-8 text (byte {err.start})") from err
 
 
 def component_stats(run_dirs: Iterable[Path]) -> dict[str, dict[str, float]]:

@@ -118,8 +118,9 @@ def drop_rows_after(path: Path, step: int) -> int:
     a crash goes too."""
     if not path.exists():
         return 0
-    # A damaged byte is kept as U+FFFD: the rows around it still say where the run was.
-    with open(path, newline="", encoding="utf-8", errors="replace") as fh:
+    # A damaged byte is carried through as it is, for the reports to name: the rows around it
+    # still say where the run was.
+    with open(path, newline="", encoding="utf-8", errors="surrogateescape") as fh:
         rows = list(csv.reader(fh))
     if not rows:
         return 0
@@ -128,7 +129,7 @@ def drop_rows_after(path: Path, step: int) -> int:
     if len(kept) < len(body):
         text = io.StringIO()
         csv.writer(text).writerows([header, *kept])
-        write_text(path, text.getvalue())
+        write_text(path, text.getvalue(), errors="surrogateescape")
     return len(kept)
 
 
