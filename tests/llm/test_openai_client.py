@@ -483,5 +483,7 @@ def test_choices_and_usage_that_are_not_openais_shape_are_named_or_not_counted()
     reply = SimpleNamespace(choices=[SimpleNamespace(message=SimpleNamespace(content=["x"]))])
     with pytest.raises(LLMError, match="content is list, not text"):
         c._texts(reply)
+    with pytest.raises(LLMError, match="a choice without a message"):
+        c._texts(SimpleNamespace(choices=[SimpleNamespace(text="hello")]))
     c._account(SimpleNamespace(usage=SimpleNamespace(prompt_tokens="n/a", completion_tokens=7)))
     assert c.usage.prompt_tokens == 0 and c.usage.completion_tokens == 7

@@ -142,11 +142,16 @@ def test_resume_continues_without_asking_the_analyzer_again(home: Path, tmp_path
         num_envs=2, client=client, logger=QUIET, config=TransferConfig(analyzer_retries=5),
     )  # fmt: skip
     assert again.resumed_from == 48 and client.calls == 0
+    # So are the skills by their serial numbers (refused as another run before).
+    ids = ",".join(str(s["id"]) for s in read_transfer(out)["sources"])
+    by_id = train_transfer(TARGET, "itn", ids, seed=0, steps=80, algo="a2c", out=out, num_envs=2,
+                           client=client, logger=QUIET)  # fmt: skip
+    assert by_id.resumed_from == 64
     # A run recorded before retrieval had a success threshold resumes: it keeps its sources.
     record = read_transfer(out)
     del record["config"]["min_success"]
     (out / "transfer.json").write_text(json.dumps(record))
-    assert run(out, "itn", steps=80).resumed_from == 64
+    assert run(out, "itn", steps=96).resumed_from == 80
 
 
 def test_a_run_from_before_the_residual_resumes_without_it(home: Path, tmp_path: Path) -> None:

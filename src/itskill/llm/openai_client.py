@@ -269,7 +269,16 @@ class OpenAIClient(BaseClient):
             )
         texts = []
         for choice in choices:
-            content = getattr(getattr(choice, "message", None), "content", None)
+            message = getattr(choice, "message", None)
+            if message is None:
+                # A text-completions server's choices carry "text": read as an empty reply, it
+                # was cached and cost a regeneration each time.
+                raise LLMError(
+                    f"{self.base_url} did not answer like an OpenAI-compatible chat endpoint (a "
+                    "choice without a message); check --base-url (or OPENAI_BASE_URL): it "
+                    "should serve /v1/chat/completions"
+                )
+            content = getattr(message, "content", None)
             if content is not None and not isinstance(content, str):
                 raise LLMError(
                     f"{self.base_url} did not answer like an OpenAI-compatible endpoint (a "

@@ -130,7 +130,10 @@ _LEGACY_CONFIG = {"residual": False}
 def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
     old = {**old, "config": {**_LEGACY_CONFIG, **old["config"]}}
     keys = ("target", "method", "algo", "seed", "sources_request", "k")
-    have, want = _as_compared(old), _as_compared(new)
+    # A skill named by its serial number is the same source as by its name: the record knows
+    # which serial numbers its sources had.
+    names = {s.get("id"): s["name"] for s in old["sources"] if isinstance(s.get("id"), int)}
+    have, want = _as_compared(old, names), _as_compared(new, names)
     require_same(have, want, keys, out, "transfer run")
     # Setting by setting, so that the message names the one that differs.
     require_same(
@@ -142,14 +145,17 @@ def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
     )
 
 
-def _as_compared(settings: dict[str, Any]) -> dict[str, Any]:
+def _as_compared(settings: dict[str, Any], names: dict[int, str]) -> dict[str, Any]:
     """The settings as a resume compares them: the sources as the skills they name, however
-    the list was written ("a,b" on the command line, a list from Python), and without the
-    analyzer's retries and the retrieval's success threshold (the record holds its matrix and
-    its sources: neither is asked for again, and a run from before the threshold resumes)."""
+    the list was written ("a,b" on the command line, a list from Python, serial numbers the
+    record's sources had, ``names``, or their names), and without the analyzer's retries and
+    the retrieval's success threshold (the record holds its matrix and its sources: neither is
+    asked for again, and a run from before the threshold resumes)."""
     request = settings.get("sources_request")
     if request is not None and request != AUTO:
-        request = parse_keys(request)
+        request = [
+            names.get(key, key) if isinstance(key, int) else key for key in parse_keys(request)
+        ]
     ignored = ("analyzer_retries", "min_success")
     config = {k: v for k, v in settings["config"].items() if k not in ignored}
     return {**settings, "sources_request": request, "config": config}
