@@ -219,11 +219,11 @@ def _reward_files(config: ExperimentConfig) -> dict[str, Path]:
     return {task: Path(reward) for task, reward in config.reward.items() if reward != EXPERT}
 
 
-def _check_rewards_unchanged(config: ExperimentConfig, run_dir: Path) -> None:
+def _check_rewards_unchanged(rewards: dict[str, Path], run_dir: Path) -> None:
     """Refuse a resume whose reward file was edited since the run copied it: the cells still to
     train would learn another reward than the finished ones, and the report mix the two. A run
     from before the copies were kept is checked against what its cells' checkpoints record."""
-    for task, reward in _reward_files(config).items():
+    for task, reward in rewards.items():
         now, copy = reward.read_bytes(), reward_copy(run_dir, task)
         if copy.is_file():
             changed, version = now != copy.read_bytes(), f"that version is in {copy}"
@@ -441,7 +441,8 @@ def _run(
 ) -> RunSummary:
     """:func:`run_experiment`'s run, once ``run_dir`` is this session's alone."""
     old = _recorded_run(config, run_dir, resume, source_file)
-    _check_rewards_unchanged(config, run_dir)
+    rewards = _reward_files(config)
+    _check_rewards_unchanged(rewards, run_dir)
     # Before the run is recorded: a source that cannot be found leaves no run to --resume.
     sources = resolve_all_sources(config, run_dir, source_file)
     summary = RunSummary(run_dir)
@@ -464,7 +465,7 @@ def _run(
         # config.json first: from then on the directory is a run, which --resume completes.
         write_json(run_dir / CONFIG_FILE, record.to_dict())
         write_json(run_dir / SOURCES_FILE, sources)
-        for task, reward in _reward_files(config).items():
+        for task, reward in rewards.items():
             if not reward_copy(run_dir, task).is_file():
                 copy_whole(reward, reward_copy(run_dir, task))
         if source_file is not None and not _same_file(source_file, run_dir / EXPERIMENT_FILE):
@@ -472,7 +473,6 @@ def _run(
     for cell in todo:
         # A failure of an earlier session is retried now: the report must not call it failed.
         (cell.dir(run_dir) / ERROR_FILE).unlink(missing_ok=True)
-    rewards = _reward_files(config)
     jobs = [
         (
             cell,
