@@ -254,6 +254,38 @@ def test_planner_refuses_a_move_to_nothing_of_the_scene(command: str, clause: st
 @pytest.mark.parametrize(
     "command",
     [
+        # Each was planned as a reach of the nut: no task moves a part anywhere but over a fixture.
+        "Move the nut away from the bolt",
+        "move the nut off the bolt",
+        "Move the M12 nut to the left",
+    ],
+)
+def test_planner_refuses_a_part_moved_where_no_task_takes_it(command: str) -> None:
+    reply = plan(command)
+    assert set(reply) == {"error"}
+    assert reply["error"].startswith(
+        f"{command.lower()!r} moves a part where the offline planner cannot take it"
+    )
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        # Each was planned as the unscrew alone, the place dropped.
+        "Unscrew the nut and place it",
+        "Unscrew the M12 nut and put it on the bolt",
+    ],
+)
+def test_planner_refuses_a_place_no_task_does_after_the_unscrew(command: str) -> None:
+    reply = plan(command)
+    assert set(reply) == {"error"}
+    assert reply["error"].startswith("no catalogue task does what the command asks")
+    assert reply["error"].endswith("(actions read from the command: unscrew, place or align)")
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
         # Each was planned as the pick (or grasp) alone: no task picks a part and only carries it.
         "Pick up the M12 nut and move it over the bolt",
         "Pick up the nut and hold it above the bolt",

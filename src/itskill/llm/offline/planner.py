@@ -20,8 +20,9 @@
    words added).
 4. What the rules cannot read is refused, not dropped: a negation ("don't", "never", "without":
    a plan says only what to do), a clause between separators (commas, "and", "then", ...) with
-   no verb they know that is more than filler or a part's description ("and then dance"), and a
-   place a part is put that is no fixture of the scene ("on the table").
+   no verb they know that is more than filler or a part's description ("and then dance"), a
+   place a part is put that is no fixture of the scene ("on the table"), and a part moved
+   other than over or onto a fixture ("move the nut away from the bolt").
 """
 
 from __future__ import annotations
@@ -80,7 +81,7 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
     (
         r"\bplace\w*|\bput\w*|\bset\w*|\bmount\w*|\bdrop\w*|\bposition\w*|\blower\w*"
         rf"|\bmove\w* {_OBJ}onto\b",
-        ("place|align?",),
+        ("place|align",),
     ),
     (rf"\balign\w*|\borient\w*|\bline\w* {_OBJ}up\b", ("align",)),
     (r"\bpush\w*|\bslide\w*|\bshove\w*|\bnudge\w*", ("push",)),
@@ -538,6 +539,27 @@ def _aimless_move(command: str, kinds: set[str]) -> str | None:
     return None
 
 
+def _part_moved_nowhere(command: str, fixtures: set[str]) -> str | None:
+    """Why the command cannot be planned if a clause moves a part with a verb that only moves
+    the hand, and not over or to a fixture ("move the nut away from the bolt" and "move the nut
+    to the left" were planned as a reach of the nut); None otherwise. A move up or down is the
+    lift or place beside it. ``fixtures``: the scene's fixture kinds."""
+    text = command.lower()
+    for words, verbs in _segments(text):
+        if not verbs or any(v not in _HAND_ONLY for _, _, v in verbs):
+            continue
+        clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
+        said = {w.removesuffix("s") for _, w in words}
+        toward_fixture = re.search(_MOVE_PART_TO, clause) and said & fixtures
+        if re.search(_MOVES_PART, clause) and not toward_fixture and not said & _VERTICAL:
+            return (
+                f"{clause!r} moves a part where the offline planner cannot take it: it moves a "
+                'part over a fixture ("move the nut over the bolt") or onto it ("move the nut '
+                'onto the bolt")'
+            )
+    return None
+
+
 def _verb_groups(command: str) -> set[int]:
     """The :data:`_VERBS` entries a command uses."""
     text = command.lower()
@@ -611,6 +633,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
         or _unplanned_clause(command, scene_kinds)
         or _unknown_place(command, scene_kinds, fixture_parts)
         or _aimless_move(command, scene_kinds)
+        or _part_moved_nowhere(command, {p.kind for p in fixture_parts})
     )
     if unread:
         return {"error": unread}
@@ -651,7 +674,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             candidates.append((*key, entry["task"], entry))
     if not candidates:
         labels = " and ".join(p.label for p in grounded)
-        read = ", ".join(a.rstrip("?") for a in pattern)
+        read = ", ".join(a.rstrip("?").replace("|", " or ") for a in pattern)
         return {
             "error": f"no catalogue task does what the command asks with the {labels} "
             f"(actions read from the command: {read or 'move to'})"
