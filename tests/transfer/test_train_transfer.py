@@ -358,6 +358,29 @@ def test_a_resume_with_another_setting_names_the_setting(home: Path, tmp_path: P
         run(out, "itn", steps=32, config=changed)
 
 
+@pytest.mark.parametrize(
+    ("method", "changed"),
+    [
+        # Each was refused as another run: the setting plays no part in the method's network.
+        ("no_transfer", TransferConfig(k=5, pst_keep=2, prior_weight=0.9)),
+        ("itn", TransferConfig(k=5, pst_keep=2)),  # sources named, not retrieved
+    ],
+)
+def test_a_resume_ignores_the_settings_its_method_does_not_use(
+    home: Path, tmp_path: Path, method: str, changed: TransferConfig
+) -> None:
+    out = tmp_path / "run"
+    run(out, method)
+    assert run(out, method, steps=32, config=changed).resumed_from == 16
+
+
+def test_a_resume_of_pst_compares_what_pst_keeps(home: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    run(out, "pst")
+    with pytest.raises(ResumeMismatchError, match=r"config\.pst_keep=1.*config\.pst_keep=2"):
+        run(out, "pst", steps=32, config=TransferConfig(pst_keep=2))
+
+
 def test_a_run_that_trained_nothing_yet_names_a_source_retrained_since_its_record(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -452,3 +475,33 @@ def test_a_contribution_matrix_that_does_not_fit_the_task_is_refused_naming_the_
     with pytest.raises(CheckpointError, match=re.escape(problem)) as err:
         run(out, "itn", steps=32)
     assert str(err.value).startswith(f"{out / 'transfer.json'}: contribution: ")
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        # Each stopped the resumed run with a ValueError where the network was built, or (a
+        # short list) gave the last stages the last entry's source without a word.
+        (lambda r: r.update(performers=[0, 0, 9, 1, 1]), "performers: expected 5 source indices"),
+        (lambda r: r.update(performers=[0, 0]), "performers: expected 5 source indices"),
+        (lambda r: r.update(performers=[True, 0, 0, 1, 1]), "performers: expected 5"),
+        (
+            lambda r: r["source_specs"][0].update(stage_map=[0, 1, 99, 2, 2]),
+            "source_specs: stage_map of ",
+        ),
+        (lambda r: r["source_specs"][0].update(stage_map="0,1"), "source_specs: stage_map of "),
+    ],
+)
+def test_a_record_whose_stage_fields_do_not_fit_the_task_is_refused_naming_the_record(
+    home: Path, tmp_path: Path, edit, problem: str
+) -> None:
+    out = tmp_path / "run"
+    run(out, "itn")
+    record = json.loads((out / "transfer.json").read_text())
+    assert record["performers"] is not None and "stage_map" in record["source_specs"][0]
+    edit(record)
+    (out / "transfer.json").write_text(json.dumps(record))
+    with pytest.raises(CheckpointError, match=re.escape(problem)) as err:
+        run(out, "itn", steps=32)
+    assert str(err.value).startswith(f"{out / 'transfer.json'}: ")
+    assert "cannot be resumed" in str(err.value)

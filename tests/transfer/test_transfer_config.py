@@ -62,6 +62,28 @@ def test_a_config_built_in_code_still_names_its_python_field() -> None:
 
 
 @pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        # Each was accepted: 2.5 sources, residual "1" and True as one source.
+        ("k", 2.5, "k must be an integer, got float 2.5"),
+        ("k", True, "k must be an integer, got bool True"),
+        ("residual", 1, "residual must be a boolean, got int 1"),
+        ("fusion_hidden", (64.0,), r"must be a list of integers, got tuple \(64\.0,\)"),
+    ],
+)
+def test_a_config_built_in_code_refuses_a_value_of_another_kind(
+    field: str, value: object, message: str
+) -> None:
+    with pytest.raises(TypeError, match=message):
+        TransferConfig(**{field: value})
+
+
+def test_a_config_built_in_code_takes_an_integer_for_a_number_and_a_list_for_widths() -> None:
+    config = TransferConfig(min_success=1, fusion_hidden=[64, 32])
+    assert config.min_success == 1 and config.fusion_hidden == (64, 32)
+
+
+@pytest.mark.parametrize(
     ("text", "where", "bound"),
     [
         # No upper bound: a network of terabytes, thousands of sources, thousands of paid calls.

@@ -51,12 +51,34 @@ def _out_of_range(name: str, value: Any) -> str | None:
     return next((want for test, want in _RULES.get(name, ()) if not test(value)), None)
 
 
+def _of_kind(value: Any, default: Any) -> bool:
+    """Whether ``value`` is of the kind of a field whose default is ``default``: a bool only
+    where a bool is, an int (no bool) where an int is, a float taking an int too, a tuple of
+    widths as a tuple or list of ints."""
+    if isinstance(default, tuple):
+        return isinstance(value, tuple | list) and all(_of_kind(w, 0) for w in value)
+    if isinstance(default, bool) or isinstance(value, bool):
+        return isinstance(value, bool) and isinstance(default, bool)
+    return isinstance(value, float | int if isinstance(default, float) else type(default))
+
+
 def check_setting(name: str, value: Any) -> None:
-    """``ValueError`` if ``value`` is outside the range of :class:`TransferConfig` field
-    ``name``: for the settings a transfer network is also built with from Python."""
+    """``TypeError`` if ``value`` is not of the kind of :class:`TransferConfig` field ``name``
+    (``k=2.5``, ``residual=1``), ``ValueError`` if it is outside the field's range: for the
+    settings a transfer network is also built with from Python."""
+    default = next(f.default for f in fields(TransferConfig) if f.name == name)
+    if not _of_kind(value, default):
+        kind = _kind_name(default)
+        raise TypeError(f"{name} must be {kind}, got {type(value).__name__} {value!r}")
     want = _out_of_range(name, value)
     if want is not None:
         raise ValueError(f"{name} must be {want}, got {value}")
+
+
+def _kind_name(default: Any) -> str:
+    if isinstance(default, tuple):
+        return "a list of integers"
+    return {bool: "a boolean", int: "an integer", float: "a number"}[type(default)]
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ from itskill.skills.store import Skill, is_serial_number
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.spec import TaskSpec
-from itskill.transfer.config import load_transfer_config
+from itskill.transfer.config import check_setting, load_transfer_config
 from itskill.transfer.stages import runs
 
 AUTO = "auto"
@@ -139,6 +139,12 @@ def parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
     items = sources.split(",") if isinstance(sources, str) else list(sources)
     keys: list[int | str] = []
     for item in items:
+        if not isinstance(item, str | int) or isinstance(item, bool):
+            # True == 1 would pick skill 1.
+            raise SourceError(
+                f"a source skill is named by its serial number or name, got "
+                f"{type(item).__name__} {item!r} in {sources!r}"
+            )
         key = item.strip() if isinstance(item, str) else item
         if key == "":
             raise SourceError(f"empty skill name in the source list {sources!r}")
@@ -206,8 +212,7 @@ def resolve_sources(
         )
         min_success = packaged.min_success if min_success is None else min_success
     spec = get_task(target)
-    if k < 1:
-        raise ValueError(f"k must be at least 1, got {k}")
+    check_setting("k", k)
     own = space is None
     space = open_skill_space() if space is None else space
     try:

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from rich.console import Console
 from stable_baselines3.common.policies import ActorCriticPolicy
@@ -44,13 +45,14 @@ from itskill.rl.train import (
     run_training,
     training_alone,
 )
+from itskill.sim.layout import MAX_STAGES
 from itskill.skills import SkillSpace
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer.analyzer import ContributionMatrix, analyze, validate_matrix
 from itskill.transfer.config import TransferConfig, load_transfer_config
 from itskill.transfer.lateral import weights_on_disk
-from itskill.transfer.methods import Method, get_method
+from itskill.transfer.methods import METHODS, Method, all_sources, get_method
 from itskill.transfer.sources import AUTO, SourceError, SourceSkill, parse_keys, resolve_sources
 from itskill.transfer.stages import fill_performers, stage_map, stage_performers
 
@@ -148,17 +150,38 @@ def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
 def _as_compared(settings: dict[str, Any], names: dict[int, str]) -> dict[str, Any]:
     """The settings as a resume compares them: the sources as the skills they name, however
     the list was written ("a,b" on the command line, a list from Python, serial numbers the
-    record's sources had, ``names``, or their names), and without the analyzer's retries and
-    the retrieval's success threshold (the record holds its matrix and its sources: neither is
-    asked for again, and a run from before the threshold resumes)."""
+    record's sources had, ``names``, or their names), and only the settings the run's method
+    uses (:func:`_unused`)."""
     request = settings.get("sources_request")
     if request is not None and request != AUTO:
         request = [
             names.get(key, key) if isinstance(key, int) else key for key in parse_keys(request)
         ]
-    ignored = ("analyzer_retries", "min_success")
-    config = {k: v for k, v in settings["config"].items() if k not in ignored}
-    return {**settings, "sources_request": request, "config": config}
+    unused = _unused(settings["method"], request)
+    config = {k: v for k, v in settings["config"].items() if k not in unused}
+    k = None if "k" in unused else settings.get("k")
+    return {**settings, "sources_request": request, "k": k, "config": config}
+
+
+def _unused(method: str, request: Any) -> set[str]:
+    """The :class:`TransferConfig` fields a run of ``method`` with sources ``request`` does not
+    depend on, which a resume need not be given again: the analyzer's retries and the
+    retrieval's success threshold (the record holds its matrix and its sources, neither is asked
+    for again, and a run from before the threshold resumes); every field for a method without
+    sources; how many to retrieve and whether alike ones are skipped for sources named, not
+    retrieved; PST's ``keep`` for the other methods. (A no_transfer run was refused when resumed
+    with another ``-k``.)"""
+    unused = {"analyzer_retries", "min_success"}
+    meth = METHODS.get(method)
+    if meth is None:
+        return unused  # refused by the method's own comparison
+    if not meth.uses_sources:
+        return {f.name for f in fields(TransferConfig)}
+    if request != AUTO:
+        unused |= {"k", "distinct_actions"}
+    if meth.select is all_sources:
+        unused.add("pst_keep")
+    return unused
 
 
 def _settings(
@@ -192,30 +215,58 @@ def _recorded(out: Path, settings: dict[str, Any]) -> dict[str, Any] | None:
     except CheckpointError as err:
         raise CheckpointError(err.path, err.problem + CANNOT_RESUME) from err
     _check_resume(old, settings, out)
-    _check_contribution(out / TRANSFER_FILE, old)
+    _check_against_target(out / TRANSFER_FILE, old)
     return old
 
 
-def _check_contribution(path: Path, record: dict[str, Any]) -> None:
-    """:class:`CheckpointError` unless the record's contribution matrix is one for its target's
-    stages and its sources: a row per stage, a column per source, each row a distribution. A
-    hand-edited matrix, or one of a task file whose stages changed since, was applied to the
-    wrong stages without a word (fewer rows), or stopped the run with a traceback."""
+def _indices(value: Any, length: int, low: int, high: int) -> bool:
+    """Whether ``value`` is a list of ``length`` integers in ``[low, high)``."""
+    return (
+        isinstance(value, list)
+        and len(value) == length
+        and all(isinstance(v, int) and not isinstance(v, bool) and low <= v < high for v in value)
+    )
+
+
+def _check_against_target(path: Path, record: dict[str, Any]) -> None:
+    """:class:`CheckpointError` unless what the record says per target stage fits its target's
+    stages and its sources: the contribution matrix (a row per stage, a column per source, each
+    row a distribution), the source that performs each stage (``performers``: a source index or
+    -1) and each source's own stage for each target stage (``stage_map``). A hand-edited record,
+    or one of a task file whose stages changed since, was applied to the wrong stages without a
+    word (fewer rows), or stopped the run with a traceback where the network was built."""
+    stages = [st.name for st in get_task(record["target"]).stages]
+    names = [s["name"] for s in record["sources"]]
+
+    def refuse(problem: str) -> NoReturn:
+        raise CheckpointError(path, problem + CANNOT_RESUME)
+
+    performers = record.get("performers")
+    if performers is not None and not _indices(performers, len(stages), -1, len(names)):
+        refuse(
+            f"performers: expected {len(stages)} source indices in [-1, {len(names)}) (a source "
+            f"per stage of {record['target']}, -1 for none), got {performers!r}"
+        )
+    for spec in record["source_specs"]:
+        mapped = spec.get("stage_map")
+        if mapped is not None and not _indices(mapped, len(stages), 0, MAX_STAGES):
+            refuse(
+                f"source_specs: stage_map of {spec.get('name')!r}: expected {len(stages)} stage "
+                f"indices in [0, {MAX_STAGES}) (its own stage for each stage of "
+                f"{record['target']}), got {mapped!r}"
+            )
     contribution = record["contribution"]
     if contribution is None:
         return
-    stages = [st.name for st in get_task(record["target"]).stages]
-    names = [s["name"] for s in record["sources"]]
     if contribution.get("segments", stages) != stages:
-        raise CheckpointError(
-            path,
+        refuse(
             f"contribution: its segments {contribution['segments']} are not the stages of "
-            f"{record['target']}, {stages}" + CANNOT_RESUME,
+            f"{record['target']}, {stages}"
         )
     try:
         validate_matrix(contribution["matrix"], len(stages), len(names))
     except ValueError as err:
-        raise CheckpointError(path, f"contribution: {err}" + CANNOT_RESUME) from err
+        refuse(f"contribution: {err}")
 
 
 def _check_untrained_sources(out: Path, record: dict[str, Any]) -> None:
