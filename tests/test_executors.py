@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 from collections.abc import Callable
 
 import pytest
@@ -78,6 +79,40 @@ def test_an_address_where_no_ray_listens_is_refused_in_seconds() -> None:
 def test_zero_workers_is_refused() -> None:
     with pytest.raises(ExecutorError, match="at least 1"):
         list(run_jobs(math.sqrt, JOBS, "local", 0))
+
+
+WARNING_SCRIPT = """
+import sys, warnings
+from itskill.cli.common import show_warning_line
+from itskill.executors import run_jobs
+
+def work():
+    from itskill.skills.library import ShippedLibraryWarning  # here: it imports torch
+
+    warnings.warn("the shipped skill library is damaged", ShippedLibraryWarning)
+
+if __name__ == "__main__":
+    warnings.showwarning = show_warning_line  # as the itskill command does
+    [result] = run_jobs(work, [()], "local", 2)
+    sys.exit(0 if result.ok else 1)
+"""
+
+
+def test_a_worker_shows_warnings_as_its_parent_does(tmp_path) -> None:
+    # A worker showed itskill's own warnings in Python's format, file, line and source line,
+    # where the command shows one line.
+    script = tmp_path / "parent.py"
+    script.write_text(WARNING_SCRIPT)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    shown = [line for line in out.stderr.splitlines() if "damaged" in line]
+    assert shown == ["warning: the shipped skill library is damaged"], out.stderr
+
+
+def test_workers_start_when_the_parent_shows_warnings_with_a_lambda(monkeypatch) -> None:
+    # A showwarning that cannot be pickled stays in the parent: the jobs run all the same.
+    monkeypatch.setattr(warnings, "showwarning", lambda *args, **kwargs: None)
+    _check(run_jobs(math.sqrt, JOBS, "local", 2))
 
 
 PARENT_SCRIPT = """

@@ -18,6 +18,7 @@ import signal
 import socket
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -69,7 +70,8 @@ def run_jobs(
     """Call ``fn(*args)`` for each ``args`` in ``jobs``; yield results in order of completion.
 
     ``local`` runs ``workers`` spawned processes (one job per core by default; spawned, not
-    forked, so no thread pool or MuJoCo state is inherited). ``ray`` submits ``ray.remote`` tasks
+    forked, so no thread pool or MuJoCo state is inherited; they show warnings as this process
+    does when its ``warnings.showwarning`` can be pickled). ``ray`` submits ``ray.remote`` tasks
     to the cluster at ``ray_address``, or to a local Ray instance when it is None, keeping at most
     ``workers`` of them in flight (all of them when None: Ray then schedules them by free CPUs).
     """
@@ -123,7 +125,7 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
         max_workers=workers,
         mp_context=context,
         initializer=_init_worker,
-        initargs=(os.getpid(),),
+        initargs=(os.getpid(), _showwarning_payload()),
     )
     try:
         pending: dict[Future, int] = {}
@@ -206,9 +208,25 @@ def _interrupt_job(signum: int, frame: Any) -> None:
             raise KeyboardInterrupt
 
 
-def _init_worker(parent: int) -> None:
+def _showwarning_payload() -> bytes | None:
+    """This process's ``warnings.showwarning`` pickled for its workers, so that they show warnings
+    as it does (the command's one-line format of itskill's own); None when it cannot travel (a
+    lambda, say). A function is pickled by its name: this module need not import the command's.
+    """
+    try:
+        return pickle.dumps(warnings.showwarning)
+    except Exception:
+        return None
+
+
+def _init_worker(parent: int, showwarning: bytes | None) -> None:
     _install(_interrupt_job)
     exit_with_parent(parent)
+    if showwarning is not None:
+        # A spawned worker starts with Python's own; how a warning looks is not worth a worker
+        # (one that fails here breaks the whole pool), so one that cannot be loaded is left be.
+        with contextlib.suppress(Exception):
+            warnings.showwarning = pickle.loads(showwarning)
 
 
 def _run_job(payload: bytes) -> Any:

@@ -169,6 +169,16 @@ ESCAPES = {
     "chained_repeat_bomb": ("x = 'a' * 10**6 * 10**6", "too large"),
     "float_size_bomb": ("x = np.arange(1e12)", "too large"),
     "keyword_size_bomb": ("x = np.zeros(shape=(10**5, 10**5))", "too large"),
+    # Sizes written through int() of a float and its kin were not folded, so not checked.
+    "int_of_float_size_bomb": ("x = np.zeros(int(1e11))", "constant size 100000000000 is too"),
+    "int_of_float_shape_bomb": ("x = np.ones((int(1e6), int(1e6)))", "too large"),
+    "int_of_float_list_bomb": ("x = [0] * int(1e12)", "repeated to 1000000000000 elements"),
+    "int_of_float_string_bomb": ("x = 'a' * int(1e12)", "repeated to 1000000000000 elements"),
+    "round_size_bomb": ("x = list(range(round(1e11)))", "constant size 100000000000 is too"),
+    "math_size_bomb": ("x = np.full(math.trunc(abs(-2.5e11)), 1.0)", "size 250000000000 is"),
+    "math_ceil_tile_bomb": ("x = np.tile(ctx['ee_pos'], math.ceil(1e9))", "too large"),
+    "float_product_size_bomb": ("x = np.zeros(int(1e6 * 1e6))", "size 1000000000000 is"),
+    "power_of_int_bomb": ("x = 10 ** int(1e10)", "power too large (10 ** 10000000000)"),
     # The allowlist checks np.NAME: through an alias, a method name reached numpy's own.
     "numpy_alias": ("n = np\nd = n.dtype", "'np' may only be used as np.NAME"),
     "numpy_as_argument": ("x = max(np, 1)", "'np' may only be used as np.NAME"),
@@ -203,6 +213,20 @@ def test_escape_attempt_is_refused_before_running(body: str, expected: str) -> N
 def test_arithmetic_with_large_numbers_is_not_mistaken_for_a_bomb() -> None:
     # Only literal sequences are repeated by `*`; an array times a number keeps its size.
     compile_reward(wrap("x = np.ones(10**7) * 100\ny = np.zeros(5) * 10**9"))
+
+
+def test_small_or_computed_int_sizes_are_not_mistaken_for_bombs() -> None:
+    # int() of a small constant is folded and passes; int() of the data is not constant at all.
+    source = (
+        "import math\nimport numpy as np\n\ndef compute_reward(ctx):\n"
+        "    n = ctx['ee_pos'].shape[0]\n"
+        "    pairs = np.sum(np.ones((n, int(2.0))), axis=1)\n"
+        "    half = [1.0] * int(0.5 * n) + [0.0] * (n - int(0.5 * n))\n"
+        "    total = pairs + np.array(half) + np.zeros(round(1e3)).size / math.ceil(999.5)\n"
+        "    return total, {'shaped': total}\n"
+    )
+    total, _ = compile_reward(source)(ctx())
+    assert total.tolist() == [4.0, 3.0, 3.0]
 
 
 def test_module_level_code_is_checked_too() -> None:

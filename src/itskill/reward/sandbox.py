@@ -8,7 +8,9 @@ Layers, each for a reason:
    attributes of ``np``/``np.linalg``/``math`` and attributes of anything else (array, dict and
    list methods). No name or attribute may start with ``_`` (the way out of every Python sandbox
    goes through dunders). Constant-size memory bombs (``10**10**10``, ``"a" * 10**12``,
-   ``np.ones(10**12)``, ``range(10**12)``) are refused here.
+   ``np.ones(10**12)``, ``range(10**12)``, ``[0] * int(1e12)``) are refused here: sizes are
+   folded from number literals through ``+ - * **`` and ``int``, ``round``, ``abs``,
+   ``math.floor``/``ceil``/``trunc``; a size computed from the data is left to layer 4.
 2. :func:`compile_reward` runs the module in a fresh namespace whose builtins are only the safe
    ones (no ``open``, ``eval``, ``getattr``, ``type``, ``__import__``...; ``import`` statements are
    served by a private importer that hands out numpy and math and nothing else).
@@ -29,11 +31,12 @@ import builtins
 import ctypes
 import hashlib
 import math
+import operator
 import re
 import signal
 import threading
 import traceback
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
@@ -185,56 +188,88 @@ def _shown(value: int) -> str:
     return str(value) if value.bit_length() <= 64 else f"a {value.bit_length()}-bit number"
 
 
-def _const_int(node: ast.AST) -> int | None:
-    """The value of a constant integer expression (``10**10``, ``-3``), refusing huge powers."""
-    if isinstance(node, ast.Constant) and isinstance(node.value, int):
-        return int(node.value)
+_FOLDED_OPS: dict[type[ast.operator], Callable[[Any, Any], Any]] = {
+    ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Pow: operator.pow,
+}  # fmt: skip
+"""The operators folded (with an integer's bound when both sides are integers)."""
+_FOLDED_BUILTINS: dict[str, Callable[[Any], Any]] = {"int": int, "round": round, "abs": abs}
+_FOLDED_MATH: dict[str, Callable[[Any], Any]] = {
+    "floor": math.floor, "ceil": math.ceil, "trunc": math.trunc,
+}  # fmt: skip
+"""Functions of one constant number folded too: ``np.zeros(int(1e11))`` is as obvious a size as
+``np.zeros(10**11)``. Folded by name: a reward that defines its own ``round`` is checked as if it
+used the builtin (what its function really computes is left to the process limits, as any
+computed size is)."""
+
+
+def _const_number(node: ast.AST) -> int | float | None:
+    """The value of a constant numeric expression (``10**10``, ``-3``, ``int(1e6) * 2``,
+    ``math.ceil(2.5e11)``), refusing huge integers; None when it is not constant. A float that
+    overflows or is not finite is None too: it cannot become a size."""
+    if isinstance(node, ast.Constant):
+        value = node.value
+        if isinstance(value, int):
+            return int(value)
+        return value if isinstance(value, float) and math.isfinite(value) else None
     if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
-        value = _const_int(node.operand)
-        return None if value is None else (-value if isinstance(node.op, ast.USub) else value)
+        number = _const_number(node.operand)
+        return None if number is None else (-number if isinstance(node.op, ast.USub) else number)
     if isinstance(node, ast.BinOp):
-        left, right = _const_int(node.left), _const_int(node.right)
-        if left is None or right is None:
-            return None
-        if isinstance(node.op, ast.Pow):
-            if right < 0:
-                return None
-            # Compared before the float product, which overflows for a huge exponent.
-            if abs(left) > 1 and (
-                right > MAX_INT_BITS or right * math.log2(abs(left)) > MAX_INT_BITS
-            ):
-                raise _violation(
-                    node, f"constant power too large ({_shown(left)} ** {_shown(right)})"
-                )
-            return left**right
-        if isinstance(node.op, ast.Mult):
-            value = left * right
-        elif isinstance(node.op, ast.Add):
-            value = left + right
-        elif isinstance(node.op, ast.Sub):
-            value = left - right
+        return _fold_binop(node)
+    if isinstance(node, ast.Call) and len(node.args) == 1 and not node.keywords:
+        func = node.func
+        if isinstance(func, ast.Name):
+            fold = _FOLDED_BUILTINS.get(func.id)
+        elif isinstance(func, ast.Attribute) and _is_math(func.value):
+            fold = _FOLDED_MATH.get(func.attr)
         else:
-            return None
-        if value.bit_length() > MAX_INT_BITS:
-            # Products of allowed powers grow without bound: 2**4000 * 2**4000 * ...
-            raise _violation(node, f"constant too large ({_shown(value)})")
-        return value
+            fold = None
+        number = None if fold is None else _const_number(node.args[0])
+        # Exact for a finite float (at most 1,024 bits) and a bounded integer alike.
+        return None if number is None else fold(number)
     return None
 
 
+def _fold_binop(node: ast.BinOp) -> int | float | None:
+    """``left op right`` of two constant numbers (:func:`_const_number`)."""
+    left, right = _const_number(node.left), _const_number(node.right)
+    op = _FOLDED_OPS.get(type(node.op))
+    if left is None or right is None or op is None:
+        return None
+    if isinstance(left, float) or isinstance(right, float):
+        try:
+            value = op(left, right)
+        except (OverflowError, ZeroDivisionError):  # 10.0 ** 400, 10**400 * 1.0, 0.0 ** -1
+            return None
+        # A negative number to a fractional power is complex: no size either.
+        return value if isinstance(value, float) and math.isfinite(value) else None
+    if isinstance(node.op, ast.Pow):
+        if right < 0:
+            return None
+        # Compared before the float product, which overflows for a huge exponent.
+        if abs(left) > 1 and (right > MAX_INT_BITS or right * math.log2(abs(left)) > MAX_INT_BITS):
+            raise _violation(node, f"constant power too large ({_shown(left)} ** {_shown(right)})")
+        return left**right
+    value = op(left, right)
+    if value.bit_length() > MAX_INT_BITS:
+        # Products of allowed powers grow without bound: 2**4000 * 2**4000 * ...
+        raise _violation(node, f"constant too large ({_shown(value)})")
+    return value
+
+
+def _const_int(node: ast.AST) -> int | None:
+    """The value of a constant integer expression (:func:`_const_number`); None for a float."""
+    number = _const_number(node)
+    return number if isinstance(number, int) else None
+
+
 def _const_size(node: ast.AST) -> int | None:
-    """Number of elements a constant size argument asks for (a number or a tuple of ints)."""
-    if isinstance(node, (ast.Tuple, ast.List)):
-        sizes = [_const_int(e) for e in node.elts]
-        return math.prod(abs(s) for s in sizes) if all(s is not None for s in sizes) else None
-    if (
-        isinstance(node, ast.Constant)
-        and isinstance(node.value, float)
-        and math.isfinite(node.value)
-    ):
-        return abs(int(node.value))  # np.arange(1e12)
-    value = _const_int(node)
-    return abs(value) if value is not None else None
+    """Number of elements a constant size argument asks for: a number (a float too, as
+    ``np.arange(1e12)`` takes) or a tuple of them."""
+    dims = node.elts if isinstance(node, (ast.Tuple, ast.List)) else [node]
+    numbers = [_const_number(dim) for dim in dims]
+    sizes = [abs(int(number)) for number in numbers if number is not None]
+    return math.prod(sizes) if len(sizes) == len(numbers) else None
 
 
 def _elements(node: ast.AST) -> int | None:
@@ -403,6 +438,10 @@ class _Checker(ast.NodeVisitor):
 
 def _is_np(node: ast.AST) -> bool:
     return isinstance(node, ast.Name) and node.id == "np"
+
+
+def _is_math(node: ast.AST) -> bool:
+    return isinstance(node, ast.Name) and node.id == "math"
 
 
 def _bound_names(tree: ast.AST) -> set[str]:
