@@ -505,3 +505,27 @@ def test_the_cause_of_a_dead_worker_process_is_named() -> None:
     assert f"{process} exited with code 1" in death_cause(1, limits, process)
     # A real-time signal has no name: it was a ValueError out of the worker.
     assert f"{process} was killed by signal 40" == death_cause(-40, limits, process)
+
+
+def test_array_methods_numpy_loads_on_first_use_work_in_a_fresh_process() -> None:
+    # numpy imports numpy._core._methods the first time an array is summed, through the
+    # importer of the calling frame: a valid reward failed with "import of
+    # 'numpy._core._methods' is not allowed" in a process where nothing had summed an array yet.
+    script = textwrap.dedent(
+        """
+        import numpy as np
+        from itskill.reward.sandbox import compile_reward
+        reward = compile_reward(
+            "import numpy as np\\n"
+            "def compute_reward(ctx):\\n"
+            "    d = ctx['ee_pos'].sum(axis=1) + ctx['ee_pos'].mean(axis=1)"
+            " + ctx['ee_pos'].std(axis=1)\\n"
+            "    return d, {'d': d}\\n"
+        )
+        total, _ = reward({"ee_pos": np.ones((3, 3))})
+        print(total.tolist())
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[4.0, 4.0, 4.0]"

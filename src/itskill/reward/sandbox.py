@@ -13,7 +13,8 @@ Layers, each for a reason:
    ``math.floor``/``ceil``/``trunc``; a size computed from the data is left to layer 4.
 2. :func:`compile_reward` runs the module in a fresh namespace whose builtins are only the safe
    ones (no ``open``, ``eval``, ``getattr``, ``type``, ``__import__``...; ``import`` statements are
-   served by a private importer that hands out numpy and math and nothing else).
+   served by a private importer that hands out numpy and math and nothing else, and numpy's own
+   submodules to numpy, which imports some on first use).
 3. Every call has a wall-clock timeout: ``signal.setitimer(ITIMER_REAL)`` in the main thread, a
    watchdog thread that raises :class:`SandboxTimeout` in the calling thread otherwise. The
    context handed to the code is read-only, so it cannot corrupt the simulator's arrays.
@@ -485,11 +486,19 @@ def check_source(source: str, config: SandboxConfig | None = None) -> ast.Module
 # ------------------------------------------------------------------------------ execution
 def _importer(name: str, globals=None, locals=None, fromlist=(), level=0):
     """The ``__import__`` of the sandbox: numpy and math only (the checker already refused the
-    rest; this is the second lock)."""
+    rest; this is the second lock).
+
+    NumPy's C code imports some of its own modules on first use (``arr.sum(axis=1)`` imports
+    ``numpy._core._methods``) through the ``__import__`` of the frame that calls it, this one:
+    those are served, or a valid reward failed in a process where nothing had summed an array
+    yet. The code itself cannot ask for them: the checker allows ``import numpy`` and
+    ``import math`` only, and no name starting with ``_``."""
     if level == 0 and name == "numpy":
         return np
     if level == 0 and name == "math":
         return math
+    if level == 0 and name.startswith("numpy."):
+        return builtins.__import__(name, globals, locals, fromlist, level)
     raise ImportError(f"import of {name!r} is not allowed in the sandbox")
 
 
