@@ -550,3 +550,24 @@ def test_pst_with_no_source_to_leave_out_is_refused_before_any_cell(tmp_path):
         run_experiment(load_experiment(path), run, "local", 1, source_file=path, console=quiet())
     assert str(err.value).startswith(f"{path}: k: pst on pickplace_nut_m12: PST keeps 1 of the 1")
     assert not (run / "config.json").exists()
+
+
+def test_pst_added_to_a_run_that_stored_one_source_is_refused_naming_its_sources(tmp_path):
+    # A session adding PST to a run whose tasks stored one source each: every PST cell failed.
+    from itskill.experiments.runner import SOURCES_FILE, resolve_all_sources
+
+    path = tmp_path / "toy.toml"
+    path.write_text(TOY.replace('["itn", "no_transfer"]', '["itn", "pst"]'))
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / SOURCES_FILE).write_text(json.dumps({"pickplace_nut_m12": ["pick_nut_m12"]}))
+    with pytest.raises(ExperimentRunError) as err:
+        resolve_all_sources(load_experiment(path), run, path)
+    assert str(err.value).startswith(
+        f"{run / SOURCES_FILE}: pst on pickplace_nut_m12: PST keeps 1 of the 1 source(s)"
+    )
+    assert "this run keeps the sources it stored" in str(err.value)
+    # Two stored sources leave PST one to keep.
+    stored = {"pickplace_nut_m12": ["pick_nut_m12", "place_nut_m12"]}
+    (run / SOURCES_FILE).write_text(json.dumps(stored))
+    assert resolve_all_sources(load_experiment(path), run, path) == stored

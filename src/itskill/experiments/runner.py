@@ -327,7 +327,10 @@ def resolve_all_sources(
     resolved while no method uses sources (No_Transfer alone needs no skill space). Skills the
     experiment file names that cannot be used (unknown, empty, no checkpoint) are an
     :class:`ExperimentConfigError` naming ``sources.<task>`` and the file (``source_file``, else
-    the run's copy of it or its ``config.json``).
+    the run's copy of it or its ``config.json``). A method that cannot train on a task's
+    sources (PST keeping all of them) is refused here too, before any cell: an
+    :class:`ExperimentConfigError` for sources resolved now, an :class:`ExperimentRunError` for
+    those the run stored.
     """
     from itskill.transfer import get_method, load_transfer_config, resolve_sources
     from itskill.transfer.sources import SourceError
@@ -343,29 +346,38 @@ def resolve_all_sources(
         )
     if not any(get_method(m).uses_sources for m in config.methods):
         return found
+    transfer_config = load_transfer_config()
     for task in config.tasks:
-        if task in found:
-            continue
         wanted = config.sources.get(task, AUTO)
-        try:
-            chosen = resolve_sources(task, wanted if wanted == AUTO else list(wanted), k=config.k)
-        except SourceError as err:
-            if wanted == AUTO:
-                raise  # about the skill space, not about anything the file says
-            raise ExperimentConfigError(
-                _experiment_file(run_dir, source_file), f"sources.{task}", str(err)
-            ) from err
+        stored = task in found
+        if not stored:
+            try:
+                chosen = resolve_sources(
+                    task, wanted if wanted == AUTO else list(wanted), k=config.k
+                )
+            except SourceError as err:
+                if wanted == AUTO:
+                    raise  # about the skill space, not about anything the file says
+                raise ExperimentConfigError(
+                    _experiment_file(run_dir, source_file), f"sources.{task}", str(err)
+                ) from err
+            found[task] = [s.name for s in chosen]
         for method in config.methods:
             # As its cells will choose (PST keeps a subset, refusing to keep them all): said
-            # now, not by every such cell failing after hours of the others.
+            # now, not by every such cell failing after hours of the others; for the sources a
+            # resumed run stored too (a session adding PST to a run of one source each).
             try:
-                get_method(method).select(chosen, load_transfer_config())
+                get_method(method).select(found[task], transfer_config)
             except SourceError as err:
+                if stored:
+                    raise ExperimentRunError(
+                        f"{path}: {method} on {task}: {err}; this run keeps the sources it "
+                        f"stored for {task}: run {method} in another run directory"
+                    ) from err
                 where = "k" if wanted == AUTO else f"sources.{task}"
                 raise ExperimentConfigError(
                     _experiment_file(run_dir, source_file), where, f"{method} on {task}: {err}"
                 ) from err
-        found[task] = [s.name for s in chosen]
     return found
 
 

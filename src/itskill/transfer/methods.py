@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 from stable_baselines3.common.policies import ActorCriticPolicy
 
@@ -22,10 +23,11 @@ from itskill.transfer.dfs import DFSPolicy
 from itskill.transfer.itn import ITNPolicy
 from itskill.transfer.nia import NIAPolicy
 from itskill.transfer.pst import select_sources
-from itskill.transfer.sources import SourceSkill
+
+S = TypeVar("S")  # a source skill, or the name an experiment stored for it
 
 
-def all_sources(sources: list[SourceSkill], config: TransferConfig) -> list[SourceSkill]:
+def all_sources(sources: list[S], config: TransferConfig) -> list[S]:
     return sources
 
 
@@ -39,7 +41,7 @@ class Method:
     policy_class: type[ActorCriticPolicy]
     uses_sources: bool
     uses_prior: bool
-    select: Callable[[list[SourceSkill], TransferConfig], list[SourceSkill]] = all_sources
+    select: Callable[[list[Any], TransferConfig], list[Any]] = all_sources
 
 
 METHODS: dict[str, Method] = {

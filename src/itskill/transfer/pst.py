@@ -8,12 +8,17 @@ is then asked about those sources only.
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 from itskill.transfer.config import TransferConfig
-from itskill.transfer.sources import SourceError, SourceSkill
+from itskill.transfer.sources import SourceError
+
+S = TypeVar("S")
 
 
-def select_sources(sources: list[SourceSkill], config: TransferConfig) -> list[SourceSkill]:
-    """The sources PST transfers from: the first ``config.pst_keep``.
+def select_sources(sources: list[S], config: TransferConfig) -> list[S]:
+    """The sources PST transfers from: the first ``config.pst_keep`` (of :class:`SourceSkill`
+    objects, or of the names an experiment stored for its task).
 
     Keeping every source would train ITN itself under another name: :class:`SourceError`.
     """
