@@ -4,8 +4,9 @@
         client = OpenAIClient("fake-model", base_url=server.base_url)
 
 Each choice of a request takes the next scripted item: a string is a reply text; a
-:class:`Status` makes the whole request fail with that HTTP status; a callable gets the request
-body (a dict) and returns either. When the script runs out, the last string is repeated.
+:class:`Status` makes the whole request fail with that HTTP status; a :class:`Truncated` reply
+cuts the whole response body short; a callable gets the request body (a dict) and returns one of
+those. When the script runs out, the last string is repeated.
 ``n_mode`` says what the server does with ``n``: ``"support"`` (n choices), ``"reject"`` (400 for
 n > 1, like some local servers), ``"ignore"`` (one choice, like Ollama and llama.cpp) or
 ``"empty"`` (no choices at all, as some proxies answer a filtered request). ``answer`` other than
@@ -37,11 +38,29 @@ class Status:
     param: str | None = None
 
 
-Item = str | Status | Callable[[dict], "str | Status"]
+@dataclass(frozen=True)
+class Truncated:
+    """A reply ``text`` whose response body is cut off, sent with status 200 and a Content-Length
+    that fits the part sent, as a proxy passes on an upstream that dropped mid-reply: just after
+    the first byte of the first non-ASCII character of ``text``, else halfway."""
+
+    text: str = "a reply cut off"
+
+
+Reply = str | Status | Truncated
+Item = Reply | Callable[[dict], Reply]
 
 
 def words(text: str) -> int:
     return len(text.split())
+
+
+def cut_off(payload: dict) -> bytes:
+    """``payload`` as UTF-8 JSON (non-ASCII text unescaped, as vLLM sends it), cut as
+    :class:`Truncated` says."""
+    data = json.dumps(payload, ensure_ascii=False).encode()
+    wide = next((i for i, byte in enumerate(data) if byte >= 0x80), None)
+    return data[: len(data) // 2 if wide is None else wide + 1]
 
 
 class FakeOpenAIServer:
@@ -78,7 +97,7 @@ class FakeOpenAIServer:
         self._server.server_close()
         self._thread.join()
 
-    def _next(self, body: dict) -> str | Status:
+    def _next(self, body: dict) -> Reply:
         item: Item = self.script.pop(0) if self.script else self._last
         if callable(item) and not isinstance(item, Status):
             item = item(body)
@@ -86,8 +105,9 @@ class FakeOpenAIServer:
             self._last = item
         return item
 
-    def respond(self, body: dict) -> tuple[int, dict, dict[str, str]]:
-        """(status, JSON body, headers) for one request body."""
+    def respond(self, body: dict) -> tuple[int, dict | bytes, dict[str, str]]:
+        """(status, JSON body, headers) for one request body; a body already in bytes is sent as
+        it is (a cut-off one)."""
         with self._lock:
             self.requests.append(body)
             n = int(body.get("n", 1) or 1)
@@ -96,38 +116,38 @@ class FakeOpenAIServer:
                 return 400, {"error": error}, {}
             count = {"ignore": 1, "empty": 0}.get(self.n_mode, n)
             texts = []
+            cut = False
             for _ in range(count):
                 item = self._next(body)
                 if isinstance(item, Status):
                     headers = {"retry-after": "0"} if item.code == 429 else {}
                     error = {"message": item.message, "param": item.param}
                     return item.code, {"error": error}, headers
+                if isinstance(item, Truncated):
+                    cut, item = True, item.text
                 texts.append(item)
         prompt = sum(words(m.get("content", "")) for m in body.get("messages", []))
         completion = sum(words(t) for t in texts)
-        return (
-            200,
-            {
-                "id": f"chatcmpl-{len(self.requests)}",
-                "object": "chat.completion",
-                "created": 0,
-                "model": body.get("model", self.model),
-                "choices": [
-                    {
-                        "index": k,
-                        "message": {"role": "assistant", "content": text},
-                        "finish_reason": "stop",
-                    }
-                    for k, text in enumerate(texts)
-                ],
-                "usage": {
-                    "prompt_tokens": prompt,
-                    "completion_tokens": completion,
-                    "total_tokens": prompt + completion,
-                },
+        payload = {
+            "id": f"chatcmpl-{len(self.requests)}",
+            "object": "chat.completion",
+            "created": 0,
+            "model": body.get("model", self.model),
+            "choices": [
+                {
+                    "index": k,
+                    "message": {"role": "assistant", "content": text},
+                    "finish_reason": "stop",
+                }
+                for k, text in enumerate(texts)
+            ],
+            "usage": {
+                "prompt_tokens": prompt,
+                "completion_tokens": completion,
+                "total_tokens": prompt + completion,
             },
-            {},
-        )
+        }
+        return 200, cut_off(payload) if cut else payload, {}
 
     def _handler(self) -> type[BaseHTTPRequestHandler]:
         server = self
@@ -145,6 +165,8 @@ class FakeOpenAIServer:
                     data, content_type = b"<html><body>It works!</body></html>", "text/html"
                 elif server.answer == "empty-object":
                     data = b"{}"
+                elif isinstance(payload, bytes):
+                    data = payload
                 else:
                     data = json.dumps(payload).encode()
                 self.send_response(status)

@@ -15,7 +15,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from fake_openai import FakeOpenAIServer, Status, words
+from fake_openai import FakeOpenAIServer, Status, Truncated, words
 
 from itskill.llm import LLMError, LLMUnavailableError, OfflineClient, make_client, openai_client
 from itskill.llm.openai_client import OpenAIClient, RetryConfig, model_price
@@ -67,6 +67,13 @@ def test_falls_back_to_repeated_calls_when_n_is_not_served(mode: str) -> None:
         Status(400, "Only one completion choice is allowed"),  # llama.cpp
         Status(400, "'n' must be 1 for this model"),
         Status(400, "Unsupported value", param="n"),
+        Status(400, "'n' : number must be at most 1"),  # Groq
+        Status(400, "n must be 1, got 2"),
+        Status(
+            400,
+            "1 validation error for ChatCompletionRequest\nn\n  Input should be less than or "
+            "equal to 1 [type=less_than_equal, input_value=2, input_type=int]",  # pydantic
+        ),
     ],
 )
 def test_a_refusal_of_n_falls_back_to_single_samples(refusal: Status) -> None:
@@ -118,6 +125,31 @@ def test_retries_rate_limits_and_server_errors_then_succeeds(status: int) -> Non
         assert c.complete(MESSAGES, purpose="reward") == ["finally"]
     assert len(server.requests) == 3
     assert c.usage.requests == 1  # only the answered request is accounted
+
+
+@pytest.mark.parametrize(
+    "cut", [Truncated(), Truncated("déjà vu")], ids=["halfway", "inside-a-character"]
+)
+def test_a_reply_cut_off_is_asked_again(cut: Truncated) -> None:
+    # A proxy's 200 reply whose JSON body ended early stopped the run with a JSONDecodeError (or
+    # a UnicodeDecodeError) traceback, asked only once.
+    with FakeOpenAIServer([cut, "whole"]) as server:
+        c = client(server)
+        assert c.complete(MESSAGES, purpose="reward") == ["whole"]
+    assert len(server.requests) == 2 and c.usage.requests == 1
+
+
+def test_a_reply_always_cut_off_gives_up_saying_so() -> None:
+    with (
+        FakeOpenAIServer([Truncated()] * 10) as server,
+        pytest.raises(LLMUnavailableError) as err,
+    ):
+        client(server).complete(MESSAGES, purpose="reward")
+    assert len(server.requests) == FAST.max_retries + 1
+    message = str(err.value)
+    assert f"a cut-off or invalid JSON reply from {server.base_url}: Unterminated" in message
+    assert f"gave up after {FAST.max_retries + 1} attempts" in message
+    assert "--llm offline" in message
 
 
 def test_gives_up_after_the_last_retry_with_advice() -> None:
@@ -467,15 +499,26 @@ def test_a_reply_with_a_lone_surrogate_is_cached_and_replayed(tmp_path: Path) ->
     assert client(server, cache_dir=tmp_path).complete(MESSAGES, n=1, purpose="reward") == first
 
 
-def test_a_refusal_echoing_a_newline_is_not_about_n() -> None:
-    # The echoed prompt's "\n" read as the parameter n: n was dropped for good, and every later
-    # request of K samples cost K prompts.
-    refusal = Status(400, "Input should be a valid string [input_value='write three rewards\\n']")
-    with FakeOpenAIServer([refusal]) as server:
+@pytest.mark.parametrize(
+    "message",
+    [
+        "Input should be a valid string [input_value='write three rewards\\n']",
+        "Input should be a valid string [input_value='write three rewards\\nn samples each']",
+        'Invalid prompt "n samples of the reward, one per line"',
+        # A check of the whole request (a pydantic model validator) echoes it, "n" among its keys.
+        "Value error, tools need tool_choice [input_value={'model': 'm', 'n': 2, 'messages': []}]",
+    ],
+    ids=["escaped-newline", "prompt-line-after-it", "quoted-prompt", "echoed-request"],
+)
+def test_a_refusal_echoing_the_prompt_or_request_is_not_about_n(message: str) -> None:
+    # The echoed prompt's "\n", or a prompt line "n samples ...", read as the parameter n: n was
+    # dropped for good, every later request of K samples cost K prompts, and this one was asked
+    # again sample by sample only to be refused again.
+    with FakeOpenAIServer([Status(400, message)]) as server:
         c = client(server)
         with pytest.raises(LLMError, match="rejected the request"):
             c.complete(MESSAGES, n=2, purpose="reward")
-    assert c.n_supported is not False
+    assert c.n_supported is not False and len(server.requests) == 1
 
 
 def test_choices_and_usage_that_are_not_openais_shape_are_named_or_not_counted() -> None:

@@ -37,6 +37,12 @@ FENCE = "```"
             f"{FENCE}diff\n- def compute_reward(ctx): old\n{FENCE}\n{FENCE}python\n{CODE}\n{FENCE}",
             "a diff of the change before the code",
         ),
+        (f"~~~python\n{CODE}\n~~~", "a tilde fence"),
+        (
+            f"````markdown\nThe reward:\n{FENCE}python\n{CODE}\n{FENCE}\nTry it.\n````",
+            "a python block in a markdown block",
+        ),
+        (f"~~~md\nThe reward:\n{FENCE}python\n{CODE}\n{FENCE}\n~~~", "in a tilde markdown block"),
     ],
 )
 def test_the_code_is_found(reply: str, why: str) -> None:
@@ -45,3 +51,9 @@ def test_the_code_is_found(reply: str, why: str) -> None:
 
 def test_a_python_block_without_compute_reward_is_taken_before_the_whole_reply() -> None:
     assert extract_code(f"Words.\n{FENCE}python\nx = 1\n{FENCE}") == "x = 1"
+
+
+@pytest.mark.parametrize("tag", ["python", ""])
+def test_a_line_of_tildes_in_python_code_is_no_fence(tag: str) -> None:
+    code = f'"""Reward.\n~~~~~~~\n"""\n\n{CODE}'
+    assert extract_code(f"{FENCE}{tag}\n{code}\n{FENCE}") == code

@@ -3,7 +3,8 @@
 Built on the ``openai`` SDK with its own retries turned off, because the policy here is ours
 (and both at once would multiply the waits): exponential back-off with jitter on rate limits
 (429, honouring ``Retry-After``), timeouts (408 and the client's own), lock conflicts (409),
-connection errors and 5xx replies, then an :class:`LLMUnavailableError` that says what to do. A
+connection errors, 5xx replies and replies whose JSON is cut off, then an
+:class:`LLMUnavailableError` that says what to do. A
 refused connection is the exception: it is asked again once, shortly, then reported as a server
 that is not running. ``n`` samples are asked for in one request; a
 server that rejects ``n`` (its error names it) or returns fewer choices (Ollama ignores it) gets
@@ -14,6 +15,7 @@ go straight to repeated calls. Any other rejected request is an error as it stan
 from __future__ import annotations
 
 import ipaddress
+import json
 import random
 import re
 import time
@@ -35,10 +37,29 @@ LOCAL_DUMMY_KEY = "sk-no-key-needed"
 RETRY_STATUSES = frozenset({408, 409, 429})
 """Statuses below 500 asked again, as the SDK's own policy does: a request timeout, a lock
 timeout, a rate limit."""
-_ABOUT_N = re.compile(r"(?<![\w-])n(?![\w-])|completion choice")
-"""A refusal that names the ``n`` parameter, or the choices it counts (llama.cpp: "Only one
-completion choice is allowed"), read with every escaped ``\\n`` made a space: the newline of a
-prompt a validation error echoes is not the parameter."""
+CUT_OFF = (json.JSONDecodeError, UnicodeDecodeError)
+"""What the SDK lets through unwrapped for a 200 reply whose body is not whole JSON: a proxy
+passing on an upstream that dropped mid-reply, with a Content-Length that fits what it sent (cut
+inside a multi-byte character, the bytes do not even decode). A body shorter than its
+Content-Length is an ``APIConnectionError``, retried already."""
+_ABOUT_N = re.compile(
+    r"""
+    [`'"]n[`'"](?!\s*:\s*\d)  # named: 'n' (OpenAI, Groq), `n`, a validation error's ('body', 'n');
+                              # not the 'n': 2 of an echoed request body
+    | (?<![\w\\-])n(?:      # the word n, not the n of an escaped newline (\nn samples)
+        \s*(?:[<>!]=?|==?)\s*\d  # bounded: n > 1 is not supported, only n=1, got n=2
+        | \s+(?:must|should|cannot|can\ only|is\ not|isn't)\b  # vLLM: n must be at least 1
+        | \s+(?:parameter|field|argument)\b
+      )
+    | \b(?:parameter|field|argument):?\s+n\b
+    | (?:^|\s-\s|->\s?|\.)n(?::\s|$)  # a validation error's field: n on its line (pydantic),
+                                     # body -> n, body.n: ...
+    | completion\ choice        # llama.cpp: Only one completion choice is allowed
+    """,
+    re.VERBOSE | re.MULTILINE,
+)
+"""A refusal that names the ``n`` parameter, or the choices it counts. Only as a parameter: a
+prompt the error echoes ("n samples each", a line after an escaped newline) does not count."""
 
 
 @dataclass(frozen=True)
@@ -233,7 +254,7 @@ class OpenAIClient(BaseClient):
                 ) from err
             except (openai.BadRequestError, openai.UnprocessableEntityError):
                 raise
-            except (openai.APIConnectionError, openai.RateLimitError, openai.APIStatusError) as err:
+            except (openai.APIConnectionError, openai.APIStatusError, *CUT_OFF) as err:
                 retryable = not isinstance(err, openai.APIStatusError) or (
                     err.status_code in RETRY_STATUSES or err.status_code >= 500
                 )
@@ -315,8 +336,8 @@ def _count(value: Any) -> int:
 
 def _about_n(err: openai.APIStatusError) -> bool:
     """Whether a refused multi-sample request was refused for its ``n``: the error's ``param``
-    (OpenAI's error body names the field), else its message."""
-    return err.param == "n" or _ABOUT_N.search(_detail(err).replace("\\n", " ")) is not None
+    (OpenAI's error body names the field), else its whole message, lines and all."""
+    return err.param == "n" or _ABOUT_N.search(err.message) is not None
 
 
 def _detail(err: Exception) -> str:
@@ -364,6 +385,9 @@ def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnav
         kind = "server error" if err.status_code >= 500 else "HTTP"
         what = f"{kind} {err.status_code} from {client.base_url}"
         advice = "try again later"
+    elif isinstance(err, CUT_OFF):
+        what = f"a cut-off or invalid JSON reply from {client.base_url}"
+        advice = "try again later or check any proxy in between"
     elif _refused(err):
         return LLMUnavailableError(
             f"cannot reach {client.name} at {client.base_url}: connection refused ({gave_up}); "

@@ -29,14 +29,18 @@ from itskill.sim.task import Context
 from itskill.tasks import make_batch_env
 
 _FENCE = re.compile(
-    r"^[ \t]*```[ \t]*([A-Za-z0-9_+-]*)[^\n]*\n(.*?)(?:^[ \t]*```|```[ \t]*$|\Z)",
+    r"^[ \t]*(?P<fence>(?P<char>[`~])(?P=char){2,})[ \t]*(?P<lang>[A-Za-z0-9_+-]*)[^\n]*\n"
+    r"(?P<code>.*?)(?:^[ \t]*(?P=fence)|(?P=fence)[ \t]*$|\Z)",
     re.DOTALL | re.MULTILINE,
 )
 """A fenced block as Markdown writes it: opened at the start of a line (indented inside a list
-item too), its language tag followed by anything (```` ```python title=reward.py ````), closed on
-a line of its own or at the end of the last code line; unclosed (a reply cut off by the token
-limit), it runs to the end of the reply."""
-_LOOSE_FENCE = re.compile(r"```[ \t]*([A-Za-z0-9_+-]*)[ \t]*\n(.*?)(?:```|\Z)", re.DOTALL)
+item too) by three or more backticks or tildes, its language tag followed by anything
+(```` ```python title=reward.py ````), closed by at least as many of the same on a line of its
+own or at the end of the last code line (so a block opened by four backticks holds ```` ``` ````
+blocks); unclosed (a reply cut off by the token limit), it runs to the end of the reply."""
+_LOOSE_FENCE = re.compile(
+    r"```[ \t]*(?P<lang>[A-Za-z0-9_+-]*)[ \t]*\n(?P<code>.*?)(?:```|\Z)", re.DOTALL
+)
 """A fence anywhere on a line ("Here it is: ```python"), tried when no block of :data:`_FENCE`
 defines the reward: read first, it would take ```` ```inline``` ```` prose for a block."""
 _PYTHON = ("python", "py", "python3", "")
@@ -48,12 +52,14 @@ def extract_code(reply: str) -> str:
     The first fenced block that defines ``compute_reward``, a Python or untagged one before
     any other (a ```` ```diff ```` of the change, written first, is not the code); else the
     first ``python`` block; else the whole reply (a model that answers with bare code). A block
-    indented inside a list item is dedented; Windows line endings are read as Unix ones.
+    nested in another that is not Python (the reward in a Markdown answer, fenced by four
+    backticks) comes before the block around it; one indented inside a list item is dedented;
+    Windows line endings are read as Unix ones.
     """
     reply = reply.replace("\r\n", "\n")
     found = []
     for fence in (_FENCE, _LOOSE_FENCE):
-        blocks = [(m[1].lower(), textwrap.dedent(m[2])) for m in fence.finditer(reply)]
+        blocks = _blocks(reply, fence)
         defining = sorted(
             (block for block in blocks if "def compute_reward" in block[1]),
             key=lambda block: block[0] not in _PYTHON,
@@ -65,6 +71,20 @@ def extract_code(reply: str) -> str:
         if lang in _PYTHON[:3]:
             return code.strip()
     return reply.strip()
+
+
+def _blocks(text: str, fence: re.Pattern[str]) -> list[tuple[str, str]]:
+    """(language, dedented code) of each block of ``fence`` in ``text``; the blocks nested in one
+    tagged other than Python come first: that one is the Markdown around the code, not the
+    code."""
+    blocks = []
+    for match in fence.finditer(text):
+        lang, code = match["lang"].lower(), textwrap.dedent(match["code"])
+        if lang not in _PYTHON:
+            # Code holds no block: a line of tildes in it underlines a docstring heading.
+            blocks += _blocks(code, fence)
+        blocks.append((lang, code))
+    return blocks
 
 
 def probe_contexts(task: str, num_envs: int, steps: int, seed: int = 0) -> list[Context]:
