@@ -88,18 +88,28 @@ def report_cmd(
     video: Annotated[
         bool, typer.Option("--video/--no-video", help="Render a rollout of the best policy.")
     ] = True,
+    baseline_run: Annotated[
+        Path | None,
+        typer.Option(
+            help="Another experiment run of the baseline method on RUN's tasks, trained the same "
+            "way for a longer budget: its runs stand in for RUN's baseline runs, so that a "
+            "baseline that never reaches the threshold within RUN's budget is measured further."
+        ),
+    ] = None,
 ) -> None:
     """Write report.md and report.html (figures, tables, video) for an experiment run."""
-    _write_report(run, out, video)
+    _write_report(run, out, video, baseline_run)
 
 
-def _write_report(run: Path, out: Path | None = None, video: bool = True) -> None:
+def _write_report(
+    run: Path, out: Path | None = None, video: bool = True, baseline_run: Path | None = None
+) -> None:
     """Write the report of experiment run ``run`` and say where, after its notes (what it left
     out and why); a directory it cannot report on is a one-line error."""
     from itskill.experiments.report import experiment_report
 
     with user_errors():
-        files = experiment_report(run, out, video=video)
+        files = experiment_report(run, out, video=video, baseline_run=baseline_run)
     for note in files.notes:
         err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)
     # Not markup: the paths are under the user's run directory ('runs/[v2]').

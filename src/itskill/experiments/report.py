@@ -59,8 +59,10 @@ from itskill.experiments.runner import (
     cells,
     finished_result,
     read_run_config,
+    reward_copy,
 )
 from itskill.files import CorruptFileError, copy_whole, read_json
+from itskill.reward_contract import EXPERT
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
@@ -209,6 +211,99 @@ def video_section(
 
 
 # ---------------------------------------------------------------------- experiment report
+@dataclass(frozen=True)
+class _Runs:
+    """Where the report reads a method's cells, and the budget they trained for: the run's own,
+    or for the baseline method those of a baseline run given to the report (trained with a
+    longer budget, so that its time to the threshold is measured rather than cut off)."""
+
+    run_dir: Path
+    steps: int
+    baseline: str | None = None
+    baseline_dir: Path | None = None
+    baseline_steps: int = 0
+
+    def _theirs(self, method: str) -> Path | None:
+        """The baseline run's directory if ``method``'s cells are read from it."""
+        return self.baseline_dir if method == self.baseline else None
+
+    def cell_dir(self, task: str, method: str, seed: int) -> Path:
+        return Cell(task, method, seed).dir(self._theirs(method) or self.run_dir)
+
+    def budget(self, method: str) -> int:
+        return self.steps if self._theirs(method) is None else self.baseline_steps
+
+
+def _baseline_runs(
+    config: ExperimentConfig, run_dir: Path, baseline_dir: Path
+) -> tuple[_Runs, dict, str]:
+    """Where the report reads each method's cells with ``baseline_dir``'s baseline cells in place
+    of the run's, those cells' curves by (task, method), and the sentence that says so.
+
+    :class:`ReportError` unless ``baseline_dir`` is an experiment run of the baseline method on
+    every task of the run, trained as the run's cells were (algorithm, environments, reward,
+    evaluation) for at least as many env-steps: anything else would compare two things at once.
+    """
+    baseline = config.report.baseline
+    if not (baseline_dir / CONFIG_FILE).is_file():
+        raise ReportError(
+            f"baseline run {baseline_dir}: not an experiment run directory (no {CONFIG_FILE})"
+        )
+    try:
+        other = read_run_config(baseline_dir)
+    except (ExperimentRunError, CorruptFileError) as err:
+        raise ReportError(f"baseline run {baseline_dir}: {err}") from err
+    if baseline not in other.methods or not set(config.tasks) <= set(other.tasks):
+        raise ReportError(
+            f"baseline run {baseline_dir}: it has no {baseline} runs of every task of this run "
+            f"({', '.join(config.tasks)}): it ran {', '.join(other.methods)} on "
+            f"{', '.join(other.tasks)}"
+        )
+    mine, theirs = config.training_settings(), other.training_settings()
+    for key in ("algo", "num_envs", "eval"):
+        if mine[key] != theirs[key]:
+            raise ReportError(
+                f"baseline run {baseline_dir}: trained with {key} {theirs[key]}, this run with "
+                f"{mine[key]}: its runs are no baseline for these"
+            )
+    for task in config.tasks:
+        if not _same_reward(
+            task, (run_dir, mine["reward"][task]), (baseline_dir, theirs["reward"][task])
+        ):
+            raise ReportError(
+                f"baseline run {baseline_dir}: {task} trained with another reward than this "
+                "run's: its runs are no baseline for these"
+            )
+    if other.steps < config.steps:
+        raise ReportError(
+            f"baseline run {baseline_dir}: a budget of {other.steps:,} env-steps, less than this "
+            f"run's {config.steps:,}: its curves would end before theirs"
+        )
+    found, _, _ = _curves(other, baseline_dir)
+    theirs_curves = {
+        key: v for key, v in found.items() if key[0] in config.tasks and key[1] == baseline
+    }
+    where = _Runs(run_dir, config.steps, baseline, baseline_dir, other.steps)
+    seeds = "" if other.seeds == config.seeds else f" (seeds {', '.join(map(str, other.seeds))})"
+    text = (
+        f" The {method_label(baseline)} runs are those of the experiment run {other.name} "
+        f"({baseline_dir}){seeds}, trained the same way for {other.steps:,} env-steps: one that "
+        f"never reaches {config.report.threshold:.0%} counts as that budget. Table II reads them "
+        "at the fractions of this run's budget, their best evaluation over all of theirs."
+    )
+    return where, theirs_curves, text
+
+
+def _same_reward(task: str, a: tuple[Path, str], b: tuple[Path, str]) -> bool:
+    """Whether two runs, each (directory, reward as recorded), trained ``task`` with one reward:
+    the expert's in both, or files whose copies in the runs hold the same code."""
+    (dir_a, reward_a), (dir_b, reward_b) = a, b
+    if EXPERT in (reward_a, reward_b):
+        return reward_a == reward_b
+    copies = [reward_copy(dir_a, task), reward_copy(dir_b, task)]
+    return all(c.is_file() for c in copies) and copies[0].read_bytes() == copies[1].read_bytes()
+
+
 def _curves(config: ExperimentConfig, run_dir: Path) -> tuple[dict, list[Cell], list[str]]:
     """Finished cells' curves by (task, method), the cells not finished, and unreadable ones."""
     curves: dict[tuple[str, str], list[tuple[int, Curve]]] = {}
@@ -228,7 +323,10 @@ def _curves(config: ExperimentConfig, run_dir: Path) -> tuple[dict, list[Cell], 
 
 
 def experiment_report(
-    run_dir: str | Path, out: str | Path | None = None, video: bool = True
+    run_dir: str | Path,
+    out: str | Path | None = None,
+    video: bool = True,
+    baseline_run: str | Path | None = None,
 ) -> ReportFiles:
     """Write ``report.md`` and ``report.html`` (and ``figures/``, ``videos/``) for a run.
 
@@ -241,6 +339,12 @@ def experiment_report(
     and logs there).
     Anything else (another run, a run directory, the user's own ``report.md``) is refused with
     :class:`ReportError` before anything is written.
+
+    ``baseline_run``, another experiment run of the baseline method on the same tasks with the
+    same algorithm, environments, reward and evaluation and a budget at least this run's, stands
+    in for this run's baseline cells: a baseline that never reaches the threshold within the
+    budget makes every gain over it only a lower bound, set by the budget; run on for longer, it
+    is measured (:func:`_baseline_runs` says what must match).
     """
     run_dir = Path(run_dir)
     if not (run_dir / CONFIG_FILE).is_file():
@@ -265,6 +369,13 @@ def experiment_report(
         # as this run's by its provenance.json, instead of figures it would refuse to replace.
         _copy_results(config, run_dir, out)
     curves, pending, broken = _curves(config, run_dir)
+    where = _Runs(run_dir, config.steps)
+    baseline_text = ""
+    if baseline_run is not None:
+        where, theirs, baseline_text = _baseline_runs(config, run_dir, Path(baseline_run))
+        curves = {key: v for key, v in curves.items() if key[1] != config.report.baseline}
+        curves.update(theirs)
+        pending = [c for c in pending if c.method != config.report.baseline]
     notes: list[str] = list(broken)
     sources = read_json(run_dir / SOURCES_FILE) if (run_dir / SOURCES_FILE).is_file() else {}
 
@@ -278,7 +389,7 @@ def experiment_report(
             f"{len(config.tasks)} task(s) × {len(config.methods)} method(s) × {seeds} seed(s); "
             f"{config.algo.upper()}, {config.steps:,} env-steps per run, deterministic evaluation "
             f"over {config.eval.episodes} held-out episodes every {config.eval.every:,} env-steps. "
-            f"{finished} of {len(cells(config))} runs finished."
+            f"{finished} of {len(cells(config))} runs finished.{baseline_text}"
         )
     )
     header_section(
@@ -292,13 +403,13 @@ def experiment_report(
     doc.add(Code(json.dumps(config.to_dict(), indent=2), "json"))
 
     for task in config.tasks:
-        _task_section(doc, config, task, curves, sources.get(task), run_dir, figures, notes)
+        _task_section(doc, config, task, curves, sources.get(task), where, figures, notes)
         if video:
             best = _best_run(config, task, curves)
             if best is not None:
                 method, seed = best
                 doc.add(Heading("Rollout of the best method's final policy", 3))
-                cell_dir = Cell(task, method, seed).dir(run_dir)
+                cell_dir = where.cell_dir(task, method, seed)
                 video_section(doc, task, cell_dir, f"{method}_seed{seed}", videos, notes)
 
     if pending:
@@ -418,7 +529,7 @@ def _task_section(
     task: str,
     curves: dict,
     sources: list[str] | None,
-    run_dir: Path,
+    where: _Runs,
     figures: Path,
     notes: list[str],
 ) -> None:
@@ -439,7 +550,7 @@ def _task_section(
     if not by_method:
         doc.add(Paragraph("No finished run yet."))
         return
-    _settings_section(doc, task, curves, run_dir, notes)
+    _settings_section(doc, task, curves, where, notes)
     fig = plot_learning_curves(
         _mean_bands(by_method, rep.grid_points),
         f"{task} ({config.algo.upper()})",
@@ -456,7 +567,7 @@ def _task_section(
     )
     doc.add(Heading("Success at fractions of the budget (Table II)", 3))
     _fractions_table(doc, config, by_method, "mean [95% t-interval over seeds, cut to 0–100%]")
-    _progress_section(doc, config, task, curves, run_dir, figures, notes)
+    _progress_section(doc, config, task, curves, where, figures, notes)
     thresholds = {m: time_to_threshold(cs, rep.threshold) for m, cs in by_method.items()}
     base = thresholds.get(rep.baseline)
     paper = rep.paper_gain.get(task)
@@ -488,11 +599,11 @@ def _task_section(
         doc.add(Heading("Attention over one episode (Fig. 8)", 3))
         runs = curves[(task, "itn")]
         seed = max(runs, key=lambda sc: (sc[1].success[-1], -sc[0]))[0]
-        attention_section(doc, Cell(task, "itn", seed).dir(run_dir), task, figures, notes)
+        attention_section(doc, where.cell_dir(task, "itn", seed), task, figures, notes)
 
 
 def _settings_section(
-    doc: Document, task: str, curves: dict, run_dir: Path, notes: list[str]
+    doc: Document, task: str, curves: dict, where: _Runs, notes: list[str]
 ) -> None:
     """The training settings the task's finished runs recorded in their checkpoints.
 
@@ -508,7 +619,7 @@ def _settings_section(
             continue
         for seed, _ in runs:
             try:
-                saved = read_meta(Cell(task, method, seed).dir(run_dir))
+                saved = read_meta(where.cell_dir(task, method, seed))
             except CheckpointError as err:
                 notes.append(f"training settings of {method_label(method)} seed {seed}: {err}")
                 continue
@@ -546,7 +657,7 @@ def _progress_section(
     config: ExperimentConfig,
     task: str,
     curves: dict,
-    run_dir: Path,
+    where: _Runs,
     figures: Path,
     notes: list[str],
 ) -> None:
@@ -557,9 +668,9 @@ def _progress_section(
     by_method: dict[str, list] = {}
     for method in config.methods:
         for seed, _ in curves.get((task, method), []):
-            cell_dir = Cell(task, method, seed).dir(run_dir)
+            cell_dir = where.cell_dir(task, method, seed)
             try:
-                curve = read_curve(cell_dir, config.steps, "stages_done")
+                curve = read_curve(cell_dir, where.budget(method), "stages_done")
             except CurveError as err:  # a run from before subtask progress was recorded
                 notes.append(f"no subtask progress for {task}: {err}")
                 return
