@@ -576,14 +576,30 @@ def test_a_baseline_run_with_a_longer_budget_measures_the_gain_the_budget_cut_of
     assert "≥ 53.8%" not in md
     assert (
         f"The No_Transfer runs are those of the experiment run longer ({tmp_path / 'baseline'}) "
-        "(seeds 0, 1, 2), trained the same way for 2,000 env-steps" in md
+        "(seeds 0, 1, 2), 3 finished, trained the same way for 2,000 env-steps" in md
     )
+    assert "6 of 8 runs finished" not in md and "3 of 4 runs finished" in md
     # Table II stays at fractions of the run's own budget: No_Transfer's 90%, 90% and 70% at
     # 1000 env-steps, not the 90% all three reach by 2000.
     assert "| No_Transfer | 3 | 13.3% [0.0%, 27.7%] |" in md
     assert "| 83.3% [54.6%, 100.0%] | 90.0% (all 3 seeds) |" in md
     # This run's own No_Transfer cells are not read: its seed 3 is not listed as not started.
     assert "no_transfer/seed_3" not in md and "itn/seed_3: not started" in md
+
+
+def test_a_run_of_itn_alone_gets_its_gain_over_a_baseline_run(run, tmp_path):
+    import shutil
+
+    alone = tmp_path / "itn_alone"
+    shutil.copytree(run, alone)
+    shutil.rmtree(alone / "cells" / TASK / "no_transfer")
+    config = read_run_config(run)
+    write_json(alone / "config.json", {**config.to_dict(), "methods": ["itn"]})
+    files = experiment_report(alone, video=False, baseline_run=_baseline_run(tmp_path))
+    md = files.markdown.read_text()
+    assert "1 task(s) × 2 method(s) × 4 seed(s)" in md and "3 of 4 runs finished" in md
+    assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | 60.0% [25.6%, 94.4%] |" in md
+    assert "72.22%" in md and "measured here: 60.0% [25.6%, 94.4%]" in md
 
 
 @pytest.mark.parametrize(

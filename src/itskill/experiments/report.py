@@ -213,15 +213,19 @@ def video_section(
 # ---------------------------------------------------------------------- experiment report
 @dataclass(frozen=True)
 class _Runs:
-    """Where the report reads a method's cells, and the budget they trained for: the run's own,
-    or for the baseline method those of a baseline run given to the report (trained with a
-    longer budget, so that its time to the threshold is measured rather than cut off)."""
+    """The methods a report shows, where it reads each one's cells and the budget they trained
+    for: the run's own, or for the baseline method those of a baseline run given to the report
+    (trained with a longer budget, so that its time to the threshold is measured rather than
+    cut off; the run itself need not have trained the baseline then)."""
 
     run_dir: Path
     steps: int
+    methods: tuple[str, ...]
     baseline: str | None = None
     baseline_dir: Path | None = None
     baseline_steps: int = 0
+    about_baseline: str = ""
+    """The sentence saying where the baseline's cells come from (with a baseline run)."""
 
     def _theirs(self, method: str) -> Path | None:
         """The baseline run's directory if ``method``'s cells are read from it."""
@@ -236,9 +240,9 @@ class _Runs:
 
 def _baseline_runs(
     config: ExperimentConfig, run_dir: Path, baseline_dir: Path
-) -> tuple[_Runs, dict, str]:
+) -> tuple[_Runs, dict, list[str]]:
     """Where the report reads each method's cells with ``baseline_dir``'s baseline cells in place
-    of the run's, those cells' curves by (task, method), and the sentence that says so.
+    of the run's, those cells' curves by (task, method), and those that cannot be read.
 
     :class:`ReportError` unless ``baseline_dir`` is an experiment run of the baseline method on
     every task of the run, trained as the run's cells were (algorithm, environments, reward,
@@ -279,19 +283,21 @@ def _baseline_runs(
             f"baseline run {baseline_dir}: a budget of {other.steps:,} env-steps, less than this "
             f"run's {config.steps:,}: its curves would end before theirs"
         )
-    found, _, _ = _curves(other, baseline_dir)
+    found, _, broken = _curves(other, baseline_dir)
     theirs_curves = {
         key: v for key, v in found.items() if key[0] in config.tasks and key[1] == baseline
     }
-    where = _Runs(run_dir, config.steps, baseline, baseline_dir, other.steps)
     seeds = "" if other.seeds == config.seeds else f" (seeds {', '.join(map(str, other.seeds))})"
     text = (
         f" The {method_label(baseline)} runs are those of the experiment run {other.name} "
-        f"({baseline_dir}){seeds}, trained the same way for {other.steps:,} env-steps: one that "
+        f"({baseline_dir}){seeds}, {sum(map(len, theirs_curves.values()))} finished, trained the "
+        f"same way for {other.steps:,} env-steps: one that "
         f"never reaches {config.report.threshold:.0%} counts as that budget. Table II reads them "
         "at the fractions of this run's budget, their best evaluation over all of theirs."
     )
-    return where, theirs_curves, text
+    methods = config.methods if baseline in config.methods else (*config.methods, baseline)
+    where = _Runs(run_dir, config.steps, methods, baseline, baseline_dir, other.steps, text)
+    return where, theirs_curves, broken
 
 
 def _same_reward(task: str, a: tuple[Path, str], b: tuple[Path, str]) -> bool:
@@ -369,27 +375,29 @@ def experiment_report(
         # as this run's by its provenance.json, instead of figures it would refuse to replace.
         _copy_results(config, run_dir, out)
     curves, pending, broken = _curves(config, run_dir)
-    where = _Runs(run_dir, config.steps)
-    baseline_text = ""
+    where = _Runs(run_dir, config.steps, config.methods)
     if baseline_run is not None:
-        where, theirs, baseline_text = _baseline_runs(config, run_dir, Path(baseline_run))
+        where, theirs, their_broken = _baseline_runs(config, run_dir, Path(baseline_run))
         curves = {key: v for key, v in curves.items() if key[1] != config.report.baseline}
         curves.update(theirs)
         pending = [c for c in pending if c.method != config.report.baseline]
+        broken += their_broken
     notes: list[str] = list(broken)
     sources = read_json(run_dir / SOURCES_FILE) if (run_dir / SOURCES_FILE).is_file() else {}
 
     doc = Document(f"Experiment report: {config.name}")
     if config.description:
         doc.add(Paragraph(config.description))
-    finished = sum(len(v) for v in curves.values())
+    # This run's own cells: a baseline run's are counted where the report says where they are from.
+    own = [c for c in cells(config) if where.baseline_dir is None or c.method != where.baseline]
+    finished = sum(len(v) for (_, m), v in curves.items() if m in {c.method for c in own})
     seeds = len(config.seeds)
     doc.add(
         Paragraph(
-            f"{len(config.tasks)} task(s) × {len(config.methods)} method(s) × {seeds} seed(s); "
+            f"{len(config.tasks)} task(s) × {len(where.methods)} method(s) × {seeds} seed(s); "
             f"{config.algo.upper()}, {config.steps:,} env-steps per run, deterministic evaluation "
             f"over {config.eval.episodes} held-out episodes every {config.eval.every:,} env-steps. "
-            f"{finished} of {len(cells(config))} runs finished.{baseline_text}"
+            f"{finished} of {len(own)} runs finished.{where.about_baseline}"
         )
     )
     header_section(
@@ -405,7 +413,7 @@ def experiment_report(
     for task in config.tasks:
         _task_section(doc, config, task, curves, sources.get(task), where, figures, notes)
         if video:
-            best = _best_run(config, task, curves)
+            best = _best_run(config, task, curves, where.methods)
             if best is not None:
                 method, seed = best
                 doc.add(Heading("Rollout of the best method's final policy", 3))
@@ -505,11 +513,13 @@ def _pending_line(cell: Cell, run_dir: Path) -> str:
     return f"{cell.name}: not started"
 
 
-def _best_run(config: ExperimentConfig, task: str, curves: dict) -> tuple[str, int] | None:
+def _best_run(
+    config: ExperimentConfig, task: str, curves: dict, methods: tuple[str, ...]
+) -> tuple[str, int] | None:
     """The method with the highest mean final success (then the fewest steps to threshold) and
     its best seed."""
     scored = []
-    for method in config.methods:
+    for method in methods:
         runs = curves.get((task, method), [])
         if not runs:
             continue
@@ -543,9 +553,7 @@ def _task_section(
             )
         )
     by_method = {
-        m: [c for _, c in curves.get((task, m), [])]
-        for m in config.methods
-        if curves.get((task, m))
+        m: [c for _, c in curves.get((task, m), [])] for m in where.methods if curves.get((task, m))
     }
     if not by_method:
         doc.add(Paragraph("No finished run yet."))
@@ -666,7 +674,7 @@ def _progress_section(
     from itskill.tasks import UnknownTaskError, get_task
 
     by_method: dict[str, list] = {}
-    for method in config.methods:
+    for method in where.methods:
         for seed, _ in curves.get((task, method), []):
             cell_dir = where.cell_dir(task, method, seed)
             try:
