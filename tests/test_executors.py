@@ -93,17 +93,25 @@ def work():
 
 if __name__ == "__main__":
     warnings.showwarning = show_warning_line  # as the itskill command does
-    [result] = run_jobs(work, [()], "local", 2)
-    sys.exit(0 if result.ok else 1)
+    if sys.argv[1] == "pool":
+        [result] = run_jobs(work, [()], "local", 2)
+        sys.exit(0 if result.ok else 1)
+    from itskill.reward.limited import run_limited
+    from itskill.reward.sandbox import SandboxConfig
+
+    run_limited(work, sandbox=SandboxConfig(), name="the test's process")
 """
 
 
-def test_a_worker_shows_warnings_as_its_parent_does(tmp_path) -> None:
-    # A worker showed itskill's own warnings in Python's format, file, line and source line,
-    # where the command shows one line.
+@pytest.mark.parametrize("spawned_by", ["pool", "limited"])
+def test_a_spawned_process_shows_warnings_as_its_parent_does(tmp_path, spawned_by) -> None:
+    # A worker, or the limited process a candidate trains in, showed itskill's own warnings in
+    # Python's format, file, line and source line, where the command shows one line.
     script = tmp_path / "parent.py"
     script.write_text(WARNING_SCRIPT)
-    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, str(script), spawned_by], capture_output=True, text=True, timeout=120
+    )
     assert out.returncode == 0, out.stderr
     shown = [line for line in out.stderr.splitlines() if "damaged" in line]
     assert shown == ["warning: the shipped skill library is damaged"], out.stderr

@@ -125,7 +125,7 @@ def _run_local(fn, jobs, workers: int) -> Iterator[JobResult]:
         max_workers=workers,
         mp_context=context,
         initializer=_init_worker,
-        initargs=(os.getpid(), _showwarning_payload()),
+        initargs=(os.getpid(), showwarning_payload()),
     )
     try:
         pending: dict[Future, int] = {}
@@ -208,25 +208,32 @@ def _interrupt_job(signum: int, frame: Any) -> None:
             raise KeyboardInterrupt
 
 
-def _showwarning_payload() -> bytes | None:
-    """This process's ``warnings.showwarning`` pickled for its workers, so that they show warnings
-    as it does (the command's one-line format of itskill's own); None when it cannot travel (a
-    lambda, say). A function is pickled by its name: this module need not import the command's.
-    """
+def showwarning_payload() -> bytes | None:
+    """This process's ``warnings.showwarning`` pickled for the processes it spawns, so that they
+    show warnings as it does (the command's one-line format of itskill's own); None when it
+    cannot travel (a lambda, say). A function is pickled by its name: this module need not
+    import the command's."""
     try:
         return pickle.dumps(warnings.showwarning)
     except Exception:
         return None
 
 
+def install_showwarning(payload: bytes | None) -> None:
+    """In a spawned process, show warnings as the parent does (:func:`showwarning_payload`).
+
+    A spawned process starts with Python's own display; how a warning looks is not worth the
+    process (a pool's worker that fails its initializer breaks the whole pool), so one that
+    cannot be loaded is left as it is."""
+    if payload is not None:
+        with contextlib.suppress(Exception):
+            warnings.showwarning = pickle.loads(payload)
+
+
 def _init_worker(parent: int, showwarning: bytes | None) -> None:
     _install(_interrupt_job)
     exit_with_parent(parent)
-    if showwarning is not None:
-        # A spawned worker starts with Python's own; how a warning looks is not worth a worker
-        # (one that fails here breaks the whole pool), so one that cannot be loaded is left be.
-        with contextlib.suppress(Exception):
-            warnings.showwarning = pickle.loads(showwarning)
+    install_showwarning(showwarning)
 
 
 def _run_job(payload: bytes) -> Any:

@@ -25,7 +25,13 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from itskill.executors import exit_with_parent, stop_child, stop_on_first_interrupt
+from itskill.executors import (
+    exit_with_parent,
+    install_showwarning,
+    showwarning_payload,
+    stop_child,
+    stop_on_first_interrupt,
+)
 from itskill.reward.sandbox import SandboxConfig, apply_process_limits, death_cause
 
 INTERRUPTED = 130
@@ -69,7 +75,7 @@ def run_limited(
     receiver, sender = spawn.Pipe(duplex=False)
     child = spawn.Process(
         target=_child_main,
-        args=(sender, pickle.dumps((fn, tuple(args))), sandbox, os.getpid()),
+        args=(sender, pickle.dumps((fn, tuple(args))), sandbox, os.getpid(), showwarning_payload()),
         name=name,
     )
     child.start()
@@ -141,9 +147,16 @@ def _unpack(packed: Any) -> BaseException:
     return err
 
 
-def _child_main(sender: Any, payload: bytes, sandbox: SandboxConfig, parent_pid: int) -> None:
+def _child_main(
+    sender: Any,
+    payload: bytes,
+    sandbox: SandboxConfig,
+    parent_pid: int,
+    showwarning: bytes | None,
+) -> None:
     stop_on_first_interrupt()
     exit_with_parent(parent_pid)
+    install_showwarning(showwarning)
     try:
         # Unpickled once the handlers are in place: it imports the function's modules (torch,
         # MuJoCo: seconds), and a Ctrl-C then must end the child quietly, not with a traceback.
