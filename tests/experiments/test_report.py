@@ -543,9 +543,10 @@ def test_a_learn_report_of_dfs_says_it_has_no_attention_weights_rather_than_fail
     assert not (learn_dir / "figures" / f"attention_{TASK}.png").exists()
 
 
-def _baseline_run(tmp_path: Path, **changes) -> Path:
+def _baseline_run(tmp_path: Path, meta: str | None = None, **changes) -> Path:
     """A run of No_Transfer alone with twice the synthetic run's budget; its seed 2, which never
-    reached 80% within 1000 env-steps there, reaches it at 1400."""
+    reached 80% within 1000 env-steps there, reaches it at 1400. ``meta``: its cells'
+    checkpoint.json."""
     base = tmp_path / "baseline"
     settings = dict(
         name="longer",
@@ -558,9 +559,10 @@ def _baseline_run(tmp_path: Path, **changes) -> Path:
     )
     write_json(base / "config.json", ExperimentConfig(**{**settings, **changes}).to_dict())
     for seed in range(3):
-        write_cell(
-            base, Cell(TASK, "no_transfer", seed), SCRATCH[seed] + [0.75, 0.8, 0.9, 0.9, 0.9]
-        )
+        cell = Cell(TASK, "no_transfer", seed)
+        write_cell(base, cell, SCRATCH[seed] + [0.75, 0.8, 0.9, 0.9, 0.9])
+        if meta is not None:
+            (cell.dir(base) / "checkpoint.json").write_text(meta)
     return base
 
 
@@ -597,7 +599,7 @@ def test_a_run_of_itn_alone_gets_its_gain_over_a_baseline_run(run, tmp_path):
     write_json(alone / "config.json", {**config.to_dict(), "methods": ["itn"]})
     files = experiment_report(alone, video=False, baseline_run=_baseline_run(tmp_path))
     md = files.markdown.read_text()
-    assert "1 task(s) × 2 method(s) × 4 seed(s)" in md and "3 of 4 runs finished" in md
+    assert "1 task(s) × 1 method(s) × 4 seed(s)" in md and "3 of 4 runs finished" in md
     assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | 60.0% [25.6%, 94.4%] |" in md
     assert "72.22%" in md and "measured here: 60.0% [25.6%, 94.4%]" in md
 
@@ -612,9 +614,37 @@ def test_a_run_of_itn_alone_gets_its_gain_over_a_baseline_run(run, tmp_path):
         ({"reward": {TASK: "/elsewhere/reward.py"}}, "trained with another reward"),
     ],
 )
-def test_a_baseline_run_trained_otherwise_is_refused(run, tmp_path, changes, problem):
+def test_a_baseline_run_trained_otherwise_is_refused_before_anything_is_written(
+    run, tmp_path, changes, problem
+):
     with pytest.raises(ReportError, match=problem):
         experiment_report(
             run, tmp_path / "report", video=False, baseline_run=_baseline_run(tmp_path, **changes)
         )
-    assert not (tmp_path / "report" / "report.md").exists()
+    # Refused before the run's files were copied there.
+    assert not (tmp_path / "report").exists()
+
+
+def _meta(run: Path, **a2c) -> str:
+    meta = json.loads((Cell(TASK, "itn", 0).dir(run) / "checkpoint.json").read_text())
+    meta["hyperparams"]["a2c"].update(a2c)
+    return json.dumps(meta)
+
+
+def test_a_baseline_run_with_other_recorded_settings_is_refused(run, tmp_path):
+    # A task's own learning rate changed between the runs: only the settings table showed it.
+    base = _baseline_run(tmp_path, meta=_meta(run, learning_rate=1e-5))
+    with pytest.raises(ReportError, match="trained with other a2c settings: learning_rate 1e-05"):
+        experiment_report(run, tmp_path / "report", video=False, baseline_run=base)
+
+
+def test_a_baseline_runs_schedule_and_unfinished_runs_are_said(run, tmp_path):
+    base = _baseline_run(tmp_path, meta=_meta(run), seeds=(0, 1, 2, 3))
+    md = experiment_report(run, tmp_path / "report", video=False, baseline_run=base)
+    text = " ".join(md.markdown.read_text().split())
+    assert json.loads(_meta(run))["hyperparams"]["a2c"]["lr_schedule"] == "linear"
+    assert (
+        "at 1,000 env-steps it is still at 50% of its start, where this run's has reached zero"
+        in text
+    )
+    assert "baseline run: pickplace_nut_m12/no_transfer/seed_3: not started" in text

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -238,76 +239,137 @@ class _Runs:
         return self.steps if self._theirs(method) is None else self.baseline_steps
 
 
-def _baseline_runs(
-    config: ExperimentConfig, run_dir: Path, baseline_dir: Path
-) -> tuple[_Runs, dict, list[str]]:
+@dataclass(frozen=True)
+class _Baseline:
+    """A baseline run's cells as the report reads them (:func:`_baseline_runs`)."""
+
+    where: _Runs
+    curves: dict
+    pending: list[str]
+    """Its baseline cells not finished, as the report lists them."""
+    broken: list[str]
+
+
+def _baseline_runs(config: ExperimentConfig, run_dir: Path, baseline_dir: Path) -> _Baseline:
     """Where the report reads each method's cells with ``baseline_dir``'s baseline cells in place
-    of the run's, those cells' curves by (task, method), and those that cannot be read.
+    of the run's, and those cells as it reads them.
 
     :class:`ReportError` unless ``baseline_dir`` is an experiment run of the baseline method on
     every task of the run, trained as the run's cells were (algorithm, environments, reward,
-    evaluation) for at least as many env-steps: anything else would compare two things at once.
+    evaluation, and the algorithm's settings its checkpoints record) for at least as many
+    env-steps: anything else would compare two things at once.
     """
     baseline = config.report.baseline
+
+    def refuse(problem: str) -> ReportError:
+        return ReportError(f"baseline run {baseline_dir}: {problem}")
+
     if not (baseline_dir / CONFIG_FILE).is_file():
-        raise ReportError(
-            f"baseline run {baseline_dir}: not an experiment run directory (no {CONFIG_FILE})"
-        )
+        raise refuse(f"not an experiment run directory (no {CONFIG_FILE})")
     try:
         other = read_run_config(baseline_dir)
     except (ExperimentRunError, CorruptFileError) as err:
-        raise ReportError(f"baseline run {baseline_dir}: {err}") from err
+        raise refuse(str(err)) from err
     if baseline not in other.methods or not set(config.tasks) <= set(other.tasks):
-        raise ReportError(
-            f"baseline run {baseline_dir}: it has no {baseline} runs of every task of this run "
-            f"({', '.join(config.tasks)}): it ran {', '.join(other.methods)} on "
-            f"{', '.join(other.tasks)}"
+        raise refuse(
+            f"it has no {baseline} runs of every task of this run ({', '.join(config.tasks)}): "
+            f"it ran {', '.join(other.methods)} on {', '.join(other.tasks)}"
         )
     mine, theirs = config.training_settings(), other.training_settings()
     for key in ("algo", "num_envs", "eval"):
         if mine[key] != theirs[key]:
-            raise ReportError(
-                f"baseline run {baseline_dir}: trained with {key} {theirs[key]}, this run with "
-                f"{mine[key]}: its runs are no baseline for these"
+            raise refuse(
+                f"trained with {key} {theirs[key]}, this run with {mine[key]}: its runs are no "
+                "baseline for these"
             )
     for task in config.tasks:
-        if not _same_reward(
-            task, (run_dir, mine["reward"][task]), (baseline_dir, theirs["reward"][task])
-        ):
-            raise ReportError(
-                f"baseline run {baseline_dir}: {task} trained with another reward than this "
-                "run's: its runs are no baseline for these"
-            )
+        problem = _reward_difference(task, (run_dir, mine["reward"][task]),
+                                     (baseline_dir, theirs["reward"][task]))  # fmt: skip
+        if problem:
+            raise refuse(problem)
     if other.steps < config.steps:
-        raise ReportError(
-            f"baseline run {baseline_dir}: a budget of {other.steps:,} env-steps, less than this "
-            f"run's {config.steps:,}: its curves would end before theirs"
+        raise refuse(
+            f"a budget of {other.steps:,} env-steps, less than this run's {config.steps:,}: its "
+            "curves would end before theirs"
         )
-    found, _, broken = _curves(other, baseline_dir)
-    theirs_curves = {
-        key: v for key, v in found.items() if key[0] in config.tasks and key[1] == baseline
-    }
+    # Only its baseline cells on this run's tasks: notes on its other cells would read as this
+    # run's.
+    own = replace(other, tasks=config.tasks, methods=(baseline,))
+    curves, pending, broken = _curves(own, baseline_dir)
+    schedule = _compare_recorded(config, run_dir, own, baseline_dir, refuse)
     seeds = "" if other.seeds == config.seeds else f" (seeds {', '.join(map(str, other.seeds))})"
     text = (
         f" The {method_label(baseline)} runs are those of the experiment run {other.name} "
-        f"({baseline_dir}){seeds}, {sum(map(len, theirs_curves.values()))} finished, trained the "
-        f"same way for {other.steps:,} env-steps: one that "
-        f"never reaches {config.report.threshold:.0%} counts as that budget. Table II reads them "
-        "at the fractions of this run's budget, their best evaluation over all of theirs."
+        f"({baseline_dir}){seeds}, {sum(map(len, curves.values()))} finished, trained the same "
+        f"way for {other.steps:,} env-steps: one that never reaches "
+        f"{config.report.threshold:.0%} counts as that budget. Table II reads them at the "
+        "fractions of this run's budget, their best evaluation over all of theirs; their wall "
+        "times are those measured in that run."
     )
+    if schedule == "linear":
+        text += (
+            " Their learning rate decays linearly over their own budget, as this run's does over "
+            f"its: at {config.steps:,} env-steps it is still at "
+            f"{1 - config.steps / other.steps:.0%} of its start, where this run's has reached zero."
+        )
     methods = config.methods if baseline in config.methods else (*config.methods, baseline)
     where = _Runs(run_dir, config.steps, methods, baseline, baseline_dir, other.steps, text)
-    return where, theirs_curves, broken
+    return _Baseline(where, curves, [f"baseline run: {_pending_line(c, baseline_dir)}"
+                                     for c in pending], broken)  # fmt: skip
 
 
-def _same_reward(task: str, a: tuple[Path, str], b: tuple[Path, str]) -> bool:
-    """Whether two runs, each (directory, reward as recorded), trained ``task`` with one reward:
-    the expert's in both, or files whose copies in the runs hold the same code."""
+def _compare_recorded(
+    config: ExperimentConfig,
+    run_dir: Path,
+    other: ExperimentConfig,
+    other_dir: Path,
+    refuse: Callable[[str], ReportError],
+) -> str | None:
+    """Refuse (``refuse``) a baseline run whose cells recorded other settings of the algorithm
+    in their checkpoints (a task's own learning rate, changed between the runs) than this run's
+    did; the learning-rate schedule they recorded (None where no cell of either run records
+    them, as in a copy from before checkpoints were kept)."""
+    from itskill.rl.checkpoint import CheckpointError, read_meta
+
+    def first_settings(conf: ExperimentConfig, where: Path, task: str) -> dict | None:
+        for cell in cells(conf):
+            if cell.task == task and finished_result(cell.dir(where)) is not None:
+                try:
+                    saved = read_meta(cell.dir(where))
+                except CheckpointError:
+                    continue
+                return saved["hyperparams"].get(saved["algo"])
+        return None
+
+    schedule = None
+    for task in config.tasks:
+        mine, theirs = first_settings(config, run_dir, task), first_settings(other, other_dir, task)
+        if mine is None or theirs is None:
+            continue
+        differ = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
+        if differ:
+            shown = "; ".join(f"{k} {theirs.get(k)} there, {mine.get(k)} here" for k in differ)
+            raise refuse(f"its runs of {task} trained with other {config.algo} settings: {shown}")
+        schedule = theirs.get("lr_schedule")
+    return schedule
+
+
+def _reward_difference(task: str, a: tuple[Path, str], b: tuple[Path, str]) -> str | None:
+    """Why two runs, each (directory, reward as recorded), cannot be compared on ``task`` for
+    their rewards, or None if they trained it with one reward: the expert's in both, or files
+    whose copies in the runs hold the same code."""
     (dir_a, reward_a), (dir_b, reward_b) = a, b
     if EXPERT in (reward_a, reward_b):
-        return reward_a == reward_b
+        return None if reward_a == reward_b else f"{task} trained with another reward than here"
     copies = [reward_copy(dir_a, task), reward_copy(dir_b, task)]
-    return all(c.is_file() for c in copies) and copies[0].read_bytes() == copies[1].read_bytes()
+    missing = [str(c) for c in copies if not c.is_file()]
+    if missing:
+        return f"{task}'s rewards cannot be compared: no copy of {', '.join(missing)}"
+    if copies[0].read_bytes() != copies[1].read_bytes():
+        return (
+            f"{task} trained with another reward than here ({copies[1]} differs from {copies[0]})"
+        )
+    return None
 
 
 def _curves(config: ExperimentConfig, run_dir: Path) -> tuple[dict, list[Cell], list[str]]:
@@ -370,18 +432,22 @@ def experiment_report(
     # Read before anything is written: a copy that cannot be shown must leave no half report.
     toml_path = run_dir / EXPERIMENT_FILE
     toml_text = _experiment_text(toml_path) if toml_path.is_file() else None
+    base = None if baseline_run is None else _baseline_runs(config, run_dir, Path(baseline_run))
     if outside:
         # Before the figures: a report cut short then leaves an out that the next one knows
         # as this run's by its provenance.json, instead of figures it would refuse to replace.
         _copy_results(config, run_dir, out)
     curves, pending, broken = _curves(config, run_dir)
     where = _Runs(run_dir, config.steps, config.methods)
-    if baseline_run is not None:
-        where, theirs, their_broken = _baseline_runs(config, run_dir, Path(baseline_run))
-        curves = {key: v for key, v in curves.items() if key[1] != config.report.baseline}
-        curves.update(theirs)
-        pending = [c for c in pending if c.method != config.report.baseline]
-        broken += their_broken
+    if base is not None:
+        where = base.where
+        curves = {key: v for key, v in curves.items() if key[1] != where.baseline}
+        curves.update(base.curves)
+        pending = [c for c in pending if c.method != where.baseline]
+        broken += base.broken
+    pending_lines = [_pending_line(c, run_dir) for c in pending]
+    if base is not None:
+        pending_lines += base.pending
     notes: list[str] = list(broken)
     sources = read_json(run_dir / SOURCES_FILE) if (run_dir / SOURCES_FILE).is_file() else {}
 
@@ -390,11 +456,12 @@ def experiment_report(
         doc.add(Paragraph(config.description))
     # This run's own cells: a baseline run's are counted where the report says where they are from.
     own = [c for c in cells(config) if where.baseline_dir is None or c.method != where.baseline]
-    finished = sum(len(v) for (_, m), v in curves.items() if m in {c.method for c in own})
+    own_methods = {c.method for c in own}
+    finished = sum(len(v) for (_, m), v in curves.items() if m in own_methods)
     seeds = len(config.seeds)
     doc.add(
         Paragraph(
-            f"{len(config.tasks)} task(s) × {len(where.methods)} method(s) × {seeds} seed(s); "
+            f"{len(config.tasks)} task(s) × {len(own_methods)} method(s) × {seeds} seed(s); "
             f"{config.algo.upper()}, {config.steps:,} env-steps per run, deterministic evaluation "
             f"over {config.eval.episodes} held-out episodes every {config.eval.every:,} env-steps. "
             f"{finished} of {len(own)} runs finished.{where.about_baseline}"
@@ -413,16 +480,19 @@ def experiment_report(
     for task in config.tasks:
         _task_section(doc, config, task, curves, sources.get(task), where, figures, notes)
         if video:
-            best = _best_run(config, task, curves, where.methods)
+            # Of this run's own cells: a baseline run's final policy had a longer budget.
+            best = _best_run(
+                config, task, curves, tuple(m for m in config.methods if m in own_methods)
+            )
             if best is not None:
                 method, seed = best
                 doc.add(Heading("Rollout of the best method's final policy", 3))
                 cell_dir = where.cell_dir(task, method, seed)
                 video_section(doc, task, cell_dir, f"{method}_seed{seed}", videos, notes)
 
-    if pending:
+    if pending_lines:
         doc.add(Heading("Runs not finished"))
-        doc.add(Bullets(tuple(_pending_line(c, run_dir) for c in pending)))
+        doc.add(Bullets(tuple(pending_lines)))
     if notes:
         doc.add(Heading("Notes"), Bullets(tuple(notes)))
     if outside:
