@@ -258,6 +258,8 @@ def test_planner_refuses_a_move_to_nothing_of_the_scene(command: str, clause: st
         "Move the nut away from the bolt",
         "move the nut off the bolt",
         "Move the M12 nut to the left",
+        # A move down with no lift or place beside it: a reach of the part.
+        "Move the M12 nut down to the bolt",
     ],
 )
 def test_planner_refuses_a_part_moved_where_no_task_takes_it(command: str) -> None:
@@ -281,6 +283,31 @@ def test_planner_refuses_a_place_no_task_does_after_the_unscrew(command: str) ->
     assert set(reply) == {"error"}
     assert reply["error"].startswith("no catalogue task does what the command asks")
     assert reply["error"].endswith("(actions read from the command: unscrew, place or align)")
+
+
+@pytest.mark.parametrize(
+    ("command", "task"),
+    [
+        # A place that a later screw, insert or align begins.
+        ("Place the M12 nut on the bolt and screw it down", "screw_nut_m12"),
+        ("Lower the M12 nut onto the bolt and tighten it", "screw_nut_m12"),
+        ("Set down the round peg on its hole and push it in", "insert_peg_round"),
+        ("Put the rectangular peg over the hole and align it", "align_peg_rect"),
+        # Putting, lowering or dropping the gripper moves the hand (was place_nut_m12).
+        ("Put the gripper over the M12 bolt", "hover_bolt_m12"),
+        ("Drop the gripper over the M12 bolt", "hover_bolt_m12"),
+        ("Lower the gripper onto the M12 nut and grasp it", "grasp_nut_m12"),
+        # A part moved over a fixture, however the move is worded, and the hand moved to a part.
+        ("Move the M12 nut carefully over the bolt", "carry_nut_m12"),
+        ("Move the M12 nut so it is over the bolt", "carry_nut_m12"),
+        ("Move it to the M12 nut", "reach_nut_m12"),
+        ("Pick up the nut and move it up", "pick_nut_m12"),
+    ],
+)
+def test_planner_still_plans_places_and_moves_the_refusals_above_leave_alone(
+    command: str, task: str
+) -> None:
+    assert plan(command)["task"] == task
 
 
 @pytest.mark.parametrize(

@@ -39,14 +39,19 @@ _OBJ = r"(?:it |them |the (?:\w+ ){0,3})?"
 # The verbs that carry a held part, a move of the part, and such a move somewhere.
 _CARRYING = r"\bcarry\w*|\btransport\w*|\bbring\w*"
 _MOVE_PART = r"\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?)"
-_MOVE_PART_TO = rf"{_MOVE_PART} (?:over|above|to)\b"
+# "Move the nut carefully over the bolt", "move the nut so it is over the bolt".
+_MOVE_PART_TO = rf"{_MOVE_PART} (?:\w+ly |so (?:that )?(?:it|they) (?:is|are) )?(?:over|above|to)\b"
 _CARRY_VERB = rf"{_CARRYING}|\bhold\w*|{_MOVE_PART_TO}"
 # A carry that takes the part somewhere ("bring it to the bolt"; not "hold it", which keeps it).
 _CARRY_TO = rf"{_CARRYING}|\bhold\w* {_OBJ}(?:over|above)\b|{_MOVE_PART_TO}"
 # verb phrase -> distinguishing actions; a "?" suffix marks an action that may be absent. Earlier
 # patterns claim their words first: "position the gripper" is a move, not a place.
 _VERBS: list[tuple[str, tuple[str, ...]]] = [
-    (r"\bposition\w* (?:the |your )?(?:gripper|hand|arm|end effector)\b", ()),
+    (
+        r"\b(?:position|put|set|lower|drop|place)\w* (?:the |your )?"
+        r"(?:gripper|hand|fingers|arm|end effector)\b",
+        (),
+    ),
     (r"\bget (?:close|closer|near|next|to)\b", ()),
     (
         r"\bunscrew\w*|\bloosen\w*|\bunfasten\w*|\buntighten\w*|\bunthread\w*"
@@ -81,7 +86,7 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
     (
         r"\bplace\w*|\bput\w*|\bset\w*|\bmount\w*|\bdrop\w*|\bposition\w*|\blower\w*"
         rf"|\bmove\w* {_OBJ}onto\b",
-        ("place|align",),
+        ("place|align?",),
     ),
     (rf"\balign\w*|\borient\w*|\bline\w* {_OBJ}up\b", ("align",)),
     (r"\bpush\w*|\bslide\w*|\bshove\w*|\bnudge\w*", ("push",)),
@@ -90,6 +95,8 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
     (_CARRY_VERB, ()),
 ]
 _IMPLIED = {"approach", "carry"}
+_PLACE = ("place|align?",)  # the actions of the place verbs
+_PLACES_FIRST = {"place?", "align"}  # a screw or insert places first; an align is a place's end
 # A word that puts the verb right after it out of the command's order ("after grasping it").
 _ORDER_WORD = r"\b(after|before)\s+(?:you\s+(?:have\s+)?|having\s+)?$"
 _ORDINALS = ["First", "Second", "Third", "Fourth", "Fifth", "Sixth", "Seventh", "Eighth", "Ninth",
@@ -282,10 +289,15 @@ def _clauses(command: str) -> list[tuple[str, ...]]:
         elif marker and marker[1] == "before" and k == 0 and len(ordered) > 1:
             ordered[0], ordered[1] = ordered[1], ordered[0]
     clauses: list[tuple[str, ...]] = []
-    for actions in ordered:
+    for k, actions in enumerate(ordered):
         # "Grab the peg and pull it out" grasps once: a verb repeating the previous one's
         # actions may add them again, but need not.
         before = {a.rstrip("?") for a in clauses[-1]} if clauses else set()
+        if actions == _PLACE and not any(_PLACES_FIRST & set(later) for later in ordered[k + 1 :]):
+            # A place is optional only where a later verb places first ("place the nut on the
+            # bolt and screw it down"); otherwise "unscrew the nut and place it" was planned as
+            # the unscrew alone.
+            actions = tuple(a.rstrip("?") for a in actions)
         clauses.append(
             tuple(a + "?" if a in before and not a.endswith("?") else a for a in actions)
         )
@@ -539,24 +551,32 @@ def _aimless_move(command: str, kinds: set[str]) -> str | None:
     return None
 
 
-def _part_moved_nowhere(command: str, fixtures: set[str]) -> str | None:
+def _part_moved_nowhere(command: str, kinds: set[str]) -> str | None:
     """Why the command cannot be planned if a clause moves a part with a verb that only moves
-    the hand, and not over or to a fixture ("move the nut away from the bolt" and "move the nut
-    to the left" were planned as a reach of the nut); None otherwise. A move up or down is the
-    lift or place beside it. ``fixtures``: the scene's fixture kinds."""
+    the hand, and not over or to a part or fixture ("move the nut away from the bolt" and "move
+    the nut to the left" were planned as a reach of the nut); None otherwise. A move up or down
+    is the lift or place of another clause ("pick up the nut and move it up"), if it has one.
+    ``kinds``: the scene's part and fixture kinds."""
     text = command.lower()
+    lifts_or_places = any(
+        a.rstrip("?") in ("lift", "place|align") for clause in _clauses(command) for a in clause
+    )
     for words, verbs in _segments(text):
         if not verbs or any(v not in _HAND_ONLY for _, _, v in verbs):
             continue
         clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
-        said = {w.removesuffix("s") for _, w in words}
-        toward_fixture = re.search(_MOVE_PART_TO, clause) and said & fixtures
-        if re.search(_MOVES_PART, clause) and not toward_fixture and not said & _VERTICAL:
-            return (
-                f"{clause!r} moves a part where the offline planner cannot take it: it moves a "
-                'part over a fixture ("move the nut over the bolt") or onto it ("move the nut '
-                'onto the bolt")'
-            )
+        if not re.search(_MOVES_PART, clause):
+            continue
+        toward = re.search(_MOVE_PART_TO, clause)
+        if toward and any(w.removesuffix("s") in kinds for w in _words(clause[toward.end() :])):
+            continue  # "move the nut over the bolt", "move it to the nut"
+        if lifts_or_places and {w for _, w in words} & _VERTICAL:
+            continue
+        return (
+            f"{clause!r} moves a part where the offline planner cannot take it: it moves a "
+            'part over a fixture ("move the nut over the bolt") or onto it ("move the nut '
+            'onto the bolt")'
+        )
     return None
 
 
@@ -633,7 +653,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
         or _unplanned_clause(command, scene_kinds)
         or _unknown_place(command, scene_kinds, fixture_parts)
         or _aimless_move(command, scene_kinds)
-        or _part_moved_nowhere(command, {p.kind for p in fixture_parts})
+        or _part_moved_nowhere(command, scene_kinds)
     )
     if unread:
         return {"error": unread}
