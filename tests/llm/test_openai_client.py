@@ -74,6 +74,15 @@ def test_falls_back_to_repeated_calls_when_n_is_not_served(mode: str) -> None:
             "1 validation error for ChatCompletionRequest\nn\n  Input should be less than or "
             "equal to 1 [type=less_than_equal, input_value=2, input_type=int]",  # pydantic
         ),
+        # LiteLLM's, and others the first review of the pattern left out.
+        Status(
+            400,
+            "litellm.UnsupportedParamsError: anthropic does not support parameters: "
+            "{'n': 2}, for model=claude-3",
+        ),
+        Status(400, "Unrecognized request argument supplied: n"),
+        Status(400, "Invalid value for n: must be 1"),
+        Status(400, "'n': 2 is not supported"),
     ],
 )
 def test_a_refusal_of_n_falls_back_to_single_samples(refusal: Status) -> None:
