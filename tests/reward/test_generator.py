@@ -43,6 +43,8 @@ FENCE = "```"
             "a python block in a markdown block",
         ),
         (f"~~~md\nThe reward:\n{FENCE}python\n{CODE}\n{FENCE}\n~~~", "in a tilde markdown block"),
+        # Read as untagged code, fences and all: a syntax error for the sandbox.
+        (f"````\nHere:\n{FENCE}python\n{CODE}\n{FENCE}\n````", "in an untagged wrapper"),
     ],
 )
 def test_the_code_is_found(reply: str, why: str) -> None:
@@ -57,3 +59,14 @@ def test_a_python_block_without_compute_reward_is_taken_before_the_whole_reply()
 def test_a_line_of_tildes_in_python_code_is_no_fence(tag: str) -> None:
     code = f'"""Reward.\n~~~~~~~\n"""\n\n{CODE}'
     assert extract_code(f"{FENCE}{tag}\n{code}\n{FENCE}") == code
+
+
+def test_a_reply_ending_in_a_long_run_of_fence_characters_is_read_quickly() -> None:
+    # The opening fence's pattern backtracked over the run: 0.55 s at 40,000 characters,
+    # quadratic beyond.
+    import time
+
+    start = time.perf_counter()
+    for char in "`~":
+        assert extract_code(f"{FENCE}python\n{CODE}\n{FENCE}\n" + char * 200_000) == CODE
+    assert time.perf_counter() - start < 1.0

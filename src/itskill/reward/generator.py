@@ -29,7 +29,7 @@ from itskill.sim.task import Context
 from itskill.tasks import make_batch_env
 
 _FENCE = re.compile(
-    r"^[ \t]*(?P<fence>(?P<char>[`~])(?P=char){2,})[ \t]*(?P<lang>[A-Za-z0-9_+-]*)[^\n]*\n"
+    r"^[ \t]*(?P<fence>(?P<char>[`~])(?P=char){2,})[ \t]*(?P<lang>[A-Za-z0-9_+-]*)[^\n]*(?:\n|\Z)"
     r"(?P<code>.*?)(?:^[ \t]*(?P=fence)|(?P=fence)[ \t]*$|\Z)",
     re.DOTALL | re.MULTILINE,
 )
@@ -75,12 +75,13 @@ def extract_code(reply: str) -> str:
 
 def _blocks(text: str, fence: re.Pattern[str]) -> list[tuple[str, str]]:
     """(language, dedented code) of each block of ``fence`` in ``text``; the blocks nested in one
-    tagged other than Python come first: that one is the Markdown around the code, not the
-    code."""
+    tagged other than Python, or untagged and fenced by four or more, come first: that one is
+    the Markdown around the code, not the code."""
     blocks = []
     for match in fence.finditer(text):
         lang, code = match["lang"].lower(), textwrap.dedent(match["code"])
-        if lang not in _PYTHON:
+        wrapper = not lang and len(match.groupdict().get("fence") or "") > 3
+        if lang not in _PYTHON or wrapper:
             # Code holds no block: a line of tildes in it underlines a docstring heading.
             blocks += _blocks(code, fence)
         blocks.append((lang, code))
