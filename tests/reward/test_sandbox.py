@@ -529,3 +529,14 @@ def test_array_methods_numpy_loads_on_first_use_work_in_a_fresh_process() -> Non
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[4.0, 4.0, 4.0]"
+
+
+def test_the_importer_serves_numpy_submodules_only_as_numpys_own_code_asks() -> None:
+    # The second lock behind the checker: an import statement (fromlist None or a tuple) gets
+    # numpy and math only, whatever the checker let through.
+    from itskill.reward.sandbox import _importer
+
+    for fromlist in (None, ("os",), ()):
+        with pytest.raises(ImportError, match="not allowed in the sandbox"):
+            _importer("numpy.f2py", fromlist=fromlist)
+    assert _importer("numpy._core._methods", fromlist=[]) is np

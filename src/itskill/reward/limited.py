@@ -156,10 +156,11 @@ def _child_main(
 ) -> None:
     stop_on_first_interrupt()
     exit_with_parent(parent_pid)
-    install_showwarning(showwarning)
     try:
-        # Unpickled once the handlers are in place: it imports the function's modules (torch,
-        # MuJoCo: seconds), and a Ctrl-C then must end the child quietly, not with a traceback.
+        # Unpickled once the handlers are in place: the warning display and the function import
+        # their modules (the command's; torch, MuJoCo: seconds), and a Ctrl-C then must end the
+        # child quietly, not with a traceback.
+        install_showwarning(showwarning)
         fn, args = pickle.loads(payload)
         apply_process_limits(sandbox)
         answer: tuple = ("ok", fn(*args))

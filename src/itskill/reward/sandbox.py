@@ -497,7 +497,9 @@ def _importer(name: str, globals=None, locals=None, fromlist=(), level=0):
         return np
     if level == 0 and name == "math":
         return math
-    if level == 0 and name.startswith("numpy."):
+    if level == 0 and name.startswith("numpy.") and type(fromlist) is list:
+        # Only as NumPy's C code asks (a list; an import statement passes None or a tuple): a
+        # lock should hold even if the checker before it were ever wrong.
         return builtins.__import__(name, globals, locals, fromlist, level)
     raise ImportError(f"import of {name!r} is not allowed in the sandbox")
 
