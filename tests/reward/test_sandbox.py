@@ -540,3 +540,19 @@ def test_the_importer_serves_numpy_submodules_only_as_numpys_own_code_asks() -> 
         with pytest.raises(ImportError, match="not allowed in the sandbox"):
             _importer("numpy.f2py", fromlist=fromlist)
     assert _importer("numpy._core._methods", fromlist=[]) is np
+
+
+def test_a_long_chain_of_products_is_checked_quickly() -> None:
+    # Each node of the chain folded the chain below it again: 25 s for this reward of 18,700
+    # characters (under the 20,000 allowed), in the host process, before anything ran under a
+    # limit.
+    chain = "    x = 2" + "*1.0" * 230 + "\n"
+    source = (
+        "import numpy as np\ndef compute_reward(ctx):\n"
+        + chain * 20
+        + "    return ctx['ee_pos'][:, 0], {}\n"
+    )
+    assert len(source) < SandboxConfig().max_source_chars
+    start = time.perf_counter()
+    check_source(source)
+    assert time.perf_counter() - start < 2.0
