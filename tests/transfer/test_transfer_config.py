@@ -81,6 +81,11 @@ def test_a_config_built_in_code_refuses_a_value_of_another_kind(
 def test_a_config_built_in_code_takes_an_integer_for_a_number_and_a_list_for_widths() -> None:
     config = TransferConfig(min_success=1, fusion_hidden=[64, 32])
     assert config.min_success == 1 and config.fusion_hidden == (64, 32)
+    # NumPy's numbers (a sweep over np.arange), kept as Python's so the record is JSON.
+    import numpy as np
+
+    config = TransferConfig(k=np.int64(2), prior_weight=np.float32(0.5))
+    assert type(config.k) is int and type(config.prior_weight) is float
 
 
 @pytest.mark.parametrize(

@@ -7,6 +7,7 @@ same shape) and checks every field, reporting the file, the field and what was e
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from importlib import resources
@@ -53,13 +54,13 @@ def _out_of_range(name: str, value: Any) -> str | None:
 
 def _of_kind(value: Any, default: Any) -> bool:
     """Whether ``value`` is of the kind of a field whose default is ``default``: a bool only
-    where a bool is, an int (no bool) where an int is, a float taking an int too, a tuple of
-    widths as a tuple or list of ints."""
+    where a bool is, an integer (no bool; NumPy's too) where an int is, a float taking an
+    integer too, a tuple of widths as a tuple or list of integers."""
     if isinstance(default, tuple):
         return isinstance(value, tuple | list) and all(_of_kind(w, 0) for w in value)
     if isinstance(default, bool) or isinstance(value, bool):
         return isinstance(value, bool) and isinstance(default, bool)
-    return isinstance(value, float | int if isinstance(default, float) else type(default))
+    return isinstance(value, numbers.Real if isinstance(default, float) else numbers.Integral)
 
 
 def check_setting(name: str, value: Any) -> None:
@@ -98,6 +99,8 @@ class TransferConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             check_setting(f.name, getattr(self, f.name))
+            if type(f.default) in (int, float):  # NumPy's numbers as Python's, for JSON
+                object.__setattr__(self, f.name, type(f.default)(getattr(self, f.name)))
         object.__setattr__(self, "fusion_hidden", tuple(int(w) for w in self.fusion_hidden))
 
     def to_dict(self) -> dict[str, Any]:
