@@ -21,21 +21,14 @@ from itskill.llm import (
 )
 from itskill.llm.offline import synthesiser
 from itskill.llm.offline.analyzer import FLOOR
+from itskill.reward.plan import task_catalogue
 from itskill.reward.sandbox import compile_reward
 from itskill.tasks import all_tasks, get_task, make_batch_env
 from itskill.tasks.scripted import ScriptedPolicy
 
-CATALOGUE = [
-    {
-        "task": t.id,
-        "family": t.family,
-        "command": t.command,
-        "actions": list(t.actions),
-        "objects": [o.name for o in t.objects],
-        "fixtures": [f.part.name for f in t.fixtures],
-    }
-    for t in all_tasks().values()
-]
+# The catalogue the planner is shown (a catalogue built from the skills' actions as the task
+# stages hid that "unscrew the M12 nut and remove it" was refused in `itskill plan`).
+CATALOGUE = task_catalogue()
 
 
 def json_reply(text: str) -> dict:
@@ -62,9 +55,9 @@ def test_planner_maps_table_i_commands_to_their_task(task: str) -> None:
     spec = get_task(task)
     reply = plan(spec.command)
     assert reply["task"] == task
-    assert reply["actions"] == list(spec.actions)
+    assert reply["actions"] == [s.name for s in spec.stages]
     assert reply["objects"] == [o.name for o in spec.objects]
-    assert len(reply["subtasks"]) == len(spec.actions)
+    assert len(reply["subtasks"]) == len(spec.stages)
     ordinals = ["First, ", "Second, ", "Third, ", "Fourth, ", "Fifth, ", "Sixth, "]
     assert all(s.startswith(o) for s, o in zip(reply["subtasks"], ordinals, strict=False))
     assert "offline rule-based backend" in reply["notes"]
@@ -302,6 +295,19 @@ def test_planner_refuses_a_place_no_task_does_after_the_unscrew(command: str) ->
         ("Move the M12 nut so it is over the bolt", "carry_nut_m12"),
         ("Move it to the M12 nut", "reach_nut_m12"),
         ("Pick up the nut and move it up", "pick_nut_m12"),
+        # The second review's: each planned so before, and was refused or mis-planned.
+        ("move the M12 nut down and screw it on", "screw_nut_m12"),
+        ("move the rectangular peg down and insert it", "insert_peg_rect"),
+        ("move the M12 nut back over the bolt", "carry_nut_m12"),
+        ("move the M12 nut until it is over the bolt", "carry_nut_m12"),
+        ("move the M12 nut so it sits over the bolt", "carry_nut_m12"),
+        ("Place the hand-held M12 nut on the bolt", "place_nut_m12"),
+        ("lower the gripper's M12 nut onto the bolt", "place_nut_m12"),
+        ("Pick up the nut and move it up to 30 mm", "pick_nut_m12"),
+        # The catalogue's actions are the task's stages (unscrew, lift), the verbs name the
+        # skills' steps (unscrew, grasp, lift): refused in `itskill plan`.
+        ("Unscrew the M12 nut and remove it", "removenut_m12"),
+        ("Remove the M12 nut from the bolt", "removenut_m12"),
     ],
 )
 def test_planner_still_plans_places_and_moves_the_refusals_above_leave_alone(

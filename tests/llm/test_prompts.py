@@ -28,6 +28,7 @@ CATALOGUE = [
         "family": "nutbolt",
         "command": "Pick up the M12 nut",
         "actions": ["approach", "grasp", "lift"],
+        "steps": ["approach", "grasp", "lift"],
         "objects": ["nut_m12"],
         "fixtures": ["bolt_m12"],
     }

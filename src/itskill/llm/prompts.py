@@ -52,7 +52,7 @@ TEMPLATE_FIELDS: dict[str, frozenset[str]] = {
 }
 """Every template and the fields it must contain, exactly."""
 
-CATALOGUE_KEYS = ("task", "family", "command", "actions", "objects", "fixtures")
+CATALOGUE_KEYS = ("task", "family", "command", "actions", "steps", "objects", "fixtures")
 TRANSFER_KEYS = ("id", "description", "actions")
 STAT_KEYS = ("max", "mean", "min")
 

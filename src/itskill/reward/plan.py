@@ -192,7 +192,9 @@ def task_catalogue() -> list[dict[str, Any]]:
     """Every task the planner may choose, as the planner prompt shows it.
 
     ``actions`` are the task's stage names in order (what ``ctx["stage"]`` counts), the sequence a
-    plan must reproduce exactly.
+    plan must reproduce exactly; ``steps`` the skills' actions the task chains, which a command's
+    verbs name ("unscrew the nut and take it off" is unscrew, grasp, lift; the task's stages are
+    unscrew and lift).
     """
     return [
         {
@@ -200,6 +202,7 @@ def task_catalogue() -> list[dict[str, Any]]:
             "family": t.family,
             "command": t.command,
             "actions": [s.name for s in t.stages],
+            "steps": list(t.actions),
             "objects": [o.name for o in t.objects],
             "fixtures": [f.part.name for f in t.fixtures],
         }

@@ -39,8 +39,11 @@ _OBJ = r"(?:it |them |the (?:\w+ ){0,3})?"
 # The verbs that carry a held part, a move of the part, and such a move somewhere.
 _CARRYING = r"\bcarry\w*|\btransport\w*|\bbring\w*"
 _MOVE_PART = r"\bmove\w* (?:it|them|the (?:\w+ ){0,2}(?:nut|peg)s?)"
-# "Move the nut carefully over the bolt", "move the nut so it is over the bolt".
-_MOVE_PART_TO = rf"{_MOVE_PART} (?:\w+ly |so (?:that )?(?:it|they) (?:is|are) )?(?:over|above|to)\b"
+# "Move the nut carefully over the bolt", "... back over ...", "... so it sits over the bolt".
+_MOVE_PART_TO = (
+    rf"{_MOVE_PART} (?:\w+ly |back |all the way |(?:so|until) (?:that )?(?:it|they) "
+    r"(?:is|are|sits?) )?(?:over|above|to)\b"
+)
 _CARRY_VERB = rf"{_CARRYING}|\bhold\w*|{_MOVE_PART_TO}"
 # A carry that takes the part somewhere ("bring it to the bolt"; not "hold it", which keeps it).
 _CARRY_TO = rf"{_CARRYING}|\bhold\w* {_OBJ}(?:over|above)\b|{_MOVE_PART_TO}"
@@ -49,7 +52,7 @@ _CARRY_TO = rf"{_CARRYING}|\bhold\w* {_OBJ}(?:over|above)\b|{_MOVE_PART_TO}"
 _VERBS: list[tuple[str, tuple[str, ...]]] = [
     (
         r"\b(?:position|put|set|lower|drop|place)\w* (?:the |your )?"
-        r"(?:gripper|hand|fingers|arm|end effector)\b",
+        r"(?:gripper|hand|fingers|arm|end effector)(?![-'\w])",  # not "the hand-held nut"
         (),
     ),
     (r"\bget (?:close|closer|near|next|to)\b", ()),
@@ -559,7 +562,9 @@ def _part_moved_nowhere(command: str, kinds: set[str]) -> str | None:
     ``kinds``: the scene's part and fixture kinds."""
     text = command.lower()
     lifts_or_places = any(
-        a.rstrip("?") in ("lift", "place|align") for clause in _clauses(command) for a in clause
+        a.rstrip("?") in ("lift", "place", "place|align")  # a screw or insert places first
+        for clause in _clauses(command)
+        for a in clause
     )
     for words, verbs in _segments(text):
         if not verbs or any(v not in _HAND_ONLY for _, _, v in verbs):
@@ -672,7 +677,8 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             continue
         if named_fixtures - {Part.from_name(f).kind for f in entry["fixtures"]}:
             continue
-        distinctive = [a for a in entry["actions"] if a not in _IMPLIED]
+        # A command's verbs name the skills' steps; a catalogue without them has only stages.
+        distinctive = [a for a in entry.get("steps", entry["actions"]) if a not in _IMPLIED]
         skipped = _skipped(pattern, distinctive)
         if skipped is not None:
             own = set(_words(entry["command"]))
@@ -700,7 +706,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
             f"(actions read from the command: {read or 'move to'})"
         }
     entry = min(candidates, key=lambda c: c[:-1])[-1]
-    actions = entry["actions"]
+    actions = entry.get("steps", entry["actions"])
     grasp = actions.index("grasp") if "grasp" in actions else None
     if (
         re.search(_CARRY_TO, command.lower())
