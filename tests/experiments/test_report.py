@@ -634,8 +634,24 @@ def _meta(run: Path, **a2c) -> str:
 def test_a_baseline_run_with_other_recorded_settings_is_refused(run, tmp_path):
     # A task's own learning rate changed between the runs: only the settings table showed it.
     base = _baseline_run(tmp_path, meta=_meta(run, learning_rate=1e-5))
-    with pytest.raises(ReportError, match="trained with other a2c settings: learning_rate 1e-05"):
+    with pytest.raises(ReportError, match=r"other settings \(a2c.learning_rate: 0.0007 -> 1e-05"):
         experiment_report(run, tmp_path / "report", video=False, baseline_run=base)
+
+
+def test_a_baseline_run_recorded_before_a_setting_was_added_is_compared_as_it_trained(
+    run, tmp_path
+):
+    # Its checkpoints lack rms_prop_tf_like, which every run before the setting trained without:
+    # "rms_prop_tf_like False there, None here" refused it.
+    meta = json.loads(_meta(run))
+    del meta["hyperparams"]["a2c"]["rms_prop_tf_like"]
+    experiment_report(run, tmp_path / "report", video=False,
+                      baseline_run=_baseline_run(tmp_path, meta=json.dumps(meta)))  # fmt: skip
+    # Another action noise is another network's exploration: refused.
+    meta["hyperparams"]["policy"]["log_std_init"] = -1.0  # the task's table says -2.0
+    base = _baseline_run(tmp_path / "b", meta=json.dumps(meta))
+    with pytest.raises(ReportError, match=r"policy.log_std_init: -2.0 -> -1.0"):
+        experiment_report(run, tmp_path / "again", video=False, baseline_run=base)
 
 
 def test_a_baseline_runs_schedule_and_unfinished_runs_are_said(run, tmp_path):

@@ -306,7 +306,7 @@ def _baseline_runs(config: ExperimentConfig, run_dir: Path, baseline_dir: Path) 
         "fractions of this run's budget, their best evaluation over all of theirs; their wall "
         "times are those measured in that run."
     )
-    if schedule == "linear":
+    if schedule == "linear" and other.steps > config.steps:
         text += (
             " Their learning rate decays linearly over their own budget, as this run's does over "
             f"its: at {config.steps:,} env-steps it is still at "
@@ -325,11 +325,15 @@ def _compare_recorded(
     other_dir: Path,
     refuse: Callable[[str], ReportError],
 ) -> str | None:
-    """Refuse (``refuse``) a baseline run whose cells recorded other settings of the algorithm
-    in their checkpoints (a task's own learning rate, changed between the runs) than this run's
-    did; the learning-rate schedule they recorded (None where no cell of either run records
-    them, as in a copy from before checkpoints were kept)."""
+    """Refuse (``refuse``) a baseline run whose cells recorded other settings of the algorithm,
+    the network or the reward's normalisation in their checkpoints (a task's own learning rate
+    or action noise, changed between the runs) than this run's did, as a resume compares them
+    (:func:`itskill.rl.train.changed_settings`: a setting a later release added counts with the
+    value runs before it trained with); the learning-rate schedule the baseline's cells recorded
+    (None where none of them records it, as in a copy from before checkpoints were kept). The
+    demonstrations are not compared: methods with sources train without the task's."""
     from itskill.rl.checkpoint import CheckpointError, read_meta
+    from itskill.rl.train import changed_settings
 
     def first_settings(conf: ExperimentConfig, where: Path, task: str) -> dict | None:
         for cell in cells(conf):
@@ -338,19 +342,24 @@ def _compare_recorded(
                     saved = read_meta(cell.dir(where))
                 except CheckpointError:
                     continue
-                return saved["hyperparams"].get(saved["algo"])
+                hp = saved["hyperparams"]
+                keys = (saved["algo"], "policy", "normalize_reward")
+                return {key: hp[key] for key in keys if key in hp}
         return None
 
     schedule = None
     for task in config.tasks:
         mine, theirs = first_settings(config, run_dir, task), first_settings(other, other_dir, task)
+        if theirs is not None:
+            schedule = theirs.get(config.algo, {}).get("lr_schedule", schedule)
         if mine is None or theirs is None:
             continue
-        differ = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
+        differ = changed_settings(mine, theirs)
         if differ:
-            shown = "; ".join(f"{k} {theirs.get(k)} there, {mine.get(k)} here" for k in differ)
-            raise refuse(f"its runs of {task} trained with other {config.algo} settings: {shown}")
-        schedule = theirs.get("lr_schedule")
+            raise refuse(
+                f"its runs of {task} trained with other settings ({'; '.join(differ)}: this "
+                "run's -> the baseline run's)"
+            )
     return schedule
 
 

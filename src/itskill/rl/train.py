@@ -317,7 +317,9 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
             f"{run_dir}: holds a run trained with reward {have!r}, this call gives {new!r}"
         )
     # As the checkpoint stores them: through JSON, tuples become lists.
-    changed = _changed(meta.get("hyperparams", {}), json.loads(json.dumps(want["hyperparams"])))
+    changed = changed_settings(
+        meta.get("hyperparams", {}), json.loads(json.dumps(want["hyperparams"]))
+    )
     if changed:
         raise ResumeMismatchError(
             f"{run_dir}: holds a run trained with other hyper-parameters ({'; '.join(changed)}); "
@@ -342,8 +344,11 @@ _ADDED_SETTINGS: dict[str, Any] = {"a2c.rms_prop_tf_like": False}
 without one ran with that value (its optimiser is restored from ``model.zip`` as it was)."""
 
 
-def _changed(have: Mapping[str, Any], want: Mapping[str, Any], prefix: str = "") -> list[str]:
-    """``key: old -> new`` for each setting that differs. A setting an older checkpoint lacks is
+def changed_settings(
+    have: Mapping[str, Any], want: Mapping[str, Any], prefix: str = ""
+) -> list[str]:
+    """``key: old -> new`` for each hyper-parameter that differs between a checkpoint's record
+    (``have``) and another (``want``). A setting an older checkpoint lacks is
     a change only where :data:`_ADDED_SETTINGS` records what it trained with; other such settings
     came with the features they switch, which the older run did not have."""
     out = []
@@ -353,7 +358,7 @@ def _changed(have: Mapping[str, Any], want: Mapping[str, Any], prefix: str = "")
             continue
         old = have[key] if key in have else _ADDED_SETTINGS[name]
         if isinstance(old, Mapping) and isinstance(new, Mapping):
-            out += _changed(old, new, f"{name}.")
+            out += changed_settings(old, new, f"{name}.")
         elif old != new:
             out.append(f"{name}: {old!r} -> {new!r}")
     return sorted(out)
