@@ -83,6 +83,8 @@ def test_falls_back_to_repeated_calls_when_n_is_not_served(mode: str) -> None:
         Status(400, "Unrecognized request argument supplied: n"),
         Status(400, "Invalid value for n: must be 1"),
         Status(400, "'n': 2 is not supported"),
+        Status(400, "Unsupported Parameters: {'temperature': 0.2, 'n': 2}"),
+        Status(400, "Number of choices (n) must be 1"),
     ],
 )
 def test_a_refusal_of_n_falls_back_to_single_samples(refusal: Status) -> None:
@@ -516,8 +518,17 @@ def test_a_reply_with_a_lone_surrogate_is_cached_and_replayed(tmp_path: Path) ->
         'Invalid prompt "n samples of the reward, one per line"',
         # A check of the whole request (a pydantic model validator) echoes it, "n" among its keys.
         "Value error, tools need tool_choice [input_value={'model': 'm', 'n': 2, 'messages': []}]",
+        "Input is invalid\nn samples each were asked",  # a real newline after "invalid"
+        "Unknown parameters: {'temperature': 2, 'top_n': 3}",
     ],
-    ids=["escaped-newline", "prompt-line-after-it", "quoted-prompt", "echoed-request"],
+    ids=[
+        "escaped-newline",
+        "prompt-line-after-it",
+        "quoted-prompt",
+        "echoed-request",
+        "newline-after-invalid",
+        "another-parameter-ending-in-n",
+    ],
 )
 def test_a_refusal_echoing_the_prompt_or_request_is_not_about_n(message: str) -> None:
     # The echoed prompt's "\n", or a prompt line "n samples ...", read as the parameter n: n was

@@ -55,10 +55,10 @@ def test_a_python_block_without_compute_reward_is_taken_before_the_whole_reply()
     assert extract_code(f"Words.\n{FENCE}python\nx = 1\n{FENCE}") == "x = 1"
 
 
-@pytest.mark.parametrize("tag", ["python", ""])
-def test_a_line_of_tildes_in_python_code_is_no_fence(tag: str) -> None:
+@pytest.mark.parametrize("fence", [f"{FENCE}python", FENCE, "````"])
+def test_a_line_of_tildes_in_python_code_is_no_fence(fence: str) -> None:
     code = f'"""Reward.\n~~~~~~~\n"""\n\n{CODE}'
-    assert extract_code(f"{FENCE}{tag}\n{code}\n{FENCE}") == code
+    assert extract_code(f"{fence}\n{code}\n{fence.rstrip('python')}") == code
 
 
 def test_a_reply_ending_in_a_long_run_of_fence_characters_is_read_quickly() -> None:

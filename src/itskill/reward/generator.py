@@ -13,6 +13,7 @@ The probe runs the code in a child process under the sandbox's limits
 
 from __future__ import annotations
 
+import ast
 import re
 import textwrap
 from collections.abc import Callable
@@ -75,17 +76,27 @@ def extract_code(reply: str) -> str:
 
 def _blocks(text: str, fence: re.Pattern[str]) -> list[tuple[str, str]]:
     """(language, dedented code) of each block of ``fence`` in ``text``; the blocks nested in one
-    tagged other than Python, or untagged and fenced by four or more, come first: that one is
-    the Markdown around the code, not the code."""
+    tagged other than Python, or untagged, fenced by four or more and not Python itself, come
+    first: that one is the Markdown around the code, not the code."""
     blocks = []
     for match in fence.finditer(text):
         lang, code = match["lang"].lower(), textwrap.dedent(match["code"])
-        wrapper = not lang and len(match.groupdict().get("fence") or "") > 3
+        wrapper = not lang and len(match.groupdict().get("fence") or "") > 3 and not _parses(code)
         if lang not in _PYTHON or wrapper:
             # Code holds no block: a line of tildes in it underlines a docstring heading.
             blocks += _blocks(code, fence)
         blocks.append((lang, code))
     return blocks
+
+
+def _parses(code: str) -> bool:
+    """Whether ``code`` is Python (a module docstring underlined with ``~~~`` is, Markdown around
+    a fenced block is not)."""
+    try:
+        ast.parse(code)
+    except (SyntaxError, ValueError):
+        return False
+    return True
 
 
 def probe_contexts(task: str, num_envs: int, steps: int, seed: int = 0) -> list[Context]:
