@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from transfer_helpers import make_source
 
@@ -88,6 +89,8 @@ def test_named_sources_by_name_and_id(home: Path) -> None:
     by_id = resolve_sources("pickplace_nut_m12", [pick_id])
     assert [s.name for s in by_id] == ["pick_nut_m12"]
     assert resolve_sources("pickplace_nut_m12", str(pick_id))[0].name == "pick_nut_m12"
+    # A serial number from NumPy (ids read into an array) names the skill too.
+    assert resolve_sources("pickplace_nut_m12", [np.int64(pick_id)])[0].name == "pick_nut_m12"
 
 
 def test_source_errors_name_the_problem(home: Path, tmp_path: Path) -> None:
@@ -106,6 +109,8 @@ def test_source_errors_name_the_problem(home: Path, tmp_path: Path) -> None:
     # True == 1 named skill 1.
     with pytest.raises(SourceError, match="serial number or name, got bool True"):
         resolve_sources("pickplace_nut_m12", [True])
+    with pytest.raises(SourceError, match="serial number or name, got bool np.True_"):
+        resolve_sources("pickplace_nut_m12", [np.bool_(True)])
 
 
 def test_a_serial_number_is_ascii_digits(home: Path) -> None:

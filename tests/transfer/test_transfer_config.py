@@ -84,8 +84,9 @@ def test_a_config_built_in_code_takes_an_integer_for_a_number_and_a_list_for_wid
     # NumPy's numbers (a sweep over np.arange), kept as Python's so the record is JSON.
     import numpy as np
 
-    config = TransferConfig(k=np.int64(2), prior_weight=np.float32(0.5))
+    config = TransferConfig(k=np.int64(2), prior_weight=np.float32(0.5), residual=np.bool_(False))
     assert type(config.k) is int and type(config.prior_weight) is float
+    assert config.residual is False
 
 
 @pytest.mark.parametrize(

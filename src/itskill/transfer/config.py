@@ -14,6 +14,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from itskill.datafile import DataFileError, check_like, check_table, read_toml
 from itskill.limits import RETRIES_MAX, SOURCES_MAX, WIDTH_MAX
 
@@ -58,8 +60,8 @@ def _of_kind(value: Any, default: Any) -> bool:
     integer too, a tuple of widths as a tuple or list of integers."""
     if isinstance(default, tuple):
         return isinstance(value, tuple | list) and all(_of_kind(w, 0) for w in value)
-    if isinstance(default, bool) or isinstance(value, bool):
-        return isinstance(value, bool) and isinstance(default, bool)
+    if isinstance(default, bool) or isinstance(value, bool | np.bool_):
+        return isinstance(value, bool | np.bool_) and isinstance(default, bool)
     return isinstance(value, numbers.Real if isinstance(default, float) else numbers.Integral)
 
 
@@ -99,7 +101,7 @@ class TransferConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             check_setting(f.name, getattr(self, f.name))
-            if type(f.default) in (int, float):  # NumPy's numbers as Python's, for JSON
+            if type(f.default) in (bool, int, float):  # NumPy's as Python's, for JSON
                 object.__setattr__(self, f.name, type(f.default)(getattr(self, f.name)))
         object.__setattr__(self, "fusion_hidden", tuple(int(w) for w in self.fusion_hidden))
 

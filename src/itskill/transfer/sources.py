@@ -16,11 +16,13 @@ load as a source; named, such a skill is an error.
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from stable_baselines3.common.policies import ActorCriticPolicy
 
 from itskill.rl.checkpoint import (
@@ -139,13 +141,13 @@ def parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
     items = sources.split(",") if isinstance(sources, str) else list(sources)
     keys: list[int | str] = []
     for item in items:
-        if not isinstance(item, str | int) or isinstance(item, bool):
+        if not isinstance(item, str | numbers.Integral) or isinstance(item, bool | np.bool_):
             # True == 1 would pick skill 1.
             raise SourceError(
                 f"a source skill is named by its serial number or name, got "
                 f"{type(item).__name__} {item!r} in {sources!r}"
             )
-        key = item.strip() if isinstance(item, str) else item
+        key = item.strip() if isinstance(item, str) else int(item)  # NumPy's ids as Python's
         if key == "":
             raise SourceError(f"empty skill name in the source list {sources!r}")
         keys.append(int(key) if isinstance(key, str) and is_serial_number(key) else key)
