@@ -109,7 +109,7 @@ def test_source_errors_name_the_problem(home: Path, tmp_path: Path) -> None:
     # True == 1 named skill 1.
     with pytest.raises(SourceError, match="serial number or name, got bool True"):
         resolve_sources("pickplace_nut_m12", [True])
-    with pytest.raises(SourceError, match="serial number or name, got bool np.True_"):
+    with pytest.raises(SourceError, match=r"serial number or name, got bool np\.True_"):
         resolve_sources("pickplace_nut_m12", [np.bool_(True)])
 
 
