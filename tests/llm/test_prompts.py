@@ -47,6 +47,14 @@ def test_planner_prompt_carries_command_and_catalogue() -> None:
         planner_messages("x", [{k: v for k, v in CATALOGUE[0].items() if k != "fixtures"}])
 
 
+def test_a_catalogue_without_steps_shows_its_actions_as_the_steps() -> None:
+    # A catalogue built before tasks listed their steps apart from their stages was refused.
+    entry = {k: v for k, v in CATALOGUE[0].items() if k != "steps"}
+    _, user = planner_messages("lift it", [{**entry, "actions": ["approach", "lift"]}])
+    catalogue = user["content"].split("<catalogue>\n")[1].split("\n</catalogue>")[0]
+    assert json.loads(catalogue)[0]["steps"] == ["approach", "lift"]
+
+
 def test_reward_prompt_has_its_four_parts() -> None:
     spec = get_task("pickplace_nut_m12")
     description = task_description(spec.command, ["First, a.", "Second, b."], spec)

@@ -53,6 +53,9 @@ TEMPLATE_FIELDS: dict[str, frozenset[str]] = {
 """Every template and the fields it must contain, exactly."""
 
 CATALOGUE_KEYS = ("task", "family", "command", "actions", "steps", "objects", "fixtures")
+_OPTIONAL_CATALOGUE_KEYS = {"steps": "actions"}
+"""A catalogue key an entry may leave out, and the key whose value it then takes: a catalogue
+built before tasks listed their steps apart from their stages."""
 TRANSFER_KEYS = ("id", "description", "actions")
 STAT_KEYS = ("max", "mean", "min")
 
@@ -163,10 +166,21 @@ def planner_messages(command: str, catalogue: list[dict]) -> list[Message]:
     if not isinstance(command, str) or not command.strip():
         raise PromptError("the command is empty: say what the robot should do")
     for k, entry in enumerate(catalogue):
-        missing = [key for key in CATALOGUE_KEYS if key not in entry]
+        missing = [
+            key
+            for key in CATALOGUE_KEYS
+            if key not in entry and key not in _OPTIONAL_CATALOGUE_KEYS
+        ]
         if missing:
             raise PromptError(f"catalogue entry {k} lacks {', '.join(missing)}")
-    body = json.dumps([{key: entry[key] for key in CATALOGUE_KEYS} for entry in catalogue])
+    shown = [
+        {
+            key: entry[key if key in entry else _OPTIONAL_CATALOGUE_KEYS[key]]
+            for key in CATALOGUE_KEYS
+        }
+        for entry in catalogue
+    ]
+    body = json.dumps(shown)
     return [
         {"role": "system", "content": render("planner_system")},
         {
