@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -647,6 +648,15 @@ def test_a_baseline_run_recorded_before_a_setting_was_added_is_compared_as_it_tr
     del meta["hyperparams"]["a2c"]["rms_prop_tf_like"]
     experiment_report(run, tmp_path / "report", video=False,
                       baseline_run=_baseline_run(tmp_path, meta=json.dumps(meta)))  # fmt: skip
+    # The other way round: this run trained with TensorFlow's RMSprop, the baseline recorded
+    # before the setting (without it) with PyTorch's. Passed, the filled-in value one-sided.
+    mine = json.loads(_meta(run, rms_prop_tf_like=True))
+    swapped = tmp_path / "swapped"
+    shutil.copytree(run, swapped)
+    (Cell(TASK, "itn", 0).dir(swapped) / "checkpoint.json").write_text(json.dumps(mine))
+    with pytest.raises(ReportError, match=r"a2c.rms_prop_tf_like: False -> True: the baseline"):
+        base = _baseline_run(tmp_path / "c", meta=json.dumps(meta))
+        experiment_report(swapped, tmp_path / "swapped_report", video=False, baseline_run=base)
     # Another action noise is another network's exploration: refused.
     meta["hyperparams"]["policy"]["log_std_init"] = -1.0  # the task's table says -2.0
     base = _baseline_run(tmp_path / "b", meta=json.dumps(meta))

@@ -61,6 +61,13 @@ def test_a_line_of_tildes_in_python_code_is_no_fence(fence: str) -> None:
     assert extract_code(f"{fence}\n{code}\n{fence.rstrip('python')}") == code
 
 
+@pytest.mark.parametrize("expr", ["-" * 200_000 + "1", "1+" * 200_000 + "1"])
+def test_a_wrapper_nested_past_the_parser_is_no_crash(expr: str) -> None:
+    # Asking whether an untagged wrapper is Python raised MemoryError or RecursionError.
+    code = f"def compute_reward(ctx):\n    return {expr}"
+    assert extract_code(f"````\n{code}\n````") == code
+
+
 def test_a_reply_ending_in_a_long_run_of_fence_characters_is_read_quickly() -> None:
     # The opening fence's pattern backtracked over the run: 0.55 s at 40,000 characters,
     # quadratic beyond.

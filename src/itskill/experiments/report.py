@@ -354,12 +354,15 @@ def _compare_recorded(
             schedule = theirs.get(config.algo, {}).get("lr_schedule", schedule)
         if mine is None or theirs is None:
             continue
-        differ = changed_settings(mine, theirs)
-        if differ:
-            raise refuse(
-                f"its runs of {task} trained with other settings ({'; '.join(differ)}: this "
-                "run's -> the baseline run's)"
-            )
+        # Both ways: a setting a later release added is filled in only on the side that lacks
+        # it, and either run may be the older.
+        for have, want, way in ((mine, theirs, "this run's -> the baseline run's"),
+                                (theirs, mine, "the baseline run's -> this run's")):  # fmt: skip
+            differ = changed_settings(have, want)
+            if differ:
+                raise refuse(
+                    f"its runs of {task} trained with other settings ({'; '.join(differ)}: {way})"
+                )
     return schedule
 
 

@@ -48,11 +48,11 @@ _ABOUT_N = re.compile(
                               # not the 'n': 2 of an echoed request body...
     | [`'"]n[`'"]\s*:\s*\d+\s+(?:is|are)\s+not\b  # ...unless refused there
     | (?i:parameters?|params?|arguments?)(?:[ \t]+supplied)?[ \t]*:[ \t]*
-      (?:[{\[][^}\]\n]{0,200}?)?(?:[`'"]|(?<![\w-]))n\b
+      (?:[{\[][^}\]\n]{0,200}?[`'"]n[`'"][ \t]*:|(?:[`'"]|(?<![\w-]))n\b(?!-))
                               # LiteLLM: does not support parameters: {'n': 2} (n anywhere
                               # in the braces); Unrecognized request argument supplied: n
     | (?i:\b(?:invalid|unsupported)[ \t]+(?:value[ \t]+for[ \t]+)?)n\b  # invalid n: 2
-    | \(n\)                  # Number of choices (n) must be 1
+    | (?i:choices)[ \t]*\(n\)  # Number of choices (n) must be 1
     | (?<![\w\\-])n(?:      # the word n, not the n of an escaped newline (\nn samples)
         \s*(?:[<>!]=?|==?)\s*\d  # bounded: n > 1 is not supported, only n=1, got n=2
         | \s+(?:must|should|cannot|can\ only|is\ not|isn't)\b  # vLLM: n must be at least 1

@@ -94,7 +94,7 @@ def _parses(code: str) -> bool:
     a fenced block is not)."""
     try:
         ast.parse(code)
-    except (SyntaxError, ValueError):
+    except (SyntaxError, ValueError, RecursionError, MemoryError):  # a reply nested past the parser
         return False
     return True
 
