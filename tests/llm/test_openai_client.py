@@ -520,6 +520,8 @@ def test_a_reply_with_a_lone_surrogate_is_cached_and_replayed(tmp_path: Path) ->
         "Value error, tools need tool_choice [input_value={'model': 'm', 'n': 2, 'messages': []}]",
         "Input is invalid\nn samples each were asked",  # a real newline after "invalid"
         "Unknown parameters: {'temperature': 2, 'top_n': 3}",
+        "Invalid params: n-gram penalty must be positive",
+        "Bad request: see the prompt's figure (n)",
     ],
     ids=[
         "escaped-newline",
@@ -528,6 +530,8 @@ def test_a_reply_with_a_lone_surrogate_is_cached_and_replayed(tmp_path: Path) ->
         "echoed-request",
         "newline-after-invalid",
         "another-parameter-ending-in-n",
+        "n-gram",
+        "figure-n",
     ],
 )
 def test_a_refusal_echoing_the_prompt_or_request_is_not_about_n(message: str) -> None:
