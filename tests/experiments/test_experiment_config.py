@@ -51,6 +51,14 @@ def test_defaults_and_round_trip(tmp_path):
     assert parse_experiment(config.to_dict(), tmp_path / "config.json", recorded=True) == config
 
 
+def test_a_baseline_trained_in_another_run_may_be_named_without_its_method(tmp_path):
+    # Refused as "not one of the methods": an experiment of ITN alone, its baseline from a run
+    # of it given to the report (--baseline-run), could not name it.
+    text = MINIMAL.replace('["itn", "no_transfer"]', '["itn"]')
+    config = load_experiment(write(tmp_path, text + '[report]\nbaseline = "no_transfer"\n'))
+    assert config.methods == ("itn",) and config.report.baseline == "no_transfer"
+
+
 GOOD_REWARD = """\
 import numpy as np
 
@@ -105,9 +113,9 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
         (("steps = 1000", f"steps = 1000\nname = '{'x' * 300}'"), "name", "300 bytes (UTF-8)"),
         (("steps = 1000", f"steps = 1000\nname = '{'é' * 60}'"), "name", "120 bytes (UTF-8)"),
         (
-            ("every = 500", 'every = 500\n[report]\nbaseline = "pst"'),
+            ("every = 500", 'every = 500\n[report]\nbaseline = "no_tranfer"'),
             "report.baseline",
-            "not one of the methods",
+            "unknown method 'no_tranfer'",
         ),
         (
             ("every = 500", "every = 500\n[report]\nfractions = [0.5, 0.2]"),

@@ -600,9 +600,16 @@ def test_a_run_of_itn_alone_gets_its_gain_over_a_baseline_run(run, tmp_path):
     write_json(alone / "config.json", {**config.to_dict(), "methods": ["itn"]})
     files = experiment_report(alone, video=False, baseline_run=_baseline_run(tmp_path))
     md = files.markdown.read_text()
+    assert not any(note.startswith("no gains") for note in files.notes)
     assert "1 task(s) × 1 method(s) × 4 seed(s)" in md and "3 of 4 runs finished" in md
     assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | 60.0% [25.6%, 94.4%] |" in md
     assert "72.22%" in md and "measured here: 60.0% [25.6%, 94.4%]" in md
+    # Without the baseline run the report says where the gains went.
+    alone_report = experiment_report(alone, tmp_path / "no_baseline", video=False)
+    assert any(
+        note.startswith("no gains: the baseline, No_Transfer, has no runs in this experiment")
+        for note in alone_report.notes
+    )
 
 
 @pytest.mark.parametrize(

@@ -297,7 +297,7 @@ def parse_experiment(data: dict[str, Any], path: Path, recorded: bool = False) -
         model_spec(llm)  # parses the spec only: loading a file never contacts a model
     except UnknownModelError as err:
         raise ExperimentConfigError(path, "llm", str(err)) from err
-    report = _parse_report(path, raw.get("report", {}), methods, tasks, recorded)
+    report = _parse_report(path, raw.get("report", {}), tasks, recorded)
     execution = _parse_execution(path, raw.get("execution", {}))
     return ExperimentConfig(
         name=_name(path, raw.get("name", path.stem)),
@@ -319,9 +319,7 @@ def parse_experiment(data: dict[str, Any], path: Path, recorded: bool = False) -
     )
 
 
-def _parse_report(
-    path: Path, value: Any, methods: tuple[str, ...], tasks: tuple[str, ...], recorded: bool
-) -> ReportSettings:
+def _parse_report(path: Path, value: Any, tasks: tuple[str, ...], recorded: bool) -> ReportSettings:
     allowed = {"threshold", "fractions", "baseline", "grid_points", "paper_gain"}
     rep = _table(path, "report", value, allowed)
     default = ReportSettings()
@@ -346,11 +344,14 @@ def _parse_report(
             f"expected strictly increasing values in (0, 1], got {fractions_raw}",
         )
     baseline = _typed(path, "report.baseline", rep.get("baseline", default.baseline), str)
-    # Without the default baseline among the methods the report just has no gain column (a
-    # run's record always names its baseline).
-    if "baseline" in rep and not recorded and baseline not in methods:
+    # A baseline need not be among the methods: its runs may come from another experiment run
+    # (`itskill report --baseline-run`), and without them the report has no gain column. A
+    # name no method has is a typo (a run's record always names its baseline).
+    from itskill.transfer import METHODS
+
+    if "baseline" in rep and not recorded and baseline not in METHODS:
         raise ExperimentConfigError(
-            path, "report.baseline", f"{baseline!r} is not one of the methods {list(methods)}"
+            path, "report.baseline", f"unknown method {baseline!r}; expected one of {list(METHODS)}"
         )
     points = _typed(path, "report.grid_points", rep.get("grid_points", default.grid_points), int)
     if not 2 <= points <= MAX_GRID_POINTS:

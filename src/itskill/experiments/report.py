@@ -461,6 +461,11 @@ def experiment_report(
     if base is not None:
         pending_lines += base.pending
     notes: list[str] = list(broken)
+    if base is None and config.report.baseline not in config.methods:
+        notes.append(
+            f"no gains: the baseline, {method_label(config.report.baseline)}, has no runs in this "
+            "experiment; `itskill report RUN --baseline-run OTHER` reads them from a run of it"
+        )
     sources = read_json(run_dir / SOURCES_FILE) if (run_dir / SOURCES_FILE).is_file() else {}
 
     doc = Document(f"Experiment report: {config.name}")
