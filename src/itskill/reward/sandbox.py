@@ -241,7 +241,7 @@ def _const_number(node: ast.AST) -> int | float | None:
         func = node.func
         if isinstance(func, ast.Name):
             fold = _FOLDED_BUILTINS.get(func.id)
-        elif isinstance(func, ast.Attribute) and _is_math(func.value):
+        elif isinstance(func, ast.Attribute) and _is_module(func.value, "math"):
             fold = _FOLDED_MATH.get(func.attr)
         else:
             fold = None
@@ -312,7 +312,7 @@ def _elements(node: ast.AST) -> int | None:
         return None
     if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)):
         return None
-    if not _is_np(node.func.value):
+    if not _is_module(node.func.value, "np"):
         return None
     name, args = node.func.attr, list(node.args)
     if name == "eye" and args:
@@ -421,13 +421,17 @@ class _Checker(ast.NodeVisitor):
         if attr.startswith("_"):
             raise _violation(node, f"attribute {attr!r} is not allowed (starts with '_')")
         base = node.value
-        if isinstance(base, ast.Name) and base.id == "np":
+        if _is_module(base, "np"):
             if attr not in NUMPY_ALLOWED:
                 raise _violation(node, f"np.{attr} is not allowed")
-        elif isinstance(base, ast.Attribute) and _is_np(base.value) and base.attr == "linalg":
+        elif (
+            isinstance(base, ast.Attribute)
+            and _is_module(base.value, "np")
+            and base.attr == "linalg"
+        ):
             if attr not in LINALG_ALLOWED:
                 raise _violation(node, f"np.linalg.{attr} is not allowed")
-        elif isinstance(base, ast.Name) and base.id == "math":
+        elif _is_module(base, "math"):
             if attr not in MATH_ALLOWED:
                 raise _violation(node, f"math.{attr} is not allowed")
         elif attr not in METHOD_ALLOWED:
@@ -447,7 +451,7 @@ class _Checker(ast.NodeVisitor):
             sizes = [_const_size(arg) for arg in node.args]
         else:
             sizes = [_elements(node)]
-            if isinstance(func, ast.Attribute) and _is_np(func.value):
+            if isinstance(func, ast.Attribute) and _is_module(func.value, "np"):
                 # a size given by keyword: np.zeros(shape=...), np.linspace(0, 1, num=...)
                 sizes += [
                     _const_size(k.value) for k in node.keywords if k.arg in ("shape", "num", "stop")
@@ -458,12 +462,9 @@ class _Checker(ast.NodeVisitor):
         self.generic_visit(node)
 
 
-def _is_np(node: ast.AST) -> bool:
-    return isinstance(node, ast.Name) and node.id == "np"
-
-
-def _is_math(node: ast.AST) -> bool:
-    return isinstance(node, ast.Name) and node.id == "math"
+def _is_module(node: ast.AST, name: str) -> bool:
+    """Whether ``node`` is the name ``name`` (``np`` or ``math``: only their imports bind them)."""
+    return isinstance(node, ast.Name) and node.id == name
 
 
 def _bound_names(tree: ast.AST) -> set[str]:
