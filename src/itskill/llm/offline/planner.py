@@ -47,6 +47,8 @@ _MOVE_PART_TO = (
 _CARRY_VERB = rf"{_CARRYING}|\bhold\w*|{_MOVE_PART_TO}"
 # A carry that takes the part somewhere ("bring it to the bolt"; not "hold it", which keeps it).
 _CARRY_TO = rf"{_CARRYING}|\bhold\w* {_OBJ}(?:over|above)\b|{_MOVE_PART_TO}"
+_PLACE = ("place|align?",)  # the actions of the place verbs
+_PLACES_FIRST = {"place?", "align"}  # a screw or insert places first; an align is a place's end
 # verb phrase -> distinguishing actions; a "?" suffix marks an action that may be absent. Earlier
 # patterns claim their words first: "position the gripper" is a move, not a place.
 _VERBS: list[tuple[str, tuple[str, ...]]] = [
@@ -89,7 +91,7 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
     (
         r"\bplace\w*|\bput\w*|\bset\w*|\bmount\w*|\bdrop\w*|\bposition\w*|\blower\w*"
         rf"|\bmove\w* {_OBJ}onto\b",
-        ("place|align?",),
+        _PLACE,
     ),
     (rf"\balign\w*|\borient\w*|\bline\w* {_OBJ}up\b", ("align",)),
     (r"\bpush\w*|\bslide\w*|\bshove\w*|\bnudge\w*", ("push",)),
@@ -98,8 +100,6 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
     (_CARRY_VERB, ()),
 ]
 _IMPLIED = {"approach", "carry"}
-_PLACE = ("place|align?",)  # the actions of the place verbs
-_PLACES_FIRST = {"place?", "align"}  # a screw or insert places first; an align is a place's end
 # A word that puts the verb right after it out of the command's order ("after grasping it").
 _ORDER_WORD = r"\b(after|before)\s+(?:you\s+(?:have\s+)?|having\s+)?$"
 _ORDINALS = ["First", "Second", "Third", "Fourth", "Fifth", "Sixth", "Seventh", "Eighth", "Ninth",
@@ -431,10 +431,10 @@ def _negation(command: str) -> str | None:
     )
 
 
-def _segments(text: str) -> list[tuple[list[tuple[int, str]], list[tuple[int, int, int]]]]:
+def _segments(text: str) -> list[tuple[str, list[tuple[int, str]], list[tuple[int, int, int]]]]:
     """The clauses of ``text`` (lower case) between :data:`_CLAUSE_SEP` separators, each as its
-    words with their positions in ``text`` and its :func:`_verb_hits`; those with no word are
-    left out."""
+    text (first word to last), its words with their positions in ``text`` and its
+    :func:`_verb_hits`; those with no word are left out."""
     bounds = [0]
     for sep in re.finditer(_CLAUSE_SEP, text):
         bounds += [sep.start(), sep.end()]
@@ -447,7 +447,8 @@ def _segments(text: str) -> list[tuple[list[tuple[int, str]], list[tuple[int, in
         if words:
             # A verb belongs to the clause it starts in.
             own = hits[bisect.bisect_left(starts, start) : bisect.bisect_left(starts, end)]
-            segments.append((words, own))
+            clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
+            segments.append((clause, words, own))
     return segments
 
 
@@ -456,7 +457,7 @@ def _unplanned_clause(command: str, kinds: set[str]) -> str | None:
     more than filler or a part's description ("pick up the nut and then dance": the dance was
     dropped); None otherwise. ``kinds``: the scene's part and fixture kinds."""
     text = command.lower()
-    for words, verbs in _segments(text):
+    for clause, words, verbs in _segments(text):
         if verbs or words[0][1] in _RELATIVE:
             continue
         unknown = [
@@ -465,7 +466,6 @@ def _unplanned_clause(command: str, kinds: set[str]) -> str | None:
             and not _adverb(w) and not _size_word(w)
         ]  # fmt: skip
         if unknown:
-            clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
             return (
                 f"the offline planner knows no action in {clause!r} and would drop it (it knows "
                 f"{_KNOWN_ACTIONS}): say only what the robot should do"
@@ -509,8 +509,7 @@ def _unknown_place(command: str, kinds: set[str], places: list[Part]) -> str | N
     ``kinds``: the scene's part and fixture kinds; ``places``: its fixtures."""
     text = command.lower()
     labels = ", ".join(p.label for p in places)
-    for words, verbs in _segments(text):
-        clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
+    for clause, words, verbs in _segments(text):
         putting = any(v in _PUTTING for _, _, v in verbs) or bool(re.search(_MOVES_PART, clause))
         phrases = _place_phrases(words, verbs, kinds)
         for k, (written, kind, in_scene) in enumerate(phrases):
@@ -536,17 +535,15 @@ def _aimless_move(command: str, kinds: set[str]) -> str | None:
     the scene to move to ("..., then go home" was dropped); None otherwise. A move that leads
     into the next clause ("go and get the nut", "reach out and grab it") is let through unless
     it says where else it goes ("move back and ...")."""
-    text = command.lower()
-    segments = _segments(text)
-    for k, (words, verbs) in enumerate(segments):
-        if not verbs or any(v not in _HAND_ONLY for _, _, v in verbs):
+    segments = _segments(command.lower())
+    for k, (clause, words, verbs) in enumerate(segments):
+        if not _hand_only(verbs):
             continue
         said = {w for _, w in words}
         if any(w.removesuffix("s") in kinds for w in said) or said & _PRONOUNS:
             continue
         if (k + 1 < len(segments) or said & _VERTICAL) and not said & _NOWHERE:
             continue
-        clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
         return (
             f"{clause!r} moves the hand to nothing of this scene: the offline planner moves it "
             'only to a part or fixture ("move to the nut")'
@@ -554,23 +551,21 @@ def _aimless_move(command: str, kinds: set[str]) -> str | None:
     return None
 
 
-def _part_moved_nowhere(command: str, kinds: set[str]) -> str | None:
+def _part_moved_nowhere(
+    command: str, kinds: set[str], clauses: list[tuple[str, ...]]
+) -> str | None:
     """Why the command cannot be planned if a clause moves a part with a verb that only moves
     the hand, and not over or to a part or fixture ("move the nut away from the bolt" and "move
     the nut to the left" were planned as a reach of the nut); None otherwise. A move up or down
     is the lift or place of another clause ("pick up the nut and move it up"), if it has one.
-    ``kinds``: the scene's part and fixture kinds."""
-    text = command.lower()
+    ``kinds``: the scene's part and fixture kinds; ``clauses``: its :func:`_clauses`."""
     lifts_or_places = any(
         a.rstrip("?") in ("lift", "place", "place|align")  # a screw or insert places first
-        for clause in _clauses(command)
-        for a in clause
+        for actions in clauses
+        for a in actions
     )
-    for words, verbs in _segments(text):
-        if not verbs or any(v not in _HAND_ONLY for _, _, v in verbs):
-            continue
-        clause = text[words[0][0] : words[-1][0] + len(words[-1][1])]
-        if not re.search(_MOVES_PART, clause):
+    for clause, words, verbs in _segments(command.lower()):
+        if not _hand_only(verbs) or not re.search(_MOVES_PART, clause):
             continue
         toward = re.search(_MOVE_PART_TO, clause)
         if toward and any(w.removesuffix("s") in kinds for w in _words(clause[toward.end() :])):
@@ -583,6 +578,11 @@ def _part_moved_nowhere(command: str, kinds: set[str]) -> str | None:
             'onto the bolt")'
         )
     return None
+
+
+def _hand_only(verbs: list[tuple[int, int, int]]) -> bool:
+    """Whether a clause's verbs (:func:`_verb_hits`) are there and only move the hand."""
+    return bool(verbs) and all(v in _HAND_ONLY for _, _, v in verbs)
 
 
 def _verb_groups(command: str) -> set[int]:
@@ -658,7 +658,7 @@ def plan(command: str, catalogue: list[dict]) -> dict:
         or _unplanned_clause(command, scene_kinds)
         or _unknown_place(command, scene_kinds, fixture_parts)
         or _aimless_move(command, scene_kinds)
-        or _part_moved_nowhere(command, scene_kinds)
+        or _part_moved_nowhere(command, scene_kinds, clauses)
     )
     if unread:
         return {"error": unread}
