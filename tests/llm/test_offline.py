@@ -308,6 +308,10 @@ def test_planner_refuses_a_place_no_task_does_after_the_unscrew(command: str) ->
         # skills' steps (unscrew, grasp, lift): refused in `itskill plan`.
         ("Unscrew the M12 nut and remove it", "removenut_m12"),
         ("Remove the M12 nut from the bolt", "removenut_m12"),
+        # A part moved up is lifted, with or without another clause that lifts (was refused).
+        ("Unscrew the nut and move it up", "removenut_m12"),
+        ("Unscrew the M12 nut and move it slowly upwards", "removenut_m12"),
+        ("Move the M12 nut up", "pick_nut_m12"),
     ],
 )
 def test_planner_still_plans_places_and_moves_the_refusals_above_leave_alone(

@@ -45,6 +45,8 @@ _MOVE_PART_TO = (
     r"(?:is|are|sits?) )?(?:over|above|to)\b"
 )
 _CARRY_VERB = rf"{_CARRYING}|\bhold\w*|{_MOVE_PART_TO}"
+# A part moved up is lifted ("unscrew the nut and move it up"), unless on its way somewhere.
+_MOVE_PART_UP = rf"{_MOVE_PART} (?:\w+ly )?(?:up|upwards?|higher)\b(?! (?:over|above)\b)"
 # A carry that takes the part somewhere ("bring it to the bolt"; not "hold it", which keeps it).
 _CARRY_TO = rf"{_CARRYING}|\bhold\w* {_OBJ}(?:over|above)\b|{_MOVE_PART_TO}"
 _PLACE = ("place|align?",)  # the actions of the place verbs
@@ -87,7 +89,7 @@ _VERBS: list[tuple[str, tuple[str, ...]]] = [
         r"(?:gripper|hand|fingers)\b",
         ("grasp",),
     ),
-    (r"\blift\w*|\braise\w*", ("grasp?", "lift")),
+    (rf"\blift\w*|\braise\w*|{_MOVE_PART_UP}", ("grasp?", "lift")),
     (
         r"\bplace\w*|\bput\w*|\bset\w*|\bmount\w*|\bdrop\w*|\bposition\w*|\blower\w*"
         rf"|\bmove\w* {_OBJ}onto\b",
