@@ -179,6 +179,13 @@ ESCAPES = {
     "math_ceil_tile_bomb": ("x = np.tile(ctx['ee_pos'], math.ceil(1e9))", "too large"),
     "float_product_size_bomb": ("x = np.zeros(int(1e6 * 1e6))", "size 1000000000000 is"),
     "power_of_int_bomb": ("x = 10 ** int(1e10)", "power too large (10 ** 10000000000)"),
+    # Through numpy's scalar types and roundings, or math's functions imported by name.
+    "np_int64_size_bomb": ("x = np.zeros(np.int64(1e12))", "size 1000000000000 is"),
+    "np_float_floor_shape_bomb": ("x = np.ones((np.floor(1e6), np.float32(1e6)))", "too large"),
+    "from_math_floor_bomb": (
+        "from math import floor\nx = [0] * floor(1e12)",
+        "repeated to 1000000000000 elements",
+    ),
     # The allowlist checks np.NAME: through an alias, a method name reached numpy's own.
     "numpy_alias": ("n = np\nd = n.dtype", "'np' may only be used as np.NAME"),
     "numpy_as_argument": ("x = max(np, 1)", "'np' may only be used as np.NAME"),
@@ -223,10 +230,16 @@ def test_small_or_computed_int_sizes_are_not_mistaken_for_bombs() -> None:
         "    pairs = np.sum(np.ones((n, int(2.0))), axis=1)\n"
         "    half = [1.0] * int(0.5 * n) + [0.0] * (n - int(0.5 * n))\n"
         "    total = pairs + np.array(half) + np.zeros(round(1e3)).size / math.ceil(999.5)\n"
+        "    total = total + np.zeros(np.int64(4)).size - np.float64(4)\n"
         "    return total, {'shaped': total}\n"
     )
     total, _ = compile_reward(source)(ctx())
     assert total.tolist() == [4.0, 3.0, 3.0]
+
+
+def test_a_constant_past_a_float_is_left_to_run() -> None:
+    # float(10**400) overflows: the checker has no size to fold, and numpy raises when it runs.
+    check_source(wrap("x = np.zeros(np.float64(10**400))"))
 
 
 def test_module_level_code_is_checked_too() -> None:

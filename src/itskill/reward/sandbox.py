@@ -10,7 +10,8 @@ Layers, each for a reason:
    goes through dunders). Constant-size memory bombs (``10**10**10``, ``"a" * 10**12``,
    ``np.ones(10**12)``, ``range(10**12)``, ``[0] * int(1e12)``) are refused here: sizes are
    folded from number literals through ``+ - * **`` and ``int``, ``round``, ``abs``,
-   ``math.floor``/``ceil``/``trunc``; a size computed from the data is left to layer 4.
+   ``math.floor``/``ceil``/``trunc`` and numpy's scalar types and roundings (``np.int64(1e12)``);
+   a size computed from the data is left to layer 4.
 2. :func:`compile_reward` runs the module in a fresh namespace whose builtins are only the safe
    ones (no ``open``, ``eval``, ``getattr``, ``type``, ``__import__``...; ``import`` statements are
    served by a private importer that hands out numpy and math and nothing else, and numpy's own
@@ -194,14 +195,24 @@ _FOLDED_OPS: dict[type[ast.operator], Callable[[Any, Any], Any]] = {
     ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Pow: operator.pow,
 }  # fmt: skip
 """The operators folded (with an integer's bound when both sides are integers)."""
-_FOLDED_BUILTINS: dict[str, Callable[[Any], Any]] = {"int": int, "round": round, "abs": abs}
 _FOLDED_MATH: dict[str, Callable[[Any], Any]] = {
     "floor": math.floor, "ceil": math.ceil, "trunc": math.trunc,
 }  # fmt: skip
-"""Functions of one constant number folded too: ``np.zeros(int(1e11))`` is as obvious a size as
-``np.zeros(10**11)``. Folded by name: a reward that defines its own ``round`` is checked as if it
-used the builtin (what its function really computes is left to the process limits, as any
-computed size is)."""
+_FOLDED_BUILTINS: dict[str, Callable[[Any], Any]] = {
+    "int": int, "round": round, "abs": abs, **_FOLDED_MATH,  # and ``from math import floor``
+}  # fmt: skip
+_FOLDED_NUMPY: dict[str, Callable[[Any], Any]] = {
+    **dict.fromkeys(("int8", "int16", "int32", "int64", "uint8"), int),
+    **dict.fromkeys(("float16", "float32", "float64"), float),
+    **_FOLDED_MATH, **dict.fromkeys(("round", "around", "rint"), round),
+    **dict.fromkeys(("abs", "absolute", "fabs"), abs),
+}  # fmt: skip
+"""Functions of one constant number folded too: ``np.zeros(int(1e11))`` and
+``np.zeros(np.int64(1e11))`` are as obvious a size as ``np.zeros(10**11)``. Folded by name: a
+reward that defines its own ``round`` is checked as if it used the builtin, and a bare ``floor``
+as math's (what its function really computes is left to the process limits, as any computed size
+is). Numpy's are folded as Python's: ``np.floor`` gives an int where numpy gives a float, and
+the narrow integer types do not wrap (where numpy would overflow, the code fails anyway)."""
 
 
 _T = TypeVar("_T")
@@ -243,11 +254,18 @@ def _const_number(node: ast.AST) -> int | float | None:
             fold = _FOLDED_BUILTINS.get(func.id)
         elif isinstance(func, ast.Attribute) and _is_module(func.value, "math"):
             fold = _FOLDED_MATH.get(func.attr)
+        elif isinstance(func, ast.Attribute) and _is_module(func.value, "np"):
+            fold = _FOLDED_NUMPY.get(func.attr)
         else:
             fold = None
         number = None if fold is None else _const_number(node.args[0])
-        # Exact for a finite float (at most 1,024 bits) and a bounded integer alike.
-        return None if number is None else fold(number)
+        if number is None:
+            return None
+        try:
+            # Exact for a finite float (at most 1,024 bits) and a bounded integer alike.
+            return fold(number)
+        except OverflowError:  # float() of an integer past 1e308: no size either
+            return None
     return None
 
 
