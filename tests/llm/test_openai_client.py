@@ -522,6 +522,8 @@ def test_a_reply_with_a_lone_surrogate_is_cached_and_replayed(tmp_path: Path) ->
         "Unknown parameters: {'temperature': 2, 'top_n': 3}",
         "Invalid params: n-gram penalty must be positive",
         "Bad request: see the prompt's figure (n)",
+        "Unexpected token 'n' at line 1 column 2 of the JSON body",
+        "Invalid character 'n' in the request at position 14",
     ],
     ids=[
         "escaped-newline",
@@ -532,6 +534,8 @@ def test_a_reply_with_a_lone_surrogate_is_cached_and_replayed(tmp_path: Path) ->
         "another-parameter-ending-in-n",
         "n-gram",
         "figure-n",
+        "json-token",
+        "json-character",
     ],
 )
 def test_a_refusal_echoing_the_prompt_or_request_is_not_about_n(message: str) -> None:

@@ -44,8 +44,10 @@ inside a multi-byte character, the bytes do not even decode). A body shorter tha
 Content-Length is an ``APIConnectionError``, retried already."""
 _ABOUT_N = re.compile(
     r"""
+    (?i:(?<!character\ )(?<!char\ )(?<!token\ )(?<!letter\ )(?<!symbol\ )(?<!literal\ ))
     [`'"]n[`'"](?!\s*:\s*\d)  # named: 'n' (OpenAI, Groq), `n`, a validation error's ('body', 'n');
-                              # not the 'n': 2 of an echoed request body...
+                              # not a parser's unexpected token 'n', nor the 'n': 2 of an echoed
+                              # request body...
     | [`'"]n[`'"]\s*:\s*\d+\s+(?:is|are)\s+not\b  # ...unless refused there
     | (?i:parameters?|params?|arguments?)(?:[ \t]+supplied)?[ \t]*:[ \t]*
       (?:[{\[][^}\]\n]{0,200}?[`'"]n[`'"][ \t]*:|(?:[`'"]|(?<![\w-]))n\b(?!-))
