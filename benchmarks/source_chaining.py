@@ -14,6 +14,13 @@ applied to the state), so it meets observations like those it was trained on; wi
 
 ``--handovers N`` also says where a chain breaks: per stage, how many of N episodes got there and
 the part's offsets from the grip point and from its fixture when the stage began.
+
+``--noise SIGMA`` adds Gaussian noise of that standard deviation to every action, as a transfer
+target exploring around its sources' actions does (its policy's ``exp(log_std_init)``): a chain
+that finishes only without noise gives the target's rollouts nothing to learn from. A chain of one
+skill on its own task measures the skill alone.
+
+    python benchmarks/source_chaining.py insert_peg_rect --chain insert_peg_rect --noise 0.135
 """
 
 from __future__ import annotations
@@ -35,7 +42,9 @@ from itskill.transfer import resolve_sources
 class StageChain:
     """Acts with the skill assigned to each environment's current stage of ``target``."""
 
-    def __init__(self, target: TaskSpec, chain: list[str], own_stage: bool) -> None:
+    def __init__(
+        self, target: TaskSpec, chain: list[str], own_stage: bool, noise: float = 0.0, seed: int = 0
+    ) -> None:
         # Resolved as transfer sources are: from the skill space, checkpoints checked.
         skills = resolve_sources(target.id, list(dict.fromkeys(chain)), exclude_target=False)
         self.names = [s.name for s in skills]
@@ -43,6 +52,7 @@ class StageChain:
         self.tasks = [get_task(s.task_id) for s in skills]
         self.stage_skill = np.array([self.names.index(name) for name in chain])
         self.own_stage = own_stage
+        self.noise, self.rng = noise, np.random.default_rng(seed)
 
     def reset(self, env_ids: np.ndarray | None = None) -> None:
         """Nothing to reset: the skills are feed-forward policies."""
@@ -58,6 +68,8 @@ class StageChain:
             if self.own_stage:
                 view["stage"] = task.stage_index(ctx)
             actions[rows] = actor(view)[rows]
+        if self.noise:
+            actions = np.clip(actions + self.rng.normal(0.0, self.noise, actions.shape), -1, 1)
         return actions
 
 
@@ -115,6 +127,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--target-stage", action="store_true", help="skills see the target's stage")
     parser.add_argument("--json", type=Path, help="also write the result as JSON")
     parser.add_argument(
+        "--noise",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="standard deviation of Gaussian noise added to every action (a target's "
+        "exp(log_std_init))",
+    )
+    parser.add_argument(
         "--handovers",
         type=int,
         metavar="N",
@@ -129,11 +149,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(
             f"{spec.id} has {len(spec.stages)} stages ({stages}), --chain names {len(args.chain)}"
         )
-    policy = StageChain(spec, args.chain, own_stage=not args.target_stage)
+    if not 0.0 <= args.noise <= 10.0:
+        parser.error(f"--noise is a standard deviation in [0, 10], got {args.noise}")
+    policy = StageChain(spec, args.chain, not args.target_stage, args.noise, args.seed)
     res = evaluate(spec, policy, args.episodes, args.seed, num_envs=25)
     print(
         f"{spec.id}: chain {' -> '.join(args.chain)} "
-        f"({'target' if args.target_stage else 'own'} stage)\n"
+        f"({'target' if args.target_stage else 'own'} stage"
+        + (f", action noise {args.noise:g}" if args.noise else "")
+        + ")\n"
         f"success {res.success_rate:.0%} [{res.ci_low:.0%}, {res.ci_high:.0%}] over "
         f"{res.episodes} episodes; subtasks finished {res.mean_stages_done / res.n_stages:.0%}"
     )
@@ -151,7 +175,12 @@ def main(argv: list[str] | None = None) -> int:
                 )
             print(line)
     if args.json:
-        record = {"chain": args.chain, "own_stage": not args.target_stage, **res.to_dict()}
+        record = {
+            "chain": args.chain,
+            "own_stage": not args.target_stage,
+            "noise": args.noise,
+            **res.to_dict(),
+        }
         if handovers is not None:
             record["handovers"] = handovers
         write_json(args.json, record)

@@ -243,3 +243,18 @@ def test_thread_turns_refuses_a_contact_measurement_it_cannot_make(argv, capsys)
     with pytest.raises(SystemExit) as stop:
         _load("thread_turns").main(argv)
     assert stop.value.code == 2 and "error:" in capsys.readouterr().err
+
+
+def test_source_chaining_with_action_noise_measures_a_fragile_skill(tmp_path, capsys) -> None:
+    """The shipped insert of the rectangular peg, a clone of its script, inserts without noise
+    and not at a transfer target's exploration noise of the packaged log-std -0.5; the record
+    says which noise it was measured at."""
+    chaining = _load("source_chaining")
+    args = ["insert_peg_rect", "--chain", "insert_peg_rect", "--episodes", "8"]
+    out = tmp_path / "chain.json"
+    assert chaining.main(args) == 0
+    assert "success 100%" in capsys.readouterr().out
+    assert chaining.main([*args, "--noise", "0.61", "--json", str(out)]) == 0
+    assert "action noise 0.61)\nsuccess 0%" in capsys.readouterr().out
+    record = json.loads(out.read_text())
+    assert record["noise"] == 0.61 and record["success_rate"] == 0.0
