@@ -148,6 +148,26 @@ def test_resume_refuses_other_training_settings(toy, tmp_path):
         run_experiment(longer, run, "local", 1, resume=True, console=quiet())
 
 
+def test_a_no_transfer_run_resumes_with_other_sources_k_and_analyzer(toy, tmp_path):
+    """Its cells never used them, so resuming it to add ITN may name them anew; the ITN run
+    then refuses another k."""
+    config, _ = toy
+    run = tmp_path / "run"
+    small = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
+    run_experiment(small, run, "local", 1, console=quiet())
+    other = {"sources": {"pickplace_nut_m12": ("pick_nut_m12", "place_nut_m12")}, "k": 2,
+             "llm": "openai:some-model"}  # fmt: skip
+    unchanged = type(config)(**{**small.__dict__, **other})
+    summary = run_experiment(unchanged, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.skipped] == [c.name for c in cells(small)]
+    assert json.loads((run / "config.json").read_text())["k"] == 2
+    with_itn = type(config)(**{**unchanged.__dict__, "methods": ("itn",), "llm": "offline"})
+    run_experiment(with_itn, run, "local", 1, resume=True, console=quiet())
+    with pytest.raises(ExperimentRunError, match="k=2"):
+        run_experiment(type(config)(**{**with_itn.__dict__, "k": 3}), run, "local", 1,
+                       resume=True, console=quiet())  # fmt: skip
+
+
 def test_resume_refuses_a_reports_copy_of_the_run(toy, tmp_path):
     # The copy (`itskill report RUN --out DIR`, the folder committed to results/) was resumed:
     # its cells failed for want of weights, and new ones trained into the results folder.

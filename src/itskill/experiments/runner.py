@@ -285,8 +285,19 @@ def read_run_config(run_dir: Path) -> ExperimentConfig:
 
 
 def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: Path) -> None:
+    """Refuse a resume whose file changes a setting the run's cells were trained with. The
+    sources and ``k`` matter only to a run of methods that use sources, and the analyzer's
+    ``llm`` only to one of methods that use its matrix: a No_Transfer run resumed to add ITN
+    may name them anew."""
+    from itskill.transfer import get_method
+
     have, want = old.training_settings(), new.training_settings()
-    for key in want:
+    methods = [get_method(m) for m in old.methods]
+    unused = {
+        *(() if any(m.uses_sources for m in methods) else ("sources", "k")),
+        *(() if any(m.uses_prior for m in methods) else ("llm",)),
+    }
+    for key in (k for k in want if k not in unused):
         mismatch = have.get(key) != want[key]
         if key in ("reward", "sources"):  # per task: a task added on resume brings its own
             mismatch = any(have[key].get(t, want[key][t]) != want[key][t] for t in want[key])
