@@ -656,13 +656,19 @@ def _new_model(
             f"warm start: {summary['episodes_kept']} of {summary['episodes_run']} "
             f"demonstrations kept, clone fitted in {summary['wall_s']:.0f} s"
         )
+    episodes = hp.init.critic_episodes if "init" in setup.meta else hp.critic_warm_up
     if "init" in setup.meta:
         init_policy(model.policy, setup.meta["init"])
-        note(
-            f"starting from {setup.meta['init']['path']}: fitting the critic to "
-            f"{hp.init.critic_episodes} of its episodes"
+        note(f"starting from {setup.meta['init']['path']}: fitting the critic to {episodes} of "
+             "its episodes")  # fmt: skip
+    elif episodes:
+        note(f"fitting the critic to {episodes} episodes of the starting policy")
+    if episodes:
+        # A starting policy's statistics stay as they are (train()'s keep_obs_stats).
+        observe = "init" not in setup.meta and not hp.demos.episodes
+        summary = warm_up_critic(
+            model, env, train_env, hp.algo_config.gamma, episodes, seed, observe
         )
-        summary = warm_up_critic(model, env, train_env, hp.algo_config.gamma, hp.init, seed)
         write_json(setup.run_dir / CRITIC_WARM_UP_FILE, summary)
         note(
             f"critic fitted in {summary['wall_s']:.0f} s ({summary['successes']} of "
