@@ -339,7 +339,7 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
 
 _RESUMABLE_CHANGES = ("checkpoint_every",)
 """Hyper-parameters a resumed run may change: they do not touch what it learns."""
-_ADDED_SETTINGS: dict[str, Any] = {"a2c.rms_prop_tf_like": False}
+_ADDED_SETTINGS: dict[str, Any] = {"a2c.rms_prop_tf_like": False, "critic_warm_up": 0}
 """Settings later releases added, with the value every run before them trained with: a checkpoint
 without one ran with that value (its optimiser is restored from ``model.zip`` as it was)."""
 
