@@ -650,10 +650,9 @@ def test_a_baseline_run_recorded_before_a_setting_was_added_is_compared_as_it_tr
     run, tmp_path
 ):
     # Its checkpoints lack rms_prop_tf_like, which every run before the setting trained without:
-    # "rms_prop_tf_like False there, None here" refused it. Nor do they record a critic warm-up.
+    # "rms_prop_tf_like False there, None here" refused it.
     meta = json.loads(_meta(run))
     del meta["hyperparams"]["a2c"]["rms_prop_tf_like"]
-    del meta["hyperparams"]["critic_warm_up"]
     experiment_report(run, tmp_path / "report", video=False,
                       baseline_run=_baseline_run(tmp_path, meta=json.dumps(meta)))  # fmt: skip
     # The other way round: this run trained with TensorFlow's RMSprop, the baseline recorded
@@ -665,11 +664,6 @@ def test_a_baseline_run_recorded_before_a_setting_was_added_is_compared_as_it_tr
     with pytest.raises(ReportError, match=r"a2c.rms_prop_tf_like: False -> True: the baseline"):
         base = _baseline_run(tmp_path / "c", meta=json.dumps(meta))
         experiment_report(swapped, tmp_path / "swapped_report", video=False, baseline_run=base)
-    # A critic warmed up before the first update is another start: refused.
-    warmed = {**meta, "hyperparams": {**meta["hyperparams"], "critic_warm_up": 64}}
-    base = _baseline_run(tmp_path / "w", meta=json.dumps(warmed))
-    with pytest.raises(ReportError, match=r"critic_warm_up: 0 -> 64: this run's"):
-        experiment_report(run, tmp_path / "warmed", video=False, baseline_run=base)
     # Another action noise is another network's exploration: refused.
     meta["hyperparams"]["policy"]["log_std_init"] = -1.0  # the task's table says -2.0
     base = _baseline_run(tmp_path / "b", meta=json.dumps(meta))

@@ -139,24 +139,3 @@ def test_cli_init_from_a_missing_directory_is_a_clear_error(tmp_path: Path) -> N
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2
     assert "no such checkpoint directory" in result.output and "Traceback" not in result.output
-
-
-def test_a_fresh_run_warms_its_critic_up_when_asked(tmp_path: Path) -> None:
-    """``critic_warm_up`` fits a new network's critic to its own episodes before the first update,
-    with the observations normalised as the rollouts will normalise them: the normaliser has
-    seen the warm-up's episodes and the one rollout, nothing twice."""
-    out = tmp_path / "run"
-    train(
-        TASK, "ppo", 32, seed=0, out=out, num_envs=4, logger=QUIET,
-        overrides={**STILL, "learning_rate": 1e-9, "critic_warm_up": 8},
-    )  # fmt: skip
-    warm_up = json.loads((out / "critic_warm_up.json").read_text())
-    assert warm_up["episodes_run"] == 8 and warm_up["transitions"] == 8 * get_task(TASK).max_steps
-    assert warm_up["critic_mse"] < warm_up["critic_mse_before"] / 2
-    assert load_policy(out).obs_norm.count.item() == warm_up["transitions"] + 32
-    meta = json.loads((out / "checkpoint.json").read_text())
-    assert meta["hyperparams"]["critic_warm_up"] == 8
-    # Without it, no warm-up.
-    train(TASK, "ppo", 32, seed=0, out=tmp_path / "plain", num_envs=4, logger=QUIET,
-          overrides=STILL)  # fmt: skip
-    assert not (tmp_path / "plain" / "critic_warm_up.json").exists()

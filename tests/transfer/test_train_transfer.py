@@ -121,18 +121,6 @@ def test_an_untrained_network_with_the_residual_acts_like_its_sources(
     assert res.mean_stages_done >= 2.0
 
 
-def test_a_warmed_up_critic_learns_the_returns_of_the_sources_it_acts_through(
-    home: Path, tmp_path: Path
-) -> None:
-    # The residual's latent is wider than the head's input: the warm-up's fit of the critic
-    # alone raised a shape error before it trained anything.
-    out = tmp_path / "itn"
-    run(out, "itn", overrides={"critic_warm_up": 4})
-    warm_up = json.loads((out / "critic_warm_up.json").read_text())
-    assert warm_up["episodes_run"] == 4
-    assert warm_up["critic_mse"] < warm_up["critic_mse_before"] / 2
-
-
 def test_resume_continues_without_asking_the_analyzer_again(home: Path, tmp_path: Path) -> None:
     out = tmp_path / "itn"
     first = run(out, "itn", steps=16)

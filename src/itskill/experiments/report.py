@@ -326,9 +326,8 @@ def _compare_recorded(
     refuse: Callable[[str], ReportError],
 ) -> str | None:
     """Refuse (``refuse``) a baseline run whose cells recorded other settings of the algorithm,
-    the network, the reward's normalisation or the critic's warm-up in their checkpoints (a
-    task's own learning rate or action noise, changed between the runs) than this run's did, as
-    a resume compares them
+    the network or the reward's normalisation in their checkpoints (a task's own learning rate
+    or action noise, changed between the runs) than this run's did, as a resume compares them
     (:func:`itskill.rl.train.changed_settings`: a setting a later release added counts with the
     value runs before it trained with); the learning-rate schedule the baseline's cells recorded
     (None where none of them records it, as in a copy from before checkpoints were kept). The
@@ -344,7 +343,7 @@ def _compare_recorded(
                 except CheckpointError:
                     continue
                 hp = saved["hyperparams"]
-                keys = (saved["algo"], "policy", "normalize_reward", "critic_warm_up")
+                keys = (saved["algo"], "policy", "normalize_reward")
                 return {key: hp[key] for key in keys if key in hp}
         return None
 

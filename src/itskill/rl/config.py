@@ -145,12 +145,6 @@ class Hyperparams:
     the algorithm sees them (logged rewards stay raw). Staged rewards pay a bonus every step, so
     returns reach the hundreds; unscaled, the critic's gradients dominate the shared gradient-norm
     clip and shrink every actor update with them."""
-    critic_warm_up: int = 0
-    """Episodes of the starting policy, sampled with the run's action noise, that the critic is
-    fitted to before the first update (0: none; :func:`itskill.rl.init_policy.warm_up_critic`).
-    For a policy that acts well from the start (a transfer network acting through its sources):
-    a random critic's first advantages move it away from what it does well. A run from a trained
-    policy (``--init``) always warms up, with ``init.critic_episodes``."""
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo_config: A2CConfig | PPOConfig = field(default_factory=PPOConfig)
     demos: DemoConfig = field(default_factory=DemoConfig)
@@ -176,7 +170,6 @@ class Hyperparams:
             "num_envs": self.num_envs,
             "checkpoint_every": self.checkpoint_every,
             "normalize_reward": self.normalize_reward,
-            "critic_warm_up": self.critic_warm_up,
             "policy": self.policy.to_dict(),
             self.algo: asdict(self.algo_config),
             "demos": asdict(self.demos),
@@ -185,9 +178,7 @@ class Hyperparams:
 
 
 ALGO_CONFIGS: dict[str, type] = {"a2c": A2CConfig, "ppo": PPOConfig}
-_FAMILY_KEYS = {
-    "num_envs": int, "checkpoint_every": int, "normalize_reward": bool, "critic_warm_up": int,
-}  # fmt: skip
+_FAMILY_KEYS = {"num_envs": int, "checkpoint_every": int, "normalize_reward": bool}
 _SUB_TABLES = ("policy", "demos", "init")
 """Sub-tables besides the algorithms': :class:`PolicyConfig`, :class:`DemoConfig`,
 :class:`InitConfig`."""
@@ -235,10 +226,6 @@ _RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
     ),
     "critic_episodes": (
         lambda v: 1 <= v <= EPISODES_MAX, f"a positive value, at most {EPISODES_MAX:,}"
-    ),
-    "critic_warm_up": (
-        lambda v: 0 <= v <= EPISODES_MAX,
-        f"a value of 0 or more (0: none), at most {EPISODES_MAX:,}",
     ),
     "n_steps": (lambda v: 1 <= v <= N_STEPS_MAX, f"a positive value, at most {N_STEPS_MAX:,}"),
     "batch_size": (

@@ -256,19 +256,13 @@ def pretrain_policy(
         order = torch.randperm(len(obs), generator=generator)
         for idx in order.split(config.batch_size):
             features = policy.extract_features(obs[idx])
-            latent_vf = policy.mlp_extractor.forward_critic(features)
+            latent_pi, latent_vf = policy.mlp_extractor(features)
+            actor_loss = torch.nn.functional.mse_loss(policy.action_net(latent_pi), actions[idx])
             critic_loss = torch.nn.functional.mse_loss(
                 policy.value_net(latent_vf).squeeze(-1), targets[idx]
             )
-            loss = critic_loss
-            if clone:
-                latent_pi = policy.mlp_extractor.forward_actor(features)
-                actor_loss = torch.nn.functional.mse_loss(
-                    policy.action_net(latent_pi), actions[idx]
-                )
-                loss = actor_loss + critic_loss
             optimiser.zero_grad()
-            loss.backward()
+            (actor_loss + critic_loss if clone else critic_loss).backward()
             optimiser.step()
     policy.set_training_mode(False)
     return {"actor_mse": actor_loss.item(), "critic_mse": critic_loss.item()}

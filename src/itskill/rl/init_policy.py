@@ -113,30 +113,22 @@ def warm_up_critic(
     env: BatchEnv,
     train_env: VecEnv,
     gamma: float,
-    episodes: int,
+    config: InitConfig,
     seed: int,
-    observe: bool = False,
 ) -> dict[str, Any]:
     """Fit the critic of ``model`` to the returns of its own policy, before its first update.
 
-    The policy runs ``episodes`` episodes on the training environments, sampling
+    The policy runs ``config.critic_episodes`` episodes on the training environments, sampling
     its actions with the run's noise as its rollouts will; the reward normaliser is seeded from
     them and the critic alone regresses on their discounted returns in its units (the actions
-    are not touched). With ``observe`` (a run whose normaliser follows its rollouts, not one
-    that keeps a starting policy's statistics) the episodes' observations first go to the
-    normaliser, as the rollouts would have sent them: a fresh one has no statistics yet, and a
-    critic fitted to unnormalised inputs would lose its fit at the first rollout. Returns a
-    summary for the run directory, with the critic's squared error on those returns before the
-    fit (``critic_mse_before``) and on its last batch after.
+    are not touched). Returns a summary for the run directory, with the critic's squared error on
+    those returns before the fit (``critic_mse_before``) and on its last batch after.
     """
     start = time.perf_counter()
     actor = PolicyActor(model.policy, deterministic=False)
-    runs, succeeded = collect_episodes(env, actor, episodes, successes_only=False)
+    runs, succeeded = collect_episodes(env, actor, config.critic_episodes, successes_only=False)
     assert runs is not None  # every episode is kept
     returns = critic_targets(runs, train_env, gamma)
-    if observe:
-        with torch.no_grad():
-            model.policy(torch.as_tensor(runs.obs))  # the rollout step, where statistics update
     with torch.no_grad():
         values = model.policy.predict_values(torch.as_tensor(runs.obs)).squeeze(-1).numpy()
     losses = pretrain_policy(model.policy, runs, returns, DemoConfig(), seed, clone=False)

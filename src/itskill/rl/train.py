@@ -339,7 +339,7 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
 
 _RESUMABLE_CHANGES = ("checkpoint_every",)
 """Hyper-parameters a resumed run may change: they do not touch what it learns."""
-_ADDED_SETTINGS: dict[str, Any] = {"a2c.rms_prop_tf_like": False, "critic_warm_up": 0}
+_ADDED_SETTINGS: dict[str, Any] = {"a2c.rms_prop_tf_like": False}
 """Settings later releases added, with the value every run before them trained with: a checkpoint
 without one ran with that value (its optimiser is restored from ``model.zip`` as it was)."""
 
@@ -656,19 +656,13 @@ def _new_model(
             f"warm start: {summary['episodes_kept']} of {summary['episodes_run']} "
             f"demonstrations kept, clone fitted in {summary['wall_s']:.0f} s"
         )
-    episodes = hp.init.critic_episodes if "init" in setup.meta else hp.critic_warm_up
     if "init" in setup.meta:
         init_policy(model.policy, setup.meta["init"])
-        note(f"starting from {setup.meta['init']['path']}: fitting the critic to {episodes} of "
-             "its episodes")  # fmt: skip
-    elif episodes:
-        note(f"fitting the critic to {episodes} episodes of the starting policy")
-    if episodes:
-        # A starting policy's statistics stay as they are (train()'s keep_obs_stats).
-        observe = "init" not in setup.meta and not hp.demos.episodes
-        summary = warm_up_critic(
-            model, env, train_env, hp.algo_config.gamma, episodes, seed, observe
+        note(
+            f"starting from {setup.meta['init']['path']}: fitting the critic to "
+            f"{hp.init.critic_episodes} of its episodes"
         )
+        summary = warm_up_critic(model, env, train_env, hp.algo_config.gamma, hp.init, seed)
         write_json(setup.run_dir / CRITIC_WARM_UP_FILE, summary)
         note(
             f"critic fitted in {summary['wall_s']:.0f} s ({summary['successes']} of "
