@@ -34,7 +34,7 @@ import numpy as np
 from itskill.files import write_json
 from itskill.rl.checkpoint import TrainedPolicy
 from itskill.tasks import get_task, make_batch_env
-from itskill.tasks.evaluate import evaluate
+from itskill.tasks.evaluate import NoisyPolicy, Policy, evaluate
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer import resolve_sources
 
@@ -42,9 +42,7 @@ from itskill.transfer import resolve_sources
 class StageChain:
     """Acts with the skill assigned to each environment's current stage of ``target``."""
 
-    def __init__(
-        self, target: TaskSpec, chain: list[str], own_stage: bool, noise: float = 0.0, seed: int = 0
-    ) -> None:
+    def __init__(self, target: TaskSpec, chain: list[str], own_stage: bool) -> None:
         # Resolved as transfer sources are: from the skill space, checkpoints checked.
         skills = resolve_sources(target.id, list(dict.fromkeys(chain)), exclude_target=False)
         self.names = [s.name for s in skills]
@@ -52,7 +50,6 @@ class StageChain:
         self.tasks = [get_task(s.task_id) for s in skills]
         self.stage_skill = np.array([self.names.index(name) for name in chain])
         self.own_stage = own_stage
-        self.noise, self.rng = noise, np.random.default_rng(seed)
 
     def reset(self, env_ids: np.ndarray | None = None) -> None:
         """Nothing to reset: the skills are feed-forward policies."""
@@ -68,12 +65,10 @@ class StageChain:
             if self.own_stage:
                 view["stage"] = task.stage_index(ctx)
             actions[rows] = actor(view)[rows]
-        if self.noise:
-            actions = np.clip(actions + self.rng.normal(0.0, self.noise, actions.shape), -1, 1)
         return actions
 
 
-def trace_handovers(spec: TaskSpec, policy: StageChain, episodes: int, seed: int) -> list[dict]:
+def trace_handovers(spec: TaskSpec, policy: Policy, episodes: int, seed: int) -> list[dict]:
     """Per stage: how many of ``episodes`` got that far, and what that stage's skill was handed.
 
     One batch of ``episodes`` environments runs one episode each. When an environment first
@@ -151,7 +146,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     if not 0.0 <= args.noise <= 10.0:
         parser.error(f"--noise is a standard deviation in [0, 10], got {args.noise}")
-    policy = StageChain(spec, args.chain, not args.target_stage, args.noise, args.seed)
+    chain = StageChain(spec, args.chain, own_stage=not args.target_stage)
+    policy = NoisyPolicy(chain, args.noise, args.seed) if args.noise else chain
     res = evaluate(spec, policy, args.episodes, args.seed, num_envs=25)
     print(
         f"{spec.id}: chain {' -> '.join(args.chain)} "

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import evaluate
+from itskill.tasks.evaluate import NoisyPolicy, evaluate
 from itskill.tasks.scripted import ScriptedPolicy
 
 
@@ -72,3 +73,38 @@ def test_outcomes_list_each_environments_episodes_in_turn():
     result = evaluate(spec, ScriptedInFirstEnv, episodes=5, num_envs=2)
     assert result.outcomes == [True, True, True, False, False]
     assert result.successes == 3 and result.success_rate == 0.6
+
+
+class _Fixed:
+    def __init__(self, value: float) -> None:
+        self.value, self.resets = value, []
+
+    def reset(self, env_ids=None) -> None:
+        self.resets.append(env_ids)
+
+    def __call__(self, ctx):
+        return np.full((len(ctx["ee_pos"]), 5), self.value)
+
+
+def test_noisy_policy_adds_seeded_gaussian_noise_within_the_action_range() -> None:
+    ctx = {"ee_pos": np.zeros((4000, 3))}
+    inner = _Fixed(0.2)
+    actions = NoisyPolicy(inner, 0.1, seed=3)(ctx)
+    assert actions.shape == (4000, 5)
+    assert abs(actions.mean() - 0.2) < 0.01 and abs(actions.std() - 0.1) < 0.01
+    np.testing.assert_array_equal(actions, NoisyPolicy(_Fixed(0.2), 0.1, seed=3)(ctx))
+    # Noise past the bounds is clipped as the environment clips; resets reach the policy.
+    wide = NoisyPolicy(_Fixed(0.9), 5.0)(ctx)
+    assert wide.max() == 1.0 and wide.min() == -1.0
+    NoisyPolicy(inner, 0.0).reset(np.array([1]))
+    assert inner.resets[-1].tolist() == [1]
+    with pytest.raises(ValueError, match="standard deviation"):
+        NoisyPolicy(inner, float("nan"))
+
+
+def test_the_scripted_insert_fails_under_exploration_noise() -> None:
+    # Its corrections are a few hundredths of the action range: noise of 0.3 undoes them.
+    from itskill.tasks.scripted import run_episodes
+
+    assert sum(run_episodes("insert_peg_rect", 8, 8, seed=1)) == 8
+    assert sum(run_episodes("insert_peg_rect", 8, 8, seed=1, noise=0.3)) <= 2

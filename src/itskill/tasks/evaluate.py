@@ -53,6 +53,25 @@ class RandomPolicy:
         return self.rng.uniform(-1.0, 1.0, (len(ctx["ee_pos"]), 5))
 
 
+class NoisyPolicy:
+    """``policy``'s actions plus Gaussian noise of standard deviation ``sigma``, clipped to
+    [-1, 1], seeded: how a policy fares under the noise a learner explores with around it (a
+    transfer target acting through its sources adds its own ``exp(log_std)``)."""
+
+    def __init__(self, policy: Policy, sigma: float, seed: int = 0) -> None:
+        if not 0.0 <= sigma < float("inf"):
+            raise ValueError(f"sigma must be a standard deviation of 0 or more, got {sigma}")
+        self.policy, self.sigma = policy, float(sigma)
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, env_ids: np.ndarray | None = None) -> None:
+        self.policy.reset(env_ids)
+
+    def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
+        actions = np.asarray(self.policy(ctx), dtype=np.float64)
+        return np.clip(actions + self.rng.normal(0.0, self.sigma, actions.shape), -1.0, 1.0)
+
+
 class CheckpointError(PicklableError, ValueError):
     """A policy checkpoint that is missing, unreadable or does not fit the observation layout."""
 

@@ -634,11 +634,18 @@ class ScriptedPolicy:
         return np.clip(actions, -1.0, 1.0)
 
 
-def run_episodes(task: str, episodes: int, num_envs: int = 16, seed: int = 0) -> list[bool]:
+def run_episodes(
+    task: str, episodes: int, num_envs: int = 16, seed: int = 0, noise: float = 0.0
+) -> list[bool]:
     """Success of ``episodes`` episodes of ``task``'s script on ``num_envs`` envs: those
     :func:`itskill.tasks.evaluate.evaluate` counts (a quota per environment, so the sample is not
-    biased towards short episodes, which end early on success)."""
+    biased towards short episodes, which end early on success). ``noise``: the standard deviation
+    of Gaussian noise added to its actions (:class:`~itskill.tasks.evaluate.NoisyPolicy`)."""
     from itskill.tasks import get_task
-    from itskill.tasks.evaluate import SCRIPTED, evaluate
+    from itskill.tasks.evaluate import SCRIPTED, NoisyPolicy, evaluate
 
-    return evaluate(get_task(task), SCRIPTED, episodes, seed, num_envs).outcomes
+    spec = get_task(task)
+    if not noise:
+        return evaluate(spec, SCRIPTED, episodes, seed, num_envs).outcomes
+    policy = NoisyPolicy(ScriptedPolicy(spec, num_envs), noise, seed)
+    return evaluate(spec, policy, episodes, seed, num_envs).outcomes
