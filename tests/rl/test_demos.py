@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from stable_baselines3.common.policies import ActorCriticPolicy
 from typer.testing import CliRunner
 
@@ -18,7 +17,6 @@ from itskill.rl.config import HyperparamError, load_hyperparams
 from itskill.rl.demos import DemoConfig, Demonstrations, collect_demos, discounted_returns
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import train
-from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.tasks import get_task, make_batch_env
 from itskill.tasks.evaluate import RandomPolicy, evaluate
 
@@ -118,23 +116,6 @@ def test_the_normaliser_stays_as_the_demonstrations_fitted_it(tmp_path: Path) ->
     assert (out / "demos.json").stat().st_mtime_ns == summary
 
 
-def test_an_input_the_script_never_varies_keeps_the_floors_deviation(tmp_path: Path) -> None:
-    """The reach script never closes the gripper: without the floor the normaliser would scale
-    that input by 1e4 and send any closed gripper to the clip."""
-    out = tmp_path / "run"
-    overrides = {"n_steps": 8, "batch_size": 32, "n_epochs": 1,
-                 "demos": {"episodes": 8, "epochs": 1, "obs_std_floor": 0.01}}  # fmt: skip
-    train(TASK, "ppo", 32, seed=0, out=out, num_envs=4, logger=QUIET, overrides=overrides)
-    norm = load_policy(out).obs_norm
-    closed = OBSERVATION_LAYOUT["grip_closed"]
-    assert norm.var[closed].item() == pytest.approx(0.01**2)
-    ee_pos = OBSERVATION_LAYOUT["ee_pos"]
-    assert (norm.var[ee_pos] > 0.01**2).all()  # the hand moves: its deviation is its own
-    obs = torch.zeros(1, OBSERVATION_LAYOUT.size, dtype=torch.float64)
-    obs[0, closed] = norm.mean[closed] + 0.02
-    assert norm(obs)[0, closed].item() == pytest.approx(2.0, rel=1e-4)
-
-
 def test_demo_settings_are_validated_where_they_are_read(tmp_path: Path) -> None:
     hp = tmp_path / "hp.toml"
     hp.write_text(f"[nutbolt.tasks.{TASK}.demos]\nepisodes = 50\n")
@@ -144,9 +125,6 @@ def test_demo_settings_are_validated_where_they_are_read(tmp_path: Path) -> None
     with pytest.raises(
         HyperparamError, match=r"nutbolt\.demos\.episodes: expected a value of 0 or more"
     ):
-        load_hyperparams("nutbolt", "ppo", hp)
-    hp.write_text("[nutbolt.demos]\nobs_std_floor = -0.1\n")
-    with pytest.raises(HyperparamError, match=r"demos\.obs_std_floor: expected a value of 0 or"):
         load_hyperparams("nutbolt", "ppo", hp)
     hp.write_text("[nutbolt.demos]\nepsiodes = 5\n")
     with pytest.raises(HyperparamError, match=r"nutbolt\.demos\.epsiodes: unknown field"):

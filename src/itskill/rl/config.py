@@ -211,7 +211,7 @@ _RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
         ),
         _POSITIVE,
     ),
-    **dict.fromkeys(("ent_coef", "vf_coef", "target_kl", "obs_std_floor"), _NON_NEGATIVE),
+    **dict.fromkeys(("ent_coef", "vf_coef", "target_kl"), _NON_NEGATIVE),
     "gamma": (lambda v: 0 < v <= 1, "a value in (0, 1]"),
     "gae_lambda": (lambda v: 0 <= v <= 1, "a value in [0, 1]"),
     "log_std_init": (

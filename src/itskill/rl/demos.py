@@ -7,8 +7,7 @@ task's starts, so before reinforcement learning begins the trainer can
 
 1. run that controller for ``episodes`` episodes on the training environments (training starts
    included) and keep the successful ones;
-2. fit the observation normaliser to their observations, with a floor under each input's
-   standard deviation (the trainer then keeps it fixed);
+2. fit the observation normaliser to their observations (the trainer then keeps it fixed);
 3. regress the actor's mean action onto the controller's actions (behaviour cloning), and the
    critic onto the demonstrations' discounted returns in the units the algorithm will see them
    (the reward normaliser's statistics are seeded from the same returns), so the first
@@ -71,24 +70,11 @@ class DemoConfig:
     batch_size: int = 256
     learning_rate: float = 1e-3
     """Adam's step size for the warm start only (the algorithm keeps its own optimiser)."""
-    obs_std_floor: float = 0.01
-    """Least standard deviation the normaliser keeps for an input (in the input's own unit).
-    A script repeats itself: the rectangular peg's insert never opened the gripper or turned the
-    hand in 500 episodes, so those inputs had deviations of 0 to 4e-5, and any other value (the
-    gripper open while another task's target picks the part) reached the clip. A skill whose
-    inputs all sit at the clip tells a transfer target nothing (docs/training.md)."""
 
     def __post_init__(self) -> None:
-        if (
-            self.episodes < 0
-            or self.epochs < 1
-            or self.batch_size < 1
-            or self.learning_rate <= 0
-            or self.obs_std_floor < 0
-        ):
+        if self.episodes < 0 or self.epochs < 1 or self.batch_size < 1 or self.learning_rate <= 0:
             raise ValueError(
-                "episodes must be >= 0, epochs and batch_size >= 1, learning_rate > 0, "
-                f"obs_std_floor >= 0; got {self}"
+                f"episodes must be >= 0, epochs and batch_size >= 1, learning_rate > 0; got {self}"
             )
 
 
@@ -240,7 +226,6 @@ def pretrain_policy(
     targets = torch.as_tensor(value_targets, dtype=torch.float32)
     if clone and policy.obs_norm is not None:
         policy.obs_norm.update(obs)
-        policy.obs_norm.var.clamp_(min=config.obs_std_floor**2)
     if clone:
         named = policy.named_parameters()
     else:
