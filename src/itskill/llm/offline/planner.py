@@ -45,8 +45,12 @@ _MOVE_PART_TO = (
     r"(?:is|are|sits?) )?(?:over|above|to)\b"
 )
 _CARRY_VERB = rf"{_CARRYING}|\bhold\w*|{_MOVE_PART_TO}"
-# A part moved up is lifted ("unscrew the nut and move it up"), unless on its way somewhere.
-_MOVE_PART_UP = rf"{_MOVE_PART} (?:\w+ly )?(?:up|upwards?|higher)\b(?! (?:over|above)\b)"
+# A part moved up is lifted ("unscrew the nut and move it up", "... up off the bolt", "... up to
+# 30 mm"), unless on its way somewhere ("move the nut up onto the bolt", "up and over", "up, to").
+_MOVE_PART_UP = (
+    rf"{_MOVE_PART} (?:\w+ly |straight |right |back )?(?:up|upwards?|higher)\b"
+    r"(?!,? (?:and )?(?:over|above|onto|into|in|on|toward\w*|to(?! \d))\b)"
+)
 # A carry that takes the part somewhere ("bring it to the bolt"; not "hold it", which keeps it).
 _CARRY_TO = rf"{_CARRYING}|\bhold\w* {_OBJ}(?:over|above)\b|{_MOVE_PART_TO}"
 _PLACE = ("place|align?",)  # the actions of the place verbs
@@ -558,8 +562,9 @@ def _part_moved_nowhere(
 ) -> str | None:
     """Why the command cannot be planned if a clause moves a part with a verb that only moves
     the hand, and not over or to a part or fixture ("move the nut away from the bolt" and "move
-    the nut to the left" were planned as a reach of the nut); None otherwise. A move up or down
-    is the lift or place of another clause ("pick up the nut and move it up"), if it has one.
+    the nut to the left" were planned as a reach of the nut); None otherwise. A move down, or up
+    on the way somewhere, is the lift or place of another clause ("pick up the nut and move it
+    up to the left"), if it has one; a move up alone is a lift (:data:`_MOVE_PART_UP`).
     ``kinds``: the scene's part and fixture kinds; ``clauses``: its :func:`_clauses`."""
     lifts_or_places = any(
         a.rstrip("?") in ("lift", "place", "place|align")  # a screw or insert places first
