@@ -147,8 +147,12 @@ def main(argv: list[str] | None = None) -> int:
     if not 0.0 <= args.noise <= 10.0:
         parser.error(f"--noise is a standard deviation in [0, 10], got {args.noise}")
     chain = StageChain(spec, args.chain, own_stage=not args.target_stage)
-    policy = NoisyPolicy(chain, args.noise, args.seed) if args.noise else chain
-    res = evaluate(spec, policy, args.episodes, args.seed, num_envs=25)
+
+    def policy() -> Policy:
+        # Each run draws its noise afresh from the seed: the trace does not depend on --episodes.
+        return NoisyPolicy(chain, args.noise, args.seed) if args.noise else chain
+
+    res = evaluate(spec, policy(), args.episodes, args.seed, num_envs=25)
     print(
         f"{spec.id}: chain {' -> '.join(args.chain)} "
         f"({'target' if args.target_stage else 'own'} stage"
@@ -159,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     handovers = None
     if args.handovers:
-        handovers = trace_handovers(spec, policy, args.handovers, args.seed)
+        handovers = trace_handovers(spec, policy(), args.handovers, args.seed)
         print(f"hand-overs over {args.handovers} episodes (obj_to_ee = grip point - part centre, "
               "obj_to_fix = fixture point - part bottom; mean ± std):")  # fmt: skip
         for row in handovers:

@@ -247,8 +247,8 @@ def test_thread_turns_refuses_a_contact_measurement_it_cannot_make(argv, capsys)
 
 def test_source_chaining_with_action_noise_measures_a_fragile_skill(tmp_path, capsys) -> None:
     """The shipped insert of the rectangular peg, a clone of its script, inserts without noise
-    and not at a transfer target's exploration noise of the packaged log-std -0.5; the record
-    says which noise it was measured at."""
+    and not at the exploration noise of log-std -0.5 (its transfer target's until 2026-12-06);
+    the record says which noise it was measured at."""
     chaining = _load("source_chaining")
     args = ["insert_peg_rect", "--chain", "insert_peg_rect", "--episodes", "8"]
     out = tmp_path / "chain.json"

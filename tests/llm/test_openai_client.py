@@ -524,6 +524,11 @@ def test_a_reply_with_a_lone_surrogate_is_cached_and_replayed(tmp_path: Path) ->
         "Bad request: see the prompt's figure (n)",
         "Unexpected token 'n' at line 1 column 2 of the JSON body",
         "Invalid character 'n' in the request at position 14",
+        "Unexpected token: 'n' at position 2",
+        "Expected a value but found 'n'",
+        "Unexpected character ('n' (code 110)): expected a valid value",
+        "'n' is an invalid start of a value. Path: $ | LineNumber: 0",
+        "Unexpected token 'n', \"n\" is not valid JSON",
     ],
     ids=[
         "escaped-newline",
@@ -536,6 +541,11 @@ def test_a_reply_with_a_lone_surrogate_is_cached_and_replayed(tmp_path: Path) ->
         "figure-n",
         "json-token",
         "json-character",
+        "json-token-colon",
+        "json-found",
+        "jackson",
+        "dotnet",
+        "v8",
     ],
 )
 def test_a_refusal_echoing_the_prompt_or_request_is_not_about_n(message: str) -> None:

@@ -44,10 +44,12 @@ inside a multi-byte character, the bytes do not even decode). A body shorter tha
 Content-Length is an ``APIConnectionError``, retried already."""
 _ABOUT_N = re.compile(
     r"""
-    (?i:(?<!character\ )(?<!char\ )(?<!token\ )(?<!letter\ )(?<!symbol\ )(?<!literal\ ))
+    (?i:(?<!character\ )(?<!char\ )(?<!token\ )(?<!letter\ )(?<!symbol\ )(?<!literal\ )
+        (?<!token:\ )(?<!character:\ )(?<!found\ )(?<!character\ \())
     [`'"]n[`'"](?!\s*:\s*\d)  # named: 'n' (OpenAI, Groq), `n`, a validation error's ('body', 'n');
-                              # not a parser's unexpected token 'n', nor the 'n': 2 of an echoed
-                              # request body...
+    (?i:(?!\s*\(code)(?!\s+is\ an\ invalid\ start)(?!\s+is\ not\ valid\ JSON))
+                              # not a JSON parser's unexpected token 'n' (V8, Jackson, .NET),
+                              # nor the 'n': 2 of an echoed request body...
     | [`'"]n[`'"]\s*:\s*\d+\s+(?:is|are)\s+not\b  # ...unless refused there
     | (?i:parameters?|params?|arguments?)(?:[ \t]+supplied)?[ \t]*:[ \t]*
       (?:[{\[][^}\]\n]{0,200}?[`'"]n[`'"][ \t]*:|(?:[`'"]|(?<![\w-]))n\b(?!-))

@@ -210,9 +210,11 @@ _FOLDED_NUMPY: dict[str, Callable[[Any], Any]] = {
 """Functions of one constant number folded too: ``np.zeros(int(1e11))`` and
 ``np.zeros(np.int64(1e11))`` are as obvious a size as ``np.zeros(10**11)``. Folded by name: a
 reward that defines its own ``round`` is checked as if it used the builtin, and a bare ``floor``
-as math's (what its function really computes is left to the process limits, as any computed size
-is). Numpy's are folded as Python's: ``np.floor`` gives an int where numpy gives a float, and
-the narrow integer types do not wrap (where numpy would overflow, the code fails anyway)."""
+as math's; math's functions imported under another name are not folded (what such a function
+really computes is left to the process limits, as any computed size is). Numpy's are folded as
+Python's: ``np.floor`` gives an int where numpy gives a float, and a narrow integer type does not
+wrap (``np.int8(1e3)`` is 1000 here, -24 in numpy): the size checked is never smaller than the
+size made."""
 
 
 _T = TypeVar("_T")
