@@ -645,7 +645,5 @@ def run_episodes(
     from itskill.tasks.evaluate import SCRIPTED, NoisyPolicy, evaluate
 
     spec = get_task(task)
-    if not noise:
-        return evaluate(spec, SCRIPTED, episodes, seed, num_envs).outcomes
-    policy = NoisyPolicy(ScriptedPolicy(spec, num_envs), noise, seed)
+    policy = NoisyPolicy(ScriptedPolicy(spec, num_envs), noise, seed) if noise else SCRIPTED
     return evaluate(spec, policy, episodes, seed, num_envs).outcomes
