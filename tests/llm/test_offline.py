@@ -258,6 +258,11 @@ def test_planner_refuses_a_move_to_nothing_of_the_scene(command: str, clause: st
         "Move the M12 nut up to the left",
         "Move the M12 nut up and over the bolt",
         "Grasp the M12 nut and move it up, to the bolt",
+        "Move the M12 nut up and then onto the bolt",
+        "Move the M12 nut up so it sits on the bolt",
+        "Move the M12 nut up 3 cm over the bolt",
+        # The pick's lift took the move, and the hole was dropped.
+        "Pick up the round peg and move it up over the hole",
     ],
 )
 def test_planner_refuses_a_part_moved_where_no_task_takes_it(command: str) -> None:
@@ -319,6 +324,9 @@ def test_planner_refuses_a_place_no_task_does_after_the_unscrew(command: str) ->
         ("Unscrew the M12 nut and move it straight up", "removenut_m12"),
         ("Unscrew the M12 nut and move it up to 30 mm", "removenut_m12"),
         ("Unscrew the M12 nut and move it up off the bolt", "removenut_m12"),
+        ("Unscrew the M12 nut and move it up to clear the bolt", "removenut_m12"),
+        ("Unscrew the M12 nut and move it up to a safe height", "removenut_m12"),
+        ("Unscrew the M12 nut and move it up in one smooth motion", "removenut_m12"),
         ("Move the M12 nut up", "pick_nut_m12"),
         # ... but not one moved up onto a fixture: that is a place.
         ("Move the M12 nut up onto the bolt", "place_nut_m12"),

@@ -644,6 +644,8 @@ def run_episodes(
     from itskill.tasks import get_task
     from itskill.tasks.evaluate import SCRIPTED, NoisyPolicy, evaluate
 
-    spec = get_task(task)
-    policy = NoisyPolicy(ScriptedPolicy(spec, num_envs), noise, seed) if noise else SCRIPTED
-    return evaluate(spec, policy, episodes, seed, num_envs).outcomes
+    def noisy(spec: TaskSpec, n: int) -> NoisyPolicy:
+        # Built by evaluate for the environments it runs (fewer where episodes are fewer).
+        return NoisyPolicy(ScriptedPolicy(spec, n), noise, seed)
+
+    return evaluate(get_task(task), noisy if noise else SCRIPTED, episodes, seed, num_envs).outcomes

@@ -46,10 +46,12 @@ _MOVE_PART_TO = (
 )
 _CARRY_VERB = rf"{_CARRYING}|\bhold\w*|{_MOVE_PART_TO}"
 # A part moved up is lifted ("unscrew the nut and move it up", "... up off the bolt", "... up to
-# 30 mm"), unless on its way somewhere ("move the nut up onto the bolt", "up and over", "up, to").
+# a safe height"), unless on its way to a part, a fixture or a side ("move the nut up onto the
+# bolt", "up and then over the bolt", "up so it sits on the bolt", "up to the left").
 _MOVE_PART_UP = (
     rf"{_MOVE_PART} (?:\w+ly |straight |right |back )?(?:up|upwards?|higher)\b"
-    r"(?!,? (?:and )?(?:over|above|onto|into|in|on|toward\w*|to(?! \d))\b)"
+    r"(?!,?(?: \w+){0,4}? (?:over|above|onto|into|in|on|to|toward\w*|next to|near|beside|by)"
+    r" (?:the |its |a |an )?(?:\w+ )?(?:bolt|hole|nut|peg|fixture|left|right|side)s?\b)"
 )
 # A carry that takes the part somewhere ("bring it to the bolt"; not "hold it", which keeps it).
 _CARRY_TO = rf"{_CARRYING}|\bhold\w* {_OBJ}(?:over|above)\b|{_MOVE_PART_TO}"
@@ -564,7 +566,8 @@ def _part_moved_nowhere(
     the hand, and not over or to a part or fixture ("move the nut away from the bolt" and "move
     the nut to the left" were planned as a reach of the nut); None otherwise. A move down, or up
     on the way somewhere, is the lift or place of another clause ("pick up the nut and move it
-    up to the left"), if it has one; a move up alone is a lift (:data:`_MOVE_PART_UP`).
+    up higher"), if it has one and the move names no part or fixture ("... move it up over the
+    hole" is refused); a move up alone is a lift (:data:`_MOVE_PART_UP`).
     ``kinds``: the scene's part and fixture kinds; ``clauses``: its :func:`_clauses`."""
     lifts_or_places = any(
         a.rstrip("?") in ("lift", "place", "place|align")  # a screw or insert places first
@@ -572,13 +575,15 @@ def _part_moved_nowhere(
         for a in actions
     )
     for clause, words, verbs in _segments(command.lower()):
-        if not _hand_only(verbs) or not re.search(_MOVES_PART, clause):
+        moved = re.search(_MOVES_PART, clause)
+        if not _hand_only(verbs) or not moved:
             continue
         toward = re.search(_MOVE_PART_TO, clause)
         if toward and any(w.removesuffix("s") in kinds for w in _words(clause[toward.end() :])):
             continue  # "move the nut over the bolt", "move it to the nut"
-        if lifts_or_places and {w for _, w in words} & _VERTICAL:
-            continue
+        named = any(w.removesuffix("s") in kinds for w in _words(clause[moved.end() :]))
+        if lifts_or_places and {w for _, w in words} & _VERTICAL and not named:
+            continue  # "pick up the nut and move it up": not "... move it up over the hole"
         return (
             f"{clause!r} moves a part where the offline planner cannot take it: it moves a "
             'part over a fixture ("move the nut over the bolt") or onto it ("move the nut '
