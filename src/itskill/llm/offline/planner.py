@@ -30,6 +30,7 @@ from __future__ import annotations
 import bisect
 import json
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 BACKEND = "offline rule-based backend"
@@ -153,6 +154,11 @@ _WORD = r"[a-z0-9]+"
 
 def _words(text: str) -> list[str]:
     return re.findall(_WORD, text.lower())
+
+
+def _names_kind(words: Iterable[str], kinds: set[str]) -> bool:
+    """Whether one of ``words`` names one of ``kinds`` ("bolt" or "bolts")."""
+    return any(w.removesuffix("s") in kinds for w in words)
 
 
 # "M16", "m 16", "16mm" and "16 mm" are 16 mm. A longer number is no part's size in millimetres,
@@ -464,8 +470,7 @@ def _unplanned_clause(command: str, kinds: set[str]) -> str | None:
     """Why the command cannot be planned if one of its clauses has no verb the rules know and is
     more than filler or a part's description ("pick up the nut and then dance": the dance was
     dropped); None otherwise. ``kinds``: the scene's part and fixture kinds."""
-    text = command.lower()
-    for clause, words, verbs in _segments(text):
+    for clause, words, verbs in _segments(command.lower()):
         if verbs or words[0][1] in _RELATIVE:
             continue
         unknown = [
@@ -506,7 +511,7 @@ def _place_phrases(
         if not phrase or phrase[-1] in _NOT_A_PLACE or _size_word(phrase[-1]):
             continue
         written = " ".join([words[i - 1][1]] * at_to + [word, *phrase])
-        places.append((written, kind, any(w.removesuffix("s") in kinds for w in phrase)))
+        places.append((written, kind, _names_kind(phrase, kinds)))
     return places
 
 
@@ -548,7 +553,7 @@ def _aimless_move(command: str, kinds: set[str]) -> str | None:
         if not _hand_only(verbs):
             continue
         said = {w for _, w in words}
-        if any(w.removesuffix("s") in kinds for w in said) or said & _PRONOUNS:
+        if _names_kind(said, kinds) or said & _PRONOUNS:
             continue
         if (k + 1 < len(segments) or said & _VERTICAL) and not said & _NOWHERE:
             continue
@@ -579,9 +584,9 @@ def _part_moved_nowhere(
         if not _hand_only(verbs) or not moved:
             continue
         toward = re.search(_MOVE_PART_TO, clause)
-        if toward and any(w.removesuffix("s") in kinds for w in _words(clause[toward.end() :])):
+        if toward and _names_kind(_words(clause[toward.end() :]), kinds):
             continue  # "move the nut over the bolt", "move it to the nut"
-        named = any(w.removesuffix("s") in kinds for w in _words(clause[moved.end() :]))
+        named = _names_kind(_words(clause[moved.end() :]), kinds)
         if lifts_or_places and {w for _, w in words} & _VERTICAL and not named:
             continue  # "pick up the nut and move it up": not "... move it up over the hole"
         return (
