@@ -23,7 +23,7 @@ from pathlib import Path
 from itskill.files import write_json
 from itskill.stats import wilson_interval
 from itskill.tasks import all_tasks, get_task
-from itskill.tasks.evaluate import RandomPolicy, evaluate
+from itskill.tasks.evaluate import RandomPolicy, evaluate, noise_sigma
 from itskill.tasks.scripted import run_episodes
 
 THRESHOLD = 0.9
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--random", action="store_true", help="also run a random policy")
     parser.add_argument(
         "--noise",
-        type=float,
+        type=noise_sigma,
         default=0.0,
         metavar="SIGMA",
         help="standard deviation of Gaussian noise added to the controller's actions",
@@ -49,8 +49,6 @@ def main(argv: list[str] | None = None) -> int:
     below = f"exit 1 if a Table I task is below {THRESHOLD * 100:.0f}%%"
     parser.add_argument("--check", action="store_true", help=below)
     args = parser.parse_args(argv)
-    if not 0.0 <= args.noise <= 10.0:
-        parser.error(f"--noise is a standard deviation in [0, 10], got {args.noise}")
 
     results = []
     print(f"{'task':28s} {'success':>8s} {'95% CI':>15s} {'time':>7s}" + " random" * args.random)

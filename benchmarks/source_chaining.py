@@ -34,7 +34,7 @@ import numpy as np
 from itskill.files import write_json
 from itskill.rl.checkpoint import TrainedPolicy
 from itskill.tasks import get_task, make_batch_env
-from itskill.tasks.evaluate import NoisyPolicy, Policy, evaluate
+from itskill.tasks.evaluate import NoisyPolicy, Policy, evaluate, noise_sigma
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer import resolve_sources
 
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="also write the result as JSON")
     parser.add_argument(
         "--noise",
-        type=float,
+        type=noise_sigma,
         default=0.0,
         metavar="SIGMA",
         help="standard deviation of Gaussian noise added to every action (a target's "
@@ -144,8 +144,6 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(
             f"{spec.id} has {len(spec.stages)} stages ({stages}), --chain names {len(args.chain)}"
         )
-    if not 0.0 <= args.noise <= 10.0:
-        parser.error(f"--noise is a standard deviation in [0, 10], got {args.noise}")
     chain = StageChain(spec, args.chain, own_stage=not args.target_stage)
 
     def policy() -> Policy:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 import pytest
 
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import NoisyPolicy, evaluate
+from itskill.tasks.evaluate import NoiseError, NoisyPolicy, evaluate, noise_sigma
 from itskill.tasks.scripted import ScriptedPolicy
 
 
@@ -100,6 +102,17 @@ def test_noisy_policy_adds_seeded_gaussian_noise_within_the_action_range() -> No
     assert inner.resets[-1].tolist() == [1]
     with pytest.raises(ValueError, match="standard deviation"):
         NoisyPolicy(inner, float("nan"))
+
+
+@pytest.mark.parametrize("text", ["-0.1", "inf", "nan", "lots"])
+def test_a_benchmark_refuses_a_noise_that_is_not_a_standard_deviation(text: str) -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--noise", type=noise_sigma)
+    assert parser.parse_args(["--noise", "0.135"]).noise == 0.135
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--noise", text])
+    with pytest.raises(NoiseError, match="action noise"):
+        noise_sigma(text)
 
 
 def test_the_scripted_insert_fails_under_exploration_noise() -> None:

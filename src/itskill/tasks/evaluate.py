@@ -7,6 +7,7 @@ same interface as the scripted controllers.
 
 from __future__ import annotations
 
+import argparse
 import time
 import zipfile
 from collections.abc import Callable
@@ -53,15 +54,29 @@ class RandomPolicy:
         return self.rng.uniform(-1.0, 1.0, (len(ctx["ee_pos"]), 5))
 
 
+class NoiseError(ValueError, argparse.ArgumentTypeError):
+    """An action-noise standard deviation that is not one; argparse shows its message as is."""
+
+
+def noise_sigma(value: str | float) -> float:
+    """``value`` as an action-noise standard deviation: a finite number of 0 or more, else
+    :class:`NoiseError`. Also an argparse ``type=`` for a benchmark's ``--noise``."""
+    try:
+        sigma = float(value)
+    except ValueError:
+        raise NoiseError(f"the action noise must be a number, got {value!r}") from None
+    if not 0.0 <= sigma < float("inf"):
+        raise NoiseError(f"the action noise must be a standard deviation of 0 or more, got {value}")
+    return sigma
+
+
 class NoisyPolicy:
     """``policy``'s actions plus Gaussian noise of standard deviation ``sigma``, clipped to
     [-1, 1], seeded: how a policy fares under the noise a learner explores with around it (a
     transfer target acting through its sources adds its own ``exp(log_std)``)."""
 
     def __init__(self, policy: Policy, sigma: float, seed: int = 0) -> None:
-        if not 0.0 <= sigma < float("inf"):
-            raise ValueError(f"sigma must be a standard deviation of 0 or more, got {sigma}")
-        self.policy, self.sigma = policy, float(sigma)
+        self.policy, self.sigma = policy, noise_sigma(sigma)
         self.rng = np.random.default_rng(seed)
 
     def reset(self, env_ids: np.ndarray | None = None) -> None:
