@@ -61,6 +61,13 @@ def test_paired_policies_compares_the_two_policies_on_the_same_episodes(tmp_path
     assert result["before"]["success"] == 1 / 8 and result["after"]["success"] == 7 / 8
     assert (result["episodes_won"], result["episodes_lost"]) == (6, 0)
     assert result["p"] == pytest.approx(0.5**6)
+    # Noise of 0.5 on both policies' actions: the round peg's Reach loses its one success and
+    # the M16 nut's two of seven, on the same episodes.
+    out_noisy = tmp_path / "noisy.json"
+    assert _load("paired_policies").main([*args, "--noise", "0.5", "--json", str(out_noisy)]) == 0
+    noisy = json.loads(out_noisy.read_text())
+    assert "action noise 0.5" in capsys.readouterr().out and noisy["noise"] == 0.5
+    assert (noisy["before"]["success"], noisy["after"]["success"]) == (0.0, 5 / 8)
 
 
 def _curve(seed: int, success: list[float], budget: int = 300) -> dict:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import NoiseError, NoisyPolicy, evaluate, noise_sigma
+from itskill.tasks.evaluate import NoiseError, NoisyPolicy, evaluate, noise_sigma, with_noise
 from itskill.tasks.scripted import ScriptedPolicy
 
 
@@ -123,3 +123,16 @@ def test_the_scripted_insert_fails_under_exploration_noise() -> None:
     assert sum(run_episodes("insert_peg_rect", 8, 8, seed=1, noise=0.3)) <= 2
     # Fewer episodes than environments: the noisy script is built for the ones that run.
     assert len(run_episodes("insert_peg_rect", 2, 16, seed=1, noise=0.01)) == 2
+
+
+def test_with_noise_wraps_any_policy_for_the_environments_evaluate_runs() -> None:
+    spec = get_task("insert_peg_rect")
+    assert with_noise("scripted", 0.0) == "scripted"  # no noise: the policy itself
+    noisy = with_noise("scripted", 0.3, seed=1)
+    assert noisy.__name__ == "scripted with action noise 0.3"
+    quiet, loud = (evaluate(spec, p, 8, seed=1, num_envs=8) for p in ("scripted", noisy))
+    assert quiet.successes == 8 and loud.successes <= 2
+    # The same seed draws the same noise: the figure is reproducible.
+    assert evaluate(spec, with_noise("scripted", 0.3, seed=1), 8, seed=1, num_envs=8).outcomes == (
+        loud.outcomes
+    )

@@ -54,7 +54,7 @@ from itskill.skills.manifest import (
 from itskill.skills.store import SHIPPED_LIBRARY, SkillSpace
 from itskill.stats import paired_gain_p, paired_wins
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import EvalResult, evaluate
+from itskill.tasks.evaluate import EvalResult, evaluate, with_noise
 from itskill.tasks.spec import TaskSpec
 
 DEMO_STEPS_KEY = "demo_env_steps"
@@ -119,11 +119,14 @@ class PretrainConfig:
             raise ValueError(f"replace_p must be above 0 and at most 1, got {self.replace_p}")
 
 
-def measure_skill(spec: TaskSpec, policy_dir: Path, config: PretrainConfig) -> EvalResult:
+def measure_skill(
+    spec: TaskSpec, policy_dir: Path, config: PretrainConfig, noise: float = 0.0
+) -> EvalResult:
     """Deterministic success of the policy in ``policy_dir`` over the held-out evaluation episodes
     (``config.eval_seed``): the figure a library's manifest records, so re-measuring a skill later
-    runs exactly the same episodes."""
-    policy = as_policy(policy_dir)
+    runs exactly the same episodes. ``noise``: the standard deviation of Gaussian noise on its
+    actions (:func:`~itskill.tasks.evaluate.with_noise`), as a learner acting through it adds."""
+    policy = with_noise(as_policy(policy_dir), noise, config.eval_seed)
     return evaluate(spec, policy, config.eval_episodes, seed=config.eval_seed, num_envs=25)
 
 

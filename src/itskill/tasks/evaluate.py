@@ -177,6 +177,22 @@ def describe_policy(policy: str | Path | Policy | PolicyFactory) -> str:
     return getattr(policy, "__name__", type(policy).__name__)
 
 
+def with_noise(
+    policy: str | Path | Policy | PolicyFactory, sigma: float, seed: int = 0
+) -> str | Path | Policy | PolicyFactory:
+    """``policy`` with :class:`NoisyPolicy`'s noise of standard deviation ``sigma`` on its
+    actions, built by :func:`evaluate` for the environments it runs (fewer where episodes are
+    fewer); ``policy`` itself where ``sigma`` is 0."""
+    if not noise_sigma(sigma):
+        return policy
+
+    def noisy(spec: TaskSpec, num_envs: int) -> Policy:
+        return NoisyPolicy(make_policy(policy, spec, num_envs), sigma, seed)
+
+    noisy.__name__ = f"{describe_policy(policy)} with action noise {sigma:g}"
+    return noisy
+
+
 @dataclass(frozen=True)
 class EvalResult:
     """Outcome of :func:`evaluate`; ``ci_low``/``ci_high`` are the 95% Wilson interval."""

@@ -640,12 +640,9 @@ def run_episodes(
     """Success of ``episodes`` episodes of ``task``'s script on ``num_envs`` envs: those
     :func:`itskill.tasks.evaluate.evaluate` counts (a quota per environment, so the sample is not
     biased towards short episodes, which end early on success). ``noise``: the standard deviation
-    of Gaussian noise added to its actions (:class:`~itskill.tasks.evaluate.NoisyPolicy`)."""
+    of Gaussian noise added to its actions (:func:`~itskill.tasks.evaluate.with_noise`)."""
     from itskill.tasks import get_task
-    from itskill.tasks.evaluate import SCRIPTED, NoisyPolicy, evaluate
+    from itskill.tasks.evaluate import SCRIPTED, evaluate, with_noise
 
-    def noisy(spec: TaskSpec, n: int) -> NoisyPolicy:
-        # Built by evaluate for the environments it runs (fewer where episodes are fewer).
-        return NoisyPolicy(ScriptedPolicy(spec, n), noise, seed)
-
-    return evaluate(get_task(task), noisy if noise else SCRIPTED, episodes, seed, num_envs).outcomes
+    policy = with_noise(SCRIPTED, noise, seed)
+    return evaluate(get_task(task), policy, episodes, seed, num_envs).outcomes
