@@ -34,7 +34,7 @@ import numpy as np
 from itskill.files import write_json
 from itskill.rl.checkpoint import TrainedPolicy
 from itskill.tasks import get_task, make_batch_env
-from itskill.tasks.evaluate import NoisyPolicy, Policy, evaluate, noise_sigma
+from itskill.tasks.evaluate import Policy, evaluate, make_policy, noise_sigma, with_noise
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer import resolve_sources
 
@@ -146,11 +146,9 @@ def main(argv: list[str] | None = None) -> int:
         )
     chain = StageChain(spec, args.chain, own_stage=not args.target_stage)
 
-    def policy() -> Policy:
-        # Each run draws its noise afresh from the seed: the trace does not depend on --episodes.
-        return NoisyPolicy(chain, args.noise, args.seed) if args.noise else chain
-
-    res = evaluate(spec, policy(), args.episodes, args.seed, num_envs=25)
+    # Each run draws its noise afresh from the seed: the trace does not depend on --episodes.
+    policy = with_noise(chain, args.noise, args.seed)
+    res = evaluate(spec, policy, args.episodes, args.seed, num_envs=25)
     print(
         f"{spec.id}: chain {' -> '.join(args.chain)} "
         f"({'target' if args.target_stage else 'own'} stage"
@@ -161,7 +159,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     handovers = None
     if args.handovers:
-        handovers = trace_handovers(spec, policy(), args.handovers, args.seed)
+        handovers = trace_handovers(
+            spec, make_policy(policy, spec, args.handovers), args.handovers, args.seed
+        )
         print(f"hand-overs over {args.handovers} episodes (obj_to_ee = grip point - part centre, "
               "obj_to_fix = fixture point - part bottom; mean ± std):")  # fmt: skip
         for row in handovers:

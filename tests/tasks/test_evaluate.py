@@ -105,14 +105,22 @@ def test_noisy_policy_adds_seeded_gaussian_noise_within_the_action_range() -> No
 
 
 @pytest.mark.parametrize("text", ["-0.1", "inf", "nan", "lots"])
-def test_a_benchmark_refuses_a_noise_that_is_not_a_standard_deviation(text: str) -> None:
+def test_a_benchmark_refuses_a_noise_that_is_not_a_standard_deviation(text: str, capsys) -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--noise", type=noise_sigma)
-    assert parser.parse_args(["--noise", "0.135"]).noise == 0.135
     with pytest.raises(SystemExit):
         parser.parse_args(["--noise", text])
+    # argparse shows the reason, not only "invalid value".
+    assert "argument --noise: the action noise must be" in capsys.readouterr().err
     with pytest.raises(NoiseError, match="action noise"):
         noise_sigma(text)
+
+
+def test_noise_sigma_reads_a_standard_deviation_from_text_or_a_number() -> None:
+    assert noise_sigma("0.135") == 0.135 and noise_sigma(0) == 0.0
+    assert str(noise_sigma("-0")) == "0.0"  # not -0.0 in a result file
+    with pytest.raises(NoiseError, match="must be a number"):
+        noise_sigma(None)  # type: ignore[arg-type]
 
 
 def test_the_scripted_insert_fails_under_exploration_noise() -> None:
@@ -125,14 +133,17 @@ def test_the_scripted_insert_fails_under_exploration_noise() -> None:
     assert len(run_episodes("insert_peg_rect", 2, 16, seed=1, noise=0.01)) == 2
 
 
-def test_with_noise_wraps_any_policy_for_the_environments_evaluate_runs() -> None:
+def test_with_noise_wraps_any_policy_with_noise_drawn_afresh_from_its_seed() -> None:
     spec = get_task("insert_peg_rect")
     assert with_noise("scripted", 0.0) == "scripted"  # no noise: the policy itself
-    noisy = with_noise("scripted", 0.3, seed=1)
-    assert noisy.__name__ == "scripted with action noise 0.3"
-    quiet, loud = (evaluate(spec, p, 8, seed=1, num_envs=8) for p in ("scripted", noisy))
-    assert quiet.successes == 8 and loud.successes <= 2
-    # The same seed draws the same noise: the figure is reproducible.
-    assert evaluate(spec, with_noise("scripted", 0.3, seed=1), 8, seed=1, num_envs=8).outcomes == (
-        loud.outcomes
-    )
+    noisy = with_noise(_Fixed(0.2), "0.1", seed=3)  # a ready policy; the noise as text
+    assert noisy.__name__ == "_Fixed with action noise 0.1"
+    ctx = {"ee_pos": np.zeros((2000, 3))}
+    first, again = (noisy(spec, 2000)(ctx) for _ in range(2))
+    np.testing.assert_array_equal(first, again)  # each policy made draws from the seed again
+    assert abs(first.std() - 0.1) < 0.01
+    other = with_noise(_Fixed(0.2), 0.1, seed=4)(spec, 2000)(ctx)
+    assert not np.array_equal(first, other)
+    # A policy make_policy builds is built for the environments evaluate runs (2 of 16 here).
+    result = evaluate(spec, with_noise("scripted", 0.01, seed=1), 2, seed=1, num_envs=16)
+    assert result.episodes == 2 and result.policy == "scripted with action noise 0.01"

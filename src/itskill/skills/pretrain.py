@@ -124,8 +124,9 @@ def measure_skill(
 ) -> EvalResult:
     """Deterministic success of the policy in ``policy_dir`` over the held-out evaluation episodes
     (``config.eval_seed``): the figure a library's manifest records, so re-measuring a skill later
-    runs exactly the same episodes. ``noise``: the standard deviation of Gaussian noise on its
-    actions (:func:`~itskill.tasks.evaluate.with_noise`), as a learner acting through it adds."""
+    runs exactly the same episodes. With ``noise``, the standard deviation of Gaussian noise on
+    its actions (:func:`~itskill.tasks.evaluate.with_noise`), as a learner acting through it adds,
+    it is no longer that figure: the success of the policy with that noise, on the same episodes."""
     policy = with_noise(as_policy(policy_dir), noise, config.eval_seed)
     return evaluate(spec, policy, config.eval_episodes, seed=config.eval_seed, num_envs=25)
 

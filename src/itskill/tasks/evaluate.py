@@ -63,11 +63,13 @@ def noise_sigma(value: str | float) -> float:
     :class:`NoiseError`. Also an argparse ``type=`` for a benchmark's ``--noise``."""
     try:
         sigma = float(value)
-    except ValueError:
+    except (TypeError, ValueError):
         raise NoiseError(f"the action noise must be a number, got {value!r}") from None
     if not 0.0 <= sigma < float("inf"):
-        raise NoiseError(f"the action noise must be a standard deviation of 0 or more, got {value}")
-    return sigma
+        raise NoiseError(
+            f"the action noise must be a finite standard deviation of 0 or more, got {value}"
+        )
+    return sigma + 0.0  # -0.0 as 0.0
 
 
 class NoisyPolicy:
@@ -181,9 +183,12 @@ def with_noise(
     policy: str | Path | Policy | PolicyFactory, sigma: float, seed: int = 0
 ) -> str | Path | Policy | PolicyFactory:
     """``policy`` with :class:`NoisyPolicy`'s noise of standard deviation ``sigma`` on its
-    actions, built by :func:`evaluate` for the environments it runs (fewer where episodes are
-    fewer); ``policy`` itself where ``sigma`` is 0."""
-    if not noise_sigma(sigma):
+    actions, as a factory: each policy it makes draws the noise afresh from ``seed``, and one
+    that :func:`make_policy` builds (``"scripted"``, a checkpoint, a factory) is built for the
+    environments :func:`evaluate` runs, fewer where episodes are fewer (a ready ``Policy`` is
+    wrapped as it is). ``policy`` itself where ``sigma`` is 0."""
+    sigma = noise_sigma(sigma)
+    if not sigma:
         return policy
 
     def noisy(spec: TaskSpec, num_envs: int) -> Policy:
