@@ -11,6 +11,10 @@ from replies import GOOD
 from itskill.reward.candidate import CandidateJob, run_candidate
 from itskill.reward.generator import extract_code
 from itskill.reward.sandbox import SandboxConfig
+from itskill.rl.checkpoint import as_policy
+from itskill.rl.eval_callback import EVAL_ENVS, eval_seed
+from itskill.tasks import get_task
+from itskill.tasks.evaluate import evaluate
 
 
 def _job(out: Path, timeout_s: float) -> CandidateJob:
@@ -75,3 +79,14 @@ def test_a_candidate_whose_evaluations_are_damaged_fails_naming_the_file(
     result = _rerun_with_evaluations(tmp_path, rows)
     assert result["status"] == "failed"
     assert f"eval.csv: {problem}" in result["error"]
+
+
+def test_a_candidate_whose_last_evaluation_was_cut_short_evaluates_its_final_policy(
+    tmp_path: Path,
+) -> None:
+    # Killed between its last checkpoint (128) and that checkpoint's evaluation.
+    result = _rerun_with_evaluations(tmp_path, "64,1,0.2,0,1,60,0\n")
+    assert result["status"] == "ok"
+    policy = as_policy(_job(tmp_path / "cand", timeout_s=300).train_dir(0))
+    final = evaluate(get_task("pick_nut_m12"), policy, 2, eval_seed(0), num_envs=EVAL_ENVS)
+    assert result["runs"][0]["curve"] == [(64, 0.2), (128, final.success_rate)]

@@ -123,6 +123,55 @@ def test_the_best_evaluated_policy_is_kept_across_a_resume(
     assert torch.equal(load_policy(out / "best").action_net.weight, evaluated[5])
 
 
+def _record_evaluation_seeds(monkeypatch) -> list[int]:
+    """Seeds the evaluation callback draws its episodes from, in order (the evaluation itself
+    runs as usual)."""
+    seeds: list[int] = []
+    real = eval_callback.evaluate
+
+    def recording(spec, actor, episodes, seed, num_envs):
+        seeds.append(seed)
+        return real(spec, actor, episodes, seed, num_envs=num_envs)
+
+    monkeypatch.setattr(eval_callback, "evaluate", recording)
+    return seeds
+
+
+def test_each_training_seed_is_evaluated_on_its_own_episodes(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    """Seeds average over as many episode samples as there are seeds; one seed's runs share
+    theirs (whatever the method or reward), and keep them across a resume."""
+    seeds = _record_evaluation_seeds(monkeypatch)
+    for seed in (0, 3):
+        train(
+            TASK, "ppo", 128, seed=seed, reward=reach_reward, out=tmp_path / f"seed{seed}",
+            num_envs=4, overrides=FAST_PPO, logger=QUIET, eval_every=64, eval_episodes=2,
+        )  # fmt: skip
+    assert seeds == [eval_callback.EVAL_SEED] * 2 + [eval_callback.EVAL_SEED + 3] * 2
+    meta = json.loads((tmp_path / "seed3" / "checkpoint.json").read_text())
+    assert meta["evaluation"] == {"every": 64, "episodes": 2, "seed": eval_callback.EVAL_SEED + 3}
+    best = json.loads((tmp_path / "seed3" / "best" / "checkpoint.json").read_text())
+    assert best["selection"]["seed"] == eval_callback.EVAL_SEED + 3
+
+
+def test_a_run_from_before_evaluation_seeds_resumes_on_its_old_episodes(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    """Runs recorded no evaluation seed while every training seed used EVAL_SEED: a resumed
+    one stays on those episodes, so its curve compares its policies on one set."""
+    out = tmp_path / "run"
+    _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
+    path = out / "checkpoint.json"
+    meta = json.loads(path.read_text())
+    assert meta["evaluation"].pop("seed") == eval_callback.EVAL_SEED + 1
+    path.write_text(json.dumps(meta))
+    seeds = _record_evaluation_seeds(monkeypatch)
+    _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    assert seeds == [eval_callback.EVAL_SEED] * 2
+    assert json.loads(path.read_text())["evaluation"]["seed"] == eval_callback.EVAL_SEED
+
+
 def test_the_learning_curves_clock_goes_on_across_a_resume_without_the_evaluations(
     tmp_path: Path, reach_reward: Path, monkeypatch
 ) -> None:

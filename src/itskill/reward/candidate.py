@@ -131,8 +131,8 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
     # Imported here, not at the top: the worker that only supervises the child needs none of it.
     from itskill.curves import NoEvaluationsError, read_curve
     from itskill.reward.feedback import component_stats, peak_success
-    from itskill.rl.checkpoint import as_policy
-    from itskill.rl.eval_callback import EVAL_ENVS, EVAL_SEED
+    from itskill.rl.checkpoint import as_policy, read_meta
+    from itskill.rl.eval_callback import EVAL_ENVS, evaluation_seed
     from itskill.rl.logger import LoggerConfig
     from itskill.rl.train import RewardSource, train
     from itskill.tasks import get_task
@@ -181,7 +181,8 @@ def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
             # Interrupted between the last checkpoint and its evaluation: evaluate it now, with
             # the evaluation callback's episodes, so the final policy always counts.
             policy = as_policy(job.train_dir(seed))
-            final = evaluate(spec, policy, job.eval_episodes, EVAL_SEED, num_envs=EVAL_ENVS)
+            episodes_seed = evaluation_seed(read_meta(job.train_dir(seed)))
+            final = evaluate(spec, policy, job.eval_episodes, episodes_seed, num_envs=EVAL_ENVS)
             curve.append((result.num_timesteps, final.success_rate))
         runs.append(
             {

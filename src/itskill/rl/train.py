@@ -51,6 +51,8 @@ from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, default_path,
 from itskill.rl.demos import DEMOS_FILE, warm_start
 from itskill.rl.eval_callback import (
     DeterministicEvalCallback,
+    eval_seed,
+    evaluation_seed,
     last_evaluated,
     read_selection,
     truncate_evaluations,
@@ -328,7 +330,8 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
     # A run resumed without evaluations adds none; one with others would put rows of another
     # episode count (or grid) into one curve and choose its best policy across them.
     have_eval, want_eval = meta.get("evaluation"), want.get("evaluation")
-    if have_eval and want_eval and have_eval != want_eval:
+    grid = ("every", "episodes")
+    if have_eval and want_eval and any(have_eval[k] != want_eval[k] for k in grid):
         raise ResumeMismatchError(
             f"{run_dir}: holds a run evaluated every {have_eval['every']:,} env-steps over "
             f"{have_eval['episodes']} episodes, this call asks for every "
@@ -552,17 +555,23 @@ def check_training(
     if init is not None:
         meta["init"] = describe_init(init)
     if eval_every:
-        meta["evaluation"] = {"every": eval_every, "episodes": eval_episodes}
+        meta["evaluation"] = {
+            "every": eval_every,
+            "episodes": eval_episodes,
+            "seed": eval_seed(seed),
+        }
     previous = None
     if (run_dir / META_FILE).exists():
         try:
             previous = read_meta(run_dir)
         except CheckpointError as err:
             raise CheckpointError(err.path, err.problem + CANNOT_RESUME) from err
-        _check_resume(previous, meta, run_dir)
         if "evaluation" in previous:
+            if "evaluation" in meta:
+                meta["evaluation"]["seed"] = evaluation_seed(previous)
             # A session without evaluations keeps the record for the sessions after it.
             meta.setdefault("evaluation", previous["evaluation"])
+        _check_resume(previous, meta, run_dir)
         if not (run_dir / MODEL_FILE).is_file():
             raise CheckpointError(run_dir / MODEL_FILE, "missing" + CANNOT_RESUME)
     elif run_dir.exists():
@@ -710,6 +719,7 @@ def _learn(
                 run_dir,
                 setup.eval_every,
                 setup.eval_episodes,
+                evaluation_seed(meta),
                 meta=meta,
                 at_start=evaluate_at_start,
                 clock=clock,
