@@ -97,6 +97,8 @@ def evaluation_seed(meta: Mapping[str, Any]) -> int:
     one it recorded, or, for a run from before the seed was recorded, :data:`EVAL_SEED` (what
     every run used then, kept so that a resumed run's curve stays on one set of episodes)."""
     return int((meta.get("evaluation") or {}).get("seed", EVAL_SEED))
+
+
 EVAL_ENVS = 25
 """Environments an evaluation steps together (the episodes drawn depend on it too)."""
 
