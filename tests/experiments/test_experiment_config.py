@@ -51,6 +51,21 @@ def test_defaults_and_round_trip(tmp_path):
     assert parse_experiment(config.to_dict(), tmp_path / "config.json", recorded=True) == config
 
 
+def test_hyperparams_a_file_names_are_kept_and_recorded(tmp_path):
+    table = "[hyperparams.pick_nut_m12]\nlearning_rate = 1e-5\npolicy = {log_std_init = -3.0}\n"
+    text = MINIMAL + table
+    config = load_experiment(write(tmp_path, text))
+    assert config.hyperparams == {
+        "pick_nut_m12": {"learning_rate": 1e-5, "policy": {"log_std_init": -3.0}}
+    }
+    assert config.training_settings()["hyperparams"] == config.hyperparams
+    assert parse_experiment(config.to_dict(), tmp_path / "config.json", recorded=True) == config
+    # A run recorded before files could name them trained every task with the packaged ones.
+    record = {k: v for k, v in config.to_dict().items() if k != "hyperparams"}
+    old = parse_experiment(record, tmp_path / "config.json", recorded=True)
+    assert old.training_settings()["hyperparams"] == {"pick_nut_m12": {}}
+
+
 def test_a_baseline_trained_in_another_run_may_be_named_without_its_method(tmp_path):
     # Refused as "not one of the methods": an experiment of ITN alone, its baseline from a run
     # of it given to the report (--baseline-run), could not name it.
@@ -147,6 +162,27 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
             ("every = 500", 'every = 500\n[execution]\nexecutor = "slurm"'),
             "execution.executor",
             "expected one of",
+        ),
+        # As the algorithm (A2C by default) and the policy tables check them, named as written.
+        *(
+            (("every = 500", f"every = 500\n[hyperparams.pick_nut_m12]\n{line}"), where, problem)
+            for line, where, problem in (
+                ("learning_rate = 'fast'", "hyperparams.pick_nut_m12.learning_rate", "a number"),
+                ("n_epochs = 4", "hyperparams.pick_nut_m12.n_epochs", "unknown field"),
+                ("policy = {log_std = -3}", "hyperparams.pick_nut_m12.policy.log_std", "unknown"),
+                ("gamma = 2", "hyperparams.pick_nut_m12.gamma", "(0, 1]"),
+                ("num_envs = 8", "hyperparams.pick_nut_m12.num_envs", "at the top of the file"),
+            )
+        ),
+        (
+            ("every = 500", "every = 500\n[hyperparams.pick_nut_m16]\ngamma = 0.9"),
+            "hyperparams.pick_nut_m16",
+            "not one of the experiment's tasks",
+        ),
+        (
+            ("every = 500", "every = 500\n[hyperparams]\npick_nut_m12 = 3"),
+            "hyperparams.pick_nut_m12",
+            "expected a table",
         ),
     ],
 )

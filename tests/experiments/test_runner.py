@@ -148,6 +148,28 @@ def test_resume_refuses_other_training_settings(toy, tmp_path):
         run_experiment(longer, run, "local", 1, resume=True, console=quiet())
 
 
+def test_cells_train_with_the_files_hyperparams_and_a_resume_keeps_them(toy, tmp_path):
+    """A file that names its hyper-parameters trains the same way after the packaged ones
+    change; a resume that names others is refused, and one that names the same goes on."""
+    config, _ = toy
+    pinned = {"pickplace_nut_m12": {"learning_rate": 3e-4, "policy": {"log_std_init": -1.5}}}
+    small = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,),
+                            "hyperparams": pinned})  # fmt: skip
+    run = tmp_path / "run"
+    run_experiment(small, run, "local", 1, console=quiet())
+    meta = json.loads((Cell("pickplace_nut_m12", "no_transfer", 0).dir(run) / "checkpoint.json")
+                      .read_text())  # fmt: skip
+    assert meta["hyperparams"]["a2c"]["learning_rate"] == 3e-4
+    assert meta["hyperparams"]["policy"]["log_std_init"] == -1.5
+    assert json.loads((run / "config.json").read_text())["hyperparams"] == pinned
+    packaged = type(config)(**{**small.__dict__, "hyperparams": {}})
+    with pytest.raises(ExperimentRunError, match="hyperparams="):
+        run_experiment(packaged, run, "local", 1, resume=True, console=quiet())
+    more = type(config)(**{**small.__dict__, "seeds": (0, 1)})
+    summary = run_experiment(more, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.finished] == ["pickplace_nut_m12/no_transfer/seed_1"]
+
+
 def test_a_no_transfer_run_resumes_with_other_sources_k_and_analyzer(toy, tmp_path):
     """Its cells never used them, so resuming it to add ITN may name them anew; the ITN run
     then refuses another k."""

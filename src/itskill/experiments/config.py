@@ -16,6 +16,9 @@ Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but 
     sources = "auto" | {task = [skill names or ids], ...}
     k = sources retrieved by "auto" (at most 32)
     llm = "offline" | "openai:MODEL"              (the analyzer's client)
+    [hyperparams.<task>] hyper-parameters of the task's cells, on top of the packaged ones:
+                 the algorithm's fields by name (learning_rate = 1e-5), policy = {...},
+                 demos = {...}, checkpoint_every, normalize_reward (docs/training.md)
     [eval] every, episodes (at most 1,000,000)
     [report] threshold, fractions (strictly increasing), baseline, grid_points, paper_gain
     [execution] executor, workers (at most 1024), ray_address
@@ -42,7 +45,7 @@ from itskill.limits import (
 from itskill.llm.client import UnknownModelError, model_spec
 from itskill.reward.config import check_seeds
 from itskill.reward_contract import EXPERT
-from itskill.rl.config import ALGOS
+from itskill.rl.config import ALGOS, HyperparamError, load_hyperparams
 from itskill.rl.train import RewardLoadError, load_reward
 from itskill.tasks import UnknownTaskError, get_task
 
@@ -104,6 +107,10 @@ class ExperimentConfig:
     """Task -> ``"auto"`` or the source skills' names/ids."""
     k: int = 3
     llm: str = "offline"
+    hyperparams: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Task -> the hyper-parameters its cells change (``overrides`` of
+    :func:`itskill.rl.config.load_hyperparams`): a file that names them trains the same way
+    after the packaged defaults change."""
     description: str = ""
     report: ReportSettings = field(default_factory=ReportSettings)
     execution: ExecutionSettings = field(default_factory=ExecutionSettings)
@@ -119,6 +126,7 @@ class ExperimentConfig:
             "k": self.k,
             "llm": self.llm,
             "eval": asdict(self.eval),
+            "hyperparams": {t: self.hyperparams.get(t, {}) for t in self.tasks},
         }
 
     def to_dict(self) -> dict[str, Any]:
@@ -129,7 +137,7 @@ class ExperimentConfig:
 # ---------------------------------------------------------------------- loading
 _TOP = {
     "name", "description", "tasks", "methods", "seeds", "algo", "steps", "num_envs", "reward",
-    "sources", "k", "llm", "eval", "report", "execution",
+    "sources", "k", "llm", "hyperparams", "eval", "report", "execution",
 }  # fmt: skip
 
 
@@ -193,6 +201,38 @@ def _per_task(
             path, f"{where}.{unknown[0]}", f"not one of the experiment's tasks {list(tasks)}"
         )
     return {t: value.get(t, default) for t in tasks}
+
+
+def _parse_hyperparams(
+    path: Path, value: Any, tasks: tuple[str, ...], algo: str, recorded: bool
+) -> dict[str, dict[str, Any]]:
+    """Each task's ``[hyperparams.<task>]``, checked as training will check it (a recorded run's
+    only for its form: its tasks may not exist here)."""
+    tables = _typed(path, "hyperparams", value, dict)
+    found: dict[str, dict[str, Any]] = {}
+    for task, table in tables.items():
+        where = f"hyperparams.{task}"
+        if task not in tasks:
+            raise ExperimentConfigError(
+                path, where, f"not one of the experiment's tasks {list(tasks)}"
+            )
+        table = _typed(path, where, table, dict)
+        if "num_envs" in table:
+            # The cells' num_envs is the file's top-level one, which would win unseen.
+            raise ExperimentConfigError(
+                path, f"{where}.num_envs", "set num_envs at the top of the file, for every task"
+            )
+        if not recorded:
+            spec = get_task(task)
+            try:
+                load_hyperparams(spec.family, algo, overrides=table, task=spec.id)
+            except HyperparamError as err:
+                # Named as this file has it: algorithm fields by name, no "overrides" table.
+                if err.where.startswith("overrides."):
+                    where += "." + err.where.removeprefix("overrides.").removeprefix(f"{algo}.")
+                raise ExperimentConfigError(path, where, err.problem) from err
+        found[task] = table
+    return found
 
 
 def _check_reward_file(path: Path, where: str, file: Path, task: str) -> None:
@@ -314,6 +354,7 @@ def parse_experiment(data: dict[str, Any], path: Path, recorded: bool = False) -
         # More retrieved and ran thousands of frozen sources in every cell (itskill.limits).
         k=_positive(path, "k", raw.get("k", 3), SOURCES_MAX),
         llm=llm,
+        hyperparams=_parse_hyperparams(path, raw.get("hyperparams", {}), tasks, algo, recorded),
         report=report,
         execution=execution,
     )

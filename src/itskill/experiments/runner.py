@@ -105,6 +105,8 @@ class CellSettings:
     eval_episodes: int
     threshold: float
     llm_cache: str
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+    """The experiment file's ``[hyperparams.<task>]`` for the cell's task."""
 
 
 def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
@@ -134,6 +136,7 @@ def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
         n_threads=1,
         client=client,
         progress=False,
+        overrides=settings.hyperparams,
     )
     curve = read_curve(out, settings.steps)
     hit = time_to_threshold([curve], settings.threshold)
@@ -299,7 +302,7 @@ def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: 
     }
     for key in (k for k in want if k not in unused):
         mismatch = have.get(key) != want[key]
-        if key in ("reward", "sources"):  # per task: a task added on resume brings its own
+        if key in ("reward", "sources", "hyperparams"):  # per task: a task added brings its own
             mismatch = any(have[key].get(t, want[key][t]) != want[key][t] for t in want[key])
         if mismatch:
             raise ExperimentRunError(
@@ -324,6 +327,7 @@ def _union(old: ExperimentConfig, new: ExperimentConfig, trains: bool) -> Experi
         seeds=merged(old.seeds, new.seeds),
         reward={**old.reward, **new.reward},
         sources={**old.sources, **new.sources},
+        hyperparams={**old.hyperparams, **new.hyperparams},
         execution=new.execution if trains else old.execution,
     )
 
@@ -510,6 +514,7 @@ def _run(
                 eval_episodes=config.eval.episodes,
                 threshold=config.report.threshold,
                 llm_cache=str(run_dir / "llm_cache"),
+                hyperparams=config.hyperparams.get(cell.task, {}),
             ),
             cell.dir(run_dir),
         )
