@@ -24,12 +24,11 @@ import numpy as np
 
 from itskill.curves import read_curve
 from itskill.executors import run_jobs
-from itskill.experiments.learn import EVAL_SEED
 from itskill.files import write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy, read_meta
 from itskill.rl.eval_callback import read_selection
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import evaluate
+from itskill.tasks.evaluate import HELD_OUT_SEED, evaluate
 from itskill.transfer import train_transfer
 
 
@@ -47,7 +46,7 @@ def measure(task: str, run_dir: Path, episodes: int) -> dict[str, Any]:
     spec = get_task(task)
     row: dict[str, Any] = {"run_dir": str(run_dir), "steps": read_meta(run_dir)["num_timesteps"]}
     for name, where in (("last", run_dir), ("best", run_dir / BEST_DIR)):
-        res = evaluate(spec, as_policy(where), episodes, seed=EVAL_SEED, num_envs=25)
+        res = evaluate(spec, as_policy(where), episodes, seed=HELD_OUT_SEED, num_envs=25)
         row[name] = {"success": res.success_rate, "ci": [res.ci_low, res.ci_high]}
     row["selection"] = read_selection(run_dir)
     row["last_training_eval"] = float(read_curve(run_dir, row["steps"]).success[-1])
@@ -86,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = {s: measure(args.task, d, args.held_out) for s, d in runs.items()}
     print(
         f"{args.task}, {args.method}, {args.steps:,} env-steps, held-out success over "
-        f"{args.held_out} episodes (seed {EVAL_SEED})"
+        f"{args.held_out} episodes (seed {HELD_OUT_SEED})"
     )
     print(f"{'seed':>4}  {'best chosen at':>24}  {'last eval':>9}  {'last':>17}  {'best/':>17}")
     for s, r in rows.items():
@@ -112,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
                 "eval_every": args.eval_every,
                 "eval_episodes": args.eval_episodes,
                 "held_out_episodes": args.held_out,
-                "held_out_seed": EVAL_SEED,
+                "held_out_seed": HELD_OUT_SEED,
                 "seeds": {str(s): r for s, r in rows.items()},
                 "mean_last": mean_last,
                 "mean_best": mean_best,

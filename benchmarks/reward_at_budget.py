@@ -41,13 +41,12 @@ from itskill.experiments.analysis import (
     mean_band,
     time_to_threshold,
 )
-from itskill.experiments.learn import EVAL_SEED
 from itskill.experiments.plots import plot_learning_curves
 from itskill.files import read_json, replaced_whole, write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy
 from itskill.stats import format_rate_interval
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import evaluate
+from itskill.tasks.evaluate import HELD_OUT_SEED, evaluate
 from itskill.transfer import train_transfer
 
 THRESHOLD = 0.8
@@ -137,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         "eval_every": args.eval_every,
         "eval_episodes": args.eval_episodes,
         "heldout_episodes": args.held_out,
-        "heldout_seed": EVAL_SEED,
+        "heldout_seed": HELD_OUT_SEED,
     }
     # Checked before training: a summary that cannot be pooled is known now, not hours later.
     earlier = _earlier_seeds(args.results, settings, args.seeds) if args.with_earlier else []
@@ -171,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     bands = {}
     print(f"{args.task} on {args.method}, {args.steps:,} env-steps, best/ on {args.held_out} "
-          f"held-out episodes (seed {EVAL_SEED})")  # fmt: skip
+          f"held-out episodes (seed {HELD_OUT_SEED})")  # fmt: skip
     for name in rewards:
         curves, heldout, stage_steps = [], [], []
         for s in seeds:
@@ -185,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
             run_dir = runs[name, s]
             curves.append(read_curve(run_dir, args.steps))
             res = evaluate(spec, as_policy(run_dir / BEST_DIR), args.held_out,
-                           seed=EVAL_SEED, num_envs=25)  # fmt: skip
+                           seed=HELD_OUT_SEED, num_envs=25)  # fmt: skip
             heldout.append(res.success_rate)
             stage_steps.append(res.stage_steps)
             # Copied to a temporary file replacing the target whole: an interrupted copy must not

@@ -9,6 +9,7 @@ import typer
 from rich.markup import escape
 
 from itskill.cli.common import console, err_console, run_dir_option, user_errors
+from itskill.limits import EPISODES_MAX
 
 experiment_app = typer.Typer(
     no_args_is_help=True,
@@ -72,6 +73,41 @@ def experiment_run(
     )
     if report:
         _write_report(summary.run_dir)
+    if summary.failed:
+        raise typer.Exit(1)
+
+
+@experiment_app.command("held-out")
+def experiment_held_out(
+    run: Annotated[Path, typer.Argument(help="An experiment run directory.")],
+    episodes: Annotated[
+        int, typer.Option(min=1, max=EPISODES_MAX, help="Held-out episodes per cell.")
+    ] = 200,
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="Cells measured at once (default: one per core).")
+    ] = None,
+) -> None:
+    """Measure every finished cell's final policy on held-out episodes (seed 10,000), for the
+    report to show beside the curves' last evaluations. Cells already measured are skipped."""
+    from itskill.experiments.held_out import measure_held_out
+
+    def heard(cell, record, error) -> None:
+        if error is not None:
+            err_console.print(f"{cell.name}: failed: {error}", markup=False)
+        else:
+            console.print(
+                f"{cell.name}: {record['success']:.1%} of {record['episodes']} held-out episodes "
+                f"[{record['ci_low']:.1%}, {record['ci_high']:.1%}], {record['wall_s']:.0f} s",
+                markup=False,
+            )
+
+    with user_errors():
+        summary = measure_held_out(run, episodes, workers, heard)
+    console.print(
+        f"{len(summary.measured)} cells measured, {len(summary.skipped)} already measured, "
+        f"{len(summary.failed)} failed; `itskill report {run}` shows them",
+        markup=False,
+    )
     if summary.failed:
         raise typer.Exit(1)
 

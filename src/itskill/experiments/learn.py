@@ -69,8 +69,6 @@ from itskill.limits import (
 from itskill.llm.usage_log import UsageLog
 from itskill.rl.config import ALGOS
 
-EVAL_SEED = 10_000
-"""Seed of the final evaluation's episodes: other initial states than training's."""
 STEPS = ("plan", "sources", "analyze", "reward", "train", "evaluate", "skill", "report")
 
 # What a later step reads of each step's file: a file damaged or edited between sessions is
@@ -808,12 +806,12 @@ def _train_generated(
 def _evaluate(task: str, kept: Path, episodes: int, steps: _Steps) -> dict[str, Any]:
     from itskill.rl.checkpoint import as_policy
     from itskill.tasks import get_task
-    from itskill.tasks.evaluate import evaluate
+    from itskill.tasks.evaluate import HELD_OUT_SEED, evaluate
 
     cached = steps.cached("evaluation.json", _EVALUATION_SHAPE)
     was_cached = cached is not None
     if cached is None:
-        res = evaluate(get_task(task), as_policy(kept), episodes, seed=EVAL_SEED, num_envs=25)
+        res = evaluate(get_task(task), as_policy(kept), episodes, seed=HELD_OUT_SEED, num_envs=25)
         cached = res.to_dict()
         write_json(steps.run_dir / "evaluation.json", cached)
     steps.done(

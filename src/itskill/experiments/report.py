@@ -27,6 +27,7 @@ from itskill.experiments.analysis import (
     Threshold,
     best_evaluation,
     common_grid,
+    estimate,
     mean_band,
     success_at_fractions,
     threshold_gain,
@@ -43,6 +44,7 @@ from itskill.experiments.document import (
     Video,
     write_document,
 )
+from itskill.experiments.held_out import HELD_OUT_FILE, read_held_out
 from itskill.experiments.learn_layout import best_reward_file, policy_dir, transfer_dir
 from itskill.experiments.plots import method_label, plot_attention, plot_learning_curves
 from itskill.experiments.provenance import Sessions, machine_facts, now
@@ -64,6 +66,7 @@ from itskill.experiments.runner import (
 )
 from itskill.files import CorruptFileError, copy_whole, read_json
 from itskill.reward_contract import EXPERT
+from itskill.stats import mean_interval
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
@@ -80,6 +83,7 @@ CELL_FILES = (
     "checkpoint.json",
     "transfer.json",
     TRACE_FILE,
+    HELD_OUT_FILE,
 )
 """What a report reads from a run and its cells, weights aside: a report written elsewhere copies
 these beside itself, so it can be written again from its own directory (without the video). The
@@ -662,6 +666,7 @@ def _task_section(
     )
     doc.add(Heading("Success at fractions of the budget (Table II)", 3))
     _fractions_table(doc, config, by_method, "mean [95% t-interval over seeds, cut to 0–100%]")
+    _held_out_section(doc, task, curves, where)
     _progress_section(doc, config, task, curves, where, figures, notes)
     thresholds = {m: time_to_threshold(cs, rep.threshold) for m, cs in by_method.items()}
     base = thresholds.get(rep.baseline)
@@ -695,6 +700,43 @@ def _task_section(
         runs = curves[(task, "itn")]
         seed = max(runs, key=lambda sc: (sc[1].success[-1], -sc[0]))[0]
         attention_section(doc, where.cell_dir(task, "itn", seed), task, figures, notes)
+
+
+def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> None:
+    """The final policies on held-out episodes (:mod:`itskill.experiments.held_out`) beside the
+    curves' last evaluations, for the seeds measured; nothing where no seed was."""
+    rows, counts = [], set()
+    for method in where.methods:
+        held, last = [], []
+        for seed, curve in curves.get((task, method), []):
+            cell_dir = where.cell_dir(task, method, seed)
+            record = read_held_out(cell_dir, finished_result(cell_dir) or {})
+            if record is not None:
+                held.append(float(record["success"]))
+                last.append(float(curve.success[-1]))
+                counts.add(int(record["episodes"]))
+        if held:
+            diff = mean_interval(np.subtract(last, held))
+            rows.append(
+                [
+                    method_label(method),
+                    str(len(held)),
+                    estimate(held).format(),
+                    estimate(last).format(),
+                    f"{diff[0] * 100:+.1f} [{diff[1] * 100:+.1f}, {diff[2] * 100:+.1f}]",
+                ]
+            )
+    if not rows:
+        return
+    doc.add(Heading("Final policies on held-out episodes", 3))
+    doc.table(
+        ["method", "seeds", "held-out success", "last evaluation", "difference (points)"],
+        rows,
+        f"each seed's final policy on {' or '.join(map(str, sorted(counts)))} episodes no run "
+        "trains or evaluates on (seed 10,000; `itskill experiment held-out RUN`), against its "
+        "last evaluation on the run's own episodes; mean over the seeds measured with the 95% "
+        "t-interval",
+    )
 
 
 def _settings_section(

@@ -54,7 +54,7 @@ from itskill.skills.manifest import (
 from itskill.skills.store import SHIPPED_LIBRARY, SkillSpace
 from itskill.stats import paired_gain_p, paired_wins
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import EvalResult, evaluate, with_noise
+from itskill.tasks.evaluate import HELD_OUT_SEED, EvalResult, evaluate, with_noise
 from itskill.tasks.spec import TaskSpec
 
 DEMO_STEPS_KEY = "demo_env_steps"
@@ -83,7 +83,7 @@ class PretrainConfig:
     around 94% spans 88-97%, too wide to tell a 95% skill from a 90% one, and a refined skill
     kept for beating a figure on the same 100 episodes kept their luck too: place_nut_m12,
     recorded at 94% on 100, succeeded in 88% of 400 others (docs/skills.md)."""
-    eval_seed: int = 10_000
+    eval_seed: int = HELD_OUT_SEED
     """Evaluation episodes are drawn from other seeds than training's."""
     eval_every: int = 50_000
     """Evaluate during training every so many env-steps (over the trainer's own episodes, not the

@@ -26,6 +26,10 @@ from itskill.tasks.scripted import ScriptedPolicy
 from itskill.tasks.spec import TaskSpec
 
 SCRIPTED = "scripted"
+HELD_OUT_SEED = 10_000
+"""Seed of the held-out episodes, which no training run trains or evaluates on (a run's own
+episodes come from its seed, its evaluations' from 20,000 on): the library's success rates,
+``itskill learn``'s final figure and an experiment's held-out check are measured on them."""
 
 
 @runtime_checkable

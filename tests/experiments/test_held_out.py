@@ -1,0 +1,101 @@
+"""The held-out check: each finished cell's final policy on episodes no run saw, once."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from itskill.cli import app
+from itskill.experiments.config import EvalSettings, ExperimentConfig
+from itskill.experiments.held_out import HELD_OUT_FILE, measure_held_out
+from itskill.experiments.report import experiment_report
+from itskill.experiments.runner import Cell, ExperimentRunError, run_experiment
+from itskill.files import write_json
+from itskill.rl.checkpoint import as_policy
+from itskill.tasks import get_task
+from itskill.tasks.evaluate import HELD_OUT_SEED, evaluate
+
+TASK = "pickplace_nut_m12"
+
+
+@pytest.fixture
+def run(tmp_path: Path) -> Path:
+    """A finished run of No_Transfer, two seeds of a few hundred env-steps."""
+    config = ExperimentConfig(
+        name="tiny", tasks=(TASK,), methods=("no_transfer",), seeds=(0, 1), steps=128,
+        eval=EvalSettings(every=128, episodes=2), algo="a2c", num_envs=2,
+    )  # fmt: skip
+    run_dir = tmp_path / "run"
+    summary = run_experiment(config, run_dir, "local", 1)
+    assert not summary.failed
+    return run_dir
+
+
+def test_final_policies_are_measured_on_held_out_episodes_once(run: Path) -> None:
+    heard = []
+    summary = measure_held_out(run, 3, workers=1, on_cell=lambda c, r, e: heard.append((c, e)))
+    cells = [Cell(TASK, "no_transfer", s) for s in (0, 1)]
+    assert sorted(summary.measured, key=lambda c: c.seed) == cells and not summary.failed
+    assert sorted(c.seed for c, e in heard if e is None) == [0, 1]
+    for cell in cells:
+        record = json.loads((cell.dir(run) / HELD_OUT_FILE).read_text())
+        again = evaluate(get_task(TASK), as_policy(cell.dir(run)), 3, HELD_OUT_SEED, 25)
+        assert record["success"] == again.success_rate and record["episodes"] == 3
+        assert record["outcomes"] == [int(o) for o in again.outcomes]
+        assert record["seed"] == HELD_OUT_SEED and record["num_timesteps"] >= 128
+    # Measured once; another episode count, or a cell trained on since, is measured again.
+    assert [c.seed for c in measure_held_out(run, 3, workers=1).skipped] == [0, 1]
+    path = cells[1].dir(run) / HELD_OUT_FILE
+    write_json(path, {**json.loads(path.read_text()), "num_timesteps": 64})
+    again = measure_held_out(run, 3, workers=1)
+    assert again.measured == [cells[1]] and again.skipped == [cells[0]]
+    assert [c.seed for c in measure_held_out(run, 4, workers=1).measured] == [0, 1]
+
+
+def test_a_cell_without_its_weights_fails_by_name_and_the_others_are_measured(
+    run: Path, tmp_path: Path
+) -> None:
+    copy = tmp_path / "copy"
+    shutil.copytree(run, copy)
+    (Cell(TASK, "no_transfer", 1).dir(copy) / "checkpoint.json").unlink()
+    result = CliRunner().invoke(app, ["experiment", "held-out", str(copy), "--episodes", "2"])
+    assert result.exit_code == 1
+    assert "no_transfer/seed_1: failed:" in result.output
+    assert "1 cells measured, 0 already measured, 1 failed" in result.output
+    assert (Cell(TASK, "no_transfer", 0).dir(copy) / HELD_OUT_FILE).is_file()
+
+
+def test_a_directory_that_is_not_a_run_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ExperimentRunError, match="not an experiment run directory"):
+        measure_held_out(tmp_path, 2)
+    result = CliRunner().invoke(app, ["experiment", "held-out", str(tmp_path)])
+    assert result.exit_code == 2 and "not an experiment run directory" in result.output
+
+
+def test_the_report_sets_held_out_success_beside_the_last_evaluation(
+    run: Path, tmp_path: Path
+) -> None:
+    for seed, (held, last) in enumerate(((0.5, 0.75), (0.25, 0.75))):
+        cell = Cell(TASK, "no_transfer", seed).dir(run)
+        steps = json.loads((cell / "result.json").read_text())["num_timesteps"]
+        rows = (cell / "eval.csv").read_text().splitlines()
+        (cell / "eval.csv").write_text("\n".join([*rows[:-1], _with_success(rows[-1], last)]))
+        write_json(cell / HELD_OUT_FILE, {"success": held, "episodes": 200,
+                                          "num_timesteps": steps})  # fmt: skip
+    md = experiment_report(run, tmp_path / "report", video=False).markdown.read_text()
+    assert "### Final policies on held-out episodes" in md
+    # Held out 50% and 25% (mean 37.5%); last evaluation 75% twice: 37.5 points higher.
+    assert "| No_Transfer | 2 | 37.5% [" in md and "| 75.0% (all 2 seeds) | +37.5 [" in md
+    assert "on 200 episodes no run trains or evaluates on" in md
+    # Copied with the report, which can be written again from its copy.
+    assert (Cell(TASK, "no_transfer", 0).dir(tmp_path / "report") / HELD_OUT_FILE).is_file()
+
+
+def _with_success(row: str, success: float) -> str:
+    fields = row.split(",")
+    fields[2] = str(success)
+    return ",".join(fields)
