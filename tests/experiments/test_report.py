@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -631,6 +633,56 @@ def test_a_baseline_run_trained_otherwise_is_refused_before_anything_is_written(
         )
     # Refused before the run's files were copied there.
     assert not (tmp_path / "report").exists()
+
+
+REWARD = """import numpy as np
+
+def compute_reward(ctx):
+    return np.zeros(len(ctx["ee_pos"])), {}
+"""
+
+
+def _with_file_reward(run_dir: Path, code: str | None, recorded: str | None = None) -> None:
+    """Make ``run_dir`` a run of a reward file: kept as the run's copy holding ``code`` (None:
+    a run from before copies were kept), its cells' checkpoints recording ``recorded`` code."""
+    config = json.loads((run_dir / "config.json").read_text())
+    write_json(run_dir / "config.json", {**config, "reward": {TASK: "/gone/reward.py"}})
+    if code is not None:
+        (run_dir / "rewards").mkdir(exist_ok=True)
+        (run_dir / "rewards" / f"{TASK}.py").write_text(code)
+    for meta in run_dir.glob("cells/*/*/*/checkpoint.json"):
+        meta.unlink()
+    if recorded is not None:
+        sha = hashlib.sha256(recorded.encode()).hexdigest()
+        for cell in run_dir.glob("cells/*/*/seed_*"):
+            write_json(cell / "checkpoint.json", {"reward": {"kind": "file", "sha256": sha}})
+
+
+@pytest.mark.parametrize(
+    ("mine", "theirs", "problem"),
+    [
+        ((REWARD, None), (REWARD, None), None),
+        ((REWARD, None), (REWARD + "# tuned\n", None), "the reward files' code differs"),
+        # A baseline run from before the copies: its checkpoints' sha256 tells.
+        ((REWARD, None), (None, REWARD), None),
+        ((REWARD, None), (None, REWARD + "# tuned\n"), "the reward files' code differs"),
+        ((REWARD, None), (None, None), "keep(s) no copy of the reward file"),
+    ],
+)
+def test_a_baseline_run_of_a_reward_file_is_compared_by_its_code(
+    run, tmp_path, mine, theirs, problem
+):
+    mine_dir = tmp_path / "mine"
+    shutil.copytree(run, mine_dir)
+    _with_file_reward(mine_dir, *mine)
+    base = _baseline_run(tmp_path)
+    _with_file_reward(base, *theirs)
+    if problem is None:
+        md = experiment_report(mine_dir, video=False, baseline_run=base).markdown.read_text()
+        assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | 60.0% [25.6%, 94.4%] |" in md
+    else:
+        with pytest.raises(ReportError, match=re.escape(problem)):
+            experiment_report(mine_dir, video=False, baseline_run=base)
 
 
 def _meta(run: Path, **a2c) -> str:

@@ -11,6 +11,7 @@ the commands that produced the run, the machine and the time. Only finished cell
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from collections.abc import Callable
@@ -63,6 +64,7 @@ from itskill.experiments.runner import (
     finished_result,
     read_run_config,
     reward_copy,
+    trained_reward_hashes,
 )
 from itskill.files import CorruptFileError, copy_whole, read_json
 from itskill.reward_contract import EXPERT
@@ -373,19 +375,30 @@ def _compare_recorded(
 def _reward_difference(task: str, a: tuple[Path, str], b: tuple[Path, str]) -> str | None:
     """Why two runs, each (directory, reward as recorded), cannot be compared on ``task`` for
     their rewards, or None if they trained it with one reward: the expert's in both, or files
-    whose copies in the runs hold the same code."""
+    of the same code (by the runs' copies, or for a run from before copies were kept, by the
+    sha256 its cells' checkpoints record)."""
     (dir_a, reward_a), (dir_b, reward_b) = a, b
     if EXPERT in (reward_a, reward_b):
         return None if reward_a == reward_b else f"{task} trained with another reward than here"
-    copies = [reward_copy(dir_a, task), reward_copy(dir_b, task)]
-    missing = [str(c) for c in copies if not c.is_file()]
-    if missing:
-        return f"{task}'s rewards cannot be compared: no copy of {', '.join(missing)}"
-    if copies[0].read_bytes() != copies[1].read_bytes():
+    hashes = [_reward_hashes(d, task) for d in (dir_a, dir_b)]
+    unknown = [str(d) for d, h in zip((dir_a, dir_b), hashes, strict=True) if not h]
+    if unknown:
         return (
-            f"{task} trained with another reward than here ({copies[1]} differs from {copies[0]})"
+            f"{task}'s rewards cannot be compared: {' and '.join(unknown)} keep(s) no copy of "
+            "the reward file, and no cell's checkpoint.json records its sha256"
         )
+    if hashes[0] != hashes[1]:
+        return f"{task} trained with another reward than here (the reward files' code differs)"
     return None
+
+
+def _reward_hashes(run_dir: Path, task: str) -> set[str]:
+    """The sha256 of the reward file ``run_dir`` trained ``task`` with: of its copy, else those
+    its cells' checkpoints record (empty if neither is there)."""
+    copy = reward_copy(run_dir, task)
+    if copy.is_file():
+        return {hashlib.sha256(copy.read_bytes()).hexdigest()}
+    return trained_reward_hashes(run_dir, task)
 
 
 def _curves(config: ExperimentConfig, run_dir: Path) -> tuple[dict, list[Cell], list[str]]:

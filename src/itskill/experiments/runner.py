@@ -231,7 +231,7 @@ def _check_rewards_unchanged(rewards: dict[str, Path], run_dir: Path) -> None:
         if copy.is_file():
             changed, version = now != copy.read_bytes(), f"that version is in {copy}"
         else:
-            trained = _trained_reward_hashes(run_dir, task)
+            trained = trained_reward_hashes(run_dir, task)
             changed = bool(trained) and hashlib.sha256(now).hexdigest() not in trained
             version = "its cells' checkpoints record another sha256"
         if changed:
@@ -241,7 +241,7 @@ def _check_rewards_unchanged(rewards: dict[str, Path], run_dir: Path) -> None:
             )
 
 
-def _trained_reward_hashes(run_dir: Path, task: str) -> set[str]:
+def trained_reward_hashes(run_dir: Path, task: str) -> set[str]:
     """The sha256 of the reward file every cell of ``task`` with a checkpoint trained with."""
     hashes = set()
     for meta in (run_dir / CELLS_DIR / task).glob("*/*/checkpoint.json"):
