@@ -172,6 +172,30 @@ def test_a_run_committed_without_its_policies_still_gets_a_report(run, tmp_path)
     assert any("no video" in n and "checkpoint.json" in n for n in files.notes)
 
 
+@pytest.mark.parametrize(
+    ("recorded_by", "said"),
+    [
+        (("itn", "no_transfer"), "every 200 env-steps, each seed on episodes of its own."),
+        ((), "the same episodes for every seed (runs from before 2026-12-07"),
+        (("itn",), "the same episodes for 3 of the runs (runs from before 2026-12-07"),
+    ],
+)
+def test_a_report_says_whether_its_seeds_had_evaluation_episodes_of_their_own(
+    run, tmp_path, recorded_by, said
+):
+    """Runs before 2026-12-07 recorded no evaluation seed: every seed used seed 0's episodes."""
+    copy = tmp_path / "copy"
+    shutil.copytree(run, copy)
+    for path in copy.glob("cells/*/*/seed_*/checkpoint.json"):
+        meta = json.loads(path.read_text())
+        meta["evaluation"] = {"every": 200, "episodes": 10}
+        if path.parent.parent.name in recorded_by:
+            meta["evaluation"]["seed"] = 20_000 + int(path.parent.name.removeprefix("seed_"))
+        path.write_text(json.dumps(meta))
+    md = " ".join(experiment_report(copy, video=False).markdown.read_text().split())
+    assert said in md
+
+
 def test_a_run_of_a_task_not_defined_here_still_gets_a_report(run, tmp_path):
     # A run made on another machine with its own task file: the report raised UnknownTaskError.
     import shutil

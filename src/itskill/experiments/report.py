@@ -497,7 +497,8 @@ def experiment_report(
         Paragraph(
             f"{len(config.tasks)} task(s) × {len(own_methods)} method(s) × {seeds} seed(s); "
             f"{config.algo.upper()}, {config.steps:,} env-steps per run, deterministic evaluation "
-            f"over {config.eval.episodes} held-out episodes every {config.eval.every:,} env-steps. "
+            f"over {config.eval.episodes} episodes every {config.eval.every:,} env-steps"
+            f"{_episodes_of_seeds(run_dir, own)}. "
             f"{finished} of {len(own)} runs finished.{where.about_baseline}"
         )
     )
@@ -713,6 +714,30 @@ def _task_section(
         runs = curves[(task, "itn")]
         seed = max(runs, key=lambda sc: (sc[1].success[-1], -sc[0]))[0]
         attention_section(doc, where.cell_dir(task, "itn", seed), task, figures, notes)
+
+
+def _episodes_of_seeds(run_dir: Path, own: list[Cell]) -> str:
+    """Whether the seeds were evaluated on episodes of their own (what the cells' checkpoints
+    record), said because a mean over seeds that shared one sample carries its luck unseen."""
+    own_episodes = shared = 0
+    for cell in own:
+        path = cell.dir(run_dir) / "checkpoint.json"
+        try:
+            meta = read_json(path) if path.is_file() else None
+        except CorruptFileError:
+            meta = None
+        evaluation = meta.get("evaluation") if isinstance(meta, dict) else None
+        if isinstance(evaluation, dict):
+            own_episodes += "seed" in evaluation
+            shared += "seed" not in evaluation
+    if not shared:
+        return ", each seed on episodes of its own" if own_episodes else ""
+    which = "every seed" if not own_episodes else f"{shared} of the runs"
+    return (
+        f", the same episodes for {which} (runs from before 2026-12-07: the interval over seeds "
+        "does not cover the luck of that sample; `itskill experiment held-out` measures the final "
+        "policies on others)"
+    )
 
 
 def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> None:
