@@ -28,7 +28,7 @@ from itskill.files import write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy, read_meta
 from itskill.rl.eval_callback import read_selection
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import HELD_OUT_SEED, evaluate
+from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
 from itskill.transfer import train_transfer
 
 
@@ -46,7 +46,7 @@ def measure(task: str, run_dir: Path, episodes: int) -> dict[str, Any]:
     spec = get_task(task)
     row: dict[str, Any] = {"run_dir": str(run_dir), "steps": read_meta(run_dir)["num_timesteps"]}
     for name, where in (("last", run_dir), ("best", run_dir / BEST_DIR)):
-        res = evaluate(spec, as_policy(where), episodes, seed=HELD_OUT_SEED, num_envs=25)
+        res = evaluate(spec, as_policy(where), episodes, seed=HELD_OUT_SEED, num_envs=HELD_OUT_ENVS)
         row[name] = {"success": res.success_rate, "ci": [res.ci_low, res.ci_high]}
     row["selection"] = read_selection(run_dir)
     row["last_training_eval"] = float(read_curve(run_dir, row["steps"]).success[-1])

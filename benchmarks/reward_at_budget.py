@@ -46,7 +46,7 @@ from itskill.files import read_json, replaced_whole, write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy
 from itskill.stats import format_rate_interval
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import HELD_OUT_SEED, evaluate
+from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
 from itskill.transfer import train_transfer
 
 THRESHOLD = 0.8
@@ -184,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
             run_dir = runs[name, s]
             curves.append(read_curve(run_dir, args.steps))
             res = evaluate(spec, as_policy(run_dir / BEST_DIR), args.held_out,
-                           seed=HELD_OUT_SEED, num_envs=25)  # fmt: skip
+                           seed=HELD_OUT_SEED, num_envs=HELD_OUT_ENVS)  # fmt: skip
             heldout.append(res.success_rate)
             stage_steps.append(res.stage_steps)
             # Copied to a temporary file replacing the target whole: an interrupted copy must not

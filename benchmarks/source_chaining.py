@@ -34,7 +34,15 @@ import numpy as np
 from itskill.files import write_json
 from itskill.rl.checkpoint import TrainedPolicy
 from itskill.tasks import get_task, make_batch_env
-from itskill.tasks.evaluate import Policy, evaluate, make_policy, noise_sigma, with_noise
+from itskill.tasks.evaluate import (
+    HELD_OUT_ENVS,
+    HELD_OUT_SEED,
+    Policy,
+    evaluate,
+    make_policy,
+    noise_sigma,
+    with_noise,
+)
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer import resolve_sources
 
@@ -118,7 +126,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("task", help="the complex target task")
     parser.add_argument("--chain", nargs="+", required=True, help="one skill name per stage")
     parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=10_000, help="held-out episodes by default")
+    parser.add_argument(
+        "--seed", type=int, default=HELD_OUT_SEED, help="held-out episodes by default"
+    )
     parser.add_argument("--target-stage", action="store_true", help="skills see the target's stage")
     parser.add_argument("--json", type=Path, help="also write the result as JSON")
     parser.add_argument(
@@ -148,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # Each run draws its noise afresh from the seed: the trace does not depend on --episodes.
     policy = with_noise(chain, args.noise, args.seed)
-    res = evaluate(spec, policy, args.episodes, args.seed, num_envs=25)
+    res = evaluate(spec, policy, args.episodes, args.seed, num_envs=HELD_OUT_ENVS)
     print(
         f"{spec.id}: chain {' -> '.join(args.chain)} "
         f"({'target' if args.target_stage else 'own'} stage"

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -20,6 +22,30 @@ EVAL_COLUMNS = (
     "env_steps", "wall_s", "success", "ci_low", "ci_high", "mean_length", "stages_done"
 )  # fmt: skip
 """``stages_done``: subtasks finished at the end of an episode, as a fraction of the task's."""
+EVAL_SEED = 20_000
+"""Seed of the evaluation episodes of a run with training seed 0 (see :func:`eval_seed`)."""
+
+
+def eval_seed(train_seed: int) -> int:
+    """The seed of the evaluation episodes of a run with training seed ``train_seed``.
+
+    A run evaluates on the same episodes every time, so its curve compares its policies on
+    equal terms, and runs of one training seed (other methods, other rewards) share them, so
+    they compare episode by episode. Across training seeds the episodes differ: a mean over
+    seeds then averages over as many episode samples as seeds. When every seed shared one
+    sample (releases before 2026-12-07), the sample's own luck moved every seed alike and the
+    interval over seeds could not show it: the final policies of four ITN peg runs (log-std -3.0)
+    scored 3.5 to 15.5 points higher on their 40 shared episodes than on 200 held-out ones
+    (docs/experiments.md).
+    """
+    return EVAL_SEED + train_seed
+
+
+def evaluation_seed(meta: Mapping[str, Any]) -> int:
+    """The seed of the evaluation episodes a run with checkpoint metadata ``meta`` uses: the
+    one it recorded, or, for a run from before the seed was recorded, :data:`EVAL_SEED` (what
+    every run used then, kept so that a resumed run's curve stays on one set of episodes)."""
+    return int((meta.get("evaluation") or {}).get("seed", EVAL_SEED))
 
 
 class CurveError(PicklableError, ValueError):

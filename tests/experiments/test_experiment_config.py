@@ -174,6 +174,15 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
                 ("num_envs = 8", "hyperparams.pick_nut_m12.num_envs", "at the top of the file"),
             )
         ),
+        # A rollout of one sample: every cell failed once the run had started.
+        (
+            (
+                "steps = 1000",
+                'steps = 1000\nalgo = "ppo"\nnum_envs = 1\n[hyperparams.pick_nut_m12]\nn_steps = 1',
+            ),
+            "hyperparams.pick_nut_m12",
+            "PPO needs 2 or more samples a rollout",
+        ),
         (
             ("every = 500", "every = 500\n[hyperparams.pick_nut_m16]\ngamma = 0.9"),
             "hyperparams.pick_nut_m16",

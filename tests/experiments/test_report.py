@@ -709,6 +709,23 @@ def test_a_baseline_run_of_a_reward_file_is_compared_by_its_code(
             experiment_report(mine_dir, video=False, baseline_run=base)
 
 
+def test_a_baseline_run_whose_seeds_shared_their_episodes_is_said(run, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(run, copy)
+    for path in copy.glob("cells/*/*/seed_*/checkpoint.json"):
+        meta = json.loads(path.read_text())
+        seed = int(path.parent.name.removeprefix("seed_"))
+        meta["evaluation"] = {"every": 200, "episodes": 10, "seed": 20_000 + seed}
+        path.write_text(json.dumps(meta))
+    old = json.loads(path.read_text())
+    old["evaluation"] = {"every": 200, "episodes": 10}
+    base = _baseline_run(tmp_path, meta=json.dumps(old))
+    md = " ".join(experiment_report(copy, video=False, baseline_run=base).markdown.read_text()
+                  .split())  # fmt: skip
+    # ITN's three seeds have their own; the baseline run's three shared seed 0's.
+    assert "the same episodes for 3 of the runs (runs from before 2026-12-07" in md
+
+
 def _meta(run: Path, **a2c) -> str:
     meta = json.loads((Cell(TASK, "itn", 0).dir(run) / "checkpoint.json").read_text())
     meta["hyperparams"]["a2c"].update(a2c)

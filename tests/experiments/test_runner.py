@@ -168,6 +168,14 @@ def test_cells_train_with_the_files_hyperparams_and_a_resume_keeps_them(toy, tmp
     more = type(config)(**{**small.__dict__, "seeds": (0, 1)})
     summary = run_experiment(more, run, "local", 1, resume=True, console=quiet())
     assert [c.name for c in summary.finished] == ["pickplace_nut_m12/no_transfer/seed_1"]
+    # A run recorded before files could name them resumes with a file that does.
+    record = json.loads((run / "config.json").read_text())
+    del record["hyperparams"]
+    (run / "config.json").write_text(json.dumps(record))
+    more = type(config)(**{**more.__dict__, "seeds": (0, 1, 2)})
+    summary = run_experiment(more, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.finished] == ["pickplace_nut_m12/no_transfer/seed_2"]
+    assert json.loads((run / "config.json").read_text())["hyperparams"] == pinned
 
 
 def test_a_no_transfer_run_resumes_with_other_sources_k_and_analyzer(toy, tmp_path):

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from replies import GOOD
 
-from itskill.reward.candidate import CandidateJob, run_candidate
+from itskill.curves import eval_seed
+from itskill.reward.candidate import CandidateJob, _train_and_measure, run_candidate
 from itskill.reward.generator import extract_code
 from itskill.reward.sandbox import SandboxConfig
 from itskill.rl.checkpoint import as_policy
-from itskill.rl.eval_callback import EVAL_ENVS, eval_seed
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import evaluate
 
@@ -82,11 +83,26 @@ def test_a_candidate_whose_evaluations_are_damaged_fails_naming_the_file(
 
 
 def test_a_candidate_whose_last_evaluation_was_cut_short_evaluates_its_final_policy(
-    tmp_path: Path,
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """On the episodes its run evaluates on: those of its training seed."""
+    job = replace(_job(tmp_path / "cand", timeout_s=300), seeds=(3,))
+    assert run_candidate(job)["status"] == "ok"
     # Killed between its last checkpoint (128) and that checkpoint's evaluation.
-    result = _rerun_with_evaluations(tmp_path, "64,1,0.2,0,1,60,0\n")
-    assert result["status"] == "ok"
-    policy = as_policy(_job(tmp_path / "cand", timeout_s=300).train_dir(0))
-    final = evaluate(get_task("pick_nut_m12"), policy, 2, eval_seed(0), num_envs=EVAL_ENVS)
+    eval_file = job.train_dir(3) / "eval.csv"
+    header = eval_file.read_text().splitlines()[0]
+    eval_file.write_text(f"{header}\n64,1,0.2,0,1,60,0\n")
+    seeds = []
+
+    def recording(spec, policy, episodes, seed, num_envs):
+        seeds.append(seed)
+        return evaluate(spec, policy, episodes, seed, num_envs)
+
+    # In this process, not the candidate's child, so that the evaluation can be watched: the
+    # trainer makes it up on resuming the finished run, or the candidate does after it.
+    monkeypatch.setattr("itskill.tasks.evaluate.evaluate", recording)
+    monkeypatch.setattr("itskill.rl.eval_callback.evaluate", recording)
+    result = _train_and_measure(job)
+    assert seeds == [eval_seed(3)]
+    final = evaluate(get_task("pick_nut_m12"), as_policy(job.train_dir(3)), 2, eval_seed(3), 25)
     assert result["runs"][0]["curve"] == [(64, 0.2), (128, final.success_rate)]

@@ -15,6 +15,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from typer.testing import CliRunner
 
 from itskill.cli import app
+from itskill.curves import EVAL_SEED
 from itskill.rl import eval_callback
 from itskill.rl.checkpoint import as_policy, best_policy_dir, load_policy
 from itskill.rl.config import HyperparamError
@@ -148,11 +149,11 @@ def test_each_training_seed_is_evaluated_on_its_own_episodes(
             TASK, "ppo", 128, seed=seed, reward=reach_reward, out=tmp_path / f"seed{seed}",
             num_envs=4, overrides=FAST_PPO, logger=QUIET, eval_every=64, eval_episodes=2,
         )  # fmt: skip
-    assert seeds == [eval_callback.EVAL_SEED] * 2 + [eval_callback.EVAL_SEED + 3] * 2
+    assert seeds == [EVAL_SEED] * 2 + [EVAL_SEED + 3] * 2
     meta = json.loads((tmp_path / "seed3" / "checkpoint.json").read_text())
-    assert meta["evaluation"] == {"every": 64, "episodes": 2, "seed": eval_callback.EVAL_SEED + 3}
+    assert meta["evaluation"] == {"every": 64, "episodes": 2, "seed": EVAL_SEED + 3}
     best = json.loads((tmp_path / "seed3" / "best" / "checkpoint.json").read_text())
-    assert best["selection"]["seed"] == eval_callback.EVAL_SEED + 3
+    assert best["selection"]["seed"] == EVAL_SEED + 3
 
 
 def test_a_run_from_before_evaluation_seeds_resumes_on_its_old_episodes(
@@ -164,12 +165,12 @@ def test_a_run_from_before_evaluation_seeds_resumes_on_its_old_episodes(
     _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
     path = out / "checkpoint.json"
     meta = json.loads(path.read_text())
-    assert meta["evaluation"].pop("seed") == eval_callback.EVAL_SEED + 1
+    assert meta["evaluation"].pop("seed") == EVAL_SEED + 1
     path.write_text(json.dumps(meta))
     seeds = _record_evaluation_seeds(monkeypatch)
     _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
-    assert seeds == [eval_callback.EVAL_SEED] * 2
-    assert json.loads(path.read_text())["evaluation"]["seed"] == eval_callback.EVAL_SEED
+    assert seeds == [EVAL_SEED] * 2
+    assert json.loads(path.read_text())["evaluation"]["seed"] == EVAL_SEED
 
 
 def test_the_learning_curves_clock_goes_on_across_a_resume_without_the_evaluations(

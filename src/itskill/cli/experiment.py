@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -90,8 +90,9 @@ def experiment_held_out(
     """Measure every finished cell's final policy on held-out episodes (seed 10,000), for the
     report to show beside the curves' last evaluations. Cells already measured are skipped."""
     from itskill.experiments.held_out import measure_held_out
+    from itskill.experiments.runner import Cell
 
-    def heard(cell, record, error) -> None:
+    def heard(cell: Cell, record: dict[str, Any] | None, error: str | None) -> None:
         if error is not None:
             err_console.print(f"{cell.name}: failed: {error}", markup=False)
         else:
@@ -101,8 +102,16 @@ def experiment_held_out(
                 markup=False,
             )
 
-    with user_errors():
-        summary = measure_held_out(run, episodes, workers, heard)
+    try:
+        with user_errors():
+            summary = measure_held_out(run, episodes, workers, heard)
+    except KeyboardInterrupt:
+        err_console.print(
+            "interrupted; the cells measured so far are kept: run the same command to measure "
+            "the others",
+            markup=False,
+        )
+        raise typer.Exit(130) from None
     console.print(
         f"{len(summary.measured)} cells measured, {len(summary.skipped)} already measured, "
         f"{len(summary.failed)} failed; `itskill report {run}` shows them",

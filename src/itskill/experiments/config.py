@@ -204,10 +204,16 @@ def _per_task(
 
 
 def _parse_hyperparams(
-    path: Path, value: Any, tasks: tuple[str, ...], algo: str, recorded: bool
+    path: Path,
+    value: Any,
+    tasks: tuple[str, ...],
+    algo: str,
+    num_envs: int | None,
+    recorded: bool,
 ) -> dict[str, dict[str, Any]]:
-    """Each task's ``[hyperparams.<task>]``, checked as training will check it (a recorded run's
-    only for its form: its tasks may not exist here)."""
+    """Each task's ``[hyperparams.<task>]``, checked with the file's ``num_envs`` as the
+    hyper-parameter loader checks them for training (a recorded run's only for its form: its
+    tasks may not exist here)."""
     tables = _typed(path, "hyperparams", value, dict)
     found: dict[str, dict[str, Any]] = {}
     for task, table in tables.items():
@@ -225,7 +231,8 @@ def _parse_hyperparams(
         if not recorded:
             spec = get_task(task)
             try:
-                load_hyperparams(spec.family, algo, overrides=table, task=spec.id)
+                with_envs = table if num_envs is None else {**table, "num_envs": num_envs}
+                load_hyperparams(spec.family, algo, overrides=with_envs, task=spec.id)
             except HyperparamError as err:
                 # Named as this file has it: algorithm fields by name, no "overrides" table.
                 if err.where.startswith("overrides."):
@@ -354,7 +361,9 @@ def parse_experiment(data: dict[str, Any], path: Path, recorded: bool = False) -
         # More retrieved and ran thousands of frozen sources in every cell (itskill.limits).
         k=_positive(path, "k", raw.get("k", 3), SOURCES_MAX),
         llm=llm,
-        hyperparams=_parse_hyperparams(path, raw.get("hyperparams", {}), tasks, algo, recorded),
+        hyperparams=_parse_hyperparams(
+            path, raw.get("hyperparams", {}), tasks, algo, num_envs, recorded
+        ),
         report=report,
         execution=execution,
     )

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from itskill.datafile import is_count, is_number
 from itskill.executors import run_jobs
 from itskill.experiments.runner import (
     CONFIG_FILE,
@@ -27,9 +28,9 @@ from itskill.experiments.runner import (
 from itskill.files import CorruptFileError, read_json, write_json
 
 HELD_OUT_FILE = "held_out.json"
-HELD_OUT_ENVS = 25
-"""Environments an evaluation steps together: the held-out episodes of a seed depend on it, and
-``itskill learn`` and the library measure with 25."""
+CHECKPOINT_META = "checkpoint.json"
+"""The cell's checkpoint record (:data:`itskill.rl.checkpoint.META_FILE`, spelled out: importing
+the rl layer would load torch for every report)."""
 
 
 @dataclass
@@ -42,9 +43,9 @@ class HeldOutSummary:
     failed: dict[Cell, str] = field(default_factory=dict)
 
 
-def read_held_out(cell_dir: Path, result: dict[str, Any]) -> dict[str, Any] | None:
-    """The cell's ``held_out.json`` if it measured the policy ``result`` (its ``result.json``)
-    describes: one written before the cell was resumed and trained on is out of date."""
+def read_held_out(cell_dir: Path) -> dict[str, Any] | None:
+    """The cell's ``held_out.json`` if it measured the policy the cell holds now: one written
+    before the cell was trained on, damaged, or missing a figure is None."""
     path = Path(cell_dir) / HELD_OUT_FILE
     if not path.is_file():
         return None
@@ -52,9 +53,24 @@ def read_held_out(cell_dir: Path, result: dict[str, Any]) -> dict[str, Any] | No
         data = read_json(path)
     except CorruptFileError:
         return None
-    if not isinstance(data, dict) or data.get("num_timesteps") != result.get("num_timesteps"):
+    if (
+        not isinstance(data, dict)
+        or data.get("num_timesteps") != _trained_steps(Path(cell_dir))
+        or not is_number(data.get("success"))
+        or not is_count(data.get("episodes"))
+    ):
         return None
     return data
+
+
+def _trained_steps(cell_dir: Path) -> int | None:
+    """The env-steps of the policy in ``cell_dir``, as its checkpoint records them."""
+    path = cell_dir / CHECKPOINT_META
+    try:
+        meta = read_json(path) if path.is_file() else None
+    except CorruptFileError:
+        return None
+    return meta.get("num_timesteps") if isinstance(meta, dict) else None
 
 
 def measure_held_out(
@@ -78,18 +94,18 @@ def measure_held_out(
         )
     config = read_run_config(run_dir)
     summary = HeldOutSummary()
-    todo: list[tuple[Cell, dict[str, Any]]] = []
-    for cell, result in load_cell_results(run_dir).items():
+    todo: list[Cell] = []
+    for cell in load_cell_results(run_dir):
         if cell.task not in config.tasks:
             continue
-        have = read_held_out(cell.dir(run_dir), result)
-        if have is not None and have.get("episodes") == episodes:
+        have = read_held_out(cell.dir(run_dir))
+        if have is not None and have["episodes"] == episodes:
             summary.skipped.append(cell)
         else:
-            todo.append((cell, result))
-    jobs = [(c.task, str(c.dir(run_dir)), episodes, r["num_timesteps"]) for c, r in todo]
+            todo.append(cell)
+    jobs = [(c.task, str(c.dir(run_dir)), episodes) for c in todo]
     for job in run_jobs(_measure_cell, jobs, "local", workers):
-        cell = todo[job.index][0]
+        cell = todo[job.index]
         if job.ok:
             write_json(cell.dir(run_dir) / HELD_OUT_FILE, job.value)
             summary.measured.append(cell)
@@ -100,16 +116,17 @@ def measure_held_out(
     return summary
 
 
-def _measure_cell(task: str, cell_dir: str, episodes: int, num_timesteps: int) -> dict[str, Any]:
+def _measure_cell(task: str, cell_dir: str, episodes: int) -> dict[str, Any]:
     # Imported in the worker: the parent process needs no torch or simulator.
-    from itskill.rl.checkpoint import as_policy
+    from itskill.rl.checkpoint import as_policy, read_meta
     from itskill.tasks import get_task
-    from itskill.tasks.evaluate import HELD_OUT_SEED, evaluate
+    from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
 
-    res = evaluate(get_task(task), as_policy(cell_dir), episodes, HELD_OUT_SEED, HELD_OUT_ENVS)
+    policy = as_policy(cell_dir)
+    res = evaluate(get_task(task), policy, episodes, HELD_OUT_SEED, HELD_OUT_ENVS)
     return {
         "policy": "final",
-        "num_timesteps": num_timesteps,
+        "num_timesteps": read_meta(cell_dir)["num_timesteps"],
         "episodes": episodes,
         "seed": HELD_OUT_SEED,
         "num_envs": HELD_OUT_ENVS,

@@ -806,12 +806,14 @@ def _train_generated(
 def _evaluate(task: str, kept: Path, episodes: int, steps: _Steps) -> dict[str, Any]:
     from itskill.rl.checkpoint import as_policy
     from itskill.tasks import get_task
-    from itskill.tasks.evaluate import HELD_OUT_SEED, evaluate
+    from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
 
     cached = steps.cached("evaluation.json", _EVALUATION_SHAPE)
     was_cached = cached is not None
     if cached is None:
-        res = evaluate(get_task(task), as_policy(kept), episodes, seed=HELD_OUT_SEED, num_envs=25)
+        res = evaluate(
+            get_task(task), as_policy(kept), episodes, seed=HELD_OUT_SEED, num_envs=HELD_OUT_ENVS
+        )
         cached = res.to_dict()
         write_json(steps.run_dir / "evaluation.json", cached)
     steps.done(

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from itskill.curves import EVAL_FILE, Curve, CurveError, read_curve
+from itskill.curves import EVAL_FILE, Curve, CurveError, eval_seed, read_curve
 from itskill.experiments.analysis import (
     Band,
     Gain,
@@ -498,7 +498,7 @@ def experiment_report(
             f"{len(config.tasks)} task(s) × {len(own_methods)} method(s) × {seeds} seed(s); "
             f"{config.algo.upper()}, {config.steps:,} env-steps per run, deterministic evaluation "
             f"over {config.eval.episodes} episodes every {config.eval.every:,} env-steps"
-            f"{_episodes_of_seeds(run_dir, own)}. "
+            f"{_episodes_of_seeds(curves, where)}. "
             f"{finished} of {len(own)} runs finished.{where.about_baseline}"
         )
     )
@@ -716,23 +716,26 @@ def _task_section(
         attention_section(doc, where.cell_dir(task, "itn", seed), task, figures, notes)
 
 
-def _episodes_of_seeds(run_dir: Path, own: list[Cell]) -> str:
-    """Whether the seeds were evaluated on episodes of their own (what the cells' checkpoints
-    record), said because a mean over seeds that shared one sample carries its luck unseen."""
-    own_episodes = shared = 0
-    for cell in own:
-        path = cell.dir(run_dir) / "checkpoint.json"
-        try:
-            meta = read_json(path) if path.is_file() else None
-        except CorruptFileError:
-            meta = None
-        evaluation = meta.get("evaluation") if isinstance(meta, dict) else None
-        if isinstance(evaluation, dict):
-            own_episodes += "seed" in evaluation
-            shared += "seed" not in evaluation
+def _episodes_of_seeds(curves: dict, where: _Runs) -> str:
+    """Whether each seed was evaluated on episodes of its own (what the finished cells'
+    checkpoints record, a baseline run's included), said because a mean over seeds that shared
+    one sample carries its luck unseen."""
+    own = shared = 0
+    for (task, method), runs in curves.items():
+        for seed, _ in runs:
+            path = where.cell_dir(task, method, seed) / "checkpoint.json"
+            try:
+                meta = read_json(path) if path.is_file() else None
+            except CorruptFileError:
+                meta = None
+            evaluation = meta.get("evaluation") if isinstance(meta, dict) else None
+            if isinstance(evaluation, dict):
+                # A run from before that was resumed records the seed it kept: seed 0's.
+                mine = evaluation.get("seed") == eval_seed(seed)
+                own, shared = own + mine, shared + (not mine)
     if not shared:
-        return ", each seed on episodes of its own" if own_episodes else ""
-    which = "every seed" if not own_episodes else f"{shared} of the runs"
+        return ", each seed on episodes of its own" if own else ""
+    which = "every seed" if not own else f"{shared} of the runs"
     return (
         f", the same episodes for {which} (runs from before 2026-12-07: the interval over seeds "
         "does not cover the luck of that sample; `itskill experiment held-out` measures the final "
@@ -748,7 +751,7 @@ def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> N
         held, last = [], []
         for seed, curve in curves.get((task, method), []):
             cell_dir = where.cell_dir(task, method, seed)
-            record = read_held_out(cell_dir, finished_result(cell_dir) or {})
+            record = read_held_out(cell_dir)
             if record is not None:
                 held.append(float(record["success"]))
                 last.append(float(curve.success[-1]))

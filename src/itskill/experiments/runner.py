@@ -291,7 +291,8 @@ def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: 
     """Refuse a resume whose file changes a setting the run's cells were trained with. The
     sources and ``k`` matter only to a run of methods that use sources, and the analyzer's
     ``llm`` only to one of methods that use its matrix: a No_Transfer run resumed to add ITN
-    may name them anew."""
+    may name them anew. A run recorded before experiment files named hyper-parameters may be
+    resumed with a file that names them."""
     from itskill.transfer import get_method
 
     have, want = old.training_settings(), new.training_settings()
@@ -300,6 +301,11 @@ def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: 
         *(() if any(m.uses_sources for m in methods) else ("sources", "k")),
         *(() if any(m.uses_prior for m in methods) else ("llm",)),
     }
+    if "hyperparams" not in read_json(run_dir / CONFIG_FILE):
+        # Recorded before files could name them: the cells trained with the packaged ones of
+        # their day, which the file may now name; a cell resumed is checked against what its
+        # checkpoint records, and the report shows the settings every cell trained with.
+        unused.add("hyperparams")
     for key in (k for k in want if k not in unused):
         mismatch = have.get(key) != want[key]
         if key in ("reward", "sources", "hyperparams"):  # per task: a task added brings its own

@@ -129,10 +129,10 @@ def run_candidate(job: CandidateJob) -> dict[str, Any]:
 
 def _train_and_measure(job: CandidateJob) -> dict[str, Any]:
     # Imported here, not at the top: the worker that only supervises the child needs none of it.
-    from itskill.curves import NoEvaluationsError, read_curve
+    from itskill.curves import NoEvaluationsError, evaluation_seed, read_curve
     from itskill.reward.feedback import component_stats, peak_success
     from itskill.rl.checkpoint import as_policy, read_meta
-    from itskill.rl.eval_callback import EVAL_ENVS, evaluation_seed
+    from itskill.rl.eval_callback import EVAL_ENVS
     from itskill.rl.logger import LoggerConfig
     from itskill.rl.train import RewardSource, train
     from itskill.tasks import get_task

@@ -26,7 +26,7 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from itskill.curves import EVAL_COLUMNS, EVAL_FILE
+from itskill.curves import EVAL_COLUMNS, EVAL_FILE, EVAL_SEED
 from itskill.rl.checkpoint import BEST_DIR, META_FILE, save_checkpoint
 from itskill.rl.clock import WallClock
 from itskill.rl.logger import drop_rows_after
@@ -71,32 +71,6 @@ def read_selection(run_dir: str | Path) -> dict[str, Any] | None:
     except (json.JSONDecodeError, KeyError, TypeError, ValueError):
         # A damaged record must not stop training: the next evaluation writes a new one.
         return None
-
-
-EVAL_SEED = 20_000
-"""Seed of the evaluation episodes of a run with training seed 0 (see :func:`eval_seed`)."""
-
-
-def eval_seed(train_seed: int) -> int:
-    """The seed of the evaluation episodes of a run with training seed ``train_seed``.
-
-    A run evaluates on the same episodes every time, so its curve compares its policies on
-    equal terms, and runs of one training seed (other methods, other rewards) share them, so
-    they compare episode by episode. Across training seeds the episodes differ: a mean over
-    seeds then averages over as many episode samples as seeds. When every seed shared one
-    sample (releases before 2026-12-07), the sample's own luck moved every seed alike and the
-    interval over seeds could not show it: the final policies of ITN's peg runs scored 3.5 to
-    15.5 points higher on their 40 shared episodes than on 200 held-out ones
-    (docs/experiments.md).
-    """
-    return EVAL_SEED + train_seed
-
-
-def evaluation_seed(meta: Mapping[str, Any]) -> int:
-    """The seed of the evaluation episodes a run with checkpoint metadata ``meta`` uses: the
-    one it recorded, or, for a run from before the seed was recorded, :data:`EVAL_SEED` (what
-    every run used then, kept so that a resumed run's curve stays on one set of episodes)."""
-    return int((meta.get("evaluation") or {}).get("seed", EVAL_SEED))
 
 
 EVAL_ENVS = 25

@@ -28,7 +28,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from itskill.curves import EVAL_FILE
+from itskill.curves import EVAL_FILE, eval_seed, evaluation_seed
 from itskill.datafile import read_toml
 from itskill.errors import PicklableError
 from itskill.files import foreign_entries, held_alone, some_of, write_json
@@ -51,8 +51,6 @@ from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, default_path,
 from itskill.rl.demos import DEMOS_FILE, warm_start
 from itskill.rl.eval_callback import (
     DeterministicEvalCallback,
-    eval_seed,
-    evaluation_seed,
     last_evaluated,
     read_selection,
     truncate_evaluations,

@@ -54,7 +54,7 @@ from itskill.skills.manifest import (
 from itskill.skills.store import SHIPPED_LIBRARY, SkillSpace
 from itskill.stats import paired_gain_p, paired_wins
 from itskill.tasks import get_task
-from itskill.tasks.evaluate import HELD_OUT_SEED, EvalResult, evaluate, with_noise
+from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, EvalResult, evaluate, with_noise
 from itskill.tasks.spec import TaskSpec
 
 DEMO_STEPS_KEY = "demo_env_steps"
@@ -128,7 +128,9 @@ def measure_skill(
     its actions (:func:`~itskill.tasks.evaluate.with_noise`), as a learner acting through it adds,
     it is no longer that figure: the success of the policy with that noise, on the same episodes."""
     policy = with_noise(as_policy(policy_dir), noise, config.eval_seed)
-    return evaluate(spec, policy, config.eval_episodes, seed=config.eval_seed, num_envs=25)
+    return evaluate(
+        spec, policy, config.eval_episodes, seed=config.eval_seed, num_envs=HELD_OUT_ENVS
+    )
 
 
 def _extra(

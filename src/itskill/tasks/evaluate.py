@@ -30,6 +30,9 @@ HELD_OUT_SEED = 10_000
 """Seed of the held-out episodes, which no training run trains or evaluates on (a run's own
 episodes come from its seed, its evaluations' from 20,000 on): the library's success rates,
 ``itskill learn``'s final figure and an experiment's held-out check are measured on them."""
+HELD_OUT_ENVS = 25
+"""Environments the held-out episodes are run in together: which episodes a seed gives depends
+on it too, so every held-out figure uses this one."""
 
 
 @runtime_checkable
