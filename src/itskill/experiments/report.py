@@ -757,14 +757,15 @@ def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> N
                 last.append(float(curve.success[-1]))
                 counts.add(int(record["episodes"]))
         if held:
-            diff = mean_interval(np.subtract(last, held))
+            mean, low, high = (100 * v for v in mean_interval(np.subtract(last, held)))
+            spread = f"(all {len(held)} seeds)" if low == high else f"[{low:+.1f}, {high:+.1f}]"
             rows.append(
                 [
                     method_label(method),
                     str(len(held)),
                     estimate(held).format(),
                     estimate(last).format(),
-                    f"{diff[0] * 100:+.1f} [{diff[1] * 100:+.1f}, {diff[2] * 100:+.1f}]",
+                    f"{mean:+.1f} {spread}",
                 ]
             )
     if not rows:
