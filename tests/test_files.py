@@ -8,7 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from itskill.files import foreign_entries, is_unusable_path, path_error_message, write_text
+from itskill.files import (
+    foreign_entries,
+    is_unusable_path,
+    path_error_message,
+    read_json_or_none,
+    write_json,
+    write_text,
+)
 
 
 def test_a_write_that_fails_keeps_the_old_file_and_leaves_no_temporary(
@@ -98,3 +105,14 @@ def test_foreign_entries_leave_out_what_the_caller_and_file_browsers_own(tmp_pat
     assert foreign_entries(tmp_path) == [".notes.tmp", "network", "notes.txt", "plan.json"]
     own = foreign_entries(tmp_path, lambda name: name in ("network", ".notes.tmp"))
     assert own == ["notes.txt", "plan.json"]
+
+
+def test_read_json_or_none_gives_none_for_a_missing_or_damaged_record(tmp_path: Path) -> None:
+    path = tmp_path / "record.json"
+    assert read_json_or_none(path) is None
+    path.write_text('{"steps": 3')
+    assert read_json_or_none(path) is None
+    path.write_bytes(b'{"name": "\xff"}')
+    assert read_json_or_none(path) is None
+    write_json(path, {"steps": 3})
+    assert read_json_or_none(path) == {"steps": 3}

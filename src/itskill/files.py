@@ -103,6 +103,17 @@ def read_json(path: Path) -> Any:
         raise CorruptFileError(path, f"not UTF-8 text (byte {err.start})") from err
 
 
+def read_json_or_none(path: Path) -> Any:
+    """The JSON in ``path``, or None if there is no such file or it cannot be read back: for
+    records a caller redoes or leaves out when they are missing or damaged."""
+    if not Path(path).is_file():
+        return None
+    try:
+        return read_json(path)
+    except CorruptFileError:
+        return None
+
+
 @dataclass(frozen=True)
 class Check:
     """A value a JSON field must hold: ``what`` it is, in words for the error, and the

@@ -25,7 +25,7 @@ from itskill.experiments.runner import (
     load_cell_results,
     read_run_config,
 )
-from itskill.files import CorruptFileError, read_json, write_json
+from itskill.files import read_json_or_none, write_json
 
 HELD_OUT_FILE = "held_out.json"
 CHECKPOINT_META = "checkpoint.json"
@@ -46,13 +46,7 @@ class HeldOutSummary:
 def read_held_out(cell_dir: Path) -> dict[str, Any] | None:
     """The cell's ``held_out.json`` if it measured the policy the cell holds now: one written
     before the cell was trained on, damaged, or missing a figure is None."""
-    path = Path(cell_dir) / HELD_OUT_FILE
-    if not path.is_file():
-        return None
-    try:
-        data = read_json(path)
-    except CorruptFileError:
-        return None
+    data = read_json_or_none(Path(cell_dir) / HELD_OUT_FILE)
     if (
         not isinstance(data, dict)
         or data.get("num_timesteps") != _trained_steps(Path(cell_dir))
@@ -65,11 +59,7 @@ def read_held_out(cell_dir: Path) -> dict[str, Any] | None:
 
 def _trained_steps(cell_dir: Path) -> int | None:
     """The env-steps of the policy in ``cell_dir``, as its checkpoint records them."""
-    path = cell_dir / CHECKPOINT_META
-    try:
-        meta = read_json(path) if path.is_file() else None
-    except CorruptFileError:
-        return None
+    meta = read_json_or_none(cell_dir / CHECKPOINT_META)
     return meta.get("num_timesteps") if isinstance(meta, dict) else None
 
 

@@ -66,7 +66,7 @@ from itskill.experiments.runner import (
     reward_copy,
     trained_reward_hashes,
 )
-from itskill.files import CorruptFileError, copy_whole, read_json
+from itskill.files import CorruptFileError, copy_whole, read_json, read_json_or_none
 from itskill.reward_contract import EXPERT
 from itskill.stats import mean_interval
 
@@ -723,11 +723,7 @@ def _episodes_of_seeds(curves: dict, where: _Runs) -> str:
     own = shared = 0
     for (task, method), runs in curves.items():
         for seed, _ in runs:
-            path = where.cell_dir(task, method, seed) / "checkpoint.json"
-            try:
-                meta = read_json(path) if path.is_file() else None
-            except CorruptFileError:
-                meta = None
+            meta = read_json_or_none(where.cell_dir(task, method, seed) / "checkpoint.json")
             evaluation = meta.get("evaluation") if isinstance(meta, dict) else None
             if isinstance(evaluation, dict):
                 # A run from before that was resumed records the seed it kept: seed 0's.

@@ -44,6 +44,7 @@ from itskill.files import (
     foreign_entries,
     held_alone,
     read_json,
+    read_json_or_none,
     some_of,
     write_json,
     write_text,
@@ -588,13 +589,7 @@ def finished_result(out: Path) -> dict[str, Any] | None:
     whole) counts as unfinished too, so ``--resume`` finishes the cell again from its checkpoint
     and the report does not count a run it cannot vouch for.
     """
-    path = Path(out) / RESULT_FILE
-    if not path.is_file():
-        return None
-    try:
-        data = read_json(path)
-    except CorruptFileError:
-        return None
+    data = read_json_or_none(Path(out) / RESULT_FILE)
     return data if isinstance(data, dict) and data.keys() >= _RESULT_KEYS else None
 
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from itskill.files import CorruptFileError, read_json, write_json
+from itskill.files import read_json_or_none, write_json
 from itskill.rl.checkpoint import POLICY_FILE, load_policy, policy_sha256, read_meta
 from itskill.tasks import get_task, make_batch_env
 from itskill.transfer.attention import STAGE_SLICE
@@ -86,17 +86,13 @@ def recorded_attention_trace(run_dir: str | Path) -> dict[str, Any]:
     run_dir = Path(run_dir)
     path, weights = run_dir / TRACE_FILE, run_dir / POLICY_FILE
     digest = policy_sha256(run_dir) if weights.is_file() else None
-    if path.is_file():
-        try:
-            saved = read_json(path)
-        except CorruptFileError:
-            saved = None
-        if (
-            isinstance(saved, dict)
-            and isinstance(saved.get("trace"), dict)
-            and (digest is None or saved.get("weights_sha256") == digest)
-        ):
-            return saved["trace"]
+    saved = read_json_or_none(path)
+    if (
+        isinstance(saved, dict)
+        and isinstance(saved.get("trace"), dict)
+        and (digest is None or saved.get("weights_sha256") == digest)
+    ):
+        return saved["trace"]
     trace = attention_trace(run_dir, episodes=1, seed=0)
     write_json(path, {"weights_sha256": digest, "episodes": 1, "seed": 0, "trace": trace})
     return trace
