@@ -18,7 +18,7 @@ Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but 
     llm = "offline" | "openai:MODEL"              (the analyzer's client)
     [hyperparams.<task>] hyper-parameters of the task's cells, on top of the packaged ones:
                  the algorithm's fields by name (learning_rate = 1e-5), policy = {...},
-                 demos = {...}, checkpoint_every, normalize_reward (docs/training.md)
+                 demos = {...}, checkpoint_every, normalize_reward (docs/experiments.md)
     [eval] every, episodes (at most 1,000,000)
     [report] threshold, fractions (strictly increasing), baseline, grid_points, paper_gain
     [execution] executor, workers (at most 1024), ray_address
