@@ -754,14 +754,14 @@ def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> N
                 counts.add(int(record["episodes"]))
         if held:
             mean, low, high = (100 * v for v in mean_interval(np.subtract(last, held)))
-            spread = f"(all {len(held)} seeds)" if low == high else f"[{low:+.1f}, {high:+.1f}]"
+            spread = f" (all {len(held)} seeds)" if low == high else f" [{low:+.1f}, {high:+.1f}]"
             rows.append(
                 [
                     method_label(method),
                     str(len(held)),
                     estimate(held).format(),
                     estimate(last).format(),
-                    f"{mean:+.1f} {spread}",
+                    f"{mean:+.1f}{spread if len(held) > 1 else ''}",
                 ]
             )
     if not rows:
