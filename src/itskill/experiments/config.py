@@ -46,7 +46,7 @@ from itskill.llm.client import UnknownModelError, model_spec
 from itskill.reward.config import check_seeds
 from itskill.reward_contract import EXPERT
 from itskill.rl.config import ALGOS, HyperparamError, load_hyperparams
-from itskill.rl.train import RewardLoadError, load_reward
+from itskill.rl.train import RESUMABLE_CHANGES, RewardLoadError, load_reward
 from itskill.tasks import UnknownTaskError, get_task
 
 AUTO = "auto"
@@ -126,12 +126,17 @@ class ExperimentConfig:
             "k": self.k,
             "llm": self.llm,
             "eval": asdict(self.eval),
-            "hyperparams": {t: self.hyperparams.get(t, {}) for t in self.tasks},
+            # What a resumed run may change does not count (how often it checkpoints).
+            "hyperparams": {t: _trained_with(self.hyperparams.get(t, {})) for t in self.tasks},
         }
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (written to the run directory as ``config.json``)."""
         return json.loads(json.dumps(asdict(self)))
+
+
+def _trained_with(table: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in table.items() if k not in RESUMABLE_CHANGES}
 
 
 # ---------------------------------------------------------------------- loading

@@ -338,7 +338,7 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
         )
 
 
-_RESUMABLE_CHANGES = ("checkpoint_every",)
+RESUMABLE_CHANGES = ("checkpoint_every",)
 """Hyper-parameters a resumed run may change: they do not touch what it learns."""
 _ADDED_SETTINGS: dict[str, Any] = {"a2c.rms_prop_tf_like": False}
 """Settings later releases added, with the value every run before them trained with: a checkpoint
@@ -355,7 +355,7 @@ def changed_settings(
     out = []
     for key, new in want.items():
         name = f"{prefix}{key}"
-        if name in _RESUMABLE_CHANGES or (key not in have and name not in _ADDED_SETTINGS):
+        if name in RESUMABLE_CHANGES or (key not in have and name not in _ADDED_SETTINGS):
             continue
         old = have[key] if key in have else _ADDED_SETTINGS[name]
         if isinstance(old, Mapping) and isinstance(new, Mapping):
