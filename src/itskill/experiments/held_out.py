@@ -18,13 +18,7 @@ from typing import Any
 
 from itskill.datafile import is_count, is_number
 from itskill.executors import run_jobs
-from itskill.experiments.runner import (
-    CONFIG_FILE,
-    Cell,
-    ExperimentRunError,
-    load_cell_results,
-    read_run_config,
-)
+from itskill.experiments.runner import Cell, load_cell_results, read_run_config
 from itskill.files import read_json_or_none, write_json
 
 HELD_OUT_FILE = "held_out.json"
@@ -77,11 +71,6 @@ def measure_held_out(
     if episodes < 1:
         raise ValueError(f"episodes must be at least 1, got {episodes}")
     run_dir = Path(run_dir)
-    if not (run_dir / CONFIG_FILE).is_file():
-        raise ExperimentRunError(
-            f"{run_dir}: not an experiment run directory (no {CONFIG_FILE}); give the directory "
-            "`itskill experiment run` trained in"
-        )
     config = read_run_config(run_dir)
     summary = HeldOutSummary()
     todo: list[Cell] = []

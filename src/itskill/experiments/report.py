@@ -444,20 +444,15 @@ def experiment_report(
     is measured (:func:`_baseline_runs` says what must match).
     """
     run_dir = Path(run_dir)
-    if not (run_dir / CONFIG_FILE).is_file():
-        raise ReportError(
-            f"{run_dir}: not an experiment run directory (no {CONFIG_FILE}); "
-            "run `itskill experiment run FILE.toml` first"
-        )
+    try:
+        config = read_run_config(run_dir)
+    except ExperimentRunError as err:
+        raise ReportError(str(err)) from err
     out = Path(out) if out else run_dir
     outside = out.resolve() != run_dir.resolve()
     if outside:
         _check_out(run_dir, out)
     figures, videos = out / FIGURES_DIR, out / VIDEOS_DIR
-    try:
-        config = read_run_config(run_dir)
-    except ExperimentRunError as err:
-        raise ReportError(str(err)) from err
     # Read before anything is written: a copy that cannot be shown must leave no half report.
     toml_path = run_dir / EXPERIMENT_FILE
     toml_text = _experiment_text(toml_path) if toml_path.is_file() else None

@@ -274,8 +274,13 @@ def read_run_config(run_dir: Path) -> ExperimentConfig:
     """The configuration recorded in an experiment run directory; :class:`ExperimentRunError`
     if ``run_dir/config.json`` is another kind of run's (a reward search's), damaged, or holds a
     value an experiment file could not have (every field is checked as the file's were: the
-    report formats them, and ``report.threshold = "x"`` failed deep in it)."""
+    report formats them, and ``report.threshold = "x"`` failed deep in it), or missing."""
     path = run_dir / CONFIG_FILE
+    if not path.is_file():
+        raise ExperimentRunError(
+            f"{run_dir}: not an experiment run directory (no {CONFIG_FILE}); "
+            "run `itskill experiment run FILE.toml` first"
+        )
     data = read_json(path)
     kind = data.get("kind") if isinstance(data, dict) else None
     if kind is not None:
