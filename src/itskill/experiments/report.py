@@ -45,7 +45,7 @@ from itskill.experiments.document import (
     Video,
     write_document,
 )
-from itskill.experiments.held_out import HELD_OUT_FILE, read_held_out
+from itskill.experiments.held_out import CHECKPOINT_META, HELD_OUT_FILE, read_held_out
 from itskill.experiments.learn_layout import best_reward_file, policy_dir, transfer_dir
 from itskill.experiments.plots import method_label, plot_attention, plot_learning_curves
 from itskill.experiments.provenance import Sessions, machine_facts, now
@@ -82,7 +82,7 @@ CELL_FILES = (
     ERROR_FILE,
     EVAL_FILE,
     "metrics.csv",
-    "checkpoint.json",
+    CHECKPOINT_META,
     "transfer.json",
     TRACE_FILE,
     HELD_OUT_FILE,
@@ -604,9 +604,9 @@ def _pending_line(cell: Cell, run_dir: Path) -> str:
             f"{cell.name}: its {RESULT_FILE} cannot be read (damaged or edited), so the run is not "
             "counted; `itskill experiment run ... --resume` finishes it again from its checkpoint"
         )
-    if (out / "checkpoint.json").is_file():
+    if (out / CHECKPOINT_META).is_file():
         try:
-            steps = read_json(out / "checkpoint.json").get("num_timesteps", 0)
+            steps = read_json(out / CHECKPOINT_META).get("num_timesteps", 0)
         except CorruptFileError:
             return f"{cell.name}: in progress (its checkpoint.json cannot be read)"
         return f"{cell.name}: in progress ({steps:,} env-steps checkpointed)"
@@ -718,7 +718,7 @@ def _episodes_of_seeds(curves: dict, where: _Runs) -> str:
     own = shared = 0
     for (task, method), runs in curves.items():
         for seed, _ in runs:
-            meta = read_json_or_none(where.cell_dir(task, method, seed) / "checkpoint.json")
+            meta = read_json_or_none(where.cell_dir(task, method, seed) / CHECKPOINT_META)
             evaluation = meta.get("evaluation") if isinstance(meta, dict) else None
             if isinstance(evaluation, dict):
                 # A run from before that was resumed records the seed it kept: seed 0's.
