@@ -66,6 +66,24 @@ def test_hyperparams_a_file_names_are_kept_and_recorded(tmp_path):
     assert old.training_settings()["hyperparams"] == {"pick_nut_m12": {}}
 
 
+def test_transfer_settings_a_file_names_are_on_top_of_the_packaged_ones(tmp_path):
+    from itskill.transfer import load_transfer_config
+
+    table = "[transfer.pst]\nkeep = 2\n[transfer.attention]\nprior_weight = 0.25\n"
+    config = load_experiment(write(tmp_path, MINIMAL + table))
+    assert config.transfer == {"pst": {"keep": 2}, "attention": {"prior_weight": 0.25}}
+    packaged = load_transfer_config()
+    settings = config.transfer_config()
+    assert (settings.pst_keep, settings.prior_weight) == (2, 0.25)
+    assert settings.residual == packaged.residual and settings.k == packaged.k
+    assert config.training_settings()["transfer"] == config.transfer
+    assert parse_experiment(config.to_dict(), tmp_path / "config.json", recorded=True) == config
+    # A run recorded before files could name them trained with the packaged ones.
+    record = {k: v for k, v in config.to_dict().items() if k != "transfer"}
+    old = parse_experiment(record, tmp_path / "config.json", recorded=True)
+    assert old.transfer == {} and old.transfer_config() == packaged
+
+
 def test_a_baseline_trained_in_another_run_may_be_named_without_its_method(tmp_path):
     # Refused as "not one of the methods": an experiment of ITN alone, its baseline from a run
     # of it given to the report (--baseline-run), could not name it.
@@ -193,6 +211,20 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
             "hyperparams.pick_nut_m12",
             "expected a table",
         ),
+        # As transfer.toml's are checked, named as this file has them.
+        *(
+            (("every = 500", f"every = 500\n{text}"), where, problem)
+            for text, where, problem in (
+                ("[transfer.pst]\nkeep = 0", "transfer.pst.keep", "expected at least 1"),
+                ("[transfer.head]\nresidual = 1", "transfer.head.residual", "a boolean"),
+                ("[transfer.fusion]\nwidth = [8]", "transfer.fusion.width", "unknown field"),
+                ("[transfer.pts]\nkeep = 2", "transfer.pts", "unknown table"),
+                ("[transfer]\npst = 2", "transfer.pst", "expected a table"),
+                # The file's own k says how many auto retrieves: two places to say it.
+                ("[transfer.sources]\nk = 2", "transfer.sources.k", "set k at the top"),
+            )
+        ),
+        (("steps = 1000", "steps = 1000\ntransfer = 2"), "transfer", "expected a table"),
     ],
 )
 def test_invalid_fields_are_named(tmp_path, edit, where, problem):

@@ -136,14 +136,25 @@ def test_report_shows_the_settings_runs_trained_with_and_where_they_differ(run, 
     meta = json.loads(meta_path.read_text())
     meta["hyperparams"]["a2c"]["learning_rate"] = 3e-5
     meta_path.write_text(json.dumps(meta))
+    # The transfer settings as each cell's transfer.json records them (ITN seed 0's alone has
+    # one in the shared run), those its method uses: PST's keep is not ITN's.
+    record = json.loads((Cell(TASK, "itn", 0).dir(mixed) / "transfer.json").read_text())
+    record["config"]["prior_weight"] = 0.25
+    write_json(Cell(TASK, "itn", 1).dir(mixed) / "transfer.json", record)
     same = experiment_report(run, tmp_path / "same", video=False).markdown.read_text()
     assert "### Training settings" in same
     assert "| algorithm | a2c |" in same and "| n_steps | 8 |" in same
     assert "| learning_rate | 0.0007 |" in same
+    assert "| attention: weight of the analyzer's prior | 0.5 |" in same
+    assert "| source-action residual | on |" in same and "| fusion: hidden widths | none |" in same
+    assert "PST: sources kept" not in same
     md = experiment_report(mixed, tmp_path / "report", video=False).markdown.read_text()
     assert (
         "| learning_rate | 0.0007 (ITN seed 0, ITN seed 1, ITN seed 2, No_Transfer seed 0, "
         "No_Transfer seed 2); 3e-05 (No_Transfer seed 1) |" in md
+    )
+    assert (
+        "| attention: weight of the analyzer's prior | 0.5 (ITN seed 0); 0.25 (ITN seed 1) |" in md
     )
 
 

@@ -181,6 +181,42 @@ def test_cells_train_with_the_files_hyperparams_and_a_resume_keeps_them(toy, tmp
     assert json.loads((run / "config.json").read_text())["hyperparams"] == pinned
 
 
+def test_cells_train_with_the_files_transfer_settings_and_a_resume_keeps_them(toy, tmp_path):
+    config, _ = toy
+    run = tmp_path / "run"
+    weighted = {"attention": {"prior_weight": 0.25}}
+    small = type(config)(**{**config.__dict__, "methods": ("itn",), "seeds": (0,),
+                            "transfer": weighted})  # fmt: skip
+    run_experiment(small, run, "local", 1, console=quiet())
+    record = json.loads(
+        (Cell("pickplace_nut_m12", "itn", 0).dir(run) / "transfer.json").read_text()
+    )
+    assert record["config"]["prior_weight"] == 0.25
+    assert json.loads((run / "config.json").read_text())["transfer"] == weighted
+    packaged = type(config)(**{**small.__dict__, "transfer": {}})
+    with pytest.raises(ExperimentRunError, match="transfer="):
+        run_experiment(packaged, run, "local", 1, resume=True, console=quiet())
+    # A run recorded before files could name them resumes with a file that does.
+    recorded = json.loads((run / "config.json").read_text())
+    del recorded["transfer"]
+    (run / "config.json").write_text(json.dumps(recorded))
+    summary = run_experiment(small, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.skipped] == ["pickplace_nut_m12/itn/seed_0"]
+
+
+def test_pst_keeping_as_many_as_the_file_names_is_refused_before_any_cell(tmp_path):
+    from itskill.experiments.config import ExperimentConfigError
+
+    path = tmp_path / "toy.toml"
+    named = '[sources]\npickplace_nut_m12 = ["pick_nut_m12", "place_nut_m12"]\n'
+    path.write_text(TOY.replace('["itn", "no_transfer"]', '["pst"]') + named
+                    + "[transfer.pst]\nkeep = 2\n")  # fmt: skip
+    run = tmp_path / "run"
+    with pytest.raises(ExperimentConfigError, match="PST keeps 2 of the 2"):
+        run_experiment(load_experiment(path), run, "local", 1, source_file=path, console=quiet())
+    assert not (run / "config.json").exists()
+
+
 def test_a_no_transfer_run_resumes_with_other_sources_k_and_analyzer(toy, tmp_path):
     """Its cells never used them, so resuming it to add ITN may name them anew; the ITN run
     then refuses another k."""

@@ -19,6 +19,8 @@ Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but 
     [hyperparams.<task>] hyper-parameters of the task's cells, on top of the packaged ones:
                  the algorithm's fields by name (learning_rate = 1e-5), policy = {...},
                  demos = {...}, checkpoint_every, normalize_reward (docs/experiments.md)
+    [transfer] settings of the transfer methods, on top of the packaged transfer.toml, in its
+                 tables: [transfer.pst] keep = 2, [transfer.attention] prior_weight = 0.3, ...
     [eval] every, episodes (at most 1,000,000)
     [report] threshold, fractions (strictly increasing), baseline, grid_points, paper_gain
     [execution] executor, workers (at most 1024), ray_address
@@ -30,7 +32,7 @@ import itertools
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from itskill.datafile import DataFileError, check_positive, check_table, check_type, read_toml
 from itskill.executors import EXECUTORS
@@ -48,6 +50,9 @@ from itskill.reward_contract import EXPERT
 from itskill.rl.config import ALGOS, HyperparamError, load_hyperparams
 from itskill.rl.train import RESUMABLE_CHANGES, RewardLoadError, load_reward
 from itskill.tasks import UnknownTaskError, get_task
+
+if TYPE_CHECKING:
+    from itskill.transfer.config import TransferConfig
 
 AUTO = "auto"
 MAX_NAME_BYTES = 100
@@ -111,6 +116,9 @@ class ExperimentConfig:
     """Task -> the hyper-parameters its cells change (``overrides`` of
     :func:`itskill.rl.config.load_hyperparams`): a file that names them trains the same way
     after the packaged defaults change."""
+    transfer: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """The ``[transfer]`` tables, as ``transfer.toml`` has them (``{"pst": {"keep": 2}}``):
+    the settings of the transfer methods the cells change (:meth:`transfer_config`)."""
     description: str = ""
     report: ReportSettings = field(default_factory=ReportSettings)
     execution: ExecutionSettings = field(default_factory=ExecutionSettings)
@@ -128,7 +136,15 @@ class ExperimentConfig:
             "eval": asdict(self.eval),
             # What a resumed run may change does not count (how often it checkpoints).
             "hyperparams": {t: _trained_with(self.hyperparams.get(t, {})) for t in self.tasks},
+            "transfer": self.transfer,
         }
+
+    def transfer_config(self) -> TransferConfig:
+        """The settings the cells' transfer methods train with: the packaged ``transfer.toml``
+        with the file's ``[transfer]`` tables on top (checked when the file was loaded)."""
+        from itskill.transfer.config import load_transfer_config, parse_transfer_config
+
+        return parse_transfer_config(self.transfer, "[transfer]", base=load_transfer_config())
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (written to the run directory as ``config.json``)."""
@@ -142,7 +158,7 @@ def _trained_with(table: dict[str, Any]) -> dict[str, Any]:
 # ---------------------------------------------------------------------- loading
 _TOP = {
     "name", "description", "tasks", "methods", "seeds", "algo", "steps", "num_envs", "reward",
-    "sources", "k", "llm", "hyperparams", "eval", "report", "execution",
+    "sources", "k", "llm", "hyperparams", "transfer", "eval", "report", "execution",
 }  # fmt: skip
 
 
@@ -245,6 +261,23 @@ def _parse_hyperparams(
                 raise ExperimentConfigError(path, where, err.problem) from err
         found[task] = table
     return found
+
+
+def _parse_transfer(path: Path, value: Any) -> dict[str, dict[str, Any]]:
+    """The ``[transfer]`` tables, checked as ``transfer.toml``'s are, but for how many sources
+    ``auto`` retrieves, which is the file's ``k``."""
+    from itskill.transfer.config import TransferConfigError, parse_transfer_config
+
+    tables = _typed(path, "transfer", value, dict)
+    if "k" in tables.get("sources", {}):
+        raise ExperimentConfigError(
+            path, "transfer.sources.k", "set k at the top of the file (how many auto retrieves)"
+        )
+    try:
+        parse_transfer_config(tables, path)
+    except TransferConfigError as err:
+        raise ExperimentConfigError(path, f"transfer.{err.where}", err.problem) from err
+    return tables
 
 
 def _check_reward_file(path: Path, where: str, file: Path, task: str) -> None:
@@ -369,6 +402,7 @@ def parse_experiment(data: dict[str, Any], path: Path, recorded: bool = False) -
         hyperparams=_parse_hyperparams(
             path, raw.get("hyperparams", {}), tasks, algo, num_envs, recorded
         ),
+        transfer=_parse_transfer(path, raw.get("transfer", {})),
         report=report,
         execution=execution,
     )

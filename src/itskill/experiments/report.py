@@ -772,6 +772,38 @@ def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> N
     )
 
 
+_TRANSFER_SETTING_LABELS = {
+    "pst_keep": "PST: sources kept",
+    "attention_hidden": "attention: width of each source's MLP",
+    "prior_weight": "attention: weight of the analyzer's prior",
+    "fusion_hidden": "fusion: hidden widths",
+    "residual": "source-action residual",
+}
+
+
+def _transfer_settings(cell_dir: Path, method: str, seed: int, notes: list[str]) -> dict[str, Any]:
+    """The transfer settings a cell's ``transfer.json`` records (``transfer.toml``'s, with the
+    experiment file's ``[transfer]`` on top), those its method uses, labelled for the table."""
+    from itskill.rl.checkpoint import CheckpointError
+    from itskill.transfer.train import TRANSFER_FILE, network_settings, read_transfer
+
+    if not (cell_dir / TRANSFER_FILE).is_file():
+        return {}
+    try:
+        record = read_transfer(cell_dir)
+    except CheckpointError as err:
+        notes.append(f"transfer settings of {method_label(method)} seed {seed}: {err}")
+        return {}
+    shown = {True: "on", False: "off"}
+    return {
+        _TRANSFER_SETTING_LABELS[name]: (
+            ", ".join(map(str, value)) or "none" if isinstance(value, list)
+            else shown.get(value, value) if isinstance(value, bool) else value
+        )
+        for name, value in network_settings(record).items()
+    }  # fmt: skip
+
+
 def _settings_section(
     doc: Document, task: str, curves: dict, where: _Runs, notes: list[str]
 ) -> None:
@@ -799,6 +831,7 @@ def _settings_section(
                 "environments": hp["num_envs"],
                 "initial action log-std": hp["policy"]["log_std_init"],
                 **hp[saved["algo"]],
+                **_transfer_settings(where.cell_dir(task, method, seed), method, seed, notes),
             }
             for key, value in settings.items():
                 shown = f"{value:g}" if isinstance(value, float) else str(value)
@@ -818,7 +851,9 @@ def _settings_section(
         ["setting", "value"],
         rows,
         "as recorded in each finished run's checkpoint.json (the packaged hyper-parameters with "
-        "the task's own table; itskill/rl/data/hyperparams.toml)",
+        "the task's own table; itskill/rl/data/hyperparams.toml) and, for the methods with "
+        "sources, its transfer.json (itskill/transfer/data/transfer.toml with the experiment "
+        "file's [transfer])",
     )
 
 

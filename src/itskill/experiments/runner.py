@@ -22,7 +22,7 @@ import hashlib
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -50,6 +50,9 @@ from itskill.files import (
     write_text,
 )
 from itskill.reward_contract import EXPERT
+
+if TYPE_CHECKING:
+    from itskill.transfer.config import TransferConfig
 
 CELLS_DIR = "cells"
 RESULT_FILE = "result.json"
@@ -108,6 +111,8 @@ class CellSettings:
     llm_cache: str
     hyperparams: dict[str, Any] = field(default_factory=dict)
     """The experiment file's ``[hyperparams.<task>]`` for the cell's task."""
+    transfer: TransferConfig | None = None
+    """The transfer methods' settings (None: the packaged ``transfer.toml``)."""
 
 
 def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
@@ -138,6 +143,7 @@ def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
         client=client,
         progress=False,
         overrides=settings.hyperparams,
+        config=settings.transfer,
     )
     curve = read_curve(out, settings.steps)
     hit = time_to_threshold([curve], settings.threshold)
@@ -297,8 +303,8 @@ def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: 
     """Refuse a resume whose file changes a setting the run's cells were trained with. The
     sources and ``k`` matter only to a run of methods that use sources, and the analyzer's
     ``llm`` only to one of methods that use its matrix: a No_Transfer run resumed to add ITN
-    may name them anew. A run recorded before experiment files named hyper-parameters may be
-    resumed with a file that names them."""
+    may name them anew. A run recorded before experiment files named hyper-parameters or
+    transfer settings may be resumed with a file that names them."""
     from itskill.transfer import get_method
 
     have, want = old.training_settings(), new.training_settings()
@@ -307,11 +313,11 @@ def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: 
         *(() if any(m.uses_sources for m in methods) else ("sources", "k")),
         *(() if any(m.uses_prior for m in methods) else ("llm",)),
     }
-    if "hyperparams" not in read_json(run_dir / CONFIG_FILE):
-        # Recorded before files could name them: the cells trained with the packaged ones of
-        # their day, which the file may now name; a cell resumed is checked against what its
-        # checkpoint records, and the report shows the settings every cell trained with.
-        unused.add("hyperparams")
+    recorded = read_json(run_dir / CONFIG_FILE)
+    # Recorded before files could name them: the cells trained with the packaged ones of their
+    # day, which the file may now name; a cell resumed is checked against what its checkpoint
+    # and transfer record hold, and the report shows the settings every cell trained with.
+    unused.update(key for key in ("hyperparams", "transfer") if key not in recorded)
     for key in (k for k in want if k not in unused):
         mismatch = have.get(key) != want[key]
         if key in ("reward", "sources", "hyperparams"):  # per task: a task added brings its own
@@ -359,7 +365,7 @@ def resolve_all_sources(
     :class:`ExperimentConfigError` for sources resolved now, an :class:`ExperimentRunError` for
     those the run stored.
     """
-    from itskill.transfer import get_method, load_transfer_config, resolve_sources
+    from itskill.transfer import get_method, resolve_sources
     from itskill.transfer.sources import SourceError
 
     path = run_dir / SOURCES_FILE
@@ -373,14 +379,18 @@ def resolve_all_sources(
         )
     if not any(get_method(m).uses_sources for m in config.methods):
         return found
-    transfer_config = load_transfer_config()
+    transfer_config = config.transfer_config()
     for task in config.tasks:
         wanted = config.sources.get(task, AUTO)
         stored = task in found
         if not stored:
             try:
                 chosen = resolve_sources(
-                    task, wanted if wanted == AUTO else list(wanted), k=config.k
+                    task,
+                    wanted if wanted == AUTO else list(wanted),
+                    k=config.k,
+                    distinct_actions=transfer_config.distinct_actions,
+                    min_success=transfer_config.min_success,
                 )
             except SourceError as err:
                 if wanted == AUTO:
@@ -512,6 +522,7 @@ def _run(
     for cell in todo:
         # A failure of an earlier session is retried now: the report must not call it failed.
         (cell.dir(run_dir) / ERROR_FILE).unlink(missing_ok=True)
+    transfer = config.transfer_config()
     jobs = [
         (
             cell,
@@ -527,6 +538,7 @@ def _run(
                 threshold=config.report.threshold,
                 llm_cache=str(run_dir / "llm_cache"),
                 hyperparams=config.hyperparams.get(cell.task, {}),
+                transfer=transfer,
             ),
             cell.dir(run_dir),
         )

@@ -1,7 +1,8 @@
 """Settings of the transfer methods: one dataclass, defaults in ``data/transfer.toml``.
 
 The packaged file holds the defaults; :func:`load_transfer_config` reads it (or a user's file of the
-same shape) and checks every field, reporting the file, the field and what was expected
+same shape; :func:`parse_transfer_config` such tables from elsewhere, an experiment file's
+``[transfer]``) and checks every field, reporting the file, the field and what was expected
 (:class:`TransferConfigError`).
 """
 
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import numbers
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -135,7 +136,15 @@ def default_path() -> Path:
 def load_transfer_config(path: str | Path | None = None) -> TransferConfig:
     """The settings in ``path`` (default: the packaged ``transfer.toml``), every field checked."""
     path = Path(path) if path is not None else default_path()
-    data = read_toml(path, TransferConfigError)
+    return parse_transfer_config(read_toml(path, TransferConfigError), path)
+
+
+def parse_transfer_config(
+    data: dict[str, Any], path: str | Path, base: TransferConfig | None = None
+) -> TransferConfig:
+    """``data``, tables in ``transfer.toml``'s shape, on top of ``base`` (default: the
+    dataclass's defaults): every field checked, a :class:`TransferConfigError` naming ``path``,
+    the field as ``data`` has it (``pst.keep``) and what was expected."""
     defaults = {f.name: f.default for f in fields(TransferConfig)}
     values: dict[str, Any] = {}
     check_table(path, "", data, TransferConfigError, _LAYOUT, "table")
@@ -152,4 +161,4 @@ def load_transfer_config(path: str | Path | None = None) -> TransferConfig:
                 raise TransferConfigError(
                     path, f"{table}.{key}", f"expected {want}, got {values[name]!r}"
                 )
-    return TransferConfig(**values)
+    return replace(base or TransferConfig(), **values)

@@ -34,26 +34,35 @@ def all_sources(sources: list[S], config: TransferConfig) -> list[S]:
 @dataclass(frozen=True)
 class Method:
     """A transfer method: its policy class, whether it uses sources and the analyzer's matrix,
-    and which of the resolved sources it keeps."""
+    which of the resolved sources it keeps, and the :class:`TransferConfig` fields that shape
+    its network or its choice among them (``settings``, shown by the experiment report)."""
 
     name: str
     summary: str
     policy_class: type[ActorCriticPolicy]
     uses_sources: bool
     uses_prior: bool
+    settings: tuple[str, ...] = ()
     select: Callable[[list[Any], TransferConfig], list[Any]] = all_sources
 
+
+_ATTENTION = ("attention_hidden", "prior_weight")
+_FUSION = ("fusion_hidden", "residual")
 
 METHODS: dict[str, Method] = {
     m.name: m
     for m in (
-        Method("itn", "ITN: intelligent attention + feature fusion", ITNPolicy, True, True),
-        Method("nia", "ITN with the analyzer's fixed contributions", NIAPolicy, True, True),
-        Method("dfs", "source features summed into the target's", DFSPolicy, True, False),
-        Method("pst", "ITN over a subset of the sources", ITNPolicy, True, True, select_sources),
+        Method("itn", "ITN: intelligent attention + feature fusion", ITNPolicy, True, True,
+               (*_ATTENTION, *_FUSION)),
+        Method("nia", "ITN with the analyzer's fixed contributions", NIAPolicy, True, True,
+               _FUSION),
+        Method("dfs", "source features summed into the target's", DFSPolicy, True, False,
+               ("residual",)),
+        Method("pst", "ITN over a subset of the sources", ITNPolicy, True, True,
+               ("pst_keep", *_ATTENTION, *_FUSION), select_sources),
         Method("no_transfer", "the target network alone", StagedActorCriticPolicy, False, False),
     )
-}
+}  # fmt: skip
 
 
 def get_method(name: str) -> Method:

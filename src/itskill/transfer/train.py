@@ -129,6 +129,15 @@ def read_transfer(run_dir: str | Path) -> dict[str, Any]:
 _LEGACY_CONFIG = {"residual": False}
 
 
+def network_settings(record: dict[str, Any]) -> dict[str, Any]:
+    """The transfer settings a run's ``record`` (:func:`read_transfer`) trained with that shape
+    its method's network or its choice of sources (:attr:`Method.settings`), by
+    :class:`TransferConfig` field; a record from before a setting existed has the value its run
+    trained with."""
+    config = {**_LEGACY_CONFIG, **record["config"]}
+    return {name: config[name] for name in get_method(record["method"]).settings if name in config}
+
+
 def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
     old = {**old, "config": {**_LEGACY_CONFIG, **old["config"]}}
     keys = ("target", "method", "algo", "seed", "sources_request", "k")
