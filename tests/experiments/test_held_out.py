@@ -1,4 +1,4 @@
-"""The held-out check: each finished cell's final policy on episodes no run saw, once."""
+"""The held-out check: each finished cell's final or best policy on episodes no run saw, once."""
 
 from __future__ import annotations
 
@@ -56,6 +56,29 @@ def test_final_policies_are_measured_on_held_out_episodes_once(run: Path) -> Non
     assert [c.seed for c in measure_held_out(run, 4, workers=1).measured] == [0, 1]
 
 
+def test_best_policies_are_measured_beside_the_final_ones(run: Path) -> None:
+    summary = measure_held_out(run, 2, workers=1, policy="best")
+    cells = [Cell(TASK, "no_transfer", s) for s in (0, 1)]
+    assert sorted(summary.measured, key=lambda c: c.seed) == cells and not summary.failed
+    for cell in cells:
+        best = cell.dir(run) / "best"
+        record = json.loads((best / HELD_OUT_FILE).read_text())
+        again = evaluate(get_task(TASK), as_policy(best), 2, HELD_OUT_SEED, 25)
+        assert record["policy"] == "best" and record["success"] == again.success_rate
+        assert (
+            record["num_timesteps"]
+            == json.loads((best / "checkpoint.json").read_text())["num_timesteps"]
+        )
+        assert not (cell.dir(run) / HELD_OUT_FILE).exists()  # the final policy is not measured
+    # A cell that kept no best policy fails by name; the final policies are another check.
+    shutil.rmtree(cells[1].dir(run) / "best")
+    again = measure_held_out(run, 3, workers=1, policy="best")
+    assert again.measured == [cells[0]] and "no best policy kept" in again.failed[cells[1]]
+    assert [c.seed for c in measure_held_out(run, 3, workers=1).measured] == [0, 1]
+    with pytest.raises(ValueError, match="unknown policy 'worst'; expected one of final, best"):
+        measure_held_out(run, 3, policy="worst")
+
+
 def test_a_cell_without_its_weights_fails_by_name_and_the_others_are_measured(
     run: Path, tmp_path: Path
 ) -> None:
@@ -76,26 +99,39 @@ def test_a_directory_that_is_not_a_run_is_refused(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "not an experiment run directory" in result.output
 
 
-def test_the_report_sets_held_out_success_beside_the_last_evaluation(
+def test_the_report_sets_held_out_success_beside_the_evaluation_of_each_policy(
     run: Path, tmp_path: Path
 ) -> None:
-    for seed, (held, last) in enumerate(((0.5, 0.75), (0.25, 0.75))):
+    # Each seed: evaluated at 90% at 64 env-steps (which chose its best policy), 75% at the end.
+    for seed, held in enumerate((0.5, 0.25)):
         cell = Cell(TASK, "no_transfer", seed).dir(run)
         steps = json.loads((cell / "result.json").read_text())["num_timesteps"]
-        rows = (cell / "eval.csv").read_text().splitlines()
-        (cell / "eval.csv").write_text("\n".join([*rows[:-1], _with_success(rows[-1], last)]))
+        header, *rows = (cell / "eval.csv").read_text().splitlines()
+        chose, last = _with(rows[-1], 64, 0.9), _with(rows[-1], steps, 0.75)
+        (cell / "eval.csv").write_text("\n".join([header, chose, last]) + "\n")
         write_json(cell / HELD_OUT_FILE, {"success": held, "episodes": 200,
                                           "num_timesteps": steps})  # fmt: skip
+        best = cell / "best"
+        meta = json.loads((best / "checkpoint.json").read_text())
+        write_json(best / "checkpoint.json", {**meta, "num_timesteps": 64})
+        write_json(best / HELD_OUT_FILE, {"success": 0.0, "episodes": 200, "num_timesteps": 64})
     md = experiment_report(run, tmp_path / "report", video=False).markdown.read_text()
-    assert "### Final policies on held-out episodes" in md
-    # Held out 50% and 25% (mean 37.5%); last evaluation 75% twice: 37.5 points higher.
-    assert "| No_Transfer | 2 | 37.5% [" in md and "| 75.0% (all 2 seeds) | +37.5 [" in md
+    assert "### Policies on held-out episodes" in md
+    # Final: held out 50% and 25% (mean 37.5%); last evaluation 75% twice: 37.5 points higher.
+    assert "| No_Transfer | final | 2 | 37.5% [" in md and "| 75.0% (all 2 seeds) | +37.5 [" in md
+    # Best: held out 0% twice against the 90% that chose it.
+    assert "| No_Transfer | best | 2 | 0.0% (all 2 seeds) | 90.0% (all 2 seeds) | +90.0 (all" in md
     assert "on 200 episodes no run trains or evaluates on" in md
     # Copied with the report, which can be written again from its copy.
-    assert (Cell(TASK, "no_transfer", 0).dir(tmp_path / "report") / HELD_OUT_FILE).is_file()
+    copy = tmp_path / "report"
+    assert (Cell(TASK, "no_transfer", 0).dir(copy) / HELD_OUT_FILE).is_file()
+    assert (Cell(TASK, "no_transfer", 0).dir(copy) / "best" / HELD_OUT_FILE).is_file()
+    again = experiment_report(copy, copy, video=False).markdown.read_text()
+    assert "| No_Transfer | best | 2 | 0.0% (all 2 seeds) | 90.0% (all 2 seeds) |" in again
 
 
-def _with_success(row: str, success: float) -> str:
+def _with(row: str, steps: int, success: float) -> str:
+    """An eval.csv row at ``steps`` env-steps with ``success``."""
     fields = row.split(",")
-    fields[2] = str(success)
+    fields[0], fields[2] = str(steps), str(success)
     return ",".join(fields)

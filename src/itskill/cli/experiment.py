@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from enum import Enum
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -77,6 +78,13 @@ def experiment_run(
         raise typer.Exit(1)
 
 
+class PolicyChoice(str, Enum):
+    """Which of a cell's policies ``held-out`` measures (:data:`held_out.POLICY_DIRS`)."""
+
+    final = "final"
+    best = "best"
+
+
 @experiment_app.command("held-out")
 def experiment_held_out(
     run: Annotated[Path, typer.Argument(help="An experiment run directory.")],
@@ -86,9 +94,16 @@ def experiment_held_out(
     workers: Annotated[
         int | None, typer.Option(min=1, help="Cells measured at once (default: one per core).")
     ] = None,
+    policy: Annotated[
+        PolicyChoice,
+        typer.Option(
+            help="The final policy, or the best/ one (chosen on the run's evaluation episodes)."
+        ),
+    ] = PolicyChoice.final,
 ) -> None:
-    """Measure every finished cell's final policy on held-out episodes (seed 10,000), for the
-    report to show beside the curves' last evaluations. Cells already measured are skipped."""
+    """Measure every finished cell's final (or best) policy on held-out episodes (seed 10,000),
+    for the report to show beside the evaluation it was drawn or chosen at. Cells already
+    measured are skipped."""
     from itskill.experiments.held_out import measure_held_out
     from itskill.experiments.runner import Cell
 
@@ -97,14 +112,15 @@ def experiment_held_out(
             err_console.print(f"{cell.name}: failed: {error}", markup=False)
         else:
             console.print(
-                f"{cell.name}: {record['success']:.1%} of {record['episodes']} held-out episodes "
+                f"{cell.name} ({policy.value}): {record['success']:.1%} of {record['episodes']} "
+                "held-out episodes "
                 f"[{record['ci_low']:.1%}, {record['ci_high']:.1%}], {record['wall_s']:.0f} s",
                 markup=False,
             )
 
     try:
         with user_errors():
-            summary = measure_held_out(run, episodes, workers, heard)
+            summary = measure_held_out(run, episodes, workers, heard, policy.value)
     except KeyboardInterrupt:
         err_console.print(
             "interrupted; the cells measured so far are kept: run the same command to measure "

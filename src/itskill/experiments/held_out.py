@@ -1,10 +1,13 @@
-"""Each finished cell's final policy on held-out episodes (``itskill experiment held-out RUN``).
+"""Each finished cell's final or best policy on held-out episodes (``itskill experiment held-out
+RUN [--policy best]``).
 
-A run's curves are drawn on its evaluation episodes, the same at every evaluation, and the last
-point of a curve is read off them. This measures each cell's final policy once more, on episodes
-no run trains or evaluates on (:data:`itskill.tasks.evaluate.HELD_OUT_SEED`, the episodes of the
-library's success rates and of ``itskill learn``'s figure), and writes ``held_out.json`` beside
-the cell's ``result.json``; the report puts the two side by side. It takes seconds per cell
+A run's curves are drawn on its evaluation episodes, the same at every evaluation: the last
+point of a curve is read off them, and the best policy (``best/``) is the one that scored most
+on them, so its score is the luckiest of the run's draws. This measures a cell's policy once
+more, on episodes no run trains or evaluates on (:data:`itskill.tasks.evaluate.HELD_OUT_SEED`,
+the episodes of the library's success rates and of ``itskill learn``'s figure), and writes
+``held_out.json`` beside the policy's checkpoint (the cell's own, or ``best/``'s); the report
+puts each beside the evaluation it was chosen or drawn at. It takes seconds per cell
 alone and minutes beside training, so it is a step of its own: a cell already measured on as
 many episodes is not measured again, and an interrupted call goes on where it stopped.
 """
@@ -25,6 +28,17 @@ HELD_OUT_FILE = "held_out.json"
 CHECKPOINT_META = "checkpoint.json"
 """The cell's checkpoint record (:data:`itskill.rl.checkpoint.META_FILE`, spelled out: importing
 the rl layer would load torch for every report)."""
+POLICY_DIRS = {"final": ".", "best": "best"}
+"""Which of a cell's policies, and where it lies in the cell's directory
+(:data:`itskill.rl.checkpoint.BEST_DIR` for the best)."""
+
+
+def policy_dir(cell_dir: Path, policy: str) -> Path:
+    """Where a cell's ``policy`` (a key of :data:`POLICY_DIRS`) lies; ``ValueError`` naming the
+    known ones for another."""
+    if policy not in POLICY_DIRS:
+        raise ValueError(f"unknown policy {policy!r}; expected one of {', '.join(POLICY_DIRS)}")
+    return Path(cell_dir) / POLICY_DIRS[policy]
 
 
 @dataclass
@@ -37,13 +51,15 @@ class HeldOutSummary:
     failed: dict[Cell, str] = field(default_factory=dict)
 
 
-def read_held_out(cell_dir: Path) -> dict[str, Any] | None:
-    """The cell's ``held_out.json`` if it measured the policy the cell holds now: one written
-    before the cell was trained on, damaged, or missing a figure is None."""
-    data = read_json_or_none(Path(cell_dir) / HELD_OUT_FILE)
+def read_held_out(cell_dir: Path, policy: str = "final") -> dict[str, Any] | None:
+    """The ``held_out.json`` of the cell's ``policy`` if it measured the policy the cell holds
+    now: one written before the cell was trained on (or chose another best), damaged, or
+    missing a figure is None."""
+    where = policy_dir(cell_dir, policy)
+    data = read_json_or_none(where / HELD_OUT_FILE)
     if (
         not isinstance(data, dict)
-        or data.get("num_timesteps") != _trained_steps(Path(cell_dir))
+        or data.get("num_timesteps") != _trained_steps(where)
         or not is_number(data.get("success"))
         or not is_count(data.get("episodes"))
     ):
@@ -51,9 +67,9 @@ def read_held_out(cell_dir: Path) -> dict[str, Any] | None:
     return data
 
 
-def _trained_steps(cell_dir: Path) -> int | None:
-    """The env-steps of the policy in ``cell_dir``, as its checkpoint records them."""
-    meta = read_json_or_none(cell_dir / CHECKPOINT_META)
+def _trained_steps(where: Path) -> int | None:
+    """The env-steps of the policy in ``where``, as its checkpoint records them."""
+    meta = read_json_or_none(where / CHECKPOINT_META)
     return meta.get("num_timesteps") if isinstance(meta, dict) else None
 
 
@@ -62,14 +78,16 @@ def measure_held_out(
     episodes: int = 200,
     workers: int | None = None,
     on_cell: Callable[[Cell, dict[str, Any] | None, str | None], None] | None = None,
+    policy: str = "final",
 ) -> HeldOutSummary:
-    """Measure the final policy of every finished cell of experiment run ``run_dir`` on
-    ``episodes`` held-out episodes, ``workers`` cells at a time (one per core by default), and
-    write each cell's ``held_out.json``. ``on_cell(cell, record, error)`` hears of each cell as
-    it ends. A cell that fails (its weights missing, as in a report's copy of a run) is named in
-    the summary and the others go on."""
+    """Measure the ``policy`` (``final`` or ``best``) of every finished cell of experiment run
+    ``run_dir`` on ``episodes`` held-out episodes, ``workers`` cells at a time (one per core by
+    default), and write its ``held_out.json``. ``on_cell(cell, record, error)`` hears of each
+    cell as it ends. A cell that fails (its weights missing, as in a report's copy of a run, or
+    no best policy kept) is named in the summary and the others go on."""
     if episodes < 1:
         raise ValueError(f"episodes must be at least 1, got {episodes}")
+    policy_dir(Path(), policy)  # an unknown one is refused before any cell
     run_dir = Path(run_dir)
     config = read_run_config(run_dir)
     summary = HeldOutSummary()
@@ -77,16 +95,16 @@ def measure_held_out(
     for cell in load_cell_results(run_dir):
         if cell.task not in config.tasks:
             continue
-        have = read_held_out(cell.dir(run_dir))
+        have = read_held_out(cell.dir(run_dir), policy)
         if have is not None and have["episodes"] == episodes:
             summary.skipped.append(cell)
         else:
             todo.append(cell)
-    jobs = [(c.task, str(c.dir(run_dir)), episodes) for c in todo]
+    jobs = [(c.task, str(c.dir(run_dir)), episodes, policy) for c in todo]
     for job in run_jobs(_measure_cell, jobs, "local", workers):
         cell = todo[job.index]
         if job.ok:
-            write_json(cell.dir(run_dir) / HELD_OUT_FILE, job.value)
+            write_json(policy_dir(cell.dir(run_dir), policy) / HELD_OUT_FILE, job.value)
             summary.measured.append(cell)
         else:
             summary.failed[cell] = f"{type(job.error).__name__}: {job.error}"
@@ -95,7 +113,7 @@ def measure_held_out(
     return summary
 
 
-def _measure_cell(task: str, cell_dir: str, episodes: int) -> dict[str, Any]:
+def _measure_cell(task: str, cell_dir: str, episodes: int, policy: str) -> dict[str, Any]:
     # Imported in the worker: the parent process needs no torch or simulator.
     import torch
 
@@ -107,11 +125,13 @@ def _measure_cell(task: str, cell_dir: str, episodes: int) -> dict[str, Any]:
     # beside two training jobs on 2 cores, a peg cell took 145-310 s; alone, with one thread, 16 s.
     torch.set_num_threads(1)
 
-    policy = as_policy(cell_dir)
-    res = evaluate(get_task(task), policy, episodes, HELD_OUT_SEED, HELD_OUT_ENVS)
+    where = policy_dir(Path(cell_dir), policy)
+    if not (where / CHECKPOINT_META).is_file():
+        raise FileNotFoundError(f"{where}: no {policy} policy kept (no {CHECKPOINT_META})")
+    res = evaluate(get_task(task), as_policy(where), episodes, HELD_OUT_SEED, HELD_OUT_ENVS)
     return {
-        "policy": "final",
-        "num_timesteps": read_meta(cell_dir)["num_timesteps"],
+        "policy": policy,
+        "num_timesteps": read_meta(where)["num_timesteps"],
         "episodes": episodes,
         "seed": HELD_OUT_SEED,
         "num_envs": HELD_OUT_ENVS,

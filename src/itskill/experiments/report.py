@@ -45,7 +45,12 @@ from itskill.experiments.document import (
     Video,
     write_document,
 )
-from itskill.experiments.held_out import CHECKPOINT_META, HELD_OUT_FILE, read_held_out
+from itskill.experiments.held_out import (
+    CHECKPOINT_META,
+    HELD_OUT_FILE,
+    POLICY_DIRS,
+    read_held_out,
+)
 from itskill.experiments.learn_layout import best_reward_file, policy_dir, transfer_dir
 from itskill.experiments.plots import method_label, plot_attention, plot_learning_curves
 from itskill.experiments.provenance import Sessions, machine_facts, now
@@ -86,6 +91,9 @@ CELL_FILES = (
     "transfer.json",
     TRACE_FILE,
     HELD_OUT_FILE,
+    # The best policy's record and its held-out measurement (its weights stay in the run).
+    f"{POLICY_DIRS['best']}/{CHECKPOINT_META}",
+    f"{POLICY_DIRS['best']}/{HELD_OUT_FILE}",
 )
 """What a report reads from a run and its cells, weights aside: a report written elsewhere copies
 these beside itself, so it can be written again from its own directory (without the video). The
@@ -559,7 +567,11 @@ def _check_out(run_dir: Path, out: Path) -> None:
         what = f"files the report writes ({', '.join(found)})"
     elif origin != _first_session(run_dir):
         what = f"another experiment run (its {PROVENANCE_FILE} starts with another session)"
-    elif any(p.name not in CELL_FILES for p in (out / CELLS_DIR).glob("*/*/*/*")):
+    elif any(
+        p.is_file() and p.relative_to(seed).as_posix() not in CELL_FILES
+        for seed in (out / CELLS_DIR).glob("*/*/*")
+        for p in seed.rglob("*")
+    ):
         what = "an experiment run directory (its cells hold weights or logs)"
     else:
         return
@@ -735,40 +747,48 @@ def _episodes_of_seeds(curves: dict, where: _Runs) -> str:
 
 
 def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> None:
-    """The final policies on held-out episodes (:mod:`itskill.experiments.held_out`) beside the
-    curves' last evaluations, for the seeds measured; nothing where no seed was."""
+    """The final and best policies on held-out episodes (:mod:`itskill.experiments.held_out`)
+    beside the evaluation each was drawn or chosen at, for the seeds measured; nothing where no
+    seed was."""
     rows, counts = [], set()
     for method in where.methods:
-        held, last = [], []
-        for seed, curve in curves.get((task, method), []):
-            cell_dir = where.cell_dir(task, method, seed)
-            record = read_held_out(cell_dir)
-            if record is not None:
-                held.append(float(record["success"]))
-                last.append(float(curve.success[-1]))
-                counts.add(int(record["episodes"]))
-        if held:
-            mean, low, high = (100 * v for v in mean_interval(np.subtract(last, held)))
+        for policy in POLICY_DIRS:
+            held, evaluated = [], []
+            for seed, curve in curves.get((task, method), []):
+                record = read_held_out(where.cell_dir(task, method, seed), policy)
+                if record is not None:
+                    held.append(float(record["success"]))
+                    # The last evaluation at or before the policy's env-steps: the final one for
+                    # the final policy, the one that chose it for the best.
+                    at = np.searchsorted(curve.steps, record["num_timesteps"], side="right") - 1
+                    evaluated.append(float(curve.success[max(at, 0)]))
+                    counts.add(int(record["episodes"]))
+            if not held:
+                continue
+            mean, low, high = (100 * v for v in mean_interval(np.subtract(evaluated, held)))
             spread = f" (all {len(held)} seeds)" if low == high else f" [{low:+.1f}, {high:+.1f}]"
             rows.append(
                 [
                     method_label(method),
+                    policy,
                     str(len(held)),
                     estimate(held).format(),
-                    estimate(last).format(),
+                    estimate(evaluated).format(),
                     f"{mean:+.1f}{spread if len(held) > 1 else ''}",
                 ]
             )
     if not rows:
         return
-    doc.add(Heading("Final policies on held-out episodes", 3))
+    doc.add(Heading("Policies on held-out episodes", 3))
     doc.table(
-        ["method", "seeds", "held-out success", "last evaluation", "difference (points)"],
+        ["method", "policy", "seeds", "held-out success", "its evaluation", "difference (points)"],
         rows,
-        f"each seed's final policy on {' or '.join(map(str, sorted(counts)))} episodes no run "
-        "trains or evaluates on (seed 10,000; `itskill experiment held-out RUN`), against its "
-        "last evaluation on the run's own episodes; mean over the seeds measured with the 95% "
-        "t-interval",
+        f"each seed's final policy, and its best/ one where measured, on "
+        f"{' or '.join(map(str, sorted(counts)))} episodes no run trains or evaluates on "
+        "(seed 10,000; `itskill experiment held-out RUN [--policy best]`), against the "
+        "evaluation on the run's own episodes it was drawn at (final) or chosen by (best: the "
+        "highest of the run, so a held-out score below it is the luck of that choice); mean over "
+        "the seeds measured with the 95% t-interval",
     )
 
 
