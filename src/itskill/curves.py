@@ -33,10 +33,10 @@ def eval_seed(train_seed: int) -> int:
     equal terms, and runs of one training seed (other methods, other rewards) share them, so
     they compare episode by episode. Across training seeds the episodes differ: a mean over
     seeds then averages over as many episode samples as seeds. When every seed shared one
-    sample (releases before 2026-12-07), the sample's own luck moved every seed alike and the
-    interval over seeds could not show it: the final policies of the five ITN peg runs at log-std
-    -3.0 scored 3.5 to 15.5 points higher on their 40 shared episodes than on 200 held-out ones
-    (docs/experiments.md).
+    sample (releases before 2026-12-06, 15:25 UTC), the sample's own luck moved every seed alike
+    and the interval over seeds could not show it: the final policies of the five ITN peg runs at
+    log-std -3.0 scored 3.5 to 15.5 points higher on their 40 shared episodes than on 200
+    held-out ones (docs/experiments.md).
     """
     return EVAL_SEED + train_seed
 

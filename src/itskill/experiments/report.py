@@ -740,9 +740,9 @@ def _episodes_of_seeds(curves: dict, where: _Runs) -> str:
         return ", each seed on episodes of its own" if own else ""
     which = "every seed" if not own else f"{shared} of the runs"
     return (
-        f", the same episodes for {which} (runs from before 2026-12-07: the interval over seeds "
-        "does not cover the luck of that sample; `itskill experiment held-out` measures the final "
-        "policies on others)"
+        f", the same episodes for {which} (runs from before each seed had its own, 2026-12-06 "
+        "15:25 UTC: the interval over seeds does not cover the luck of that sample; `itskill "
+        "experiment held-out` measures the final policies on others)"
     )
 
 
