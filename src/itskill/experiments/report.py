@@ -781,7 +781,14 @@ def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> N
         return
     doc.add(Heading("Policies on held-out episodes", 3))
     doc.table(
-        ["method", "policy", "seeds", "held-out success", "its evaluation", "difference (points)"],
+        [
+            "method",
+            "policy",
+            "seeds",
+            "held-out success",
+            "its evaluation",
+            "evaluation − held out (points)",
+        ],
         rows,
         f"each seed's final policy, and its best/ one where measured, on "
         f"{' or '.join(map(str, sorted(counts)))} episodes no run trains or evaluates on "
