@@ -75,8 +75,12 @@ def test_transfer_settings_a_file_names_are_on_top_of_the_packaged_ones(tmp_path
     packaged = load_transfer_config()
     settings = config.transfer_config()
     assert (settings.pst_keep, settings.prior_weight) == (2, 0.25)
-    assert settings.residual == packaged.residual and settings.k == packaged.k
-    assert config.training_settings()["transfer"] == config.transfer
+    assert settings.residual == packaged.residual and settings.k == config.k
+    # What a resume compares: the settings ITN's network uses (No_Transfer's none), resolved.
+    assert config.training_settings()["transfer"] == {
+        "attention_hidden": packaged.attention_hidden, "prior_weight": 0.25,
+        "fusion_hidden": list(packaged.fusion_hidden), "residual": packaged.residual,
+    }  # fmt: skip
     assert parse_experiment(config.to_dict(), tmp_path / "config.json", recorded=True) == config
     # A run recorded before files could name them trained with the packaged ones.
     record = {k: v for k, v in config.to_dict().items() if k != "transfer"}
@@ -222,6 +226,9 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
                 ("[transfer]\npst = 2", "transfer.pst", "expected a table"),
                 # The file's own k says how many auto retrieves: two places to say it.
                 ("[transfer.sources]\nk = 2", "transfer.sources.k", "set k at the top"),
+                # A TypeError and a misleading "set k" before the table's type was checked.
+                ("[transfer]\nsources = 3", "transfer.sources", "expected a table"),
+                ("[transfer]\nsources = 'kk'", "transfer.sources", "expected a table"),
             )
         ),
         (("steps = 1000", "steps = 1000\ntransfer = 2"), "transfer", "expected a table"),

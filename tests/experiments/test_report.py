@@ -140,13 +140,16 @@ def test_report_shows_the_settings_runs_trained_with_and_where_they_differ(run, 
     # one in the shared run), those its method uses: PST's keep is not ITN's.
     record = json.loads((Cell(TASK, "itn", 0).dir(mixed) / "transfer.json").read_text())
     record["config"]["prior_weight"] = 0.25
+    del record["config"]["residual"]  # recorded before the residual: trained without it
     write_json(Cell(TASK, "itn", 1).dir(mixed) / "transfer.json", record)
     same = experiment_report(run, tmp_path / "same", video=False).markdown.read_text()
     assert "### Training settings" in same
     assert "| algorithm | a2c |" in same and "| n_steps | 8 |" in same
     assert "| learning_rate | 0.0007 |" in same
-    assert "| attention: weight of the analyzer's prior | 0.5 |" in same
-    assert "| source-action residual | on |" in same and "| fusion: hidden widths | none |" in same
+    # Only ITN's runs have them: named, so they are not read as No_Transfer's.
+    assert "| attention: weight of the analyzer's prior | 0.5 (ITN) |" in same
+    assert "| source-action residual | on (ITN) |" in same
+    assert "| fusion: hidden widths | none (ITN) |" in same
     assert "PST: sources kept" not in same
     md = experiment_report(mixed, tmp_path / "report", video=False).markdown.read_text()
     assert (
@@ -156,6 +159,14 @@ def test_report_shows_the_settings_runs_trained_with_and_where_they_differ(run, 
     assert (
         "| attention: weight of the analyzer's prior | 0.5 (ITN seed 0); 0.25 (ITN seed 1) |" in md
     )
+    assert "| source-action residual | on (ITN seed 0); off (ITN seed 1) |" in md
+
+
+def test_every_transfer_setting_a_method_uses_has_a_label_in_the_report():
+    from itskill.experiments.report import _TRANSFER_SETTING_LABELS
+    from itskill.transfer import METHODS
+
+    assert {name for m in METHODS.values() for name in m.settings} <= set(_TRANSFER_SETTING_LABELS)
 
 
 @pytest.mark.slow  # software rendering: about 0.1-0.4 s per frame

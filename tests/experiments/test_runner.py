@@ -202,6 +202,23 @@ def test_cells_train_with_the_files_transfer_settings_and_a_resume_keeps_them(to
     (run / "config.json").write_text(json.dumps(recorded))
     summary = run_experiment(small, run, "local", 1, resume=True, console=quiet())
     assert [c.name for c in summary.skipped] == ["pickplace_nut_m12/itn/seed_0"]
+    # Only the settings the trained methods' networks use count: PST's keep (no PST cell
+    # trained) and the analyzer's retries (each cell keeps its matrix) may change.
+    with_pst = {**weighted, "pst": {"keep": 2}, "analyzer": {"retries": 5}}
+    same = type(config)(**{**small.__dict__, "transfer": with_pst})
+    summary = run_experiment(same, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.skipped] == ["pickplace_nut_m12/itn/seed_0"]
+
+
+def test_a_no_transfer_run_resumed_with_transfer_settings_keeps_its_cells(toy, tmp_path):
+    """Its cells use none of them; a default written out is the default."""
+    config, _ = toy
+    run = tmp_path / "run"
+    small = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
+    run_experiment(small, run, "local", 1, console=quiet())
+    named = type(config)(**{**small.__dict__, "transfer": {"attention": {"prior_weight": 0.1}}})
+    summary = run_experiment(named, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.skipped] == ["pickplace_nut_m12/no_transfer/seed_0"]
 
 
 def test_pst_keeping_as_many_as_the_file_names_is_refused_before_any_cell(tmp_path):
@@ -212,8 +229,9 @@ def test_pst_keeping_as_many_as_the_file_names_is_refused_before_any_cell(tmp_pa
     path.write_text(TOY.replace('["itn", "no_transfer"]', '["pst"]') + named
                     + "[transfer.pst]\nkeep = 2\n")  # fmt: skip
     run = tmp_path / "run"
-    with pytest.raises(ExperimentConfigError, match="PST keeps 2 of the 2"):
+    with pytest.raises(ExperimentConfigError, match="PST keeps 2 of the 2") as err:
         run_experiment(load_experiment(path), run, "local", 1, source_file=path, console=quiet())
+    assert err.value.where == "transfer.pst.keep"  # what the file set, not the sources it named
     assert not (run / "config.json").exists()
 
 

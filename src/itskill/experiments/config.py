@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import itertools
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -136,15 +136,26 @@ class ExperimentConfig:
             "eval": asdict(self.eval),
             # What a resumed run may change does not count (how often it checkpoints).
             "hyperparams": {t: _trained_with(self.hyperparams.get(t, {})) for t in self.tasks},
-            "transfer": self.transfer,
+            "transfer": self.network_settings(),
         }
 
     def transfer_config(self) -> TransferConfig:
         """The settings the cells' transfer methods train with: the packaged ``transfer.toml``
-        with the file's ``[transfer]`` tables on top (checked when the file was loaded)."""
+        with the file's ``[transfer]`` tables on top (checked when the file was loaded), and the
+        file's ``k``."""
         from itskill.transfer.config import load_transfer_config, parse_transfer_config
 
-        return parse_transfer_config(self.transfer, "[transfer]", base=load_transfer_config())
+        config = parse_transfer_config(self.transfer, "[transfer]", base=load_transfer_config())
+        return replace(config, k=self.k)
+
+    def network_settings(self) -> dict[str, Any]:
+        """The transfer settings the experiment's methods build their networks and choose among
+        their sources with (:attr:`itskill.transfer.methods.Method.settings`), by field: what
+        decides how a cell trains once its sources are stored, written out or packaged alike."""
+        from itskill.transfer import get_method
+
+        used = {name for m in self.methods for name in get_method(m).settings}
+        return {k: v for k, v in self.transfer_config().to_dict().items() if k in used}
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (written to the run directory as ``config.json``)."""
@@ -269,14 +280,14 @@ def _parse_transfer(path: Path, value: Any) -> dict[str, dict[str, Any]]:
     from itskill.transfer.config import TransferConfigError, parse_transfer_config
 
     tables = _typed(path, "transfer", value, dict)
-    if "k" in tables.get("sources", {}):
-        raise ExperimentConfigError(
-            path, "transfer.sources.k", "set k at the top of the file (how many auto retrieves)"
-        )
     try:
         parse_transfer_config(tables, path)
     except TransferConfigError as err:
         raise ExperimentConfigError(path, f"transfer.{err.where}", err.problem) from err
+    if "k" in tables.get("sources", {}):
+        raise ExperimentConfigError(
+            path, "transfer.sources.k", "set k at the top of the file (how many auto retrieves)"
+        )
     return tables
 
 

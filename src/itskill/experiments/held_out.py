@@ -23,14 +23,11 @@ from itskill.datafile import is_count, is_number
 from itskill.executors import run_jobs
 from itskill.experiments.runner import Cell, load_cell_results, read_run_config
 from itskill.files import read_json_or_none, write_json
+from itskill.rl.checkpoint import BEST_DIR, META_FILE
 
 HELD_OUT_FILE = "held_out.json"
-CHECKPOINT_META = "checkpoint.json"
-"""The cell's checkpoint record (:data:`itskill.rl.checkpoint.META_FILE`, spelled out: importing
-the rl layer would load torch for every report)."""
-POLICY_DIRS = {"final": ".", "best": "best"}
-"""Which of a cell's policies, and where it lies in the cell's directory
-(:data:`itskill.rl.checkpoint.BEST_DIR` for the best)."""
+POLICY_DIRS = {"final": ".", "best": BEST_DIR}
+"""Which of a cell's policies, and where it lies in the cell's directory."""
 
 
 def policy_dir(cell_dir: Path, policy: str) -> Path:
@@ -59,6 +56,7 @@ def read_held_out(cell_dir: Path, policy: str = "final") -> dict[str, Any] | Non
     data = read_json_or_none(where / HELD_OUT_FILE)
     if (
         not isinstance(data, dict)
+        or not is_count(data.get("num_timesteps"))
         or data.get("num_timesteps") != _trained_steps(where)
         or not is_number(data.get("success"))
         or not is_count(data.get("episodes"))
@@ -69,7 +67,7 @@ def read_held_out(cell_dir: Path, policy: str = "final") -> dict[str, Any] | Non
 
 def _trained_steps(where: Path) -> int | None:
     """The env-steps of the policy in ``where``, as its checkpoint records them."""
-    meta = read_json_or_none(where / CHECKPOINT_META)
+    meta = read_json_or_none(where / META_FILE)
     return meta.get("num_timesteps") if isinstance(meta, dict) else None
 
 
@@ -126,8 +124,8 @@ def _measure_cell(task: str, cell_dir: str, episodes: int, policy: str) -> dict[
     torch.set_num_threads(1)
 
     where = policy_dir(Path(cell_dir), policy)
-    if not (where / CHECKPOINT_META).is_file():
-        raise FileNotFoundError(f"{where}: no {policy} policy kept (no {CHECKPOINT_META})")
+    if not (where / META_FILE).is_file():
+        raise FileNotFoundError(f"{where}: no {policy} policy kept (no {META_FILE})")
     res = evaluate(get_task(task), as_policy(where), episodes, HELD_OUT_SEED, HELD_OUT_ENVS)
     return {
         "policy": policy,

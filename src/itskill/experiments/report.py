@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from itskill.curves import EVAL_FILE, Curve, CurveError, eval_seed, read_curve
+from itskill.datafile import is_number
 from itskill.experiments.analysis import (
     Band,
     Gain,
@@ -45,12 +46,7 @@ from itskill.experiments.document import (
     Video,
     write_document,
 )
-from itskill.experiments.held_out import (
-    CHECKPOINT_META,
-    HELD_OUT_FILE,
-    POLICY_DIRS,
-    read_held_out,
-)
+from itskill.experiments.held_out import HELD_OUT_FILE, POLICY_DIRS, read_held_out
 from itskill.experiments.learn_layout import best_reward_file, policy_dir, transfer_dir
 from itskill.experiments.plots import method_label, plot_attention, plot_learning_curves
 from itskill.experiments.provenance import Sessions, machine_facts, now
@@ -73,31 +69,32 @@ from itskill.experiments.runner import (
 )
 from itskill.files import CorruptFileError, copy_whole, read_json, read_json_or_none
 from itskill.reward_contract import EXPERT
+from itskill.rl.checkpoint import META_FILE
+from itskill.rl.eval_callback import SELECTION_KEY
 from itskill.stats import mean_interval
+from itskill.transfer.trace import TRACE_FILE
+from itskill.transfer.train import TRANSFER_FILE
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
 FIGURES_DIR = "figures"
 VIDEOS_DIR = "videos"
 RUN_FILES = (CONFIG_FILE, EXPERIMENT_FILE, SOURCES_FILE, PROVENANCE_FILE)
-TRACE_FILE = "attention.json"
-"""A cell's attention trace (:data:`itskill.transfer.trace.TRACE_FILE`)."""
 CELL_FILES = (
     RESULT_FILE,
     ERROR_FILE,
     EVAL_FILE,
     "metrics.csv",
-    CHECKPOINT_META,
-    "transfer.json",
+    META_FILE,
+    TRANSFER_FILE,
     TRACE_FILE,
     HELD_OUT_FILE,
     # The best policy's record and its held-out measurement (its weights stay in the run).
-    f"{POLICY_DIRS['best']}/{CHECKPOINT_META}",
+    f"{POLICY_DIRS['best']}/{META_FILE}",
     f"{POLICY_DIRS['best']}/{HELD_OUT_FILE}",
 )
 """What a report reads from a run and its cells, weights aside: a report written elsewhere copies
-these beside itself, so it can be written again from its own directory (without the video). The
-rl and transfer layers' names are spelled out: importing them would load torch for every report."""
+these beside itself, so it can be written again from its own directory (without the video)."""
 OUT_NAMES = (
     REPORT_MD, REPORT_HTML, FIGURES_DIR, VIDEOS_DIR, *RUN_FILES, REWARDS_DIR, CELLS_DIR
 )  # fmt: skip
@@ -616,9 +613,9 @@ def _pending_line(cell: Cell, run_dir: Path) -> str:
             f"{cell.name}: its {RESULT_FILE} cannot be read (damaged or edited), so the run is not "
             "counted; `itskill experiment run ... --resume` finishes it again from its checkpoint"
         )
-    if (out / CHECKPOINT_META).is_file():
+    if (out / META_FILE).is_file():
         try:
-            steps = read_json(out / CHECKPOINT_META).get("num_timesteps", 0)
+            steps = read_json(out / META_FILE).get("num_timesteps", 0)
         except CorruptFileError:
             return f"{cell.name}: in progress (its checkpoint.json cannot be read)"
         return f"{cell.name}: in progress ({steps:,} env-steps checkpointed)"
@@ -730,7 +727,7 @@ def _episodes_of_seeds(curves: dict, where: _Runs) -> str:
     own = shared = 0
     for (task, method), runs in curves.items():
         for seed, _ in runs:
-            meta = read_json_or_none(where.cell_dir(task, method, seed) / CHECKPOINT_META)
+            meta = read_json_or_none(where.cell_dir(task, method, seed) / META_FILE)
             evaluation = meta.get("evaluation") if isinstance(meta, dict) else None
             if isinstance(evaluation, dict):
                 # A run from before that was resumed records the seed it kept: seed 0's.
@@ -755,13 +752,12 @@ def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> N
         for policy in POLICY_DIRS:
             held, evaluated = [], []
             for seed, curve in curves.get((task, method), []):
-                record = read_held_out(where.cell_dir(task, method, seed), policy)
-                if record is not None:
+                cell_dir = where.cell_dir(task, method, seed)
+                record = read_held_out(cell_dir, policy)
+                score = curve.success[-1] if policy == "final" else _selection_score(cell_dir)
+                if record is not None and score is not None:
                     held.append(float(record["success"]))
-                    # The last evaluation at or before the policy's env-steps: the final one for
-                    # the final policy, the one that chose it for the best.
-                    at = np.searchsorted(curve.steps, record["num_timesteps"], side="right") - 1
-                    evaluated.append(float(curve.success[max(at, 0)]))
+                    evaluated.append(float(score))
                     counts.add(int(record["episodes"]))
             if not held:
                 continue
@@ -794,9 +790,19 @@ def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> N
         f"{' or '.join(map(str, sorted(counts)))} episodes no run trains or evaluates on "
         "(seed 10,000; `itskill experiment held-out RUN [--policy best]`), against the "
         "evaluation on the run's own episodes it was drawn at (final) or chosen by (best: the "
-        "highest of the run, so a held-out score below it is the luck of that choice); mean over "
-        "the seeds measured with the 95% t-interval",
+        "run's highest, so flattered by that choice as well as by the luck of those episodes); "
+        "mean over the seeds measured with the 95% t-interval",
     )
+
+
+def _selection_score(cell_dir: Path) -> float | None:
+    """The success of the evaluation that chose the cell's best policy, as its record keeps it
+    (the row of ``eval.csv`` may be gone: a resumed run evaluates again where it crashed, and
+    keeps the best policy); None without a readable one."""
+    meta = read_json_or_none(cell_dir / POLICY_DIRS["best"] / META_FILE)
+    selection = meta.get(SELECTION_KEY) if isinstance(meta, dict) else None
+    success = selection.get("success") if isinstance(selection, dict) else None
+    return float(success) if is_number(success) else None
 
 
 _TRANSFER_SETTING_LABELS = {
@@ -812,7 +818,7 @@ def _transfer_settings(cell_dir: Path, method: str, seed: int, notes: list[str])
     """The transfer settings a cell's ``transfer.json`` records (``transfer.toml``'s, with the
     experiment file's ``[transfer]`` on top), those its method uses, labelled for the table."""
     from itskill.rl.checkpoint import CheckpointError
-    from itskill.transfer.train import TRANSFER_FILE, network_settings, read_transfer
+    from itskill.transfer.train import network_settings, read_transfer
 
     if not (cell_dir / TRANSFER_FILE).is_file():
         return {}
@@ -838,11 +844,13 @@ def _settings_section(
 
     They come from the packaged hyper-parameters (with the task's own table) and are not part of
     the experiment file, so the report shows what each run trained with; a setting that differs
-    between runs lists its values with the runs that had them.
+    between runs lists its values with the runs that had them, and one only some methods have
+    (the transfer settings each uses) names them.
     """
     from itskill.rl.checkpoint import CheckpointError, read_meta
 
     values: dict[str, dict[str, list[str]]] = {}
+    methods: dict[str, dict[str, None]] = {}  # setting -> the methods with it, in order
     for (cell_task, method), runs in curves.items():
         if cell_task != task:
             continue
@@ -865,12 +873,16 @@ def _settings_section(
                 values.setdefault(key, {}).setdefault(shown, []).append(
                     f"{method_label(method)} seed {seed}"
                 )
+                methods.setdefault(key, {})[method_label(method)] = None
     if not values:
         return
+    everyone = {label for having in methods.values() for label in having}
     rows = []
     for key, by_value in values.items():
         if len(by_value) == 1:
-            rows.append([key, next(iter(by_value))])
+            value = next(iter(by_value))
+            some = "" if set(methods[key]) == everyone else f" ({', '.join(methods[key])})"
+            rows.append([key, value + some])
         else:
             rows.append([key, "; ".join(f"{v} ({', '.join(r)})" for v, r in by_value.items())])
     doc.add(Heading("Training settings", 3))

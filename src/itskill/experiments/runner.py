@@ -322,6 +322,8 @@ def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: 
         mismatch = have.get(key) != want[key]
         if key in ("reward", "sources", "hyperparams"):  # per task: a task added brings its own
             mismatch = any(have[key].get(t, want[key][t]) != want[key][t] for t in want[key])
+        if key == "transfer":  # those the trained methods use: a method added brings its own
+            mismatch = any(want[key].get(name) != v for name, v in have[key].items())
         if mismatch:
             raise ExperimentRunError(
                 f"{run_dir}: was run with {key}={have.get(key)!r}, the experiment file now "
@@ -412,6 +414,8 @@ def resolve_all_sources(
                         f"stored for {task}: run {method} in another run directory"
                     ) from err
                 where = "k" if wanted == AUTO else f"sources.{task}"
+                if "keep" in config.transfer.get("pst", {}):  # the file chose how many to keep
+                    where = "transfer.pst.keep"
                 raise ExperimentConfigError(
                     _experiment_file(run_dir, source_file), where, f"{method} on {task}: {err}"
                 ) from err

@@ -129,17 +129,22 @@ def read_transfer(run_dir: str | Path) -> dict[str, Any]:
 _LEGACY_CONFIG = {"residual": False}
 
 
+def _recorded_config(record: dict[str, Any]) -> dict[str, Any]:
+    """The :class:`TransferConfig` fields a run's ``record`` trained with, those a record from
+    before a setting existed lacks at the value its run had."""
+    return {**_LEGACY_CONFIG, **record["config"]}
+
+
 def network_settings(record: dict[str, Any]) -> dict[str, Any]:
     """The transfer settings a run's ``record`` (:func:`read_transfer`) trained with that shape
     its method's network or its choice of sources (:attr:`Method.settings`), by
-    :class:`TransferConfig` field; a record from before a setting existed has the value its run
-    trained with."""
-    config = {**_LEGACY_CONFIG, **record["config"]}
+    :class:`TransferConfig` field."""
+    config = _recorded_config(record)
     return {name: config[name] for name in get_method(record["method"]).settings if name in config}
 
 
 def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
-    old = {**old, "config": {**_LEGACY_CONFIG, **old["config"]}}
+    old = {**old, "config": _recorded_config(old)}
     keys = ("target", "method", "algo", "seed", "sources_request", "k")
     # A skill named by its serial number is the same source as by its name: the record knows
     # which serial numbers its sources had.
