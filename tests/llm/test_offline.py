@@ -801,6 +801,23 @@ def test_analyzer_matrix_from_action_overlap() -> None:
         matrix[1], np.array([2.0, FLOOR, FLOOR]) / (2.0 + 2 * FLOOR), atol=1e-5
     )
     assert "offline rule-based backend" in reply["reasoning"]
+    assert "segment 4 (place): place does it most alike" in reply["reasoning"]
+
+
+def test_analyzer_reasoning_names_no_source_where_none_does_the_segment() -> None:
+    # A peg insertion without the insert source: its row is spread evenly, and the reasoning
+    # named the first source as doing it "most alike".
+    target = {"id": "ppi", "description": "pick, place, insert",
+              "actions": ["approach", "grasp", "place", "insert"]}  # fmt: skip
+    sources = [
+        {"id": "pick", "description": "pick", "actions": ["approach", "grasp"]},
+        {"id": "place", "description": "place", "actions": ["place"]},
+        {"id": "push", "description": "push", "actions": ["place"]},
+    ]
+    reply = analyze(target, sources)
+    np.testing.assert_allclose(reply["matrix"][3], [1 / 3] * 3, atol=1e-5)
+    assert "segment 3 (insert): no source does it; spread evenly" in reply["reasoning"]
+    assert "segment 2 (place): place, push do it alike" in reply["reasoning"]
 
 
 def test_analyzer_reports_unreadable_input() -> None:

@@ -39,8 +39,13 @@ def contribution(target: dict, sources: list[dict]) -> dict:
         scores = [segment_score(actions, s, [str(a) for a in src["actions"]]) for src in sources]
         total = sum(scores)
         matrix.append([round(v / total, 6) for v in scores])
-        best = max(range(len(sources)), key=lambda j: scores[j])
-        reasons.append(f"segment {s} ({action}): {sources[best]['id']} does it most alike")
+        top = [str(src["id"]) for src, v in zip(sources, scores, strict=True) if v == max(scores)]
+        if max(scores) == FLOOR:
+            reasons.append(f"segment {s} ({action}): no source does it; spread evenly")
+        elif len(top) > 1:
+            reasons.append(f"segment {s} ({action}): {', '.join(top)} do it alike")
+        else:
+            reasons.append(f"segment {s} ({action}): {top[0]} does it most alike")
     return {
         "matrix": matrix,
         "segments": actions,
