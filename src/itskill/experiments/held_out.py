@@ -3,7 +3,7 @@ RUN [--policy best]``).
 
 A run's curves are drawn on its evaluation episodes, the same at every evaluation: the last
 point of a curve is read off them, and the best policy (``best/``) is the one that scored most
-on them, so its score is the luckiest of the run's draws. This measures a cell's policy once
+on them, so its score there flatters it. This measures a cell's policy once
 more, on episodes no run trains or evaluates on (:data:`itskill.tasks.evaluate.HELD_OUT_SEED`,
 the episodes of the library's success rates and of ``itskill learn``'s figure), and writes
 ``held_out.json`` beside the policy's checkpoint (the cell's own, or ``best/``'s); the report
@@ -112,7 +112,7 @@ def measure_held_out(
 
 
 def _measure_cell(task: str, cell_dir: str, episodes: int, policy: str) -> dict[str, Any]:
-    # Imported in the worker: the parent process needs no torch or simulator.
+    # Imported in the worker, which alone runs the simulator.
     import torch
 
     from itskill.rl.checkpoint import as_policy, read_meta
