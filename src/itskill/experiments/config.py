@@ -152,10 +152,9 @@ class ExperimentConfig:
         """The transfer settings the experiment's methods build their networks and choose among
         their sources with (:attr:`itskill.transfer.methods.Method.settings`), by field: what
         decides how a cell trains once its sources are stored, written out or packaged alike."""
-        from itskill.transfer import get_method
+        from itskill.transfer.methods import used_settings
 
-        used = {name for m in self.methods for name in get_method(m).settings}
-        return {k: v for k, v in self.transfer_config().to_dict().items() if k in used}
+        return used_settings(self.methods, self.transfer_config().to_dict())
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (written to the run directory as ``config.json``)."""

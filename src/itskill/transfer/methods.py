@@ -11,7 +11,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -70,3 +70,11 @@ def get_method(name: str) -> Method:
     if name not in METHODS:
         raise ValueError(f"unknown transfer method {name!r}; expected one of {', '.join(METHODS)}")
     return METHODS[name]
+
+
+def used_settings(methods: Iterable[str], config: Mapping[str, Any]) -> dict[str, Any]:
+    """The fields of ``config`` (:class:`TransferConfig`'s, by name) that any of ``methods``
+    uses (:attr:`Method.settings`), in the methods' order."""
+    return {
+        name: config[name] for m in methods for name in get_method(m).settings if name in config
+    }

@@ -52,7 +52,7 @@ from itskill.tasks.spec import TaskSpec
 from itskill.transfer.analyzer import ContributionMatrix, analyze, validate_matrix
 from itskill.transfer.config import TransferConfig, load_transfer_config
 from itskill.transfer.lateral import weights_on_disk
-from itskill.transfer.methods import METHODS, Method, all_sources, get_method
+from itskill.transfer.methods import METHODS, Method, all_sources, get_method, used_settings
 from itskill.transfer.sources import AUTO, SourceError, SourceSkill, parse_keys, resolve_sources
 from itskill.transfer.stages import fill_performers, stage_map, stage_performers
 
@@ -139,8 +139,7 @@ def network_settings(record: dict[str, Any]) -> dict[str, Any]:
     """The transfer settings a run's ``record`` (:func:`read_transfer`) trained with that shape
     its method's network or its choice of sources (:attr:`Method.settings`), by
     :class:`TransferConfig` field."""
-    config = _recorded_config(record)
-    return {name: config[name] for name in get_method(record["method"]).settings if name in config}
+    return used_settings([record["method"]], _recorded_config(record))
 
 
 def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
