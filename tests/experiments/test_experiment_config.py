@@ -66,6 +66,12 @@ def test_hyperparams_a_file_names_are_kept_and_recorded(tmp_path):
     assert old.training_settings()["hyperparams"] == {"pick_nut_m12": {}}
 
 
+def test_a_transfer_setting_is_named_where_the_file_sets_it(tmp_path):
+    config = load_experiment(write(tmp_path, MINIMAL + "[transfer.pst]\nkeep = 2\n"))
+    assert config.transfer_key("pst_keep") == "transfer.pst.keep"
+    assert config.transfer_key("prior_weight") is None  # the packaged transfer.toml's
+
+
 def test_transfer_settings_a_file_names_are_on_top_of_the_packaged_ones(tmp_path):
     from itskill.transfer import load_transfer_config
 

@@ -148,6 +148,14 @@ class ExperimentConfig:
         config = parse_transfer_config(self.transfer, "[transfer]", base=load_transfer_config())
         return replace(config, k=self.k)
 
+    def transfer_key(self, name: str) -> str | None:
+        """Where the file sets :class:`TransferConfig` field ``name`` (``transfer.pst.keep``),
+        or None where it leaves it to the packaged ``transfer.toml``."""
+        from itskill.transfer.config import setting_key
+
+        table, key = setting_key(name)
+        return f"transfer.{table}.{key}" if key in self.transfer.get(table, {}) else None
+
     def network_settings(self) -> dict[str, Any]:
         """The transfer settings the experiment's methods build their networks and choose among
         their sources with (:attr:`itskill.transfer.methods.Method.settings`), by field: what

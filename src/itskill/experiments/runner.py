@@ -413,9 +413,10 @@ def resolve_all_sources(
                         f"{path}: {method} on {task}: {err}; this run keeps the sources it "
                         f"stored for {task}: run {method} in another run directory"
                     ) from err
-                where = "k" if wanted == AUTO else f"sources.{task}"
-                if "keep" in config.transfer.get("pst", {}):  # the file chose how many to keep
-                    where = "transfer.pst.keep"
+                # The setting to blame where the file chose it, else the sources it gave.
+                where = (err.setting and config.transfer_key(err.setting)) or (
+                    "k" if wanted == AUTO else f"sources.{task}"
+                )
                 raise ExperimentConfigError(
                     _experiment_file(run_dir, source_file), where, f"{method} on {task}: {err}"
                 ) from err

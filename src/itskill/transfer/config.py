@@ -129,6 +129,12 @@ _LAYOUT: dict[str, dict[str, str]] = {
 }
 
 
+def setting_key(name: str) -> tuple[str, str]:
+    """The table and key of :class:`TransferConfig` field ``name`` in ``transfer.toml``'s
+    shape (``pst_keep``: ``("pst", "keep")``), to name a setting as the files do."""
+    return next((t, k) for t, entries in _LAYOUT.items() for k, n in entries.items() if n == name)
+
+
 def default_path() -> Path:
     return Path(str(resources.files("itskill.transfer") / "data" / "transfer.toml"))
 

@@ -25,6 +25,7 @@ def select_sources(sources: list[S], config: TransferConfig) -> list[S]:
     if len(sources) <= config.pst_keep:
         raise SourceError(
             f"PST keeps {config.pst_keep} of the {len(sources)} source(s): that is ITN itself; "
-            "give more sources (k, or the sources named) or a smaller [pst] keep"
+            "give more sources (k, or the sources named) or a smaller [pst] keep",
+            setting="pst_keep",
         )
     return sources[: config.pst_keep]

@@ -45,7 +45,13 @@ AUTO = "auto"
 
 
 class SourceError(ValueError):
-    """A source skill that cannot be used (unknown, no checkpoint, wrong layout)."""
+    """A source skill that cannot be used (unknown, no checkpoint, wrong layout), or sources a
+    method cannot choose among; ``setting`` is then the :class:`TransferConfig` field that rules
+    them out (``pst_keep``), for a caller to name where the user set it."""
+
+    def __init__(self, message: str, setting: str | None = None) -> None:
+        super().__init__(message)
+        self.setting = setting
 
 
 @dataclass(frozen=True)
