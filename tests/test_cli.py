@@ -236,6 +236,14 @@ def test_scripted_names_the_controller_even_beside_a_folder_of_that_name(tmp_pat
     assert json.loads(result.stdout)["policy"] == "scripted"
 
 
+def test_the_commands_name_the_scripted_controller_as_the_evaluators_do():
+    """The commands keep their own copy of the name, so that they load PyTorch only to run."""
+    from itskill.cli.common import SCRIPTED
+    from itskill.tasks.evaluate import SCRIPTED as EVALUATORS
+
+    assert SCRIPTED == EVALUATORS
+
+
 def test_eval_scripted_json():
     args = ["eval", "reach_nut_m12", "--episodes", "3", "--num-envs", "2", "--json"]
     result = runner.invoke(app, args)
