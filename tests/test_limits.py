@@ -26,3 +26,24 @@ def test_a_step_budget_past_the_cap_is_refused_wherever_it_is_given(tmp_path: Pa
     with pytest.raises(ValueError, match="--steps must be between 1 and"):
         check_steps(0, "--steps")
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["experiment", "run", "experiments/smoke.toml"],
+        ["experiment", "held-out", "runs/none"],
+        ["reward", "generate", "pick_nut_m12"],
+        ["skills", "pretrain"],
+    ],
+)
+def test_a_worker_count_past_the_cap_is_refused_by_every_command(command: list[str]) -> None:
+    # As the settings files refuse it: a mistyped count would start processes without end.
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+    from itskill.limits import WORKERS_MAX
+
+    result = CliRunner().invoke(app, [*command, "--workers", str(WORKERS_MAX + 1)])
+    assert result.exit_code == 2
+    assert "--workers" in result.output and f"{WORKERS_MAX}" in result.output

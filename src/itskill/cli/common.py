@@ -15,7 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from itskill.files import is_unusable_path, json_safe, path_error_message
-from itskill.limits import EPISODES_MAX, SEED_MAX, STEPS_MAX
+from itskill.limits import EPISODES_MAX, SEED_MAX, STEPS_MAX, WORKERS_MAX
 
 # No emoji codes: user text such as `skill:x:` must print as typed, and escape() leaves them.
 console = Console(emoji=False)
@@ -129,6 +129,12 @@ EvalEveryOpt = Annotated[
 def episodes_option(help: str) -> Any:
     """An episode-count option: 1 to :data:`EPISODES_MAX`."""
     return typer.Option(help=help, min=1, max=EPISODES_MAX)
+
+
+def workers_option(help: str) -> Any:
+    """A ``--workers`` option: 1 to :data:`WORKERS_MAX` processes (or Ray tasks) at once, as the
+    settings files allow."""
+    return typer.Option(help=help, min=1, max=WORKERS_MAX)
 
 
 def steps_option(help: str, least: int = 1) -> Any:

@@ -9,7 +9,13 @@ from typing import Annotated, Any
 import typer
 from rich.markup import escape
 
-from itskill.cli.common import console, err_console, run_dir_option, user_errors
+from itskill.cli.common import (
+    console,
+    err_console,
+    run_dir_option,
+    user_errors,
+    workers_option,
+)
 from itskill.limits import EPISODES_MAX
 
 experiment_app = typer.Typer(
@@ -29,11 +35,10 @@ def experiment_run(
     ] = None,
     workers: Annotated[
         int | None,
-        typer.Option(
-            min=1,
-            help=escape(
+        workers_option(
+            escape(
                 "Cells run at once (default: the file's [execution] workers, else one per core)."
-            ),
+            )
         ),
     ] = None,
     ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,
@@ -92,7 +97,7 @@ def experiment_held_out(
         int, typer.Option(min=1, max=EPISODES_MAX, help="Held-out episodes per cell.")
     ] = 200,
     workers: Annotated[
-        int | None, typer.Option(min=1, help="Cells measured at once (default: one per core).")
+        int | None, workers_option("Cells measured at once (default: one per core).")
     ] = None,
     policy: Annotated[
         PolicyChoice,

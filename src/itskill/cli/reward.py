@@ -24,6 +24,7 @@ from itskill.cli.common import (
     run_dir_option,
     steps_option,
     user_errors,
+    workers_option,
 )
 
 reward_app = typer.Typer(
@@ -110,9 +111,8 @@ def generate_cmd(
     ] = None,
     workers: Annotated[
         int | None,
-        typer.Option(
-            min=1,
-            help="Parallel candidates (default: one per core; with Ray, as many as it takes).",
+        workers_option(
+            "Parallel candidates (default: one per core; with Ray, as many as it takes)."
         ),
     ] = None,
     ray_address: Annotated[

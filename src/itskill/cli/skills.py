@@ -26,6 +26,7 @@ from itskill.cli.common import (
     seed_option,
     steps_option,
     user_errors,
+    workers_option,
 )
 
 skills_app = typer.Typer(
@@ -325,9 +326,8 @@ def skills_pretrain(
     executor: Annotated[str, typer.Option(help="local (one job per core) or ray.")] = "local",
     workers: Annotated[
         int | None,
-        typer.Option(
-            min=1,
-            help="Parallel jobs (default: one per core; with Ray, as many as the cluster takes).",
+        workers_option(
+            "Parallel jobs (default: one per core; with Ray, as many as the cluster takes)."
         ),
     ] = None,
     ray_address: Annotated[str | None, typer.Option(help="Ray cluster address.")] = None,

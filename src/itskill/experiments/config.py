@@ -18,7 +18,8 @@ Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but 
     llm = "offline" | "openai:MODEL"              (the analyzer's client)
     [hyperparams.<task>] hyper-parameters of the task's cells, on top of the packaged ones:
                  the algorithm's fields by name (learning_rate = 1e-5), policy = {...},
-                 demos = {...}, checkpoint_every, normalize_reward (docs/experiments.md)
+                 demos = {...}, init = {...}, checkpoint_every, normalize_reward
+                 (docs/experiments.md)
     [transfer] settings of the transfer methods, on top of the packaged transfer.toml, in its
                  tables: [transfer.pst] keep = 2, [transfer.attention] prior_weight = 0.3, ...
     [eval] every, episodes (at most 1,000,000)
