@@ -44,7 +44,13 @@ SourcesOpt = Annotated[
     ),
 ]
 KOpt = Annotated[
-    int | None, typer.Option("-k", "--k", min=1, help="Sources 'auto' retrieves (default 3).")
+    int | None,
+    typer.Option(
+        "-k",
+        "--k",
+        min=1,
+        help=escape("Sources 'auto' retrieves (default: --config's [sources] k, packaged 3)."),
+    ),
 ]
 LLMOpt = Annotated[
     str | None,

@@ -2,10 +2,11 @@
 
 ``resolve_sources(target, "auto")`` retrieves skills by the similarity of their text to the target
 task's command (:func:`itskill.skills.retrieval.search`, the paper's SBERT retrieval). With
-``distinct_actions`` (the default) only the most similar skill of each action sequence is kept,
-so the ``k`` sources are ``k`` different behaviours rather than one primitive on several part sizes;
-and the skills are taken to cover the target's steps (see :func:`resolve_sources`), as similarity
-alone ranks a screw first for a pick-and-place.
+``distinct_actions`` (the default) one skill of each action sequence is kept, the first the
+ranking below picks, so the ``k`` sources are ``k`` different behaviours rather than one primitive
+on several part sizes. The skills are taken to cover the target's steps (see
+:func:`resolve_sources`: family, success, steps covered, parts and start come before similarity),
+as similarity alone ranks a screw first for a pick-and-place.
 
 Every source must be a finished checkpoint on the shared observation layout and action space:
 :func:`itskill.rl.checkpoint.read_meta` checks the layout, and a missing skill or checkpoint is a
