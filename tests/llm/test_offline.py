@@ -129,7 +129,7 @@ PARAPHRASES = Path(__file__).parent / "data" / "paraphrases.tsv"
 
 
 def test_planner_maps_a_users_paraphrases_of_every_task() -> None:
-    """Commands in users' words, 3-12 per task: each wrong task is a run that trains the robot
+    """Commands in users' words, 3-14 per task: each wrong task is a run that trains the robot
     for something the user did not ask."""
     rows = [
         line.split("\t")
