@@ -261,6 +261,36 @@ def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_bett
     assert again.steps == refined.steps
 
 
+def test_a_skill_whose_task_warm_starts_from_demonstrations_is_refined_from_the_skill(
+    tmp_path, monkeypatch
+) -> None:
+    # place_nut_m12's packaged hyper-parameters clone its script first; refined, the shipped
+    # policy is the start instead (the trainer refuses a run asked to start from both).
+    packaged = config_module.default_path().read_text()
+    hp = tmp_path / "hyperparams.toml"
+    hp.write_text(packaged.replace("critic_episodes = 64", "critic_episodes = 8"))
+    monkeypatch.setattr(config_module, "default_path", lambda: hp)
+    refine = PretrainConfig(steps=256, num_envs=8, eval_episodes=4, eval_every=256, refine=True)
+    monkeypatch.setattr(
+        "itskill.skills.pretrain.measure_skill",
+        lambda spec, policy_dir, config: SimpleNamespace(
+            success_rate=0.5, ci_low=0.0, ci_high=1.0, outcomes=[True, False]
+        ),
+    )
+    reported = []
+    pretrain(
+        ["place_nut_m12"], refine, tmp_path / "runs", tmp_path / "lib", workers=1,
+        on_result=lambda task, entry, added, error: reported.append((entry, error)),
+    )  # fmt: skip
+    ((entry, error),) = reported
+    assert error is None
+    run = tmp_path / "runs" / "place_nut_m12" / "seed0"
+    assert json.loads((run / "checkpoint.json").read_text())["init"]["path"] == str(
+        (run.parent / "refined_from").resolve()
+    )
+    assert not (run / "demos.json").exists() and DEMO_STEPS_KEY not in entry.extra
+
+
 def test_refining_a_skill_the_library_lacks_is_a_clear_error(tmp_path, monkeypatch) -> None:
     monkeypatch.setattr("itskill.skills.pretrain.SHIPPED_LIBRARY", tmp_path / "no_shipped")
     errors = []

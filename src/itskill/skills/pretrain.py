@@ -217,6 +217,9 @@ def pretrain_task(task: str, config: PretrainConfig, runs_dir: Path, library_dir
             eval_every=config.eval_every or None,
             eval_episodes=config.select_episodes,
             init=init,
+            # A task that warm-starts from its scripted controller (its packaged demos) is
+            # refined from the library's policy instead: a run starts from one, not both.
+            overrides={"demos": {"episodes": 0}} if init else None,
         )
         # A run can lose a level it reached; the figure recorded is still the held-out one.
         ev = measure_skill(spec, best_policy_dir(result.run_dir), config)
