@@ -223,8 +223,22 @@ def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budg
     assert f"learned '{COMMAND}'" not in flat(result.output)
     with open_skill_space() as space:
         assert space.list(task_id="pickplace_nut_m12") == []
-    assert (Path(summary["skill"]["policy"]) / "checkpoint.json").is_file()  # the policy is kept
+    assert (out / summary["skill"]["policy"] / "checkpoint.json").is_file()  # the policy is kept
     assert "## Not added to the skill space" in (out / "report.md").read_text()
+
+    # A lower threshold on resume adds the policy as it is, without training it again.
+    weights = (out / summary["skill"]["policy"] / "policy.safetensors").read_bytes()
+    result = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out),
+                   "--no-video", "--min-success", "0.0", "--resume")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    kept = flat(result.output).count("(kept from the previous session)")
+    assert kept == 5, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["skill"]["added"] is True
+    with open_skill_space() as space:
+        (skill,) = space.list(task_id="pickplace_nut_m12")
+    assert Path(skill.checkpoint).read_bytes() == weights
+    assert "## Skill added to the skill space" in (out / "report.md").read_text()
 
 
 def test_ungroundable_command_is_one_clear_line(tmp_path, budgets):

@@ -42,7 +42,12 @@ def learn_cmd(
     out: Annotated[
         Path | None, run_dir_option("Run directory (default: runs/learn/<command slug>).")
     ] = None,
-    seed: Annotated[int, seed_option("Seed of the transfer training.")] = 0,
+    seed: Annotated[
+        int,
+        seed_option(
+            "Seed of the run: the transfer training, and the reward search's seeds shifted by it."
+        ),
+    ] = 0,
     resume: Annotated[
         bool, typer.Option("--resume", help="Continue an interrupted run in the same directory.")
     ] = False,

@@ -361,15 +361,22 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
     write_json(path, settings)
 
 
+_RESUMED_WITH_ANOTHER = ("budget.min_success",)
+"""Settings a resume may change: the threshold decides only whether the trained policy joins
+the skill space, a step redone without training again (a policy kept out at 50% is added at 40%
+with ``--resume --min-success 0.4``)."""
+
+
 def _difference(old: Any, new: Any, key: str = "") -> tuple[str, Any, Any] | None:
     """The first setting (as a dotted key) whose value differs between a run's recorded
     settings and this call's; None if they agree. A budget's description is prose, not a
-    setting: rewording it does not make another run."""
+    setting: rewording it does not make another run; nor do :data:`_RESUMED_WITH_ANOTHER`."""
     if isinstance(old, dict) and isinstance(new, dict):
         for name in new:
-            if name == "description":
+            dotted = f"{key}.{name}" if key else name
+            if name == "description" or dotted in _RESUMED_WITH_ANOTHER:
                 continue
-            found = _difference(old.get(name), new[name], f"{key}.{name}" if key else name)
+            found = _difference(old.get(name), new[name], dotted)
             if found is not None:
                 return found
         return None
@@ -733,7 +740,7 @@ def _train(
             else "it failed before its first checkpoint; --resume starts it again"
         )
         raise LearnError(
-            f"the generated reward {reward_file} failed in the final training: {err}\n" + kept
+            f"the generated reward {reward_file} failed in the final training: {err}; " + kept
         ) from err
     curve = read_curve(out, t.steps)
     wall = float(curve.wall_s[-1])
@@ -832,6 +839,12 @@ def _free_name(base: str, taken: set[str]) -> str:
     return name
 
 
+def _in_run(path: Path, run_dir: Path) -> str:
+    """``path`` relative to ``run_dir`` where it lies in it (an older run's record may name a
+    path elsewhere, kept as written)."""
+    return (path.relative_to(run_dir) if path.is_relative_to(run_dir) else path).as_posix()
+
+
 def _add_skill(
     command: str,
     plan: dict[str, Any],
@@ -846,12 +859,16 @@ def _add_skill(
     from itskill.skills import Skill, itskill_home, open_skill_space
 
     cached = steps.cached("skill.json", _SKILL_SHAPE, _SKILL_FIELDS)
+    kept_out = cached is not None and not cached.get("added", True)
+    if kept_out and cached["min_success"] != b.min_success:
+        cached = None  # resumed with another threshold: decided again, the policy as it was
     was_cached = cached is not None
     if cached is None and evaluation["success_rate"] < b.min_success:
         cached = {
             "added": False,
             "min_success": b.min_success,
-            "policy": str(policy_dir(run_dir, transfer)),
+            # Relative to the run, as its other records are: a moved run names its own.
+            "policy": _in_run(policy_dir(run_dir, transfer), run_dir),
         }
     elif cached is None:
         pending = steps.run_dir / "skill.pending.json"
@@ -904,7 +921,8 @@ def _add_skill(
     else:
         done = (
             f"not added: success {evaluation['success_rate']:.0%} is below "
-            f"{cached['min_success']:.0%}; the policy stays in {cached['policy']}"
+            f"{cached['min_success']:.0%}; the policy stays in the run's {cached['policy']} "
+            "(--resume --min-success X adds it at a lower threshold X)"
         )
     steps.done(done, was_cached)
     return cached

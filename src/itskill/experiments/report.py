@@ -1141,9 +1141,10 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
         doc.add(
             Paragraph(
                 f"The success is below the budget's min_success ({skill['min_success']:.0%}), so "
-                f"later runs will not retrieve this policy as a source. It stays in "
-                f"{skill['policy']}; a larger budget (--steps) may get it there, and "
-                f"--min-success sets the threshold."
+                f"later runs will not retrieve this policy as a source. It stays in the run's "
+                f"{skill['policy']}; a larger budget (--steps, in a new run) may get it there, "
+                "and `--resume --min-success X` adds it at a lower threshold X without training "
+                "again."
             )
         )
     if notes:
