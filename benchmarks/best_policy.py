@@ -8,7 +8,11 @@ continues them), then evaluates both the last checkpoint and ``best/`` on held-o
 seed ``itskill learn`` reports on) and prints the two side by side.
 
     python benchmarks/best_policy.py                        # ITN on the peg, seeds 1 and 3
-    python benchmarks/best_policy.py --seeds 0 1 2 --json results/best_policy.json
+    python benchmarks/best_policy.py --seeds 0 2 4 --json runs/best_policy_seeds_0_2_4.json
+
+It trains with the task's packaged hyper-parameters of the day; ``--hyperparams FILE.toml`` (the
+packaged file's shape) trains with others: the runs in ``results/best_policy/`` (2026-12-02) were
+at the peg task's packaged settings then, log-std -0.5 and a PPO learning rate of 3e-5.
 """
 
 from __future__ import annotations
@@ -32,11 +36,16 @@ from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
 from itskill.transfer import train_transfer
 
 
-def train_one(task: str, method: str, seed: int, steps: int, every: int, episodes: int, out: str):
-    """One transfer run into ``out`` (resumed if it is there), PPO with the packaged settings."""
+def train_one(
+    task: str, method: str, seed: int, steps: int, every: int, episodes: int, out: str,
+    hyperparams: str | None,
+):  # fmt: skip
+    """One transfer run into ``out`` (resumed if it is there), PPO with the packaged settings
+    or those of ``hyperparams``."""
     train_transfer(
         task, method, "auto", seed=seed, steps=steps, algo="ppo", out=Path(out),
-        eval_every=every, eval_episodes=episodes, n_threads=1, progress=False,
+        hyperparams=hyperparams, eval_every=every, eval_episodes=episodes, n_threads=1,
+        progress=False,
     )  # fmt: skip
     return seed
 
@@ -62,6 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval-every", type=int, default=50_000)
     parser.add_argument("--eval-episodes", type=int, default=40)
     parser.add_argument("--held-out", type=int, default=100, help="held-out episodes per policy")
+    parser.add_argument(
+        "--hyperparams", type=Path, default=None, help="a hyper-parameter TOML file instead of "
+        "the packaged one",
+    )  # fmt: skip
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("runs/bench_best_policy"))
     parser.add_argument("--json", type=Path, help="also write the results as JSON")
@@ -70,7 +83,16 @@ def main(argv: list[str] | None = None) -> int:
     runs = {s: args.out / args.task / args.method / f"seed_{s}" for s in args.seeds}
     t0 = time.perf_counter()
     jobs = [
-        (args.task, args.method, s, args.steps, args.eval_every, args.eval_episodes, str(d))
+        (
+            args.task,
+            args.method,
+            s,
+            args.steps,
+            args.eval_every,
+            args.eval_episodes,
+            str(d),
+            None if args.hyperparams is None else str(args.hyperparams),
+        )
         for s, d in runs.items()
     ]
     failed = False

@@ -1,4 +1,6 @@
-"""How fast basic skills are learned from scratch with the expert reward.
+"""How fast basic skills are learned with the expert reward: from scratch, or from the
+demonstrations a task's packaged hyper-parameters clone first (insert_peg_rect, place_nut_m12,
+push_nut_m12 and pick_peg_round have them; ``--demos 0`` learns those from scratch too).
 
 For each task x algorithm x seed, train with periodic deterministic evaluation
 (:class:`itskill.rl.eval_callback.DeterministicEvalCallback`), then report per task and algorithm:
@@ -17,6 +19,8 @@ it against the expert's at a budget that learns the task: the reward search's ow
 short to tell the two apart, docs/reward.md). The file is run as trusted Python, as by
 ``itskill train --reward``. ``--hyperparams FILE.toml`` trains with a hyper-parameter file of the
 packaged file's shape instead of the packaged one, to screen settings on several seeds.
+Training runs, ``summary.json`` and the plots go to ``--out`` (default ``runs/learn_basic``;
+the committed figures were copied from there into ``results/``).
 
     python benchmarks/learn_basic.py --tasks pick_nut_m12 --algos ppo a2c --seeds 0 1 2 \
         --steps 200000 --a2c-steps 300000
@@ -60,6 +64,7 @@ def run_one(
     out: str,
     reward: str,
     hyperparams: str | None,
+    demos: int | None,
 ):
     """One training run with evaluations; returns its eval curve (picklable)."""
     run_dir = Path(out) / "runs" / task / algo / f"seed{seed}"
@@ -71,6 +76,7 @@ def run_one(
         reward=reward,
         out=run_dir,
         hyperparams=hyperparams,
+        overrides=None if demos is None else {"demos": {"episodes": demos}},
         n_threads=1,
         eval_every=every,
         eval_episodes=episodes,
@@ -196,16 +202,25 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="a hyper-parameter TOML file instead of the packaged one (to screen settings)",
     )
+    parser.add_argument(
+        "--demos",
+        type=int,
+        default=None,
+        help="scripted demonstrations to clone first (default: the task's packaged setting; "
+        "0: from scratch)",
+    )
     parser.add_argument("--executor", choices=EXECUTORS, default="local")
     parser.add_argument("--workers", type=int, default=None)
-    parser.add_argument("--out", type=Path, default=Path("results/learn_basic"))
+    parser.add_argument("--out", type=Path, default=Path("runs/learn_basic"))
     args = parser.parse_args(argv)
 
     args.out.mkdir(parents=True, exist_ok=True)
     cells = [(t, a, s) for t in args.tasks for a in args.algos for s in args.seeds]
     budget = {"a2c": args.a2c_steps or args.steps}
     hyperparams = str(args.hyperparams) if args.hyperparams else None
-    common = (args.eval_every, args.eval_episodes, str(args.out), args.reward, hyperparams)
+    common = (
+        args.eval_every, args.eval_episodes, str(args.out), args.reward, hyperparams, args.demos
+    )  # fmt: skip
     jobs = [(t, a, s, budget.get(a, args.steps), *common) for t, a, s in cells]
     curves: dict[tuple[str, str], list[dict]] = {}
     failed = 0

@@ -9,7 +9,7 @@ and new success side by side, and with ``--update`` writes the new figures into 
 kept in the manifest with their new figure: removing one is a decision for a person.
 
     python benchmarks/library_success.py                      # the shipped library
-    python benchmarks/library_success.py --update --json results/library_success.json
+    python benchmarks/library_success.py --update --json results/library_success_400.json
 """
 
 from __future__ import annotations

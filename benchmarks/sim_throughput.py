@@ -2,16 +2,16 @@
 
 Two measurements in one run, on the same machine, model, batch size and thread count:
 
-(a) ``BatchEnv`` stepped through the VecEnv API (``step_async`` + ``step_wait``) while a scripted
-    grasp policy (move above the part, descend, close, lift) drives it; only the environment's
-    step is timed, not the policy.
+(a) ``BatchEnv`` stepped through the VecEnv API (``step_async`` + ``step_wait``) while the task's
+    scripted controller (:class:`itskill.tasks.scripted.ScriptedPolicy`) drives it; only the
+    environment's step is timed, not the policy.
 (b) The physics bound: copies of the batch's ``MjData`` taken mid-grasp are stepped with bare
     ``mujoco.mj_step``, the same number of substeps per env-step, sharded over the same number of
     threads the same way (``mj_step`` releases the GIL). Everything ``BatchEnv`` adds on top
     (control, IK, thread coupling, context, observation, rewards) is the gap between the two.
 
-    python benchmarks/sim_throughput.py [--json] [--task pick_nut_m12] [--num-envs 16]
-                                        [--steps N] [--threads T]
+    python benchmarks/sim_throughput.py [--json] [--task pick_nut_m12] [--num-envs 32]
+                                        [--steps N] [--rounds R] [--threads T]
 
 Targets (2 cores): ratio >= 0.8 and >= 100 simulated seconds per wall second.
 """
@@ -31,73 +31,11 @@ import mujoco
 import numpy as np
 
 from itskill.tasks import get_task, make_batch_env
-
-NUT_GRIP_YAW = math.pi / 6
-"""A nut's yaw relative to the hand at which two flats face the fingers (see sim/batch.py)."""
-
-
-class GraspPolicy:
-    """Move above object 0, turn to its grasp yaw, descend, close, lift; one phase per env.
-
-    A stand-in for ``itskill.tasks.scripted.ScriptedPolicy`` when that module is not available.
-    """
-
-    ABOVE, DESCEND, CLOSE, LIFT = range(4)
-    GRIP_FLOOR = 0.0115
-
-    def __init__(self, num_envs: int, pos_step: float = 0.015, yaw_step: float = 0.25) -> None:
-        self.phase = np.zeros(num_envs, dtype=int)
-        self.timer = np.zeros(num_envs, dtype=int)
-        self.pos_step, self.yaw_step = pos_step, yaw_step
-
-    def reset(self, env_ids) -> None:
-        self.phase[env_ids] = self.ABOVE
-        self.timer[env_ids] = 0
-
-    def __call__(self, ctx: dict[str, np.ndarray]) -> np.ndarray:
-        n = len(self.phase)
-        to_ee = ctx["obj_to_ee"][:, 0]  # ee - obj
-        height = ctx["obj_height"][:, 0]
-        # Hex nuts repeat every 60 degrees, pegs (held across their thickness) every 180.
-        period = np.where(ctx["obj_width"][:, 0] > 0.012, math.pi / 3, math.pi)
-        offset = np.where(period < 1.0, NUT_GRIP_YAW, 0.0)
-        dyaw = ctx["obj_yaw"][:, 0] - offset - ctx["ee_yaw"]
-        dyaw = (dyaw + period / 2) % period - period / 2
-
-        # Displacement from the grip point to where it should go. The controller keeps the grip
-        # point above GRIP_FLOOR, so a part lower than that is grasped above its centre.
-        goal = -to_ee.copy()
-        ee_z = ctx["ee_pos"][:, 2]
-        goal[:, 2] = np.maximum(ee_z + goal[:, 2], self.GRIP_FLOOR) - ee_z
-        goal[:, 2] += np.where(self.phase == self.ABOVE, 0.05, 0.0)
-        goal[:, 2] += np.where(self.phase == self.LIFT, 0.1, 0.0)
-        lateral = np.linalg.norm(to_ee[:, :2], axis=1)
-
-        ready = (self.phase == self.ABOVE) & (lateral < 0.003) & (np.abs(dyaw) < 0.05)
-        down = (self.phase == self.DESCEND) & (np.abs(goal[:, 2]) < 0.1 * height + 0.001)
-        closed = (self.phase == self.CLOSE) & (self.timer >= 4)
-        self.timer = np.where(self.phase == self.CLOSE, self.timer + 1, 0)
-        self.phase = self.phase + ready + down + closed
-
-        actions = np.zeros((n, 5))
-        actions[:, :3] = np.clip(goal / self.pos_step, -1.0, 1.0)
-        descend = self.phase == self.DESCEND
-        actions[descend, :2] = np.clip(goal[descend, :2] / self.pos_step, -1, 1)
-        actions[self.phase == self.CLOSE, :3] = 0.0
-        # Half gain on yaw: the hand lags its command by a step or two, and a full-gain command
-        # overshoots past the half-period, where the wrapped error flips to the next flat pair.
-        yaw_action = np.clip(0.5 * dyaw / self.yaw_step, -1.0, 1.0)
-        actions[:, 3] = np.where(self.phase <= self.DESCEND, yaw_action, 0.0)
-        actions[:, 4] = np.where(self.phase >= self.CLOSE, 1.0, -1.0)
-        return actions
+from itskill.tasks.scripted import ScriptedPolicy
 
 
 def make_policy(task_name: str, num_envs: int):
-    """The shared scripted policy if the package has one, else the grasp loop above."""
-    try:
-        from itskill.tasks.scripted import ScriptedPolicy
-    except ImportError:
-        return GraspPolicy(num_envs), "benchmark grasp loop"
+    """The task's scripted controller, and its name for the report."""
     return ScriptedPolicy(get_task(task_name), num_envs), "itskill.tasks.scripted.ScriptedPolicy"
 
 

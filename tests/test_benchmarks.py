@@ -265,3 +265,14 @@ def test_source_chaining_with_action_noise_measures_a_fragile_skill(tmp_path, ca
     assert "action noise 0.61)\nsuccess 0%" in capsys.readouterr().out
     record = json.loads(out.read_text())
     assert record["noise"] == 0.61 and record["success_rate"] == 0.0
+
+
+def test_learn_basic_learns_a_task_that_clones_its_script_from_scratch_with_demos_0(
+    tmp_path,
+) -> None:
+    # place_nut_m12's packaged hyper-parameters clone 500 scripted episodes first: without
+    # --demos 0 the benchmark would time that warm start, not learning from scratch.
+    module = _load("learn_basic")
+    module.run_one("place_nut_m12", "ppo", 0, 256, 256, 2, str(tmp_path), "expert", None, 0)
+    run = tmp_path / "runs" / "place_nut_m12" / "ppo" / "seed0"
+    assert (run / "checkpoint.json").is_file() and not (run / "demos.json").exists()
