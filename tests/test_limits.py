@@ -47,3 +47,16 @@ def test_a_worker_count_past_the_cap_is_refused_by_every_command(command: list[s
     result = CliRunner().invoke(app, [*command, "--workers", str(WORKERS_MAX + 1)])
     assert result.exit_code == 2
     assert "--workers" in result.output and f"{WORKERS_MAX}" in result.output
+
+
+@pytest.mark.parametrize("command", ["train", "analyze"])
+def test_a_source_count_past_the_cap_is_a_usage_error_not_a_traceback(command: str) -> None:
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+    from itskill.limits import SOURCES_MAX
+
+    args = ["transfer", command, "pick_nut_m12", "-k", str(SOURCES_MAX + 1)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert f"{SOURCES_MAX}" in result.output

@@ -540,6 +540,26 @@ def test_an_experiment_copy_that_is_not_utf8_is_a_report_error(tmp_path):
 
 
 @pytest.mark.parametrize(
+    ("file", "text", "problem"),
+    [
+        ("provenance.json", '{"sessions": 5}', "sessions: expected a list, got 5"),
+        ("provenance.json", '{"sessions": [{"command": 5}]}', "sessions[0].command: expected"),
+        ("sources.json", "[1]", "expected an object of task -> list of source skill names"),
+    ],
+)
+def test_an_edited_run_record_is_named_before_anything_is_written(tmp_path, file, text, problem):
+    # Well-formed JSON of another shape was a TypeError or KeyError traceback deep in the
+    # report, after --out had been filled with a copy of the run.
+    run = _bare_run(tmp_path)
+    (run / file).write_text(text)
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["report", str(run), "--no-video", "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert problem in " ".join(result.output.split()) and "Traceback" not in result.output
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
     ("report", "where"),
     [
         ({"threshold": "x"}, "report.threshold"),

@@ -109,3 +109,34 @@ def test_a_resume_from_metadata_of_the_wrong_type_names_the_field(
     message = f"{run / 'checkpoint.json'}: corrupt metadata: {expected}"
     assert "".join(message.split()) in "".join(result.output.split())  # rich wraps long lines
     assert "Traceback" not in result.output
+
+
+@pytest.mark.parametrize(
+    ("policy_class", "expected"),
+    [
+        ("planted.Policy", "policy class 'planted.Policy' is not one of itskill's; not imported"),
+        ("itskill.rl.checkpoint.CheckpointError", "is not a policy class"),
+        ("itskill.transfer.itn.ITNPolicy", "corrupt policy description: missing field"),
+    ],
+)
+def test_a_checkpoint_loads_only_itskills_policy_classes(
+    tmp_path, monkeypatch, policy_class: str, expected: str
+) -> None:
+    # The class a checkpoint names is imported to build it: a downloaded skill could name a
+    # module of its own beside it, and the current directory is on the import path.
+    import json
+    import shutil
+    import sys
+
+    from itskill.rl.checkpoint import CheckpointError, load_policy
+    from itskill.skills.store import SHIPPED_LIBRARY
+
+    (tmp_path / "planted.py").write_text("open(__file__ + '.ran', 'w').close()\nPolicy = object\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    skill = tmp_path / "skill"
+    shutil.copytree(SHIPPED_LIBRARY / "pick_nut_m12", skill)
+    meta = json.loads((skill / "checkpoint.json").read_text())
+    (skill / "checkpoint.json").write_text(json.dumps({**meta, "policy_class": policy_class}))
+    with pytest.raises(CheckpointError, match=expected.replace("(", r"\(")):
+        load_policy(skill)
+    assert not (tmp_path / "planted.py.ran").exists() and "planted" not in sys.modules

@@ -146,9 +146,10 @@ def report_cmd(
     run: Annotated[Path, typer.Argument(help="An experiment run directory.")],
     out: Annotated[
         Path | None,
-        typer.Option(
-            help="Where to write the report, with a copy of RUN's small files (default: inside "
-            "RUN): a new or empty directory, or an earlier report of RUN to write again."
+        run_dir_option(
+            "Where to write the report, with a copy of RUN's small files (default: inside RUN): "
+            "a directory holding none of the files it writes, or an earlier report of RUN to "
+            "write again."
         ),
     ] = None,
     video: Annotated[

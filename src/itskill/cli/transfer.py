@@ -28,6 +28,7 @@ from itskill.cli.common import (
     usage_error,
     user_errors,
 )
+from itskill.limits import SOURCES_MAX
 
 if TYPE_CHECKING:
     from itskill.transfer import TransferConfig
@@ -49,6 +50,7 @@ KOpt = Annotated[
         "-k",
         "--k",
         min=1,
+        max=SOURCES_MAX,
         help=escape("Sources 'auto' retrieves (default: --config's [sources] k, packaged 3)."),
     ),
 ]

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from itskill.files import read_json, write_json
+from itskill.files import check_shape, read_json, write_json
 
 
 def command_line() -> str:
@@ -87,6 +87,21 @@ def now() -> str:
     return dt.datetime.now().astimezone().isoformat(timespec="seconds")
 
 
+_SESSIONS = {
+    "sessions": [
+        {
+            "command": str,
+            "started": str,
+            "finished": (str, None),
+            "wall_s": (float, None),
+            "machine": dict,
+            "status?": str,
+        }
+    ]
+}
+"""What ``provenance.json`` holds: a session per command that worked on the run."""
+
+
 class Sessions:
     """The sessions (start, end, command, machine) of a resumable run, in ``provenance.json``."""
 
@@ -94,6 +109,8 @@ class Sessions:
         self.path = Path(path)
         self.data: dict[str, Any] = read_json(self.path) if self.path.is_file() else {}
         self.data.setdefault("sessions", [])
+        # Read by every report and resume: an edited file is named, not a KeyError later.
+        check_shape(self.path, self.data, _SESSIONS)
 
     def start(self, **extra: Any) -> None:
         """Record a new session starting now."""

@@ -64,6 +64,7 @@ from itskill.experiments.runner import (
     cells,
     finished_result,
     read_run_config,
+    read_stored_sources,
     reward_copy,
     trained_reward_hashes,
 )
@@ -461,6 +462,7 @@ def experiment_report(
     # Read before anything is written: a copy that cannot be shown must leave no half report.
     toml_path = run_dir / EXPERIMENT_FILE
     toml_text = _experiment_text(toml_path) if toml_path.is_file() else None
+    sessions, sources = Sessions(run_dir / PROVENANCE_FILE), read_stored_sources(run_dir)
     base = None if baseline_run is None else _baseline_runs(config, run_dir, Path(baseline_run))
     if outside:
         # Before the figures: a report cut short then leaves an out that the next one knows
@@ -483,7 +485,6 @@ def experiment_report(
             f"no gains: the baseline, {method_label(config.report.baseline)}, has no runs in this "
             "experiment; `itskill report RUN --baseline-run OTHER` reads them from a run of it"
         )
-    sources = read_json(run_dir / SOURCES_FILE) if (run_dir / SOURCES_FILE).is_file() else {}
 
     doc = Document(f"Experiment report: {config.name}")
     if config.description:
@@ -502,11 +503,7 @@ def experiment_report(
             f"{finished} of {len(own)} runs finished.{where.about_baseline}"
         )
     )
-    header_section(
-        doc,
-        Sessions(run_dir / PROVENANCE_FILE),
-        {"run directory": str(run_dir.resolve())},
-    )
+    header_section(doc, sessions, {"run directory": str(run_dir.resolve())})
     doc.add(Heading("Configuration", 3))
     if toml_text is not None:
         doc.add(Code(toml_text, "toml"))

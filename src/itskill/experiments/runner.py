@@ -39,7 +39,9 @@ from itskill.experiments.config import (
 )
 from itskill.experiments.provenance import Sessions
 from itskill.files import (
+    Check,
     CorruptFileError,
+    check_shape,
     copy_whole,
     foreign_entries,
     held_alone,
@@ -352,6 +354,29 @@ def _union(old: ExperimentConfig, new: ExperimentConfig, trains: bool) -> Experi
     )
 
 
+_STORED_SOURCES = Check(
+    "an object of task -> list of source skill names",
+    lambda v: (
+        isinstance(v, dict)
+        and all(
+            isinstance(names, list) and all(isinstance(n, str) for n in names)
+            for names in v.values()
+        )
+    ),
+)
+
+
+def read_stored_sources(run_dir: Path) -> dict[str, list[str]]:
+    """The sources each task's cells share, as a run stored them in ``sources.json`` (task ->
+    skill names; none yet: empty); :class:`CorruptFileError` if the file was edited out of shape."""
+    path = run_dir / SOURCES_FILE
+    if not path.is_file():
+        return {}
+    found = read_json(path)
+    check_shape(path, found, _STORED_SOURCES)
+    return found
+
+
 def resolve_all_sources(
     config: ExperimentConfig, run_dir: Path, source_file: Path | None = None
 ) -> dict[str, list[str]]:
@@ -370,15 +395,7 @@ def resolve_all_sources(
     from itskill.transfer import get_method, resolve_sources
     from itskill.transfer.sources import SourceError
 
-    path = run_dir / SOURCES_FILE
-    found: dict[str, list[str]] = read_json(path) if path.is_file() else {}
-    if not isinstance(found, dict) or not all(
-        isinstance(names, list) and all(isinstance(n, str) for n in names)
-        for names in found.values()
-    ):
-        raise ExperimentRunError(
-            f"{path}: expected an object of task -> list of source skill names; was it edited?"
-        )
+    found = read_stored_sources(run_dir)
     if not any(get_method(m).uses_sources for m in config.methods):
         return found
     transfer_config = config.transfer_config()
@@ -410,8 +427,8 @@ def resolve_all_sources(
             except SourceError as err:
                 if stored:
                     raise ExperimentRunError(
-                        f"{path}: {method} on {task}: {err}; this run keeps the sources it "
-                        f"stored for {task}: run {method} in another run directory"
+                        f"{run_dir / SOURCES_FILE}: {method} on {task}: {err}; this run keeps the "
+                        f"sources it stored for {task}: run {method} in another run directory"
                     ) from err
                 # The setting to blame where the file chose it, else the sources it gave.
                 where = (err.setting and config.transfer_key(err.setting)) or (

@@ -334,18 +334,37 @@ def policy_from_meta(
 
     ``policy_class`` is the import path the trainer records (``module.Class``). The staged policy
     is built from its :class:`PolicyConfig`; any other class must provide a classmethod
-    ``from_config(config)`` (the transfer policies do), so this layer never imports them.
+    ``from_config(config)`` (the transfer policies do), so this layer never imports them. Only
+    classes of the ``itskill`` package are imported: a checkpoint is data, not code.
     """
+    cls = (
+        StagedActorCriticPolicy
+        if policy_class == STAGED_POLICY_CLASS
+        else _policy_class(policy_class, where)
+    )
     try:
-        if policy_class == STAGED_POLICY_CLASS:
+        if cls is StagedActorCriticPolicy:
             return build_policy(PolicyConfig(**{**config, "stages": tuple(config["stages"])}))
-        module, _, name = policy_class.rpartition(".")
-        cls = getattr(importlib.import_module(module), name)
         return cls.from_config(dict(config))
     except (TypeError, ValueError, KeyError) as err:
-        raise CheckpointError(where, f"corrupt policy description: {err}") from err
+        problem = f"missing field {err}" if isinstance(err, KeyError) else str(err)
+        raise CheckpointError(where, f"corrupt policy description: {problem}") from err
+
+
+def _policy_class(path: str, where: str | Path) -> type[ActorCriticPolicy]:
+    """The policy class at import path ``path``, imported only from the ``itskill`` package:
+    loading imports the module a checkpoint names, and a skill from elsewhere could name one of
+    its own beside it (the current directory is on the path)."""
+    module, _, name = path.rpartition(".")
+    if module.partition(".")[0] != "itskill":
+        raise CheckpointError(where, f"policy class {path!r} is not one of itskill's; not imported")
+    try:
+        cls = getattr(importlib.import_module(module), name)
     except (ImportError, AttributeError) as err:
-        raise CheckpointError(where, f"cannot build policy class {policy_class!r}: {err}") from err
+        raise CheckpointError(where, f"cannot build policy class {path!r}: {err}") from err
+    if not (isinstance(cls, type) and issubclass(cls, ActorCriticPolicy)):
+        raise CheckpointError(where, f"{path!r} is not a policy class")
+    return cls
 
 
 def load_policy(run_dir: str | Path) -> ActorCriticPolicy:
