@@ -116,3 +116,14 @@ def test_read_json_or_none_gives_none_for_a_missing_or_damaged_record(tmp_path: 
     assert read_json_or_none(path) is None
     write_json(path, {"steps": 3})
     assert read_json_or_none(path) == {"steps": 3}
+
+
+def test_lock_files_are_kept_in_a_folder_of_their_own(tmp_path) -> None:
+    # One stays per directory ever locked: thousands of them lay among /tmp's other files.
+    import tempfile
+
+    from itskill.files import directory_lock
+
+    lock = Path(directory_lock(tmp_path, "run").lock_file)
+    assert lock.parent.parent == Path(tempfile.gettempdir())
+    assert lock.parent.name.startswith("itskill-locks-") and lock.name.startswith("run-")

@@ -245,12 +245,18 @@ def run_path(run_dir: Path, recorded: str, default: str) -> Path:
 def directory_lock(directory: Path, kind: str) -> FileLock:
     """A lock that one process at a time holds on ``directory`` (``kind`` names what for).
 
-    Its file is in the temporary directory, keyed by the directory's resolved path, not in the
-    directory itself: it would show up in a checkout, a package or a run's results. Processes on
-    one machine see it; a cluster's nodes do not.
+    Its file is in a folder of the user's own in the temporary directory (``itskill-locks-UID``),
+    keyed by the directory's resolved path, not in the directory itself: it would show up in a
+    checkout, a package or a run's results. A lock file stays after its release (removing it
+    would race with a process opening it), one per directory ever locked, so they are kept
+    together rather than among the temporary directory's other files. Processes on one machine
+    see it; a cluster's nodes do not.
     """
     key = hashlib.sha256(str(Path(directory).resolve()).encode()).hexdigest()[:16]
-    return FileLock(str(Path(tempfile.gettempdir()) / f"itskill-{kind}-{key}.lock"))
+    user = os.getuid() if hasattr(os, "getuid") else "user"
+    locks = Path(tempfile.gettempdir()) / f"itskill-locks-{user}"
+    locks.mkdir(mode=0o700, exist_ok=True)
+    return FileLock(str(locks / f"{kind}-{key}.lock"))
 
 
 _HELD: set[str] = set()
