@@ -127,3 +127,12 @@ def test_lock_files_are_kept_in_a_folder_of_their_own(tmp_path) -> None:
     lock = Path(directory_lock(tmp_path, "run").lock_file)
     assert lock.parent.parent == Path(tempfile.gettempdir())
     assert lock.parent.name.startswith("itskill-locks-") and lock.name.startswith("run-")
+
+
+def test_a_file_where_a_directory_is_needed_is_said_so(tmp_path) -> None:
+    from itskill.files import path_error_message
+
+    (tmp_path / "bad.zip").write_text("")
+    with pytest.raises(FileExistsError) as err:
+        (tmp_path / "bad.zip").mkdir(parents=True, exist_ok=True)
+    assert path_error_message(err.value).endswith("it is a file, and a directory is needed there")

@@ -183,7 +183,11 @@ def path_error_message(err: OSError) -> str:
     if len(where) > PATH_SHOWN_MAX:
         half = (PATH_SHOWN_MAX - 3) // 2
         where = f"{where[:half]}...{where[-half:]} ({len(where):,} characters)"
-    return f"cannot use {where}: {err.strerror or err}"
+    problem = err.strerror or str(err)
+    if isinstance(err, FileExistsError) and err.filename and Path(err.filename).is_file():
+        # What mkdir's "File exists" means to a user who named a directory.
+        problem = "it is a file, and a directory is needed there"
+    return f"cannot use {where}: {problem}"
 
 
 def json_safe(data: Any) -> Any:

@@ -19,6 +19,7 @@ from itskill.cli.common import (
     steps_option,
     user_errors,
 )
+from itskill.limits import NUM_ENVS_MAX
 
 
 def train_cmd(
@@ -33,7 +34,7 @@ def train_cmd(
         "runs/train"
     ),
     num_envs: Annotated[
-        int | None, typer.Option(min=1, help="Environments stepped together.")
+        int | None, typer.Option(min=1, max=NUM_ENVS_MAX, help="Environments stepped together.")
     ] = None,
     hyperparams: HyperparamsOpt = None,
     eval_every: EvalEveryOpt = None,

@@ -28,7 +28,7 @@ from itskill.cli.common import (
     usage_error,
     user_errors,
 )
-from itskill.limits import SOURCES_MAX
+from itskill.limits import NUM_ENVS_MAX, SOURCES_MAX
 
 if TYPE_CHECKING:
     from itskill.transfer import TransferConfig
@@ -100,7 +100,7 @@ def transfer_train(
     ] = "expert",
     out: Annotated[Path, run_dir_option("Run directory.")] = Path("runs/transfer"),
     num_envs: Annotated[
-        int | None, typer.Option(min=1, help="Environments stepped together.")
+        int | None, typer.Option(min=1, max=NUM_ENVS_MAX, help="Environments stepped together.")
     ] = None,
     eval_every: EvalEveryOpt = None,
     eval_episodes: EvalEpisodesOpt = 50,
