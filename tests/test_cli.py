@@ -677,3 +677,9 @@ def test_render_refuses_to_overwrite_a_video_unless_forced(tmp_path):
     assert result.exit_code == 2
     assert "exists; pass --force to overwrite it" in flat(result.output)
     assert out.read_bytes() == b"another run's film"
+
+
+def test_an_upper_case_task_id_gets_the_ids_it_is_near():
+    result = runner.invoke(app, ["tasks", "show", "PICK_NUT_M12"])
+    assert result.exit_code == 2
+    assert "did you mean 'pick_nut_m12'" in flat(result.output)

@@ -203,3 +203,10 @@ def test_own_library_is_stored_relative(home):
         (skill,) = install_library(space, space.library_dir)
         assert skill.checkpoint == "pick_nut_m12/policy.safetensors"
         assert space.checkpoint_path(skill).is_file()
+
+
+def test_a_library_that_is_not_there_is_said_so(tmp_path):
+    with pytest.raises(ManifestError, match="nonexist: no such directory"):
+        read_manifest(tmp_path / "nonexist")
+    with pytest.raises(ManifestError, match="no manifest"):
+        read_manifest(tmp_path)

@@ -171,6 +171,9 @@ def test_a_name_of_digits_is_refused(home, checkpoint):
         (" pick ", "give it as 'pick'"),
         # Accepted, then --sources read "mine,v2" as the skills "mine" and "v2".
         ("mine,v2", "has a comma, which --sources reads as two names; give it as 'mine-v2'"),
+        # Printed raw, they split a table's row or recoloured the terminal.
+        ("pick\nv2", "has a control character"),
+        ("\x1b[31mred", "has a control character"),
     ],
 )
 def test_a_name_that_sources_cannot_name_is_refused(home, checkpoint, name, problem):

@@ -203,6 +203,8 @@ def read_manifest(library_dir: Path | str) -> list[ManifestEntry]:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError as err:
+        if not Path(library_dir).is_dir():
+            raise ManifestError(f"{library_dir}: no such directory") from err
         raise ManifestError(f"{path}: no manifest (not a skill library directory)") from err
     except OSError as err:
         raise ManifestError(f"{path}: cannot be read: {err.strerror or err}") from err

@@ -22,6 +22,7 @@ import json
 import os
 import sqlite3
 import time
+import unicodedata
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -145,7 +146,8 @@ def check_skill_name(name: str) -> None:
     """Raise :class:`InvalidSkillNameError` unless ``name`` can name a skill wherever a skill is
     named: not blank, no whitespace around it (a name in ``--sources`` is stripped, so " pick"
     could never be given there), not all digits (``get`` and ``remove`` would take it for a
-    serial number), no comma (``--sources`` separates names with commas)."""
+    serial number), no comma (``--sources`` separates names with commas), no control character
+    (a newline or a terminal escape in a name breaks every table and message it is printed in)."""
     if not name.strip():
         raise InvalidSkillNameError(f"skill name {name!r} is blank; give it a name with a letter")
     if name != name.strip():
@@ -162,6 +164,11 @@ def check_skill_name(name: str) -> None:
         raise InvalidSkillNameError(
             f"skill name {name!r} has a comma, which --sources reads as two names; "
             f"give it as {name.replace(',', '-')!r}"
+        )
+    if any(unicodedata.category(c) == "Cc" for c in name):
+        raise InvalidSkillNameError(
+            f"skill name {name!r} has a control character (a newline, tab or terminal escape), "
+            "which breaks every table and message it is printed in; give it printable characters"
         )
 
 

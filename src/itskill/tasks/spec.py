@@ -100,7 +100,8 @@ class UnknownTaskError(PicklableError, KeyError):
         self.name, self.known = name, known
 
     def __str__(self) -> str:
-        close = difflib.get_close_matches(self.name, self.known, n=3, cutoff=0.8)
+        # Ids are lower case: PICK_NUT_M12 is as near pick_nut_m12 as the typo pick_nut_m21.
+        close = difflib.get_close_matches(self.name.strip().lower(), self.known, n=3, cutoff=0.8)
         if close:
             # A typo: the few ids it is near, not all of them (`itskill tasks list` has those).
             return (
