@@ -199,13 +199,18 @@ def test_a_warm_started_skill_records_the_demonstrations_env_steps(tmp_path, mon
     assert rows[1].startswith("0,")
 
 
-def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_better(
-    tmp_path, monkeypatch
-) -> None:
+@pytest.fixture
+def quick_critic(tmp_path, monkeypatch) -> None:
+    """The packaged hyper-parameters with a refining run's critic fitted on 8 episodes, not 64."""
     packaged = config_module.default_path().read_text()
     hp = tmp_path / "hyperparams.toml"
     hp.write_text(packaged.replace("critic_episodes = 64", "critic_episodes = 8"))
     monkeypatch.setattr(config_module, "default_path", lambda: hp)
+
+
+def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_better(
+    tmp_path, monkeypatch, quick_critic
+) -> None:
     measured = {"success": 0.6, "refined_from": 0.6}
 
     def measure(spec, policy_dir, config):  # stubbed: the test is about the bookkeeping
@@ -262,14 +267,10 @@ def test_refining_trains_on_from_the_librarys_skill_and_replaces_it_only_if_bett
 
 
 def test_a_skill_whose_task_warm_starts_from_demonstrations_is_refined_from_the_skill(
-    tmp_path, monkeypatch
+    tmp_path, monkeypatch, quick_critic
 ) -> None:
     # place_nut_m12's packaged hyper-parameters clone its script first; refined, the shipped
     # policy is the start instead (the trainer refuses a run asked to start from both).
-    packaged = config_module.default_path().read_text()
-    hp = tmp_path / "hyperparams.toml"
-    hp.write_text(packaged.replace("critic_episodes = 64", "critic_episodes = 8"))
-    monkeypatch.setattr(config_module, "default_path", lambda: hp)
     refine = PretrainConfig(steps=256, num_envs=8, eval_episodes=4, eval_every=256, refine=True)
     monkeypatch.setattr(
         "itskill.skills.pretrain.measure_skill",
