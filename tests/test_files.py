@@ -136,3 +136,17 @@ def test_a_file_where_a_directory_is_needed_is_said_so(tmp_path) -> None:
     with pytest.raises(FileExistsError) as err:
         (tmp_path / "bad.zip").mkdir(parents=True, exist_ok=True)
     assert path_error_message(err.value).endswith("it is a file, and a directory is needed there")
+
+
+def test_a_lock_folder_others_can_write_is_refused(tmp_path, monkeypatch) -> None:
+    # Its name is predictable: another user's folder of that name could hold or delete the locks.
+    import tempfile
+
+    from itskill.files import directory_lock, is_unusable_path
+
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    (tmp_path / f"itskill-locks-{os.getuid()}").mkdir(mode=0o777)
+    os.chmod(tmp_path / f"itskill-locks-{os.getuid()}", 0o777)
+    with pytest.raises(PermissionError, match="not a folder of this user's alone") as err:
+        directory_lock(tmp_path / "run", "run")
+    assert is_unusable_path(err.value)

@@ -13,6 +13,7 @@ import json
 import math
 import os
 import shutil
+import stat
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -260,6 +261,14 @@ def directory_lock(directory: Path, kind: str) -> FileLock:
     user = os.getuid() if hasattr(os, "getuid") else "user"
     locks = Path(tempfile.gettempdir()) / f"itskill-locks-{user}"
     locks.mkdir(mode=0o700, exist_ok=True)
+    if hasattr(os, "getuid"):
+        # The name is predictable: a folder another user made first could hold or delete the
+        # locks, so that two sessions work on one run.
+        st = locks.lstat()
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != user or st.st_mode & 0o077:
+            raise PermissionError(
+                errno.EACCES, "not a folder of this user's alone (remove it to go on)", str(locks)
+            )
     return FileLock(str(locks / f"{kind}-{key}.lock"))
 
 

@@ -226,7 +226,12 @@ def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budg
     assert (out / summary["skill"]["policy"] / "checkpoint.json").is_file()  # the policy is kept
     assert "## Not added to the skill space" in (out / "report.md").read_text()
 
-    # A lower threshold on resume adds the policy as it is, without training it again.
+    # A plain resume keeps the run's threshold, not the budget's; a lower one given on resume
+    # adds the policy as it is, without training it again.
+    resumed = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out),
+                    "--no-video", "--resume")  # fmt: skip
+    assert resumed.exit_code == 0, resumed.output
+    assert json.loads((out / "summary.json").read_text())["skill"]["added"] is False
     weights = (out / summary["skill"]["policy"] / "policy.safetensors").read_bytes()
     result = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out),
                    "--no-video", "--min-success", "0.0", "--resume")  # fmt: skip
@@ -239,6 +244,11 @@ def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budg
         (skill,) = space.list(task_id="pickplace_nut_m12")
     assert Path(skill.checkpoint).read_bytes() == weights
     assert "## Skill added to the skill space" in (out / "report.md").read_text()
+    # A higher one leaves it there, and says so.
+    result = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out),
+                   "--no-video", "--min-success", "1.0", "--resume")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "it stays, below this threshold of 100%" in flat(result.output)
 
 
 def test_ungroundable_command_is_one_clear_line(tmp_path, budgets):

@@ -539,10 +539,17 @@ def test_an_experiment_copy_that_is_not_utf8_is_a_report_error(tmp_path):
     assert "not UTF-8 text" in result.output and "Traceback" not in result.output
 
 
+def test_an_empty_out_is_refused_rather_than_taken_for_the_current_directory(tmp_path):
+    run = _bare_run(tmp_path)
+    result = CliRunner().invoke(app, ["report", str(run), "--no-video", "--out", ""])
+    assert result.exit_code == 2 and "name a directory for the report" in result.output
+
+
 @pytest.mark.parametrize(
     ("file", "text", "problem"),
     [
         ("provenance.json", '{"sessions": 5}', "sessions: expected a list, got 5"),
+        ("provenance.json", "[]", "expected a JSON object, got []"),
         ("provenance.json", '{"sessions": [{"command": 5}]}', "sessions[0].command: expected"),
         ("sources.json", "[1]", "expected an object of task -> list of source skill names"),
     ],

@@ -174,6 +174,7 @@ def test_a_name_of_digits_is_refused(home, checkpoint):
         # Printed raw, they split a table's row or recoloured the terminal.
         ("pick\nv2", "has a control character"),
         ("\x1b[31mred", "has a control character"),
+        ("pick\u202ev2", "has a control character"),
     ],
 )
 def test_a_name_that_sources_cannot_name_is_refused(home, checkpoint, name, problem):

@@ -145,11 +145,11 @@ def experiment_held_out(
 def report_cmd(
     run: Annotated[Path, typer.Argument(help="An experiment run directory.")],
     out: Annotated[
-        Path | None,
-        run_dir_option(
-            "Where to write the report, with a copy of RUN's small files (default: inside RUN): "
-            "a directory holding none of the files it writes, or an earlier report of RUN to "
-            "write again."
+        str | None,
+        typer.Option(
+            help="Where to write the report, with a copy of RUN's small files (default: inside "
+            "RUN): a directory holding none of the files it writes, or an earlier report of RUN "
+            "to write again (`.` where you are in one)."
         ),
     ] = None,
     video: Annotated[
@@ -165,7 +165,12 @@ def report_cmd(
     ] = None,
 ) -> None:
     """Write report.md and report.html (figures, tables, video) for an experiment run."""
-    _write_report(run, out, video, baseline_run)
+    if out is not None and not out.strip():
+        # As a Path, "" is the current directory: a mistyped variable would fill it.
+        raise typer.BadParameter(
+            "name a directory for the report ('.' for this one)", param_hint="--out"
+        )
+    _write_report(run, None if out is None else Path(out), video, baseline_run)
 
 
 def _write_report(

@@ -36,7 +36,14 @@ from rich.console import Console
 from rich.markup import escape
 
 from itskill.curves import read_curve
-from itskill.datafile import DataFileError, check_positive, check_table, check_type, read_toml
+from itskill.datafile import (
+    DataFileError,
+    check_positive,
+    check_table,
+    check_type,
+    is_number,
+    read_toml,
+)
 from itskill.experiments.learn_layout import (
     LEARN_FILE,
     REWARD_DIR,
@@ -361,6 +368,15 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
     write_json(path, settings)
 
 
+def _recorded_min_success(run_dir: Path, default: float) -> float:
+    """The ``min_success`` a learn run in ``run_dir`` recorded; ``default`` where it has none."""
+    path = run_dir / LEARN_FILE
+    data = read_json(path) if path.is_file() else {}
+    recorded = data.get("budget") if isinstance(data, dict) else None
+    value = recorded.get("min_success") if isinstance(recorded, dict) else None
+    return float(value) if is_number(value) and 0.0 <= value <= 1.0 else default
+
+
 _RESUMED_WITH_ANOTHER = ("budget.min_success",)
 """Settings a resume may change: the threshold decides only whether the trained policy joins
 the skill space, a step redone without training again (a policy kept out at 50% is added at 40%
@@ -434,6 +450,9 @@ def learn(
         )
     command = command.strip()
     run_dir = learn_dir(command, out)
+    if resume and min_success is None:
+        # The threshold the run was started (or last resumed) with, not the budget's again.
+        b = replace(b, min_success=_recorded_min_success(run_dir, b.min_success))
     created = not run_dir.exists()
     client = make_client(llm, cache_dir=run_dir / "llm_cache")
     settings = {"command": command, "budget": b.to_dict(), "seed": seed, "llm": client.name}
@@ -863,7 +882,9 @@ def _add_skill(
     if kept_out and cached["min_success"] != b.min_success:
         cached = None  # resumed with another threshold: decided again, the policy as it was
     was_cached = cached is not None
-    if cached is None and evaluation["success_rate"] < b.min_success:
+    pending = steps.run_dir / "skill.pending.json"
+    # An add cut short is finished whatever the threshold: the skill may be in the space already.
+    if cached is None and evaluation["success_rate"] < b.min_success and not pending.is_file():
         cached = {
             "added": False,
             "min_success": b.min_success,
@@ -871,7 +892,6 @@ def _add_skill(
             "policy": _in_run(policy_dir(run_dir, transfer), run_dir),
         }
     elif cached is None:
-        pending = steps.run_dir / "skill.pending.json"
         with open_skill_space() as space:
             if pending.is_file():
                 # Interrupted between adding the skill and recording it: the same name again,
@@ -918,6 +938,11 @@ def _add_skill(
     cached.setdefault("added", True)  # a skill.json from before the threshold: it was added
     if cached["added"]:
         done = f"skill {cached['id']} {cached['name']!r} in {cached['skill_space']}"
+        if evaluation["success_rate"] < b.min_success:
+            done += (
+                f" (added by an earlier session; it stays, below this threshold of "
+                f"{b.min_success:.0%}: `itskill skills remove` takes it out)"
+            )
     else:
         done = (
             f"not added: success {evaluation['success_rate']:.0%} is below "

@@ -88,7 +88,7 @@ def now() -> str:
 
 
 _SESSIONS = {
-    "sessions": [
+    "sessions?": [
         {
             "command": str,
             "started": str,
@@ -108,9 +108,9 @@ class Sessions:
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self.data: dict[str, Any] = read_json(self.path) if self.path.is_file() else {}
-        self.data.setdefault("sessions", [])
         # Read by every report and resume: an edited file is named, not a KeyError later.
         check_shape(self.path, self.data, _SESSIONS)
+        self.data.setdefault("sessions", [])
 
     def start(self, **extra: Any) -> None:
         """Record a new session starting now."""

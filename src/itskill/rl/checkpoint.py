@@ -335,7 +335,8 @@ def policy_from_meta(
     ``policy_class`` is the import path the trainer records (``module.Class``). The staged policy
     is built from its :class:`PolicyConfig`; any other class must provide a classmethod
     ``from_config(config)`` (the transfer policies do), so this layer never imports them. Only
-    classes of the ``itskill`` package are imported: a checkpoint is data, not code.
+    classes of the ``itskill`` package are imported: the class a checkpoint names is never code
+    of its own.
     """
     cls = (
         StagedActorCriticPolicy
@@ -354,7 +355,7 @@ def policy_from_meta(
 def _policy_class(path: str, where: str | Path) -> type[ActorCriticPolicy]:
     """The policy class at import path ``path``, imported only from the ``itskill`` package:
     loading imports the module a checkpoint names, and a skill from elsewhere could name one of
-    its own beside it (the current directory is on the path)."""
+    its own beside it (under ``python -m`` the current directory is on the path)."""
     module, _, name = path.rpartition(".")
     if module.partition(".")[0] != "itskill":
         raise CheckpointError(where, f"policy class {path!r} is not one of itskill's; not imported")

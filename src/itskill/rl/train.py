@@ -397,10 +397,12 @@ def train(
     """Train ``algo`` on ``task`` until ``steps`` env-steps in total, in run directory ``out``.
 
     ``reward`` is ``"expert"``, a :class:`RewardSource`, or a path to a Python file defining
-    ``compute_reward`` (see :func:`load_reward`). ``policy_class`` is any SB3 ``ActorCriticPolicy``
-    subclass (the transfer methods pass theirs); ``policy_kwargs`` go over the family's policy
-    settings. Hyper-parameters come from the packaged table for the task's
-    family (or ``hyperparams``, a TOML file of the same shape), with ``overrides`` on top
+    ``compute_reward`` (see :func:`load_reward`). ``policy_class`` is an SB3 ``ActorCriticPolicy``
+    subclass of the ``itskill`` package (the transfer methods pass theirs; a checkpoint is
+    loaded back only with one of those, :func:`itskill.rl.checkpoint.policy_from_meta`);
+    ``policy_kwargs`` go over the family's policy settings. Hyper-parameters come from the
+    packaged table for the task's family (or ``hyperparams``, a TOML file of the same shape),
+    with ``overrides`` on top
     (:func:`itskill.rl.config.load_hyperparams`); ``num_envs`` overrides the family's value.
 
     If ``out`` already holds a checkpoint of the same task, algorithm, seed and reward, training

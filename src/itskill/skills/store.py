@@ -142,6 +142,11 @@ class UnknownSkillError(SkillSpaceError, KeyError):
         return f"unknown skill {self.key!r}.{hint} (`itskill skills list` shows them all)"
 
 
+_UNPRINTABLE = ("Cc", "Cf", "Zl", "Zp")
+"""Unicode categories of what prints as nothing or moves the text: control characters, format
+characters (a right-to-left override), line and paragraph separators."""
+
+
 def check_skill_name(name: str) -> None:
     """Raise :class:`InvalidSkillNameError` unless ``name`` can name a skill wherever a skill is
     named: not blank, no whitespace around it (a name in ``--sources`` is stripped, so " pick"
@@ -165,7 +170,7 @@ def check_skill_name(name: str) -> None:
             f"skill name {name!r} has a comma, which --sources reads as two names; "
             f"give it as {name.replace(',', '-')!r}"
         )
-    if any(unicodedata.category(c) == "Cc" for c in name):
+    if any(unicodedata.category(c) in _UNPRINTABLE for c in name):
         raise InvalidSkillNameError(
             f"skill name {name!r} has a control character (a newline, tab or terminal escape), "
             "which breaks every table and message it is printed in; give it printable characters"
