@@ -683,3 +683,13 @@ def test_an_upper_case_task_id_gets_the_ids_it_is_near():
     result = runner.invoke(app, ["tasks", "show", "PICK_NUT_M12"])
     assert result.exit_code == 2
     assert "did you mean 'pick_nut_m12'" in flat(result.output)
+
+
+def test_render_with_a_policy_it_cannot_load_leaves_no_folders(tmp_path):
+    out = tmp_path / "new" / "sub" / "x.mp4"
+    missing = tmp_path / "no_such_run"
+    result = runner.invoke(
+        app, ["render", "pick_nut_m12", "--policy", str(missing), "--out", str(out)]
+    )
+    assert result.exit_code == 2, result.output
+    assert not (tmp_path / "new").exists()

@@ -70,7 +70,6 @@ def record(
     if out.suffix.lower() != ".mp4" or out.is_dir():
         # Found out only after the rollout otherwise, as an encoder's cryptic error.
         raise RenderError(f"{out}: the video must be a .mp4 file path")
-    out.parent.mkdir(parents=True, exist_ok=True)
     env = make_batch_env(spec, num_envs=1, seed=seed, n_threads=1)
     fps = round(1 / env.sim.control_dt)
     renderer = None
@@ -89,6 +88,8 @@ def record(
                 writer.append_data(image)
             frames += times
 
+        # Once the policy and the renderer load: a refused policy leaves no empty folders.
+        out.parent.mkdir(parents=True, exist_ok=True)
         with imageio.get_writer(out, fps=fps, codec="libx264", quality=7) as writer:
             for _ in range(episodes):
                 env.reset()
