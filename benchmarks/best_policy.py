@@ -79,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("runs/bench_best_policy"))
     parser.add_argument("--json", type=Path, help="also write the results as JSON")
     args = parser.parse_args(argv)
+    if args.hyperparams is not None and not args.hyperparams.is_file():
+        parser.error(f"--hyperparams: no such file {args.hyperparams}")  # before every job fails
 
     runs = {s: args.out / args.task / args.method / f"seed_{s}" for s in args.seeds}
     t0 = time.perf_counter()

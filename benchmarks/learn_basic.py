@@ -213,6 +213,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--out", type=Path, default=Path("runs/learn_basic"))
     args = parser.parse_args(argv)
+    if args.demos is not None and args.demos < 0:
+        parser.error(f"--demos must be 0 or more, got {args.demos}")  # before every job fails
 
     args.out.mkdir(parents=True, exist_ok=True)
     cells = [(t, a, s) for t in args.tasks for a in args.algos for s in args.seeds]
