@@ -147,6 +147,8 @@ def test_a_lock_folder_others_can_write_is_refused(tmp_path, monkeypatch) -> Non
     monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
     (tmp_path / f"itskill-locks-{os.getuid()}").mkdir(mode=0o777)
     os.chmod(tmp_path / f"itskill-locks-{os.getuid()}", 0o777)
-    with pytest.raises(PermissionError, match="not a folder of this user's alone") as err:
+    with pytest.raises(
+        PermissionError, match="not a folder of this user's alone; set TMPDIR"
+    ) as err:
         directory_lock(tmp_path / "run", "run")
     assert is_unusable_path(err.value)

@@ -262,12 +262,14 @@ def directory_lock(directory: Path, kind: str) -> FileLock:
     locks = Path(tempfile.gettempdir()) / f"itskill-locks-{user}"
     locks.mkdir(mode=0o700, exist_ok=True)
     if hasattr(os, "getuid"):
-        # The name is predictable: a folder another user made first could hold or delete the
-        # locks, so that two sessions work on one run.
+        # The name is predictable: a folder another user made first, or can write in, could
+        # hold or delete the locks, so that two sessions work on one run.
         st = locks.lstat()
-        if not stat.S_ISDIR(st.st_mode) or st.st_uid != user or st.st_mode & 0o077:
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != user or st.st_mode & 0o022:
             raise PermissionError(
-                errno.EACCES, "not a folder of this user's alone (remove it to go on)", str(locks)
+                errno.EACCES,
+                "not a folder of this user's alone; set TMPDIR to a folder of your own",
+                str(locks),
             )
     return FileLock(str(locks / f"{kind}-{key}.lock"))
 

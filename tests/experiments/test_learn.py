@@ -226,6 +226,17 @@ def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budg
     assert (out / summary["skill"]["policy"] / "checkpoint.json").is_file()  # the policy is kept
     assert "## Not added to the skill space" in (out / "report.md").read_text()
 
+    # An add cut short before the skill joined the space, resumed with a threshold the policy
+    # misses, is dropped: nothing is added, and the record of it goes.
+    (out / "skill.pending.json").write_text('{"name": "learned-never-added"}')
+    result = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out),
+                   "--no-video", "--min-success", "0.99", "--resume")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "skill.json").read_text())["added"] is False
+    assert not (out / "skill.pending.json").exists()
+    with open_skill_space() as space:
+        assert space.list(task_id="pickplace_nut_m12") == []
+
     # A plain resume keeps the run's threshold, not the budget's; a lower one given on resume
     # adds the policy as it is, without training it again.
     resumed = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out),

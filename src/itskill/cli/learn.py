@@ -62,7 +62,9 @@ def learn_cmd(
         typer.Option(
             min=0.0,
             max=1.0,
-            help="Success the new skill needs to join the skill space (overrides the budget's).",
+            help="Success the new skill needs to join the skill space (default: the budget's; "
+            "on --resume, the run's; given on --resume, a policy kept out is added if it "
+            "reaches it).",
         ),
     ] = None,
 ) -> None:

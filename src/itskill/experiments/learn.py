@@ -864,6 +864,19 @@ def _in_run(path: Path, run_dir: Path) -> str:
     return (path.relative_to(run_dir) if path.is_relative_to(run_dir) else path).as_posix()
 
 
+def _added_record(skill: Any, space: Any) -> dict[str, Any]:
+    """What ``skill.json`` records of ``skill``, added to the skill space ``space``."""
+    return {
+        "added": True,
+        "id": skill.id,
+        "name": skill.name,
+        "task": skill.task_id,
+        "checkpoint": skill.checkpoint,
+        "skill_space": str(space.path),
+        "success_rate": skill.success_rate,
+    }
+
+
 def _add_skill(
     command: str,
     plan: dict[str, Any],
@@ -883,8 +896,18 @@ def _add_skill(
         cached = None  # resumed with another threshold: decided again, the policy as it was
     was_cached = cached is not None
     pending = steps.run_dir / "skill.pending.json"
-    # An add cut short is finished whatever the threshold: the skill may be in the space already.
-    if cached is None and evaluation["success_rate"] < b.min_success and not pending.is_file():
+    below = evaluation["success_rate"] < b.min_success
+    if cached is None and below and pending.is_file():
+        # An add cut short, resumed with a threshold the policy misses: kept if it went through
+        # (the skill is in the space), else dropped.
+        with open_skill_space() as space:
+            name = read_json(pending)["name"]
+            added = next((s for s in space.list() if s.name == name), None)
+            if added is not None:
+                cached = _added_record(added, space)
+        if cached is None:
+            pending.unlink()
+    if cached is None and below:
         cached = {
             "added": False,
             "min_success": b.min_success,
@@ -922,19 +945,11 @@ def _add_skill(
                 algo=b.transfer.algo,
                 seed=seed,
             )
-            skill = space.add_many([skill], on_conflict="replace")[0]
-            cached = {
-                "added": True,
-                "id": skill.id,
-                "name": skill.name,
-                "task": skill.task_id,
-                "checkpoint": skill.checkpoint,
-                "skill_space": str(space.path),
-                "success_rate": skill.success_rate,
-            }
+            cached = _added_record(space.add_many([skill], on_conflict="replace")[0], space)
     if not was_cached:
         write_json(steps.run_dir / "skill.json", cached)
-        (steps.run_dir / "skill.pending.json").unlink(missing_ok=True)
+    # Whenever skill.json is there: a kill between the two left it with the step recorded.
+    pending.unlink(missing_ok=True)
     cached.setdefault("added", True)  # a skill.json from before the threshold: it was added
     if cached["added"]:
         done = f"skill {cached['id']} {cached['name']!r} in {cached['skill_space']}"

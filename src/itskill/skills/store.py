@@ -142,9 +142,14 @@ class UnknownSkillError(SkillSpaceError, KeyError):
         return f"unknown skill {self.key!r}.{hint} (`itskill skills list` shows them all)"
 
 
-_UNPRINTABLE = ("Cc", "Cf", "Zl", "Zp")
-"""Unicode categories of what prints as nothing or moves the text: control characters, format
-characters (a right-to-left override), line and paragraph separators."""
+_UNPRINTABLE = frozenset(
+    "\u061c\u200e\u200f\u2028\u2029"
+    + "".join(map(chr, range(0x202A, 0x202F)))
+    + "".join(map(chr, range(0x2066, 0x206A)))
+)
+"""What moves the text a name is printed in, besides control characters: line and paragraph
+separators, and the text-direction marks and overrides (not joiners, which some scripts and
+emoji need)."""
 
 
 def check_skill_name(name: str) -> None:
@@ -170,10 +175,11 @@ def check_skill_name(name: str) -> None:
             f"skill name {name!r} has a comma, which --sources reads as two names; "
             f"give it as {name.replace(',', '-')!r}"
         )
-    if any(unicodedata.category(c) in _UNPRINTABLE for c in name):
+    if any(unicodedata.category(c) == "Cc" or c in _UNPRINTABLE for c in name):
         raise InvalidSkillNameError(
-            f"skill name {name!r} has a control character (a newline, tab or terminal escape), "
-            "which breaks every table and message it is printed in; give it printable characters"
+            f"skill name {name!r} has a control character (a newline, tab, terminal escape, line "
+            "separator or text-direction mark), which breaks every table and message it is "
+            "printed in; give it printable characters"
         )
 
 
