@@ -492,3 +492,13 @@ def test_a_record_that_does_not_fit_its_task_is_refused_naming_the_record(
         run(out, "itn", steps=32)
     assert str(err.value).startswith(f"{out / 'transfer.json'}: {problem}")
     assert "cannot be resumed" in str(err.value)
+
+
+def test_a_plain_training_run_is_not_resumed_as_a_transfer_network(home: Path, tmp_path: Path):
+    out = tmp_path / "run"
+    train(TARGET, "a2c", 16, 0, out=out, num_envs=2, logger=QUIET, n_threads=1)
+    with pytest.raises(
+        ResumeMismatchError,
+        match="holds a run of another network, StagedActorCriticPolicy; this call trains ITNPolicy",
+    ):
+        run(out, "itn")

@@ -303,7 +303,15 @@ def require_same(
 def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> None:
     # Checkpoints written before the policy class was recorded all hold the staged policy.
     meta = {"policy_class": STAGED_POLICY_CLASS, **meta}
-    require_same(meta, want, ("task", "algo", "seed", "policy_class"), run_dir)
+    require_same(meta, want, ("task", "algo", "seed"), run_dir)
+    if meta["policy_class"] != want["policy_class"]:
+        have_net, want_net = (
+            c.rpartition(".")[2] for c in (meta["policy_class"], want["policy_class"])
+        )
+        raise ResumeMismatchError(
+            f"{run_dir}: holds a run of another network, {have_net}; this call trains "
+            f"{want_net}: use another --out directory"
+        )
     have_init, want_init = meta.get("init") or {}, want.get("init") or {}
     if have_init.get("sha256") != want_init.get("sha256"):
         raise ResumeMismatchError(
