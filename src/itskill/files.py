@@ -258,14 +258,14 @@ def directory_lock(directory: Path, kind: str) -> FileLock:
     see it; a cluster's nodes do not.
     """
     key = hashlib.sha256(str(Path(directory).resolve()).encode()).hexdigest()[:16]
-    user = os.getuid() if hasattr(os, "getuid") else "user"
-    locks = Path(tempfile.gettempdir()) / f"itskill-locks-{user}"
+    uid = os.getuid() if hasattr(os, "getuid") else None
+    locks = Path(tempfile.gettempdir()) / f"itskill-locks-{'user' if uid is None else uid}"
     locks.mkdir(mode=0o700, exist_ok=True)
-    if hasattr(os, "getuid"):
+    if uid is not None:
         # The name is predictable: a folder another user made first, or can write in, could
         # hold or delete the locks, so that two sessions work on one run.
         st = locks.lstat()
-        if not stat.S_ISDIR(st.st_mode) or st.st_uid != user or st.st_mode & 0o022:
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != uid or st.st_mode & 0o022:
             raise PermissionError(
                 errno.EACCES,
                 "not a folder of this user's alone; set TMPDIR to a folder of your own",

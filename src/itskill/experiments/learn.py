@@ -953,7 +953,7 @@ def _add_skill(
     cached.setdefault("added", True)  # a skill.json from before the threshold: it was added
     if cached["added"]:
         done = f"skill {cached['id']} {cached['name']!r} in {cached['skill_space']}"
-        if evaluation["success_rate"] < b.min_success:
+        if below:
             done += (
                 f" (added by an earlier session; it stays, below this threshold of "
                 f"{b.min_success:.0%}: `itskill skills remove` takes it out)"
