@@ -13,7 +13,9 @@ applied to the state), so it meets observations like those it was trained on; wi
         --chain pick_nut_m12 pick_nut_m12 pick_nut_m12 place_nut_m12 place_nut_m12
 
 ``--handovers N`` also says where a chain breaks: per stage, how many of N episodes got there and
-the part's offsets from the grip point and from its fixture when the stage began.
+the part's offsets from the grip point and from its fixture when the stage began; and, per stage,
+how many failed episodes lost their part there, either out of the closed fingers (a grasp that
+slipped) or by opening them short of the goal, with the part's offsets when it left.
 
 ``--noise SIGMA`` adds Gaussian noise of that standard deviation to every action, as a transfer
 target exploring around its sources' actions does (its policy's ``exp(log_std_init)``): a chain
@@ -77,48 +79,72 @@ class StageChain:
 
 
 def trace_handovers(spec: TaskSpec, policy: Policy, episodes: int, seed: int) -> list[dict]:
-    """Per stage: how many of ``episodes`` got that far, and what that stage's skill was handed.
+    """Per stage: how many of ``episodes`` got that far, what that stage's skill was handed, and
+    how many failed episodes lost their part in it.
 
     One batch of ``episodes`` environments runs one episode each. When an environment first
     enters stage ``k``, the grip point's offset from the part (``obj_to_ee``, m) and the part
     bottom's offset from its fixture point (``obj_to_fix``, m) are recorded: the state the skill
-    of stage ``k`` starts from, to compare with the starts it was trained on.
+    of stage ``k`` starts from, to compare with the starts it was trained on. The first time a
+    held part leaves the fingers, the furthest stage, whether the fingers were commanded closed
+    (``slipped``) or open (``let_go``), and the same two offsets are recorded; a row counts
+    these only for episodes that fail, since a successful chain may let go at its goal.
     """
     env = make_batch_env(spec.id, num_envs=episodes, seed=seed)
     n = len(spec.stages)
     handed: list[dict[int, np.ndarray]] = [{} for _ in range(n)]
+    lost: dict[int, tuple[int, bool, np.ndarray]] = {}
     furthest = np.zeros(episodes, dtype=np.int64)
+    success = np.zeros(episodes, dtype=bool)
     running = np.ones(episodes, dtype=bool)
+    held = np.zeros(episodes, dtype=bool)
     try:
         env.reset()
         policy.reset()
         while running.any():
             ctx = env.context()
+            # One part per chained task: slot 0.
+            offsets = np.concatenate([ctx["obj_to_ee"][:, 0], ctx["obj_to_fix"][:, 0]], axis=1)
+            grasped = ctx["grasped"][:, 0] > 0.5
             for e in np.flatnonzero(running):
                 k = int(ctx["stage"][e])
                 furthest[e] = max(furthest[e], k)
-                # One part per chained task: slot 0.
-                handed[k].setdefault(
-                    e, np.concatenate([ctx["obj_to_ee"][e, 0], ctx["obj_to_fix"][e, 0]])
-                )
+                handed[k].setdefault(e, offsets[e])
+                if held[e] and not grasped[e]:
+                    lost.setdefault(e, (int(furthest[e]), bool(ctx["grip_closed"][e]), offsets[e]))
+            held = grasped
             _, _, dones, infos = env.step(policy(ctx))
             for e in np.flatnonzero(running & dones):
                 # A stage entered on the episode's last step is seen only in its end's record
                 # (the environment is reset at once); on success every stage was reached.
                 furthest[e] = max(furthest[e], min(int(infos[e]["stages_done"]), n - 1))
+                success[e] = bool(infos[e]["is_success"])
             running &= ~dones
     finally:
         env.close()
+    failed_losses = [loss for e, loss in lost.items() if not success[e]]
     rows = []
     for k, stage in enumerate(spec.stages):
         row: dict = {"stage": k, "name": stage.name, "reached": int((furthest >= k).sum())}
         if k and handed[k]:
-            states = np.array(list(handed[k].values()))
-            for name, cols in (("obj_to_ee", slice(0, 3)), ("obj_to_fix", slice(3, 6))):
-                row[f"{name}_mean"] = states[:, cols].mean(axis=0).round(4).tolist()
-                row[f"{name}_std"] = states[:, cols].std(axis=0).round(4).tolist()
+            row.update(_offset_stats(list(handed[k].values())))
+        for kind, closed in (("slipped", True), ("let_go", False)):
+            states = [s for stage_k, c, s in failed_losses if stage_k == k and c == closed]
+            row[kind] = len(states)
+            if states:
+                row.update(_offset_stats(states, prefix=f"{kind}_"))
         rows.append(row)
     return rows
+
+
+def _offset_stats(states: list[np.ndarray], prefix: str = "") -> dict[str, list[float]]:
+    """Mean and standard deviation of ``obj_to_ee`` and ``obj_to_fix`` over recorded states."""
+    arr = np.array(states)
+    stats = {}
+    for name, cols in (("obj_to_ee", slice(0, 3)), ("obj_to_fix", slice(3, 6))):
+        stats[f"{prefix}{name}_mean"] = arr[:, cols].mean(axis=0).round(4).tolist()
+        stats[f"{prefix}{name}_std"] = arr[:, cols].std(axis=0).round(4).tolist()
+    return stats
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -175,13 +201,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hand-overs over {args.handovers} episodes (obj_to_ee = grip point - part centre, "
               "obj_to_fix = fixture point - part bottom; mean ± std):")  # fmt: skip
         for row in handovers:
-            line = f"  stage {row['stage']} {row['name']}: reached by {row['reached']}"
-            if "obj_to_ee_mean" in row:
-                line += "".join(
-                    f"; {name} {_vec(row[name + '_mean'])} ± {_vec(row[name + '_std'], '')}"
-                    for name in ("obj_to_ee", "obj_to_fix")
-                )
-            print(line)
+            print(f"  stage {row['stage']} {row['name']}: reached by {row['reached']}"
+                  + _offsets_text(row))  # fmt: skip
+            for kind, what in (("slipped", "slipped from the closed fingers"),
+                               ("let_go", "let go short of the goal")):  # fmt: skip
+                if row[kind]:
+                    print(f"    failed episodes whose part {what} here: {row[kind]}"
+                          + _offsets_text(row, f"{kind}_"))  # fmt: skip
     if args.json:
         record = {
             "chain": args.chain,
@@ -193,6 +219,16 @@ def main(argv: list[str] | None = None) -> int:
             record["handovers"] = handovers
         write_json(args.json, record)
     return 0
+
+
+def _offsets_text(row: dict, prefix: str = "") -> str:
+    """``; obj_to_ee (mean) ± (std); obj_to_fix ...`` in mm, or nothing if not recorded."""
+    if f"{prefix}obj_to_ee_mean" not in row:
+        return ""
+    return "".join(
+        f"; {name} {_vec(row[prefix + name + '_mean'])} ± {_vec(row[prefix + name + '_std'], '')}"
+        for name in ("obj_to_ee", "obj_to_fix")
+    )
 
 
 def _vec(values: list[float], sign: str = "+") -> str:

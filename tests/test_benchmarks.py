@@ -9,7 +9,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from itskill.tasks import get_task
 
 BENCHMARK_DIR = Path(__file__).resolve().parents[1] / "benchmarks"
 BENCHMARKS = sorted(BENCHMARK_DIR.glob("*.py"))
@@ -265,6 +268,34 @@ def test_source_chaining_with_action_noise_measures_a_fragile_skill(tmp_path, ca
     assert "action noise 0.61)\nsuccess 0%" in capsys.readouterr().out
     record = json.loads(out.read_text())
     assert record["noise"] == 0.61 and record["success_rate"] == 0.0
+
+
+class _GripPolicy:
+    """Holds the arm still with the fingers commanded open (``grip < 0``) or closed."""
+
+    def __init__(self, grip: float) -> None:
+        self.grip = grip
+
+    def reset(self, env_ids=None) -> None:
+        pass
+
+    def __call__(self, ctx):
+        actions = np.zeros((len(ctx["stage"]), 5))
+        actions[:, 4] = self.grip
+        return actions
+
+
+def test_handover_trace_says_where_failed_episodes_lost_their_part() -> None:
+    """carry_nut_m12 starts with the nut in the closed fingers: opening them lets it go in the
+    first stage in every (failed) episode; keeping them closed and not moving loses nothing."""
+    chaining = _load("source_chaining")
+    spec = get_task("carry_nut_m12")
+    (opened,) = chaining.trace_handovers(spec, _GripPolicy(-1.0), episodes=4, seed=0)
+    assert (opened["let_go"], opened["slipped"]) == (4, 0)
+    # Let go where the episode started: the grip point still about the nut's height above it.
+    assert abs(opened["let_go_obj_to_ee_mean"][2]) < 0.02
+    (kept,) = chaining.trace_handovers(spec, _GripPolicy(1.0), episodes=4, seed=0)
+    assert (kept["let_go"], kept["slipped"], kept["reached"]) == (0, 0, 4)
 
 
 def test_learn_basic_learns_a_task_that_clones_its_script_from_scratch_with_demos_0(

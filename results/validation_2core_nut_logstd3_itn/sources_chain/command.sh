@@ -12,3 +12,10 @@ python benchmarks/source_chaining.py pickplace_nut_m12 \
     --chain pick_nut_m12 pick_nut_m12 pick_nut_m12 place_nut_m12 place_nut_m12 \
     --episodes 200 --noise 0.0498 \
     --json results/validation_2core_nut_logstd3_itn/sources_chain/chain_heldout_200_noise_0.0498.json
+# Where the chain's failed episodes lose the nut (the hand-over trace, which now also records
+# the moment a held part leaves the fingers; 200 episodes in one batch). 2026-12-06, late night,
+# the idle project machine.
+python benchmarks/source_chaining.py pickplace_nut_m12 \
+    --chain pick_nut_m12 pick_nut_m12 pick_nut_m12 place_nut_m12 place_nut_m12 \
+    --episodes 200 --handovers 200 \
+    --json results/validation_2core_nut_logstd3_itn/sources_chain/chain_heldout_200_handovers.json
