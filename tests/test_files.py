@@ -152,3 +152,31 @@ def test_a_lock_folder_others_can_write_is_refused(tmp_path, monkeypatch) -> Non
     ) as err:
         directory_lock(tmp_path / "run", "run")
     assert is_unusable_path(err.value)
+
+
+def test_a_lock_folder_of_another_user_is_refused(tmp_path, monkeypatch) -> None:
+    # Another user who made the folder first owns it: this session is another uid than its owner.
+    import tempfile
+
+    from itskill.files import directory_lock
+
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    other = os.getuid() + 1
+    (tmp_path / f"itskill-locks-{other}").mkdir(mode=0o700)
+    monkeypatch.setattr(os, "getuid", lambda: other)
+    with pytest.raises(PermissionError, match="not a folder of this user's alone"):
+        directory_lock(tmp_path / "run", "run")
+
+
+def test_a_lock_folder_that_is_a_link_is_refused(tmp_path, monkeypatch) -> None:
+    # A link named like the folder could lead the locks into a folder someone else controls.
+    import tempfile
+
+    from itskill.files import directory_lock
+
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    (tmp_path / "elsewhere").mkdir(mode=0o700)
+    (tmp_path / f"itskill-locks-{os.getuid()}").symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(PermissionError, match="not a folder of this user's alone"):
+        directory_lock(tmp_path / "run", "run")
+    assert not any((tmp_path / "elsewhere").iterdir())
