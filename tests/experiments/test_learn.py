@@ -224,7 +224,17 @@ def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budg
     with open_skill_space() as space:
         assert space.list(task_id="pickplace_nut_m12") == []
     assert (out / summary["skill"]["policy"] / "checkpoint.json").is_file()  # the policy is kept
-    assert "## Not added to the skill space" in (out / "report.md").read_text()
+    report = (out / "report.md").read_text()
+    assert "## Not added to the skill space" in report
+    assert f"It stays in the run's {summary['skill']['policy']};" in report
+    # A record from before policies were named relative to the run reads the same.
+    record = json.loads((out / "skill.json").read_text())
+    record["policy"] = str(out.resolve() / record["policy"])
+    (out / "skill.json").write_text(json.dumps(record))
+    result = learn(COMMAND, "--budgets", str(budgets), "--budget", "test", "--out", str(out),
+                   "--no-video", "--min-success", "1.0", "--resume")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert f"the policy stays in the run's {summary['skill']['policy']} " in flat(result.output)
 
     # An add cut short before the skill joined the space, resumed with a threshold the policy
     # misses, is dropped: nothing is added, and the record of it goes.

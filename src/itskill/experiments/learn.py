@@ -50,6 +50,8 @@ from itskill.experiments.learn_layout import (
     TRANSFER_DIR,
     USAGE_FILE,
     best_reward_file,
+    in_run,
+    kept_policy_words,
     policy_dir,
 )
 from itskill.experiments.provenance import Sessions
@@ -858,12 +860,6 @@ def _free_name(base: str, taken: set[str]) -> str:
     return name
 
 
-def _in_run(path: Path, run_dir: Path) -> str:
-    """``path`` relative to ``run_dir`` where it lies in it (an older run's record may name a
-    path elsewhere, kept as written)."""
-    return (path.relative_to(run_dir) if path.is_relative_to(run_dir) else path).as_posix()
-
-
 def _added_record(skill: Any, space: Any) -> dict[str, Any]:
     """What ``skill.json`` records of ``skill``, added to the skill space ``space``."""
     return {
@@ -912,7 +908,7 @@ def _add_skill(
             "added": False,
             "min_success": b.min_success,
             # Relative to the run, as its other records are: a moved run names its own.
-            "policy": _in_run(policy_dir(run_dir, transfer), run_dir),
+            "policy": in_run(policy_dir(run_dir, transfer), run_dir),
         }
     elif cached is None:
         with open_skill_space() as space:
@@ -961,7 +957,8 @@ def _add_skill(
     else:
         done = (
             f"not added: success {evaluation['success_rate']:.0%} is below "
-            f"{cached['min_success']:.0%}; the policy stays in the run's {cached['policy']} "
+            f"{cached['min_success']:.0%}; the policy stays in "
+            f"{kept_policy_words(run_dir, transfer)} "
             "(--resume --min-success X adds it at a lower threshold X)"
         )
     steps.done(done, was_cached)

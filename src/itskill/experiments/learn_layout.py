@@ -42,3 +42,16 @@ def policy_dir(run_dir: Path, transfer: dict[str, Any]) -> Path:
     best = PureWindowsPath(recorded).name == Path(BEST_POLICY).name
     usual = BEST_POLICY if best else TRANSFER_DIR
     return run_path(run_dir, recorded, usual)
+
+
+def in_run(path: Path, run_dir: Path) -> str:
+    """``path`` relative to ``run_dir`` where it lies in it (an older run's record may name a
+    path elsewhere, kept as written)."""
+    return (path.relative_to(run_dir) if path.is_relative_to(run_dir) else path).as_posix()
+
+
+def kept_policy_words(run_dir: Path, transfer: dict[str, Any]) -> str:
+    """Where the kept policy is, for a message: ``the run's transfer/best``, or the path where an
+    older run's record names one outside the run."""
+    path = policy_dir(run_dir, transfer)
+    return f"the run's {in_run(path, run_dir)}" if path.is_relative_to(run_dir) else str(path)

@@ -47,7 +47,12 @@ from itskill.experiments.document import (
     write_document,
 )
 from itskill.experiments.held_out import HELD_OUT_FILE, POLICY_DIRS, read_held_out
-from itskill.experiments.learn_layout import best_reward_file, policy_dir, transfer_dir
+from itskill.experiments.learn_layout import (
+    best_reward_file,
+    kept_policy_words,
+    policy_dir,
+    transfer_dir,
+)
 from itskill.experiments.plots import method_label, plot_attention, plot_learning_curves
 from itskill.experiments.provenance import Sessions, machine_facts, now
 from itskill.experiments.runner import (
@@ -1138,8 +1143,9 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
         doc.add(
             Paragraph(
                 f"The success is below the budget's min_success ({skill['min_success']:.0%}), so "
-                f"later runs will not retrieve this policy as a source. It stays in the run's "
-                f"{skill['policy']}; a larger budget (--steps, in a new run) may get it there, "
+                "later runs will not retrieve this policy as a source. It stays in "
+                f"{kept_policy_words(learn_dir, transfer)}; a larger budget (--steps, in a new "
+                "run) may get it there, "
                 "and `--resume --min-success X` adds it at a lower threshold X without training "
                 "again."
             )
