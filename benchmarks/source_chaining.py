@@ -78,9 +78,10 @@ class StageChain:
         return actions
 
 
-def trace_handovers(spec: TaskSpec, policy: Policy, episodes: int, seed: int) -> list[dict]:
-    """Per stage: how many of ``episodes`` got that far, what that stage's skill was handed, and
-    how many failed episodes lost their part in it.
+def trace_handovers(spec: TaskSpec, policy: Policy, episodes: int, seed: int) -> dict:
+    """Where a chain breaks: ``episodes``, ``successes``, and ``stages``, a row per stage saying
+    how many of the episodes got that far, what that stage's skill was handed, and how many
+    failed episodes lost their part in it.
 
     One batch of ``episodes`` environments runs one episode each. When an environment first
     enters stage ``k``, the grip point's offset from the part (``obj_to_ee``, m) and the part
@@ -134,7 +135,7 @@ def trace_handovers(spec: TaskSpec, policy: Policy, episodes: int, seed: int) ->
             if states:
                 row.update(_offset_stats(states, prefix=f"{kind}_"))
         rows.append(row)
-    return rows
+    return {"episodes": episodes, "successes": int(success.sum()), "stages": rows}
 
 
 def _offset_stats(states: list[np.ndarray], prefix: str = "") -> dict[str, list[float]]:
@@ -198,9 +199,10 @@ def main(argv: list[str] | None = None) -> int:
         handovers = trace_handovers(
             spec, make_policy(policy, spec, args.handovers), args.handovers, args.seed
         )
-        print(f"hand-overs over {args.handovers} episodes (obj_to_ee = grip point - part centre, "
-              "obj_to_fix = fixture point - part bottom; mean ± std):")  # fmt: skip
-        for row in handovers:
+        print(f"hand-overs over {args.handovers} episodes, {handovers['successes']} of them "
+              "successful (obj_to_ee = grip point - part centre, obj_to_fix = fixture point - "
+              "part bottom; mean ± std):")  # fmt: skip
+        for row in handovers["stages"]:
             print(f"  stage {row['stage']} {row['name']}: reached by {row['reached']}"
                   + _offsets_text(row))  # fmt: skip
             for kind, what in (("slipped", "slipped from the closed fingers"),

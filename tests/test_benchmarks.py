@@ -290,11 +290,13 @@ def test_handover_trace_says_where_failed_episodes_lost_their_part() -> None:
     first stage in every (failed) episode; keeping them closed and not moving loses nothing."""
     chaining = _load("source_chaining")
     spec = get_task("carry_nut_m12")
-    (opened,) = chaining.trace_handovers(spec, _GripPolicy(-1.0), episodes=4, seed=0)
+    trace = chaining.trace_handovers(spec, _GripPolicy(-1.0), episodes=4, seed=0)
+    assert (trace["episodes"], trace["successes"]) == (4, 0)
+    (opened,) = trace["stages"]
     assert (opened["let_go"], opened["slipped"]) == (4, 0)
     # Let go where the episode started: the grip point still about the nut's height above it.
     assert abs(opened["let_go_obj_to_ee_mean"][2]) < 0.02
-    (kept,) = chaining.trace_handovers(spec, _GripPolicy(1.0), episodes=4, seed=0)
+    (kept,) = chaining.trace_handovers(spec, _GripPolicy(1.0), episodes=4, seed=0)["stages"]
     assert (kept["let_go"], kept["slipped"], kept["reached"]) == (0, 0, 4)
 
 
