@@ -364,6 +364,9 @@ def test_a_resume_with_another_setting_names_the_setting(home: Path, tmp_path: P
         # Each was refused as another run: the setting plays no part in the method's network.
         ("no_transfer", TransferConfig(k=5, pst_keep=2, prior_weight=0.9)),
         ("itn", TransferConfig(k=5, pst_keep=2)),  # sources named, not retrieved
+        # Neither has attention; DFS has no fusion either: the loaded network is the same.
+        ("dfs", TransferConfig(prior_weight=0.3, attention_hidden=16, fusion_hidden=(64,))),
+        ("nia", TransferConfig(prior_weight=0.3, attention_hidden=16)),
     ],
 )
 def test_a_resume_ignores_the_settings_its_method_does_not_use(

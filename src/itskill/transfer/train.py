@@ -52,7 +52,7 @@ from itskill.tasks.spec import TaskSpec
 from itskill.transfer.analyzer import ContributionMatrix, analyze, validate_matrix
 from itskill.transfer.config import TransferConfig, load_transfer_config
 from itskill.transfer.lateral import weights_on_disk
-from itskill.transfer.methods import METHODS, Method, all_sources, get_method, used_settings
+from itskill.transfer.methods import METHODS, Method, get_method, used_settings
 from itskill.transfer.sources import AUTO, SourceError, SourceSkill, parse_keys, resolve_sources
 from itskill.transfer.stages import fill_performers, stage_map, stage_performers
 
@@ -178,23 +178,20 @@ def _as_compared(settings: dict[str, Any], names: dict[int, str]) -> dict[str, A
 
 def _unused(method: str, request: Any) -> set[str]:
     """The :class:`TransferConfig` fields a run of ``method`` with sources ``request`` does not
-    depend on, which a resume need not be given again: the analyzer's retries and the
-    retrieval's success threshold (the record holds its matrix and its sources, neither is asked
-    for again, and a run from before the threshold resumes); every field for a method without
-    sources; how many to retrieve and whether alike ones are skipped for sources named, not
-    retrieved; PST's ``keep`` for the other methods. (A no_transfer run was refused when resumed
-    with another ``-k``.)"""
-    unused = {"analyzer_retries", "min_success"}
+    depend on, which a resume need not be given again: all but the method's own
+    (:attr:`Method.settings`, which shape its network or its choice of sources), and how many
+    sources to retrieve and whether alike ones are skipped where they are retrieved
+    (``request`` is ``auto``). The record holds the analyzer's matrix and the sources, so
+    neither the analyzer's retries nor the retrieval's success threshold matter again; a
+    resumed network is loaded whole, so a setting its method does not read cannot change it."""
+    everything = {f.name for f in fields(TransferConfig)}
     meth = METHODS.get(method)
     if meth is None:
-        return unused  # refused by the method's own comparison
+        return set()  # refused by the method's own comparison
     if not meth.uses_sources:
-        return {f.name for f in fields(TransferConfig)}
-    if request != AUTO:
-        unused |= {"k", "distinct_actions"}
-    if meth.select is all_sources:
-        unused.add("pst_keep")
-    return unused
+        return everything
+    used = set(meth.settings) | ({"k", "distinct_actions"} if request == AUTO else set())
+    return everything - used
 
 
 def _settings(
