@@ -210,6 +210,22 @@ def test_cells_train_with_the_files_transfer_settings_and_a_resume_keeps_them(to
     assert [c.name for c in summary.skipped] == ["pickplace_nut_m12/itn/seed_0"]
 
 
+def test_a_run_resumed_with_fewer_methods_is_not_refused_for_those_left_out(toy, tmp_path):
+    # The ITN and DFS run, resumed to train DFS alone, was refused: ITN's attention settings,
+    # which the file for DFS does not list, counted as changed.
+    config, _ = toy
+    run = tmp_path / "run"
+    both = type(config)(**{**config.__dict__, "methods": ("itn", "dfs"), "seeds": (0,)})
+    run_experiment(both, run, "local", 1, console=quiet())
+    dfs = type(config)(**{**both.__dict__, "methods": ("dfs",)})
+    summary = run_experiment(dfs, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.skipped] == ["pickplace_nut_m12/dfs/seed_0"]
+    # A setting DFS uses still counts.
+    plain = type(config)(**{**dfs.__dict__, "transfer": {"head": {"residual": False}}})
+    with pytest.raises(ExperimentRunError, match="transfer="):
+        run_experiment(plain, run, "local", 1, resume=True, console=quiet())
+
+
 def test_a_no_transfer_run_resumed_with_transfer_settings_keeps_its_cells(toy, tmp_path):
     """Its cells use none of them; a default written out is the default."""
     config, _ = toy

@@ -324,8 +324,11 @@ def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: 
         mismatch = have.get(key) != want[key]
         if key in ("reward", "sources", "hyperparams"):  # per task: a task added brings its own
             mismatch = any(have[key].get(t, want[key][t]) != want[key][t] for t in want[key])
-        if key == "transfer":  # those the trained methods use: a method added brings its own
-            mismatch = any(want[key].get(name) != v for name, v in have[key].items())
+        if key == "transfer":
+            # Those both the trained and the named methods use: a method added brings its own,
+            # a method left out takes its settings along (its cells are checked against their
+            # own records when they resume).
+            mismatch = any(want[key].get(name, v) != v for name, v in have[key].items())
         if mismatch:
             raise ExperimentRunError(
                 f"{run_dir}: was run with {key}={have.get(key)!r}, the experiment file now "
