@@ -287,3 +287,11 @@ def test_a_trained_transfer_policy_can_be_a_source(tiny_sources, tmp_path: Path)
     _, actions = outer.mlp_extractor.source_outputs(obs)
     torch.testing.assert_close(actions[0], inner.get_distribution(obs).distribution.mean)
     assert isinstance(outer.mlp_extractor.sources[0].mlp_extractor.merge, nn.Module)
+    # Its own sources run once per pass of the outer network: they ran twice, once for its
+    # features and again for its residual action.
+    runs = []
+    nested_extractor = nested.mlp_extractor
+    original = nested_extractor.source_outputs
+    nested_extractor.source_outputs = lambda x: runs.append(1) or original(x)
+    outer.mlp_extractor.source_outputs(obs)
+    assert len(runs) == 1

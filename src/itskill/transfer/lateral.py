@@ -166,13 +166,21 @@ def _stage_remap(stage_map: Sequence[int] | None, name: str) -> torch.Tensor:
     return _stage_table(stage_map, MAX_STAGES)
 
 
-def action_mean(policy: ActorCriticPolicy, obs: torch.Tensor, last: torch.Tensor) -> torch.Tensor:
-    """The action mean of a staged or transfer policy, given its last actor stage output."""
-    mean = policy.action_net(last)
-    if isinstance(policy, TransferPolicy) and policy.mlp_extractor.residual_pick is not None:
-        _, actions = policy.mlp_extractor.source_outputs(obs)
-        mean = mean + policy.mlp_extractor.residual(obs, actions)
-    return mean
+def source_pass(
+    policy: ActorCriticPolicy, obs: torch.Tensor
+) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """A staged or transfer policy's actor stage outputs and action mean for raw observations,
+    from one pass: a transfer policy that is a source in turn runs its own sources once."""
+    obs = obs.float()
+    if not isinstance(policy, TransferPolicy):
+        outs = policy.stage_outputs(obs)
+        return outs, policy.action_net(outs[-1])
+    ex = policy.mlp_extractor
+    outs, actions = ex.actor_pass(obs)
+    mean = policy.action_net(outs[-1])
+    if ex.residual_pick is not None:
+        mean = mean + ex.residual(obs, actions)
+    return outs, mean
 
 
 class LateralExtractor(nn.Module):
@@ -249,8 +257,9 @@ class LateralExtractor(nn.Module):
             view = torch.cat(
                 [obs[..., : STAGE_SLICE.start], stage @ remap, obs[..., STAGE_SLICE.stop :]], -1
             )
-            feats.append(src.stage_outputs(view))
-            actions.append(action_mean(src, view, feats[-1][-1]))
+            outs, mean = source_pass(src, view)
+            feats.append(outs)
+            actions.append(mean)
         return feats, actions
 
     def residual(self, obs: torch.Tensor, actions: list[torch.Tensor]) -> torch.Tensor:
@@ -264,7 +273,7 @@ class LateralExtractor(nn.Module):
         """``(raw, W)`` of the weighting (``(None, None)`` without one)."""
         return (None, None) if self.weighting is None else self.weighting(obs, actions)
 
-    def _actor_pass(self, obs: torch.Tensor) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    def actor_pass(self, obs: torch.Tensor) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
         """The merged output after each target stage, and the sources' actions."""
         feats, actions = self.source_outputs(obs)
         _, weights = self.contribution(obs, actions)
@@ -276,10 +285,10 @@ class LateralExtractor(nn.Module):
 
     def actor_stages(self, obs: torch.Tensor) -> list[torch.Tensor]:
         """The merged output after each target stage; the last one is the actor's features."""
-        return self._actor_pass(obs)[0]
+        return self.actor_pass(obs)[0]
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
-        outs, actions = self._actor_pass(features)
+        outs, actions = self.actor_pass(features)
         if self.residual_pick is None:
             return outs[-1]
         return torch.cat([outs[-1], self.residual(features, actions)], -1)
