@@ -167,6 +167,27 @@ def test_a_skill_whose_checkpoint_is_gone(tmp_path: Path, monkeypatch) -> None:
             resolve_sources("pickplace_nut_m12", "auto", space=space)
 
 
+@pytest.mark.parametrize("policy", [{}, {"stages": 5}, {"stages": [256, "wide"]}])
+def test_a_skill_whose_policy_description_is_damaged_is_named(
+    tmp_path: Path, monkeypatch, policy: dict
+) -> None:
+    # The networks read the source's stages when they are built: a KeyError or a TypeError.
+    import json
+
+    from itskill.skills import Skill, SkillSpace
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    run = tmp_path / "run"
+    make_source(run, seed=0)
+    meta = json.loads((run / "checkpoint.json").read_text())
+    (run / "checkpoint.json").write_text(json.dumps({**meta, "policy": policy}))
+    with SkillSpace() as space:
+        space.add(Skill("bent", "pick_nut_m12", "Pick up the nut", ("grasp",),
+                        str(run / POLICY_FILE)))  # fmt: skip
+        with pytest.raises(SourceError, match=r"skill 'bent'.*corrupt policy description"):
+            resolve_sources("pickplace_nut_m12", "bent", space=space)
+
+
 def test_a_weak_skill_comes_after_the_working_skills_it_would_displace(
     skill_home: Path, tmp_path: Path, monkeypatch
 ) -> None:

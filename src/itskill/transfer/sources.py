@@ -27,6 +27,7 @@ import numpy as np
 from stable_baselines3.common.policies import ActorCriticPolicy
 
 from itskill.rl.checkpoint import (
+    META_FILE,
     STAGED_POLICY_CLASS,
     load_policy,
     policy_location,
@@ -110,6 +111,17 @@ def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSk
         meta = read_meta(run_dir)
     except CheckpointError as err:
         raise SourceError(f"skill {skill.name!r} (id {skill.id}): {err}") from err
+    stages = meta["policy"].get("stages")
+    if not (
+        isinstance(stages, list)
+        and stages
+        and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in stages)
+    ):
+        # The transfer networks take their lateral connections from these stages.
+        raise SourceError(
+            f"skill {skill.name!r} (id {skill.id}): {run_dir / META_FILE}: corrupt policy "
+            f"description: stages must be a list of layer widths, got {stages!r}"
+        )
     n_actions = int(action_space().shape[0])
     if meta.get("action_size", n_actions) != n_actions:
         raise SourceError(
