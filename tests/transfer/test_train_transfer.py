@@ -287,14 +287,23 @@ def _read_back(run_dir: Path, record: dict) -> dict:
         (lambda r: r.update(sources=["pick_nut_m12"]), "sources: expected a list of objects"),
         (lambda r: r.update(contribution=[[1.0]]), "contribution: expected an object"),
         (lambda r: r.update(source_specs=None), "source_specs: expected a list of objects"),
+        (lambda r: r["source_specs"][0].pop("policy"), "source_specs: expected a list of "),
+        (lambda r: r.update(sources_request=5), 'sources_request: expected "auto", a list'),
+        (lambda r: r.update(method="itn "), "method: expected one of itn, nia"),
     ],
 )
 def test_a_record_with_a_field_its_readers_cannot_use_is_refused(
     tmp_path: Path, edit, problem: str
 ) -> None:
     # Each was a KeyError or TypeError wherever the field was first used.
-    record = {"target": TARGET, "method": "itn", "config": {}, "sources": [{"name": "pick"}],
-              "source_specs": [{}], "contribution": None}  # fmt: skip
+    spec = {
+        "name": "pick",
+        "policy_class": "itskill.rl.policy.StagedActorCriticPolicy",
+        "policy": {"stages": [8, 8, 8]},
+    }
+    record = {"target": TARGET, "method": "itn", "config": {}, "sources_request": "auto",
+              "sources": [{"name": "pick"}], "source_specs": [spec],
+              "contribution": None}  # fmt: skip
     assert _read_back(tmp_path, record) == record
     edit(record)
     message = f"{tmp_path / 'transfer.json'}: {problem}"
@@ -480,6 +489,10 @@ def test_a_task_whose_hyperparameters_warm_start_it_transfers_from_its_sources_a
             "source_specs: stage_map of ",
         ),
         (lambda r: r["source_specs"][0].update(stage_map="0,1"), "source_specs: stage_map of "),
+        # The networks are built from source_specs: one more, or another, was a ValueError
+        # (the matrix's shape) or another skill's weights.
+        (lambda r: r["source_specs"].append(dict(r["source_specs"][0])), "source_specs: the "),
+        (lambda r: r["source_specs"][1].update(name="other"), "source_specs: the networks of"),
     ],
 )
 def test_a_record_that_does_not_fit_its_task_is_refused_naming_the_record(

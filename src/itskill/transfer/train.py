@@ -99,12 +99,39 @@ def _is_contribution(value: Any) -> bool:
     return value is None or (isinstance(value, dict) and isinstance(value.get("matrix"), list))
 
 
+def _is_request(value: Any) -> bool:
+    def is_key(item: Any) -> bool:
+        return isinstance(item, str) or (isinstance(item, int) and not isinstance(item, bool))
+
+    return (
+        value is None
+        or isinstance(value, str)
+        or (isinstance(value, list) and all(is_key(v) for v in value))
+    )
+
+
+def _is_source_specs(value: Any) -> bool:
+    """What the networks build their sources from: a name, a policy class and its stages."""
+    return _is_sources(value) and all(
+        isinstance(s.get("policy_class"), str)
+        and isinstance(s.get("policy"), dict)
+        and isinstance(s["policy"].get("stages"), list)
+        for s in value
+    )
+
+
 _RECORD_FIELDS: dict[str, Check] = {
     "target": STRING,
-    "method": STRING,
+    "method": Check(f"one of {', '.join(METHODS)}", lambda v: v in METHODS),
     "config": OBJECT,
+    "sources_request": Check(
+        '"auto", a list of skill names and serial numbers, or null', _is_request
+    ),
     "sources": Check("a list of objects with a string name", _is_sources),
-    "source_specs": Check("a list of objects", _is_objects),
+    "source_specs": Check(
+        "a list of objects with a string name and policy_class and a policy with stages",
+        _is_source_specs,
+    ),
     "contribution": Check("an object with a matrix, or null", _is_contribution),
     "performers": Check("a list or null", lambda v: v is None or isinstance(v, list)),
 }
@@ -119,7 +146,7 @@ def read_transfer(run_dir: str | Path) -> dict[str, Any]:
     file and says what is wrong (not JSON, not UTF-8, a field missing or of the wrong type)."""
     path = Path(run_dir) / TRANSFER_FILE
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing (not a directory written by train_transfer)")
+        raise CheckpointError(path, "missing (not a directory written by train_transfer)")
     required = [key for key in _RECORD_FIELDS if key not in _OPTIONAL_FIELDS]
     return read_record(path, required, _RECORD_FIELDS)
 
@@ -251,6 +278,9 @@ def _check_against_target(path: Path, record: dict[str, Any]) -> None:
     def refuse(problem: str) -> NoReturn:
         raise CheckpointError(path, problem + CANNOT_RESUME)
 
+    specs = [s["name"] for s in record["source_specs"]]
+    if specs != names:
+        refuse(f"source_specs: the networks of {specs}, but the sources are {names}")
     performers = record.get("performers")
     if performers is not None and not _indices(performers, len(stages), -1, len(names)):
         refuse(
