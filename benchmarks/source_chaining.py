@@ -12,10 +12,12 @@ applied to the state), so it meets observations like those it was trained on; wi
     python benchmarks/source_chaining.py pickplace_nut_m12 \\
         --chain pick_nut_m12 pick_nut_m12 pick_nut_m12 place_nut_m12 place_nut_m12
 
-``--handovers N`` also says where a chain breaks: per stage, how many of N episodes got there and
-the part's offsets from the grip point and from its fixture when the stage began; and, per stage,
-how many failed episodes lost their part there, either out of the closed fingers (a grasp that
-slipped) or by opening them short of the goal, with the part's offsets when it left.
+``--handovers N`` also says where a chain breaks, over N more episodes run as one batch: how many
+succeed; per stage, how many got there and the part's offsets from the grip point and from its
+fixture when the stage began; and of the failed episodes, how many end holding their part, how
+many never held it, and per stage how many last lost it there, with the fingers still commanded
+closed (a grasp that slipped) or opened short of the goal, and the part's offsets then. (Records
+written before 2026-12-06 hold the per-stage rows alone, as a list.)
 
 ``--noise SIGMA`` adds Gaussian noise of that standard deviation to every action, as a transfer
 target exploring around its sources' actions does (its policy's ``exp(log_std_init)``): a chain
@@ -35,6 +37,7 @@ import numpy as np
 
 from itskill.files import write_json
 from itskill.rl.checkpoint import TrainedPolicy
+from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.tasks import get_task, make_batch_env
 from itskill.tasks.evaluate import (
     HELD_OUT_ENVS,
@@ -79,26 +82,33 @@ class StageChain:
 
 
 def trace_handovers(spec: TaskSpec, policy: Policy, episodes: int, seed: int) -> dict:
-    """Where a chain breaks: ``episodes``, ``successes``, and ``stages``, a row per stage saying
-    how many of the episodes got that far, what that stage's skill was handed, and how many
-    failed episodes lost their part in it.
+    """Where a chain breaks, over ``episodes`` run as one batch, one episode each.
 
-    One batch of ``episodes`` environments runs one episode each. When an environment first
-    enters stage ``k``, the grip point's offset from the part (``obj_to_ee``, m) and the part
-    bottom's offset from its fixture point (``obj_to_fix``, m) are recorded: the state the skill
-    of stage ``k`` starts from, to compare with the starts it was trained on. The first time a
-    held part leaves the fingers, the furthest stage, whether the fingers were commanded closed
-    (``slipped``) or open (``let_go``), and the same two offsets are recorded; a row counts
-    these only for episodes that fail, since a successful chain may let go at its goal.
+    Returns ``episodes``, ``successes``, the failed episodes that end holding their part
+    (``failed_held``) or never held it (``failed_never_held``), and ``stages``, a row per stage:
+    how many episodes got that far (``reached``); the grip point's offset from the part
+    (``obj_to_ee``, m) and the part bottom's offset from its fixture point (``obj_to_fix``, m)
+    when an episode first entered it, the state that stage's skill starts from, to compare with
+    the starts it was trained on; and how many failed episodes, not holding the part at the end,
+    last lost it there (the furthest stage they had reached), with the fingers still commanded
+    closed (``slipped``) or open (``let_go``), and the offsets at that moment. A part dropped and
+    grasped again counts where it was last dropped; successful episodes, which may let go at
+    their goal, are not counted.
     """
     env = make_batch_env(spec.id, num_envs=episodes, seed=seed)
     n = len(spec.stages)
     handed: list[dict[int, np.ndarray]] = [{} for _ in range(n)]
-    lost: dict[int, tuple[int, bool, np.ndarray]] = {}
+    last_loss: dict[int, tuple[int, bool, np.ndarray]] = {}
     furthest = np.zeros(episodes, dtype=np.int64)
     success = np.zeros(episodes, dtype=bool)
+    held_at_end = np.zeros(episodes, dtype=bool)
     running = np.ones(episodes, dtype=bool)
     held = np.zeros(episodes, dtype=bool)
+
+    def note_loss(e: int, grasped: bool, closed: bool, offsets: np.ndarray) -> None:
+        if held[e] and not grasped:
+            last_loss[e] = (int(furthest[e]), closed, offsets)
+
     try:
         env.reset()
         policy.reset()
@@ -111,31 +121,49 @@ def trace_handovers(spec: TaskSpec, policy: Policy, episodes: int, seed: int) ->
                 k = int(ctx["stage"][e])
                 furthest[e] = max(furthest[e], k)
                 handed[k].setdefault(e, offsets[e])
-                if held[e] and not grasped[e]:
-                    lost.setdefault(e, (int(furthest[e]), bool(ctx["grip_closed"][e]), offsets[e]))
+                note_loss(e, grasped[e], bool(ctx["grip_closed"][e]), offsets[e])
             held = grasped
             _, _, dones, infos = env.step(policy(ctx))
             for e in np.flatnonzero(running & dones):
-                # A stage entered on the episode's last step is seen only in its end's record
-                # (the environment is reset at once); on success every stage was reached.
+                # The environment is reset at once: its last state is seen only in its end's
+                # record. A stage entered on the last step counts; on success every stage was
+                # reached.
                 furthest[e] = max(furthest[e], min(int(infos[e]["stages_done"]), n - 1))
                 success[e] = bool(infos[e]["is_success"])
+                last = infos[e]["terminal_observation"]
+                held_at_end[e] = last[OBSERVATION_LAYOUT["obj0_grasped"]][0] > 0.5
+                end_offsets = np.concatenate(
+                    [
+                        last[OBSERVATION_LAYOUT["obj0_to_ee"]],
+                        last[OBSERVATION_LAYOUT["obj0_to_fix"]],
+                    ]
+                )
+                closed = bool(last[OBSERVATION_LAYOUT["grip_closed"]][0] > 0.5)
+                note_loss(e, held_at_end[e], closed, end_offsets)
             running &= ~dones
     finally:
         env.close()
-    failed_losses = [loss for e, loss in lost.items() if not success[e]]
+    failed = ~success
+    losses = [last_loss[e] for e in np.flatnonzero(failed & ~held_at_end) if e in last_loss]
     rows = []
     for k, stage in enumerate(spec.stages):
         row: dict = {"stage": k, "name": stage.name, "reached": int((furthest >= k).sum())}
         if k and handed[k]:
             row.update(_offset_stats(list(handed[k].values())))
         for kind, closed in (("slipped", True), ("let_go", False)):
-            states = [s for stage_k, c, s in failed_losses if stage_k == k and c == closed]
+            states = [s for stage_k, c, s in losses if stage_k == k and c == closed]
             row[kind] = len(states)
             if states:
                 row.update(_offset_stats(states, prefix=f"{kind}_"))
         rows.append(row)
-    return {"episodes": episodes, "successes": int(success.sum()), "stages": rows}
+    never_held = [e for e in np.flatnonzero(failed & ~held_at_end) if e not in last_loss]
+    return {
+        "episodes": episodes,
+        "successes": int(success.sum()),
+        "failed_held": int((failed & held_at_end).sum()),
+        "failed_never_held": len(never_held),
+        "stages": rows,
+    }
 
 
 def _offset_stats(states: list[np.ndarray], prefix: str = "") -> dict[str, list[float]]:
@@ -170,8 +198,9 @@ def main(argv: list[str] | None = None) -> int:
         "--handovers",
         type=int,
         metavar="N",
-        help="also run N episodes in one batch and report, per stage, how many got there and "
-        "the part's offsets (mean, std) when it began",
+        help="also run N episodes in one batch and report how many succeed and, per stage, how "
+        "many got there, the part's offsets (mean, std) when it began, and how many failed "
+        "episodes last lost the part there",
     )
     args = parser.parse_args(argv)
 
@@ -199,14 +228,16 @@ def main(argv: list[str] | None = None) -> int:
         handovers = trace_handovers(
             spec, make_policy(policy, spec, args.handovers), args.handovers, args.seed
         )
+        failed = args.handovers - handovers["successes"]
         print(f"hand-overs over {args.handovers} episodes, {handovers['successes']} of them "
-              "successful (obj_to_ee = grip point - part centre, obj_to_fix = fixture point - "
-              "part bottom; mean ± std):")  # fmt: skip
+              f"successful; of the {failed} failed, {handovers['failed_held']} end holding the "
+              f"part and {handovers['failed_never_held']} never held it (obj_to_ee = grip point "
+              "- part centre, obj_to_fix = fixture point - part bottom; mean ± std):")  # fmt: skip
         for row in handovers["stages"]:
             print(f"  stage {row['stage']} {row['name']}: reached by {row['reached']}"
                   + _offsets_text(row))  # fmt: skip
-            for kind, what in (("slipped", "slipped from the closed fingers"),
-                               ("let_go", "let go short of the goal")):  # fmt: skip
+            for kind, what in (("slipped", "last slipped from the closed fingers"),
+                               ("let_go", "was last let go short of the goal")):  # fmt: skip
                 if row[kind]:
                     print(f"    failed episodes whose part {what} here: {row[kind]}"
                           + _offsets_text(row, f"{kind}_"))  # fmt: skip

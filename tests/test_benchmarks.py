@@ -300,6 +300,78 @@ def test_handover_trace_says_where_failed_episodes_lost_their_part() -> None:
     assert (kept["let_go"], kept["slipped"], kept["reached"]) == (0, 0, 4)
 
 
+class _ScriptedEnv:
+    """Stands in for a batch of environments: each one's grasp, grip command and stage follow a
+    script, one entry per state, the last the state its episode ends in."""
+
+    def __init__(self, scripts: list[list[tuple[bool, bool, int]]], successes: list[bool]):
+        from itskill.sim.layout import OBSERVATION_LAYOUT
+
+        self.layout, self.scripts, self.successes, self.t = (
+            OBSERVATION_LAYOUT,
+            scripts,
+            successes,
+            0,
+        )
+
+    def reset(self):
+        self.t = 0
+
+    def close(self):
+        pass
+
+    def _state(self, t: int):
+        rows = [script[t] for script in self.scripts]
+        return (np.array([r[0] for r in rows], float), np.array([r[1] for r in rows], float),
+                np.array([r[2] for r in rows]))  # fmt: skip
+
+    def context(self):
+        grasped, closed, stage = self._state(self.t)
+        n = len(self.scripts)
+        offsets = np.tile(np.arange(n, dtype=float)[:, None, None], (1, 2, 3)) / 1000
+        return {"grasped": np.stack([grasped, grasped], 1), "grip_closed": closed,
+                "stage": stage, "obj_to_ee": offsets, "obj_to_fix": offsets}  # fmt: skip
+
+    def step(self, actions):
+        self.t += 1
+        n, last = len(self.scripts), self.t == len(self.scripts[0]) - 1
+        infos = [{} for _ in range(n)]
+        if last:
+            grasped, closed, stage = self._state(self.t)
+            for e in range(n):
+                obs = np.zeros(self.layout.size)
+                obs[self.layout["obj0_grasped"]] = grasped[e]
+                obs[self.layout["grip_closed"]] = closed[e]
+                obs[self.layout["obj0_to_ee"]] = e / 1000
+                obs[self.layout["obj0_to_fix"]] = e / 1000
+                infos[e] = {"stages_done": int(stage[e]), "is_success": self.successes[e],
+                            "terminal_observation": obs}  # fmt: skip
+        return None, None, np.full(n, last), infos
+
+
+def test_handover_trace_counts_where_a_failed_episode_last_lost_its_part(monkeypatch) -> None:
+    held, slip, opened = (True, True, 0), (False, True, 0), (False, False, 0)
+    scripts = [
+        [held, held, held, held],  # fails holding the part
+        [held, slip, held, opened],  # dropped, grasped again, let go on its last step
+        [held, opened, opened, opened],  # succeeds: letting go at its goal is not a loss
+        [opened, opened, opened, opened],  # fails, never held
+        [held, held, (False, True, 1), (False, True, 1)],  # slips in stage 1, never regained
+    ]
+    chaining = _load("source_chaining")
+    fake = _ScriptedEnv(scripts, [False, False, True, False, False])
+    monkeypatch.setattr(chaining, "make_batch_env", lambda *a, **k: fake)
+    trace = chaining.trace_handovers(
+        get_task("pickplace_nut_m12"), _GripPolicy(1.0), episodes=5, seed=0
+    )
+    assert (trace["successes"], trace["failed_held"], trace["failed_never_held"]) == (1, 1, 1)
+    first, second = trace["stages"][:2]
+    assert (first["let_go"], first["slipped"], second["slipped"]) == (1, 0, 1)
+    # Each loss with the offsets of its own moment: the last step's, read from the episode's end.
+    assert first["let_go_obj_to_ee_mean"] == [0.001] * 3
+    assert second["slipped_obj_to_fix_mean"] == [0.004] * 3
+
+
 def test_learn_basic_learns_a_task_that_clones_its_script_from_scratch_with_demos_0(
     tmp_path,
 ) -> None:
