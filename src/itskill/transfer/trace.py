@@ -89,10 +89,27 @@ def recorded_attention_trace(run_dir: str | Path) -> dict[str, Any]:
     saved = read_json_or_none(path)
     if (
         isinstance(saved, dict)
-        and isinstance(saved.get("trace"), dict)
+        and _is_trace(saved.get("trace"))
         and (digest is None or saved.get("weights_sha256") == digest)
     ):
         return saved["trace"]
     trace = attention_trace(run_dir, episodes=1, seed=0)
     write_json(path, {"weights_sha256": digest, "episodes": 1, "seed": 0, "trace": trace})
     return trace
+
+
+def _is_trace(value: Any) -> bool:
+    """Whether ``value`` has the shape :func:`attention_trace` returns, as far as the report
+    reads it: a damaged ``attention.json`` is traced again, or refused where the weights are
+    gone, rather than failing the report where a field is first used."""
+    return (
+        isinstance(value, dict)
+        and isinstance(value.get("sources"), list)
+        and isinstance(value.get("segments"), list)
+        and isinstance(value.get("episodes"), list)
+        and bool(value["episodes"])
+        and all(
+            isinstance(e, dict) and {"stage", "raw", "weights", "success"} <= e.keys()
+            for e in value["episodes"]
+        )
+    )
