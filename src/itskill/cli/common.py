@@ -200,6 +200,7 @@ USER_ERRORS: tuple[tuple[str, str], ...] = (
     ("itskill.transfer.analyzer", "AnalyzerError"),
     ("itskill.transfer.fusion", "IncompatibleSourceError"),
     ("itskill.transfer.sources", "SourceError"),
+    ("itskill.transfer.trace", "TraceError"),
 )
 """The errors the user can act on (their input, files or environment), as (defining module,
 class name): :func:`user_errors` prints them as one line."""

@@ -25,7 +25,6 @@ from itskill.cli.common import (
     run_dir_option,
     seed_option,
     steps_option,
-    usage_error,
     user_errors,
 )
 from itskill.limits import NUM_ENVS_MAX, SOURCES_MAX
@@ -202,11 +201,8 @@ def transfer_trace(
     """The contribution weights W at every step of an episode of a trained transfer policy."""
     from itskill.transfer import attention_trace
 
-    try:
-        with user_errors():
-            trace = attention_trace(run_dir, episodes, seed)
-    except ValueError as err:
-        raise usage_error(str(err)) from err
+    with user_errors():
+        trace = attention_trace(run_dir, episodes, seed)
     if as_json:
         print_json(trace)
         return

@@ -17,6 +17,10 @@ from itskill.transfer.train import TRANSFER_FILE, read_transfer
 TRACE_FILE = "attention.json"
 
 
+class TraceError(ValueError):
+    """A run whose attention cannot be traced: its policy has no contribution weights."""
+
+
 def attention_trace(run_dir: str | Path, episodes: int = 1, seed: int = 0) -> dict[str, Any]:
     """Deterministic episodes of the policy in ``run_dir`` with its weights at every step.
 
@@ -26,12 +30,12 @@ def attention_trace(run_dir: str | Path, episodes: int = 1, seed: int = 0) -> di
     weights) and the corrected weights ``W`` that scaled the source features for that action.
     """
     if episodes < 1:
-        raise ValueError(f"episodes must be positive, got {episodes}")
+        raise TraceError(f"episodes must be positive, got {episodes}")
     run_dir = Path(run_dir)
     meta = read_meta(run_dir)
     policy = load_policy(run_dir)
     if not isinstance(policy, TransferPolicy) or policy.mlp_extractor.weighting is None:
-        raise ValueError(
+        raise TraceError(
             f"{run_dir}: holds a {meta.get('policy_class', 'staged')} policy, which has no "
             "contribution weights (the methods itn, pst and nia have them)"
         )
