@@ -235,6 +235,7 @@ def test_a_skill_below_the_threshold_stays_out_of_the_skill_space(tmp_path, budg
                    "--no-video", "--min-success", "1.0", "--resume")  # fmt: skip
     assert result.exit_code == 0, result.output
     assert f"the policy stays in the run's {summary['skill']['policy']} " in flat(result.output)
+    assert f"It stays in the run's {summary['skill']['policy']};" in (out / "report.md").read_text()
 
     # An add cut short before the skill joined the space, resumed with a threshold the policy
     # misses, is dropped: nothing is added, and the record of it goes.

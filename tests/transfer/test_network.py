@@ -85,6 +85,8 @@ def test_the_residual_adds_the_performing_sources_action(tiny_sources) -> None:
     assert policy.mlp_extractor.latent_dim_pi == TINY[-1] + 5
     with pytest.raises(ValueError, match="performers must be"):
         build(ITNPolicy, tiny_sources, performers=[0, 2])
+    with pytest.raises(ValueError, match="performers must be 1 to"):  # an IndexError when built
+        build(ITNPolicy, tiny_sources, performers=[])
 
 
 @pytest.mark.parametrize("performers", [None, PERFORMERS])

@@ -223,9 +223,11 @@ class LateralExtractor(nn.Module):
         self.register_buffer("stage_remap", torch.stack(remaps), persistent=False)
         pick = None
         if performers is not None:
-            if len(performers) > MAX_STAGES or not all(-1 <= k < len(sources) for k in performers):
+            if not 1 <= len(performers) <= MAX_STAGES or not all(
+                -1 <= k < len(sources) for k in performers
+            ):
                 raise ValueError(
-                    f"performers must be at most {MAX_STAGES} source indices in "
+                    f"performers must be 1 to {MAX_STAGES} source indices in "
                     f"[-1, {len(sources)}), got {list(performers)}"
                 )
             pick = _stage_table([int(k) for k in performers], len(sources))
