@@ -16,8 +16,6 @@ from itskill.transfer.lateral import TransferPolicy
 class ITNPolicy(TransferPolicy):
     """Frozen sources, intelligent attention corrected by the analyzer, feature fusion."""
 
-    uses_prior = True
-
     def _build_parts(
         self, source_widths: list[tuple[int, ...]], action_dim: int
     ) -> tuple[nn.Module | None, nn.Module]:

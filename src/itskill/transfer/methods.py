@@ -28,22 +28,27 @@ S = TypeVar("S")  # a source skill, or the name an experiment stored for it
 
 
 def all_sources(sources: list[S], config: TransferConfig) -> list[S]:
+    """Every resolved source: the choice of the methods that keep them all."""
     return sources
 
 
 @dataclass(frozen=True)
 class Method:
-    """A transfer method: its policy class, whether it uses sources and the analyzer's matrix,
-    which of the resolved sources it keeps, and the :class:`TransferConfig` fields that shape
-    its network or its choice among them (``settings``, shown by the experiment report)."""
+    """A transfer method: its policy class, whether it uses sources, which of the resolved
+    sources it keeps, and the :class:`TransferConfig` fields that shape its network or its
+    choice among them (``settings``, shown by the experiment report)."""
 
     name: str
-    summary: str
     policy_class: type[ActorCriticPolicy]
     uses_sources: bool
-    uses_prior: bool
     settings: tuple[str, ...] = ()
     select: Callable[[list[Any], TransferConfig], list[Any]] = all_sources
+
+    @property
+    def uses_prior(self) -> bool:
+        """Whether its network takes the analyzer's contribution matrix (its policy class's
+        ``uses_prior``)."""
+        return bool(getattr(self.policy_class, "uses_prior", False))
 
 
 _ATTENTION = ("attention_hidden", "prior_weight")
@@ -52,15 +57,11 @@ _FUSION = ("fusion_hidden", "residual")
 METHODS: dict[str, Method] = {
     m.name: m
     for m in (
-        Method("itn", "ITN: intelligent attention + feature fusion", ITNPolicy, True, True,
-               (*_ATTENTION, *_FUSION)),
-        Method("nia", "ITN with the analyzer's fixed contributions", NIAPolicy, True, True,
-               _FUSION),
-        Method("dfs", "source features summed into the target's", DFSPolicy, True, False,
-               ("residual",)),
-        Method("pst", "ITN over a subset of the sources", ITNPolicy, True, True,
-               ("pst_keep", *_ATTENTION, *_FUSION), select_sources),
-        Method("no_transfer", "the target network alone", StagedActorCriticPolicy, False, False),
+        Method("itn", ITNPolicy, True, (*_ATTENTION, *_FUSION)),
+        Method("nia", NIAPolicy, True, _FUSION),
+        Method("dfs", DFSPolicy, True, ("residual",)),
+        Method("pst", ITNPolicy, True, ("pst_keep", *_ATTENTION, *_FUSION), select_sources),
+        Method("no_transfer", StagedActorCriticPolicy, False),
     )
 }  # fmt: skip
 

@@ -15,8 +15,6 @@ from itskill.transfer.lateral import TransferPolicy
 class NIAPolicy(TransferPolicy):
     """Frozen sources weighted by the analyzer's fixed values, feature fusion."""
 
-    uses_prior = True
-
     def _build_parts(
         self, source_widths: list[tuple[int, ...]], action_dim: int
     ) -> tuple[nn.Module | None, nn.Module]:
