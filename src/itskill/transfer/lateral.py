@@ -482,20 +482,10 @@ class TransferPolicy(ActorCriticPolicy):
     def source_names(self) -> list[str]:
         return [s["name"] for s in self.config.sources]
 
-    def stage_outputs(self, obs: torch.Tensor, trunk: str = "actor") -> list[torch.Tensor]:
-        """Merged stage outputs of the actor (what this policy offers when it is a source in
-        turn) or the critic trunk's stage outputs, for raw observations."""
-        obs = obs.float()
-        if trunk == "actor":
-            return self.mlp_extractor.actor_stages(obs)
-        if trunk == "critic":
-            ex = self.mlp_extractor
-            return (
-                ex.actor_stages(obs)
-                if ex.critic is None
-                else ex.critic.stage_outputs(ex.normalize(obs))
-            )
-        raise ValueError(f"trunk must be 'actor' or 'critic', got {trunk!r}")
+    def stage_outputs(self, obs: torch.Tensor) -> list[torch.Tensor]:
+        """Merged stage outputs of the actor for raw observations: what this policy offers when
+        it is a source in turn."""
+        return self.mlp_extractor.actor_stages(obs.float())
 
     @torch.no_grad()
     def attention(self, obs: PyTorchObs | np.ndarray) -> dict[str, np.ndarray | None]:

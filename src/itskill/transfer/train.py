@@ -143,12 +143,19 @@ _OPTIONAL_FIELDS = ("performers",)  # absent from records written before the res
 
 def read_transfer(run_dir: str | Path) -> dict[str, Any]:
     """``transfer.json`` of a transfer run directory, checked; :class:`CheckpointError` names the
-    file and says what is wrong (not JSON, not UTF-8, a field missing or of the wrong type)."""
+    file and says what is wrong (missing, not JSON, not UTF-8, of another format, a field
+    missing or of the wrong type)."""
     path = Path(run_dir) / TRANSFER_FILE
     if not path.is_file():
         raise CheckpointError(path, "missing (not a directory written by train_transfer)")
     required = [key for key in _RECORD_FIELDS if key not in _OPTIONAL_FIELDS]
-    return read_record(path, required, _RECORD_FIELDS)
+    record = read_record(path, required, _RECORD_FIELDS)
+    if record.get("format", FORMAT_VERSION) != FORMAT_VERSION:
+        raise CheckpointError(
+            path,
+            f"transfer record format {record['format']!r}, this version reads {FORMAT_VERSION}",
+        )
+    return record
 
 
 # Settings a run directory written before they existed was trained with: its network had no
