@@ -394,20 +394,20 @@ def prepare_transfer(
             retries=config.analyzer_retries,
         )
     policy_class = meth.policy_class
-    target_stages = [st.name for st in spec.stages]
+    stage_names = [st.name for st in spec.stages]
     source_stages = [_stage_names(s.task_id) for s in chosen]
     record.update(
         sources=[s.to_dict() for s in chosen],
         source_specs=[
             s.spec()
             if names is None
-            else {**s.spec(), "stage_map": list(stage_map(target_stages, names))}
+            else {**s.spec(), "stage_map": list(stage_map(stage_names, names))}
             for s, names in zip(chosen, source_stages, strict=True)
         ],
         performers=(
             list(
                 fill_performers(
-                    stage_performers(target_stages, source_stages),
+                    stage_performers(stage_names, source_stages),
                     spec.actions,
                     [s.actions for s in chosen],
                 )
