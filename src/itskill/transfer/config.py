@@ -136,6 +136,7 @@ def setting_key(name: str) -> tuple[str, str]:
 
 
 def default_path() -> Path:
+    """The packaged ``transfer.toml``: the settings a run takes where nothing names others."""
     return Path(str(resources.files("itskill.transfer") / "data" / "transfer.toml"))
 
 
