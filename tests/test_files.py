@@ -118,15 +118,33 @@ def test_read_json_or_none_gives_none_for_a_missing_or_damaged_record(tmp_path: 
     assert read_json_or_none(path) == {"steps": 3}
 
 
-def test_lock_files_are_kept_in_a_folder_of_their_own(tmp_path) -> None:
+def test_lock_files_are_kept_in_a_folder_of_their_own(tmp_path, monkeypatch) -> None:
     # One stays per directory ever locked: thousands of them lay among /tmp's other files.
+    from itskill.files import LOCK_DIR_ENV, directory_lock
+
+    monkeypatch.delenv(LOCK_DIR_ENV, raising=False)
+    lock = Path(directory_lock(tmp_path, "run").lock_file)
+    assert lock.parent.parent == Path("/tmp")
+    assert lock.parent.name.startswith("itskill-locks-") and lock.name.startswith("run-")
+
+
+def test_sessions_with_different_temporary_directories_share_a_directorys_lock(
+    tmp_path, monkeypatch
+) -> None:
+    # The lock folder followed TMPDIR: a second session with its own trained into the same run
+    # as the first, interleaving their metrics.
     import tempfile
 
-    from itskill.files import directory_lock
+    from itskill.files import LOCK_DIR_ENV, directory_lock
 
-    lock = Path(directory_lock(tmp_path, "run").lock_file)
-    assert lock.parent.parent == Path(tempfile.gettempdir())
-    assert lock.parent.name.startswith("itskill-locks-") and lock.name.startswith("run-")
+    monkeypatch.delenv(LOCK_DIR_ENV, raising=False)
+    files = set()
+    for name in ("one", "two"):
+        (tmp_path / name).mkdir()
+        monkeypatch.setenv("TMPDIR", str(tmp_path / name))
+        monkeypatch.setattr(tempfile, "tempdir", None)  # read TMPDIR again
+        files.add(directory_lock(tmp_path / "run", "run").lock_file)
+    assert len(files) == 1
 
 
 def test_a_file_where_a_directory_is_needed_is_said_so(tmp_path) -> None:
@@ -140,15 +158,13 @@ def test_a_file_where_a_directory_is_needed_is_said_so(tmp_path) -> None:
 
 def test_a_lock_folder_others_can_write_is_refused(tmp_path, monkeypatch) -> None:
     # Its name is predictable: another user's folder of that name could hold or delete the locks.
-    import tempfile
+    from itskill.files import LOCK_DIR_ENV, directory_lock, is_unusable_path
 
-    from itskill.files import directory_lock, is_unusable_path
-
-    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
-    (tmp_path / f"itskill-locks-{os.getuid()}").mkdir(mode=0o777)
-    os.chmod(tmp_path / f"itskill-locks-{os.getuid()}", 0o777)
+    monkeypatch.setenv(LOCK_DIR_ENV, str(tmp_path / "locks"))
+    (tmp_path / "locks").mkdir(mode=0o777)
+    os.chmod(tmp_path / "locks", 0o777)
     with pytest.raises(
-        PermissionError, match="not a folder of this user's alone; set TMPDIR"
+        PermissionError, match="not a folder of this user's alone; set ITSKILL_LOCK_DIR"
     ) as err:
         directory_lock(tmp_path / "run", "run")
     assert is_unusable_path(err.value)
@@ -156,27 +172,22 @@ def test_a_lock_folder_others_can_write_is_refused(tmp_path, monkeypatch) -> Non
 
 def test_a_lock_folder_of_another_user_is_refused(tmp_path, monkeypatch) -> None:
     # Another user who made the folder first owns it: this session is another uid than its owner.
-    import tempfile
+    from itskill.files import LOCK_DIR_ENV, directory_lock
 
-    from itskill.files import directory_lock
-
-    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
-    other = os.getuid() + 1
-    (tmp_path / f"itskill-locks-{other}").mkdir(mode=0o700)
-    monkeypatch.setattr(os, "getuid", lambda: other)
+    monkeypatch.setenv(LOCK_DIR_ENV, str(tmp_path / "locks"))
+    (tmp_path / "locks").mkdir(mode=0o700)
+    monkeypatch.setattr(os, "getuid", lambda: os.stat(tmp_path / "locks").st_uid + 1)
     with pytest.raises(PermissionError, match="not a folder of this user's alone"):
         directory_lock(tmp_path / "run", "run")
 
 
 def test_a_lock_folder_that_is_a_link_is_refused(tmp_path, monkeypatch) -> None:
     # A link named like the folder could lead the locks into a folder someone else controls.
-    import tempfile
+    from itskill.files import LOCK_DIR_ENV, directory_lock
 
-    from itskill.files import directory_lock
-
-    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    monkeypatch.setenv(LOCK_DIR_ENV, str(tmp_path / "locks"))
     (tmp_path / "elsewhere").mkdir(mode=0o700)
-    (tmp_path / f"itskill-locks-{os.getuid()}").symlink_to(tmp_path / "elsewhere")
+    (tmp_path / "locks").symlink_to(tmp_path / "elsewhere")
     with pytest.raises(PermissionError, match="not a folder of this user's alone"):
         directory_lock(tmp_path / "run", "run")
     assert not any((tmp_path / "elsewhere").iterdir())

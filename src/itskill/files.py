@@ -247,28 +247,45 @@ def run_path(run_dir: Path, recorded: str, default: str) -> Path:
     return next((c for c in [*ours, path] if c.exists()), run_dir / default)
 
 
+LOCK_DIR_ENV = "ITSKILL_LOCK_DIR"
+"""Names the folder lock files go in, instead of ``/tmp/itskill-locks-UID``."""
+
+
+def lock_folder() -> Path:
+    """The folder :func:`directory_lock` keeps its files in: ``$ITSKILL_LOCK_DIR`` if set, else
+    ``itskill-locks-UID`` in ``/tmp``, not in ``$TMPDIR``: every session must find the same lock
+    for a directory, and two sessions with different ``TMPDIR`` trained into one run at once
+    (without ``/tmp``, the system's temporary directory)."""
+    named = os.environ.get(LOCK_DIR_ENV)
+    if named:
+        return Path(named)
+    uid = os.getuid() if hasattr(os, "getuid") else None
+    root = Path("/tmp") if Path("/tmp").is_dir() else Path(tempfile.gettempdir())
+    return root / f"itskill-locks-{'user' if uid is None else uid}"
+
+
 def directory_lock(directory: Path, kind: str) -> FileLock:
     """A lock that one process at a time holds on ``directory`` (``kind`` names what for).
 
-    Its file is in a folder of the user's own in the temporary directory (``itskill-locks-UID``),
-    keyed by the directory's resolved path, not in the directory itself: it would show up in a
-    checkout, a package or a run's results. A lock file stays after its release (removing it
-    would race with a process opening it), one per directory ever locked, so they are kept
-    together rather than among the temporary directory's other files. Processes on one machine
-    see it; a cluster's nodes do not.
+    Its file is in a folder of the user's own (:func:`lock_folder`), keyed by the directory's
+    resolved path, not in the directory itself: it would show up in a checkout, a package or a
+    run's results. A lock file stays after its release (removing it would race with a process
+    opening it), one per directory ever locked, so they are kept together rather than among
+    the temporary directory's other files. Processes on one machine see it; a cluster's nodes
+    do not.
     """
     key = hashlib.sha256(str(Path(directory).resolve()).encode()).hexdigest()[:16]
-    uid = os.getuid() if hasattr(os, "getuid") else None
-    locks = Path(tempfile.gettempdir()) / f"itskill-locks-{'user' if uid is None else uid}"
-    locks.mkdir(mode=0o700, exist_ok=True)
-    if uid is not None:
+    locks = lock_folder()
+    locks.mkdir(mode=0o700, parents=True, exist_ok=True)
+    if hasattr(os, "getuid"):
         # The name is predictable: a folder another user made first, or can write in, could
         # hold or delete the locks, so that two sessions work on one run.
         st = locks.lstat()
-        if not stat.S_ISDIR(st.st_mode) or st.st_uid != uid or st.st_mode & 0o022:
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o022:
             raise PermissionError(
                 errno.EACCES,
-                "not a folder of this user's alone; set TMPDIR to a folder of your own",
+                f"not a folder of this user's alone; set {LOCK_DIR_ENV} to a folder of your "
+                "own, the same in every session on this machine",
                 str(locks),
             )
     return FileLock(str(locks / f"{kind}-{key}.lock"))
