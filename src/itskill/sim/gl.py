@@ -10,19 +10,36 @@ from __future__ import annotations
 
 import ctypes.util
 import os
+import warnings
 
 GL_PACKAGES = {"egl": "libegl1 libgl1-mesa-dri", "osmesa": "libosmesa6"}
 """Debian/Ubuntu packages each headless backend needs."""
+_LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
+_BACKENDS = ("egl", "osmesa", "glfw")
+"""The values of ``MUJOCO_GL`` MuJoCo takes (``glfw``: a window on a display)."""
 
 
 def configure_gl() -> str | None:
     """Set ``MUJOCO_GL`` (unless the user did) to the first installed headless backend.
 
-    Returns the backend in force, or ``None`` if neither EGL nor OSMesa is installed.
+    A ``MUJOCO_GL`` MuJoCo cannot use (a name it does not know, or a headless backend whose
+    library is missing) is dropped with a warning and the choice made as if it were unset:
+    MuJoCo fails on it at import, which stopped every command, rendering or not, with a
+    traceback. Returns the backend in force, or ``None`` if neither EGL nor OSMesa is installed.
     """
-    if os.environ.get("MUJOCO_GL"):
-        return os.environ["MUJOCO_GL"]
-    for backend, library in (("egl", "EGL"), ("osmesa", "OSMesa")):
+    wanted = os.environ.get("MUJOCO_GL")
+    if wanted:
+        library = _LIBRARIES.get(wanted)
+        if wanted in _BACKENDS and (library is None or ctypes.util.find_library(library)):
+            return wanted
+        why = (
+            f"its library is not installed ('apt-get install {GL_PACKAGES[wanted]}')"
+            if wanted in _LIBRARIES
+            else f"MuJoCo knows {', '.join(_BACKENDS)}"
+        )
+        warnings.warn(f"MUJOCO_GL={wanted!r} is ignored: {why}", stacklevel=2)
+        del os.environ["MUJOCO_GL"]
+    for backend, library in _LIBRARIES.items():
         if ctypes.util.find_library(library):
             os.environ["MUJOCO_GL"] = backend
             return backend
