@@ -76,6 +76,19 @@ def test_resume_continues_step_count(tmp_path: Path, reach_reward: Path) -> None
     assert _train(out, reach_reward, 200).num_timesteps == 256
 
 
+def test_training_leaves_nothing_in_the_temporary_directory(
+    tmp_path: Path, reach_reward: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Stable-Baselines3 made an empty SB3-<time> folder there on every run: hundreds in /tmp.
+    import tempfile
+
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    _train(tmp_path / "run", reach_reward, 64)
+    assert not [p.name for p in scratch.iterdir() if p.name.startswith("SB3-")]
+
+
 def test_a_run_resumed_from_an_older_evaluation_file_keeps_its_columns(
     tmp_path: Path, reach_reward: Path
 ) -> None:

@@ -24,6 +24,7 @@ from rich.console import Console
 from stable_baselines3 import A2C, PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
@@ -733,6 +734,10 @@ def _learn(
                 clock=clock,
             )
         )
+    # A logger of our own before learn(): without one Stable-Baselines3 makes an empty
+    # SB3-<time> folder in the temporary directory on every call (the metrics callback sets the
+    # TensorBoard one once training starts).
+    model.set_logger(Logger(folder=None, output_formats=[]))
     try:
         model.learn(
             # 0 for a finished run whose final evaluation was cut short: it runs only that.
