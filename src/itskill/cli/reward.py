@@ -23,6 +23,7 @@ from itskill.cli.common import (
     print_json,
     run_dir_option,
     steps_option,
+    usage_error,
     user_errors,
     workers_option,
 )
@@ -160,7 +161,7 @@ def generate_cmd(
 ) -> None:
     """Search a reward for a task or command: plan, generate, train candidates, keep the best,
     compare it with the expert reward (Fig. 6). Rerun with --resume RUN after an interruption."""
-    from itskill.llm.client import Usage
+    from itskill.llm.client import LLMUnavailableError, Usage
     from itskill.reward.search import (
         CONFIG_FILE,
         NETWORK_DIR,
@@ -242,6 +243,14 @@ def generate_cmd(
                     hint = "nothing was kept; run the same command again"
                 err_console.print(f"interrupted: {hint}", markup=False)
                 raise typer.Exit(130) from None
+            except LLMUnavailableError as err:
+                if not (run_dir / CONFIG_FILE).is_file():
+                    raise
+                # The same command again was refused: the directory now holds this search.
+                raise usage_error(
+                    f"{err}; the search in {run_dir} keeps what it has: once the model answers, "
+                    f"continue it with itskill reward generate --resume {run_dir}"
+                ) from err
     console.print(
         f"best reward: {result.best_path}; details: itskill reward show {run_dir}", markup=False
     )
