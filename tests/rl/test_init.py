@@ -139,3 +139,25 @@ def test_cli_init_from_a_missing_directory_is_a_clear_error(tmp_path: Path) -> N
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2
     assert "no such checkpoint directory" in result.output and "Traceback" not in result.output
+
+
+def test_cli_init_takes_a_skill_by_name_and_its_weights_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `eval` and `render` took skill:NAME and the checkpoint `skills show` prints; --init took
+    # only the skill's directory ("skill:...: no such checkpoint directory").
+    import hashlib
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    weights = SKILL / "policy.safetensors"
+    digest = hashlib.sha256(weights.read_bytes()).hexdigest()
+    for n, ref in enumerate((f"skill:{TASK}", str(weights))):
+        out = tmp_path / f"run{n}"
+        args = ["train", TASK, "--steps", "8", "--num-envs", "2", "--demos", "0", "--out",
+                str(out), "--init", ref]  # fmt: skip
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 0, result.output
+        assert json.loads((out / "checkpoint.json").read_text())["init"]["sha256"] == digest
+    unknown = ["train", TASK, "--out", str(tmp_path / "other"), "--init", "skill:no_such_skill"]
+    result = CliRunner().invoke(app, unknown)
+    assert result.exit_code == 2 and "no_such_skill" in result.output

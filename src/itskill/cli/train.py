@@ -13,6 +13,7 @@ from itskill.cli.common import (
     HyperparamsOpt,
     TaskArg,
     console,
+    policy_source,
     print_trained,
     run_dir_option,
     seed_option,
@@ -48,11 +49,11 @@ def train_cmd(
         ),
     ] = None,
     init: Annotated[
-        Path | None,
+        str | None,
         typer.Option(
-            help="Start from this trained policy (a run or skill directory with the same "
-            "network shape) instead of random weights, with the hyper-parameters' init "
-            "table's action noise and learning rate.",
+            help="Start from this trained policy (skill:NAME, or a run or skill directory or "
+            "its policy.safetensors, with the same network shape) instead of random weights, "
+            "with the hyper-parameters' init table's action noise and learning rate.",
         ),
     ] = None,
 ) -> None:
@@ -77,7 +78,7 @@ def train_cmd(
                 console=console,
                 eval_every=eval_every,
                 eval_episodes=eval_episodes,
-                init=init,
+                init=None if init is None else Path(policy_source(init)),
             )
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
