@@ -122,6 +122,13 @@ def test_a_final_retraining_on_one_seed_shows_no_interval(finished_run: Path) ->
             rf"{re.escape(label)}: success \d+% \(1 seed, no interval\) over seeds \[\d+\]", output
         ), output
     assert "95% CI" not in output
+    # The messages count iterations from 1, the folders from 0: both are named.
+    best = json.loads((finished_run / "summary.json").read_text())["best"]
+    folder = f"iter_{best['iteration']}/sample_{best['sample']}"
+    assert (
+        f"chosen: iteration {best['iteration'] + 1}, sample {best['sample']} ({folder};" in output
+    )
+    assert (finished_run / folder).is_dir()
 
 
 def test_a_final_retraining_on_several_seeds_shows_its_interval(

@@ -309,7 +309,7 @@ def show_cmd(
     as_json: JsonOpt = False,
 ) -> None:
     """Show a reward search: plan, iterations, the best reward, the comparison, LLM usage."""
-    from itskill.reward.search import OFFLINE_NOTE, read_run
+    from itskill.reward.search import OFFLINE_NOTE, read_run, sample_folder
     from itskill.stats import format_rate
 
     with user_errors():
@@ -389,7 +389,7 @@ def show_cmd(
         best = summary["best"]
         console.print(
             f"chosen: iteration {best['iteration'] + 1}, sample {best['sample']} "
-            f"(search success {format_rate(best['success'])}"
+            f"({sample_folder(best)}; search success {format_rate(best['success'])}"
             + (
                 f", over every seed {format_rate(best['selected_success'])}"
                 if "selected_success" in best

@@ -32,6 +32,7 @@ import hashlib
 import json
 import math
 import shutil
+from collections.abc import Mapping
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -522,6 +523,12 @@ def search_lock(out: Path) -> AbstractContextManager[None]:
     return held_alone(out, "reward-search", busy)
 
 
+def sample_folder(row: Mapping[str, Any]) -> str:
+    """Where a candidate's files are in its run, ``iter_<i>/sample_<k>``: the folders count
+    iterations from 0, the messages from 1."""
+    return f"iter_{row['iteration']}/sample_{row['sample']}"
+
+
 def _search(
     target: str,
     client: LLMClient,
@@ -723,7 +730,8 @@ def _search(
         plot_fig6(summary, out / FIGURE_FILE)
         write_json(out / SUMMARY_FILE, summary)
         console.print(
-            f"best reward: iteration {best['iteration'] + 1}, sample {best['sample']}, in "
+            f"best reward: iteration {best['iteration'] + 1}, sample {best['sample']} "
+            f"({sample_folder(best)}), in "
             f"{out / BEST_FILE}; over seeds {final_seeds}: "
             f"generated {format_rate(summary['best_success'])}"
             + (f", expert {format_rate(summary['expert_success'])}" if compare_expert else ""),
