@@ -25,7 +25,7 @@ def learn_cmd(
         ),
     ],
     budget: Annotated[
-        str, typer.Option(help="tiny (about a minute), default, or full (the paper's settings).")
+        str, typer.Option(help="tiny (about 1.5 minutes), default, or full (the paper's settings).")
     ] = "default",
     steps: Annotated[
         int | None,
