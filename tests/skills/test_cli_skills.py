@@ -30,6 +30,21 @@ def add(checkpoint, task: str, *extra: str):
     return runner.invoke(app, args)
 
 
+def test_add_takes_the_budget_algorithm_and_seed_the_run_recorded(home):
+    # They were left blank unless given as options, though the run's checkpoint.json has them.
+    result = add(shipped("pick_nut_m12"), "pick_nut_m12", "--name", "mine")
+    assert result.exit_code == 0, result.output
+    added = json.loads(result.stdout)
+    assert (added["train_steps"], added["train_wall_s"]) == (250_000, 278.25)
+    assert (added["algo"], added["seed"]) == ("ppo", 0)
+    given = add(shipped("pick_nut_m12"), "pick_nut_m12", "--name", "given", "--steps", "7",
+                "--seed", "3")  # fmt: skip
+    assert (json.loads(given.stdout)["train_steps"], json.loads(given.stdout)["seed"]) == (7, 3)
+    plain = runner.invoke(app, ["skills", "add", "--task", "pick_nut_m12", "--checkpoint",
+                                str(shipped("pick_nut_m12")), "--name", "plain"])  # fmt: skip
+    assert plain.exit_code == 0 and "its success is unknown" in " ".join(plain.output.split())
+
+
 def test_add_list_search_show_remove(home):
     result = add(
         shipped("insert_peg_round"), "insert_peg_round", "--success", "0.9", "--steps", "1000"

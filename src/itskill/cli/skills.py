@@ -210,6 +210,13 @@ def skills_add(
             checkpoint = best_policy_dir(checkpoint) / POLICY_FILE
         spec = get_task(task)
         acts = spec.actions if actions is None else tuple(a.strip() for a in actions.split(","))
+        # What the run recorded fills what the options leave out: a skill added from a run
+        # showed no budget, algorithm or seed.
+        run = _recorded_run(checkpoint)
+        steps = run.get("steps") if steps is None else steps
+        wall_s = run.get("wall_s") if wall_s is None else wall_s
+        algo = run.get("algo") if algo is None else algo
+        seed = run.get("seed") if seed is None else seed
         skill = Skill(
             name=name or spec.id,
             task_id=spec.id,
@@ -241,6 +248,34 @@ def skills_add(
         print_json(added.to_dict())
         return
     console.print(escape(f"added skill {added.id}: {added.name} ({added.task_id})"))
+    if added.success_rate is None:
+        console.print(
+            escape(
+                f"its success is unknown (retrieval treats it as working): measure it with "
+                f"itskill eval {added.task_id} --policy skill:{added.name} and give it as "
+                "--success (with --ci-low, --ci-high) when you add the skill again"
+            ),
+            highlight=False,
+        )
+
+
+def _recorded_run(checkpoint: Path) -> dict[str, Any]:
+    """The training budget, algorithm and seed that ``checkpoint``'s ``checkpoint.json`` records
+    (``steps`` and ``wall_s`` of the kept policy: where its evaluation chose it); empty for a
+    checkpoint without one (a Stable-Baselines3 ``.zip``)."""
+    from itskill.rl.checkpoint import META_FILE, read_meta
+    from itskill.rl.eval_callback import SELECTION_KEY
+
+    if not (checkpoint.parent / META_FILE).is_file():
+        return {}
+    meta = read_meta(checkpoint.parent)
+    chosen = meta.get(SELECTION_KEY) or {}
+    return {
+        "steps": chosen.get("env_steps", meta.get("num_timesteps")),
+        "wall_s": chosen.get("wall_s", meta.get("train_wall_s")),
+        "algo": meta.get("algo"),
+        "seed": meta.get("seed"),
+    }
 
 
 @skills_app.command("remove")
