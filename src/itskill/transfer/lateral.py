@@ -65,7 +65,7 @@ from itskill.sim.layout import MAX_STAGES
 from itskill.sim.vec_env import action_space, observation_space
 from itskill.transfer.analyzer import validate_matrix
 from itskill.transfer.attention import STAGE_SLICE
-from itskill.transfer.config import check_setting
+from itskill.transfer.config import TransferConfig, check_setting
 from itskill.transfer.fusion import IncompatibleSourceError
 from itskill.transfer.sources import freeze, load_source
 
@@ -90,8 +90,8 @@ class TransferPolicyConfig:
     target: PolicyConfig
     sources: tuple[dict[str, Any], ...]
     prior: tuple[tuple[float, ...], ...] | None = None
-    attention_hidden: int = 32
-    prior_weight: float = 0.5
+    attention_hidden: int = TransferConfig.attention_hidden
+    prior_weight: float = TransferConfig.prior_weight
     fusion_hidden: tuple[int, ...] = field(default=())
     performers: tuple[int, ...] | None = None
 
@@ -331,8 +331,8 @@ class TransferPolicy(ActorCriticPolicy):
         shared_trunk: bool = PolicyConfig.shared_trunk,
         normalize_obs: bool = PolicyConfig.normalize_obs,
         obs_clip: float = PolicyConfig.obs_clip,
-        attention_hidden: int = 32,
-        prior_weight: float = 0.5,
+        attention_hidden: int = TransferConfig.attention_hidden,
+        prior_weight: float = TransferConfig.prior_weight,
         fusion_hidden: Sequence[int] = (),
         performers: Sequence[int] | None = None,
         **kwargs: Any,
