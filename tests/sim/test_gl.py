@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ctypes.util
 import os
+import platform
 
 import pytest
 
@@ -18,14 +19,17 @@ def only_egl(monkeypatch):
     monkeypatch.delenv("MUJOCO_GL", raising=False)
 
 
-def test_a_backend_the_user_names_and_has_is_kept(only_egl, monkeypatch) -> None:
-    monkeypatch.setenv("MUJOCO_GL", "glfw")
-    assert configure_gl() == "glfw"
+@pytest.mark.parametrize("named", ["glfw", "EGL", " glx", "disable", "off"])
+def test_a_value_mujoco_takes_is_kept(only_egl, monkeypatch, named: str) -> None:
+    # As MuJoCo reads it: any case, spaces around; GL turned off is the user's choice too.
+    monkeypatch.setattr(platform, "system", lambda: "Linux")
+    monkeypatch.setenv("MUJOCO_GL", named)
+    assert configure_gl() == named and os.environ["MUJOCO_GL"] == named
 
 
 @pytest.mark.parametrize(
     ("named", "why"),
-    [("bogus", "MuJoCo knows egl, osmesa, glfw"), ("osmesa", "apt-get install libosmesa6")],
+    [("bogus", "MuJoCo takes disable, "), ("osmesa", "apt-get install libosmesa6")],
 )
 def test_a_backend_mujoco_cannot_use_is_dropped_with_a_warning(
     only_egl, monkeypatch, named: str, why: str

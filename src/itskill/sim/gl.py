@@ -1,41 +1,62 @@
 """Choose MuJoCo's offscreen OpenGL backend before ``mujoco`` is first imported.
 
 MuJoCo reads ``MUJOCO_GL`` once, at import. ``itskill.sim`` calls :func:`configure_gl` when it is
-imported, before any of its modules imports ``mujoco``: the user's ``MUJOCO_GL`` if set, else EGL
-if its library is installed, else OSMesa. A program that imports ``mujoco`` before ``itskill``
-should set ``MUJOCO_GL`` itself.
+imported, before any of its modules imports ``mujoco``: the user's ``MUJOCO_GL`` if set and
+MuJoCo can use it, else EGL if its library is installed, else OSMesa. A program that imports
+``mujoco`` before ``itskill`` should set ``MUJOCO_GL`` itself.
 """
 
 from __future__ import annotations
 
 import ctypes.util
 import os
+import platform
 import warnings
 
 GL_PACKAGES = {"egl": "libegl1 libgl1-mesa-dri", "osmesa": "libosmesa6"}
 """Debian/Ubuntu packages each headless backend needs."""
 _LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
-_BACKENDS = ("egl", "osmesa", "glfw")
-"""The values of ``MUJOCO_GL`` MuJoCo takes (``glfw``: a window on a display)."""
+_ACCEPTED = {
+    "": (
+        "disable",
+        "disabled",
+        "off",
+        "false",
+        "0",
+        "enable",
+        "enabled",
+        "on",
+        "true",
+        "1",
+        "glfw",
+    ),
+    "Linux": ("glx", "egl", "osmesa"),
+    "Windows": ("wgl",),
+    "Darwin": ("cgl",),
+}
+"""The values of ``MUJOCO_GL`` MuJoCo takes (lower-cased and stripped, as it reads them): on
+every platform, then on each one's own."""
 
 
 def configure_gl() -> str | None:
     """Set ``MUJOCO_GL`` (unless the user did) to the first installed headless backend.
 
-    A ``MUJOCO_GL`` MuJoCo cannot use (a name it does not know, or a headless backend whose
-    library is missing) is dropped with a warning and the choice made as if it were unset:
-    MuJoCo fails on it at import, which stopped every command, rendering or not, with a
-    traceback. Returns the backend in force, or ``None`` if neither EGL nor OSMesa is installed.
+    A ``MUJOCO_GL`` MuJoCo cannot use (a value it does not take, or EGL or OSMesa without its
+    library) is dropped with a warning and the choice made as if it were unset: MuJoCo fails on
+    it at import, which stopped every command, rendering or not, with a traceback. Returns the
+    backend in force, or ``None`` if neither EGL nor OSMesa is installed.
     """
-    wanted = os.environ.get("MUJOCO_GL")
-    if wanted:
-        library = _LIBRARIES.get(wanted)
-        if wanted in _BACKENDS and (library is None or ctypes.util.find_library(library)):
+    wanted = os.environ.get("MUJOCO_GL", "")
+    value = wanted.strip().lower()
+    if value:
+        accepted = (*_ACCEPTED[""], *_ACCEPTED.get(platform.system(), ()))
+        library = _LIBRARIES.get(value)
+        if value in accepted and (library is None or ctypes.util.find_library(library)):
             return wanted
         why = (
-            f"its library is not installed ('apt-get install {GL_PACKAGES[wanted]}')"
-            if wanted in _LIBRARIES
-            else f"MuJoCo knows {', '.join(_BACKENDS)}"
+            f"its library is not installed ('apt-get install {GL_PACKAGES[value]}')"
+            if value in accepted
+            else f"MuJoCo takes {', '.join(accepted)}"
         )
         warnings.warn(f"MUJOCO_GL={wanted!r} is ignored: {why}", stacklevel=2)
         del os.environ["MUJOCO_GL"]
