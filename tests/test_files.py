@@ -191,3 +191,36 @@ def test_a_lock_folder_that_is_a_link_is_refused(tmp_path, monkeypatch) -> None:
     with pytest.raises(PermissionError, match="not a folder of this user's alone"):
         directory_lock(tmp_path / "run", "run")
     assert not any((tmp_path / "elsewhere").iterdir())
+
+
+@pytest.mark.parametrize("named", ["locks", "./locks"])
+def test_a_relative_lock_folder_is_refused(tmp_path, monkeypatch, named: str) -> None:
+    # Read against each session's working directory, it gave two sessions two locks of one run.
+    from itskill.files import LOCK_DIR_ENV, directory_lock, is_unusable_path
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv(LOCK_DIR_ENV, named)
+    with pytest.raises(PermissionError, match="must name an absolute path") as err:
+        directory_lock(tmp_path / "run", "run")
+    assert is_unusable_path(err.value) and not (tmp_path / "locks").exists()
+
+
+def test_a_lock_folder_named_with_a_tilde_is_the_home_folders(tmp_path, monkeypatch) -> None:
+    from itskill.files import LOCK_DIR_ENV, lock_folder
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.setenv(LOCK_DIR_ENV, "~/locks")
+    assert lock_folder() == tmp_path / "locks"
+
+
+def test_a_file_where_the_lock_folder_goes_is_said_so(tmp_path, monkeypatch) -> None:
+    from itskill.files import LOCK_DIR_ENV, directory_lock, path_error_message
+
+    (tmp_path / "locks").write_text("")
+    monkeypatch.setenv(LOCK_DIR_ENV, str(tmp_path / "locks"))
+    with pytest.raises(PermissionError) as err:
+        directory_lock(tmp_path / "run", "run")
+    assert path_error_message(err.value).endswith(
+        f"a file, where the folder of itskill's locks goes; set {LOCK_DIR_ENV} to a folder of "
+        "your own, the same in every session on this machine"
+    )

@@ -258,7 +258,15 @@ def lock_folder() -> Path:
     (without ``/tmp``, the system's temporary directory)."""
     named = os.environ.get(LOCK_DIR_ENV)
     if named:
-        return Path(named)
+        path = Path(named).expanduser()
+        if not path.is_absolute():
+            # Each session would read it against its own working directory: other locks.
+            raise PermissionError(
+                errno.EACCES,
+                f"{LOCK_DIR_ENV} must name an absolute path, the same in every session",
+                named,
+            )
+        return path
     uid = os.getuid() if hasattr(os, "getuid") else None
     root = Path("/tmp") if Path("/tmp").is_dir() else Path(tempfile.gettempdir())
     return root / f"itskill-locks-{'user' if uid is None else uid}"
@@ -276,17 +284,22 @@ def directory_lock(directory: Path, kind: str) -> FileLock:
     """
     key = hashlib.sha256(str(Path(directory).resolve()).encode()).hexdigest()[:16]
     locks = lock_folder()
-    locks.mkdir(mode=0o700, parents=True, exist_ok=True)
+    remedy = (
+        f"set {LOCK_DIR_ENV} to a folder of your own, the same in every session on this machine"
+    )
+    try:
+        locks.mkdir(mode=0o700, parents=True, exist_ok=True)
+    except FileExistsError as err:
+        raise PermissionError(
+            errno.EACCES, f"a file, where the folder of itskill's locks goes; {remedy}", str(locks)
+        ) from err
     if hasattr(os, "getuid"):
         # The name is predictable: a folder another user made first, or can write in, could
         # hold or delete the locks, so that two sessions work on one run.
         st = locks.lstat()
         if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o022:
             raise PermissionError(
-                errno.EACCES,
-                f"not a folder of this user's alone; set {LOCK_DIR_ENV} to a folder of your "
-                "own, the same in every session on this machine",
-                str(locks),
+                errno.EACCES, f"not a folder of this user's alone; {remedy}", str(locks)
             )
     return FileLock(str(locks / f"{kind}-{key}.lock"))
 
