@@ -23,3 +23,15 @@ def test_a_policy_recorded_outside_the_run_is_named_by_its_path(tmp_path: Path) 
     run.mkdir()
     record = {"run_dir": str(tmp_path / "old" / "transfer"), "policy_dir": str(elsewhere)}
     assert kept_policy_words(run, record) == elsewhere.as_posix()
+
+
+def test_a_policy_recorded_relative_to_another_directory_is_not_called_the_runs(
+    tmp_path: Path, monkeypatch
+) -> None:
+    # Records from before paths were relative to the run named them from where the command ran.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "old" / "transfer" / "best").mkdir(parents=True)
+    run = tmp_path / "run"
+    run.mkdir()
+    record = {"run_dir": "old/transfer", "policy_dir": "old/transfer/best"}
+    assert kept_policy_words(run, record) == "old/transfer/best"

@@ -53,5 +53,6 @@ def in_run(path: Path, run_dir: Path) -> str:
 def kept_policy_words(run_dir: Path, transfer: dict[str, Any]) -> str:
     """Where the kept policy is, for a message: ``the run's transfer/best``, or the path where an
     older run's record names one outside the run."""
-    where = in_run(policy_dir(run_dir, transfer), run_dir)
-    return where if Path(where).is_absolute() else f"the run's {where}"
+    path = policy_dir(run_dir, transfer)
+    # An older record may name a path relative to where its command ran: not the run's.
+    return f"the run's {in_run(path, run_dir)}" if path.is_relative_to(run_dir) else path.as_posix()
