@@ -158,6 +158,20 @@ def test_cli_init_takes_a_skill_by_name_and_its_weights_file(
         result = CliRunner().invoke(app, args)
         assert result.exit_code == 0, result.output
         assert json.loads((out / "checkpoint.json").read_text())["init"]["sha256"] == digest
+    # A run's weights file named itself is that policy, not the run's best one beside it.
+    import shutil
+
+    run = tmp_path / "source_run"
+    shutil.copytree(SKILL, run)
+    shutil.copytree(SHIPPED_LIBRARY / "lift_nut_m12", run / "best")
+    for ref, used in ((run / "policy.safetensors", run), (run, run / "best")):
+        out = tmp_path / f"from_{used.name}"
+        args = ["train", TASK, "--steps", "8", "--num-envs", "2", "--demos", "0", "--out",
+                str(out), "--init", str(ref)]  # fmt: skip
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 0, result.output
+        recorded = json.loads((out / "checkpoint.json").read_text())["init"]
+        assert recorded["path"] == str(used.resolve())
     unknown = ["train", TASK, "--out", str(tmp_path / "other"), "--init", "skill:no_such_skill"]
     result = CliRunner().invoke(app, unknown)
     assert result.exit_code == 2 and "no_such_skill" in result.output

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from itskill.cli.common import (
+    SKILL_PREFIX,
     EvalEpisodesOpt,
     EvalEveryOpt,
     HyperparamsOpt,
@@ -78,7 +79,11 @@ def train_cmd(
                 console=console,
                 eval_every=eval_every,
                 eval_episodes=eval_episodes,
-                init=None if init is None else Path(policy_source(init)),
+                # A weights file named itself stays that file: its directory would mean the
+                # run's best policy.
+                init=None
+                if init is None
+                else Path(policy_source(init) if init.startswith(SKILL_PREFIX) else init),
             )
     except KeyboardInterrupt:
         raise typer.Exit(130) from None

@@ -73,8 +73,10 @@ class InitConfig:
 def describe_init(source: str | Path) -> dict[str, Any]:
     """Check that ``source`` holds a policy a run can start from and describe it for the run's
     metadata: the directory used (a run's best policy if it was evaluated, else its last
-    checkpoint; a skill directory as it is), its task, env-steps and the hash of its weights."""
-    source_dir = best_policy_dir(source)
+    checkpoint; a skill directory as it is; a ``policy.safetensors`` named itself, its own
+    directory's), its task, env-steps and the hash of its weights."""
+    source = Path(source)
+    source_dir = source.parent if source.suffix == ".safetensors" else best_policy_dir(source)
     meta = read_meta(source_dir)
     if meta.get("policy_class", STAGED_POLICY_CLASS) != STAGED_POLICY_CLASS:
         raise CheckpointError(
