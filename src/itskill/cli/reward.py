@@ -7,6 +7,7 @@ pay for them.
 from __future__ import annotations
 
 import re
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
@@ -161,7 +162,7 @@ def generate_cmd(
 ) -> None:
     """Search a reward for a task or command: plan, generate, train candidates, keep the best,
     compare it with the expert reward (Fig. 6). Rerun with --resume RUN after an interruption."""
-    from itskill.llm.client import LLMUnavailableError, Usage
+    from itskill.llm.client import LLMError, Usage
     from itskill.reward.search import (
         CONFIG_FILE,
         NETWORK_DIR,
@@ -212,6 +213,7 @@ def generate_cmd(
             if resume is None:
                 # Before the network is built into it: a directory of another run is refused.
                 check_new_run(run_dir)
+            fresh = resume is None and not (run_dir.is_dir() and any(run_dir.iterdir()))
             client = search_client(run_dir, llm, base_url)
             network = plan = None
             if transfer is not None:
@@ -243,13 +245,19 @@ def generate_cmd(
                     hint = "nothing was kept; run the same command again"
                 err_console.print(f"interrupted: {hint}", markup=False)
                 raise typer.Exit(130) from None
-            except LLMUnavailableError as err:
+            except LLMError as err:
+                # The directory now holds this search, so the same command again (with the
+                # model fixed, or --llm offline) was refused as taken.
+                if fresh and client.usage.requests == 0:
+                    shutil.rmtree(run_dir, ignore_errors=True)  # no reply was paid for: no loss
+                    raise usage_error(f"{err} (nothing was kept: run the command again)") from err
                 if not (run_dir / CONFIG_FILE).is_file():
                     raise
-                # The same command again was refused: the directory now holds this search.
                 raise usage_error(
-                    f"{err}; the search in {run_dir} keeps what it has: once the model answers, "
-                    f"continue it with itskill reward generate --resume {run_dir}"
+                    f"{err}; the search in {run_dir} keeps the replies paid for and the "
+                    f"candidates trained: continue it with itskill reward generate --resume "
+                    f"{run_dir} (it keeps its --llm {client.name}), or start again with another "
+                    "--out"
                 ) from err
     console.print(
         f"best reward: {result.best_path}; details: itskill reward show {run_dir}", markup=False
