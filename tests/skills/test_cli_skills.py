@@ -37,12 +37,38 @@ def test_add_takes_the_budget_algorithm_and_seed_the_run_recorded(home):
     added = json.loads(result.stdout)
     assert (added["train_steps"], added["train_wall_s"]) == (250_000, 278.25)
     assert (added["algo"], added["seed"]) == ("ppo", 0)
-    given = add(shipped("pick_nut_m12"), "pick_nut_m12", "--name", "given", "--steps", "7",
-                "--seed", "3")  # fmt: skip
-    assert (json.loads(given.stdout)["train_steps"], json.loads(given.stdout)["seed"]) == (7, 3)
+    given = json.loads(add(shipped("pick_nut_m12"), "pick_nut_m12", "--name", "given",
+                           "--steps", "7", "--seed", "3").stdout)  # fmt: skip
+    # A budget given takes no wall time of the run's: that belongs to another budget.
+    assert (given["train_steps"], given["train_wall_s"], given["seed"]) == (7, None, 3)
     plain = runner.invoke(app, ["skills", "add", "--task", "pick_nut_m12", "--checkpoint",
                                 str(shipped("pick_nut_m12")), "--name", "plain"])  # fmt: skip
     assert plain.exit_code == 0 and "its success is unknown" in " ".join(plain.output.split())
+
+
+@pytest.mark.parametrize(
+    ("edit", "expected"),
+    [
+        # A null evaluation step falls back to the run's end; a damaged record gives nothing.
+        ({"selection": {"env_steps": None, "wall_s": None}}, (250_000, None, 0)),
+        ({"selection": [1, 2]}, (250_000, None, 0)),
+        ({"selection": {"env_steps": "250k", "wall_s": -1}}, (250_000, None, 0)),
+    ],
+)
+def test_add_takes_from_a_damaged_run_record_only_what_is_well_formed(
+    home, tmp_path, edit, expected
+):
+    # An AttributeError traceback, or an error blaming --steps or --wall-s the user never gave.
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(shipped("pick_nut_m12").parent, run)
+    meta = json.loads((run / "checkpoint.json").read_text())
+    (run / "checkpoint.json").write_text(json.dumps({**meta, **edit}))
+    result = add(run / "policy.safetensors", "pick_nut_m12", "--name", "bent")
+    assert result.exit_code == 0, result.output
+    added = json.loads(result.stdout)
+    assert (added["train_steps"], added["train_wall_s"], added["seed"]) == expected
 
 
 def test_add_list_search_show_remove(home):

@@ -213,8 +213,8 @@ def skills_add(
         # What the run recorded fills what the options leave out: a skill added from a run
         # showed no budget, algorithm or seed.
         run = _recorded_run(checkpoint)
-        steps = run.get("steps") if steps is None else steps
-        wall_s = run.get("wall_s") if wall_s is None else wall_s
+        if steps is None and wall_s is None:  # a pair: one given is another budget's
+            steps, wall_s = run.get("steps"), run.get("wall_s")
         algo = run.get("algo") if algo is None else algo
         seed = run.get("seed") if seed is None else seed
         skill = Skill(
@@ -252,29 +252,45 @@ def skills_add(
         console.print(
             escape(
                 f"its success is unknown (retrieval treats it as working): measure it with "
-                f"itskill eval {added.task_id} --policy skill:{added.name} and give it as "
-                "--success (with --ci-low, --ci-high) when you add the skill again"
+                f"itskill eval {added.task_id} --policy skill:{added.name}, then "
+                f"itskill skills remove {added.name} and add it again with --success (and "
+                "--ci-low, --ci-high)"
             ),
             highlight=False,
         )
 
 
 def _recorded_run(checkpoint: Path) -> dict[str, Any]:
-    """The training budget, algorithm and seed that ``checkpoint``'s ``checkpoint.json`` records
-    (``steps`` and ``wall_s`` of the kept policy: where its evaluation chose it); empty for a
-    checkpoint without one (a Stable-Baselines3 ``.zip``)."""
+    """The training budget, algorithm and seed the ``checkpoint.json`` beside a
+    ``policy.safetensors`` records, those of them that are well formed (``steps`` and ``wall_s``
+    of the kept policy: where its evaluation chose it, else the run's end); empty for any other
+    checkpoint (a Stable-Baselines3 ``.zip`` is added without its run's record)."""
+    from itskill.datafile import is_number
     from itskill.rl.checkpoint import META_FILE, read_meta
+    from itskill.rl.clock import TRAIN_WALL_KEY
     from itskill.rl.eval_callback import SELECTION_KEY
 
-    if not (checkpoint.parent / META_FILE).is_file():
+    if checkpoint.suffix != ".safetensors" or not (checkpoint.parent / META_FILE).is_file():
         return {}
     meta = read_meta(checkpoint.parent)
-    chosen = meta.get(SELECTION_KEY) or {}
-    return {
-        "steps": chosen.get("env_steps", meta.get("num_timesteps")),
-        "wall_s": chosen.get("wall_s", meta.get("train_wall_s")),
+    chosen = meta.get(SELECTION_KEY)
+    chosen = chosen if isinstance(chosen, dict) else {}
+
+    def first(*values: Any) -> Any:
+        return next((v for v in values if v is not None), None)
+
+    found = {
+        "steps": first(chosen.get("env_steps"), meta.get("num_timesteps")),
+        "wall_s": first(chosen.get("wall_s"), meta.get(TRAIN_WALL_KEY)),
         "algo": meta.get("algo"),
         "seed": meta.get("seed"),
+    }
+    whole = {"steps", "seed"}
+    return {
+        key: int(value) if key in whole else value
+        for key, value in found.items()
+        if (isinstance(value, str) if key == "algo" else is_number(value) and value >= 0)
+        and (key not in whole or float(value).is_integer())
     }
 
 
