@@ -276,22 +276,24 @@ def _recorded_run(checkpoint: Path) -> dict[str, Any]:
     chosen = meta.get(SELECTION_KEY)
     chosen = chosen if isinstance(chosen, dict) else {}
 
-    def first(*values: Any) -> Any:
-        return next((v for v in values if v is not None), None)
+    def count(value: Any) -> bool:
+        return is_number(value) and value >= 0 and float(value).is_integer()
 
-    found = {
-        "steps": first(chosen.get("env_steps"), meta.get("num_timesteps")),
-        "wall_s": first(chosen.get("wall_s"), meta.get(TRAIN_WALL_KEY)),
-        "algo": meta.get("algo"),
-        "seed": meta.get("seed"),
+    def seconds(value: Any) -> bool:
+        return is_number(value) and value >= 0
+
+    candidates = {
+        "steps": (count, chosen.get("env_steps"), meta.get("num_timesteps")),
+        "wall_s": (seconds, chosen.get("wall_s"), meta.get(TRAIN_WALL_KEY)),
+        "algo": (lambda v: isinstance(v, str), meta.get("algo")),
+        "seed": (count, meta.get("seed")),
     }
-    whole = {"steps", "seed"}
-    return {
-        key: int(value) if key in whole else value
-        for key, value in found.items()
-        if (isinstance(value, str) if key == "algo" else is_number(value) and value >= 0)
-        and (key not in whole or float(value).is_integer())
-    }
+    found = {}
+    for key, (valid, *values) in candidates.items():
+        value = next((v for v in values if valid(v)), None)
+        if value is not None:
+            found[key] = int(value) if valid is count else value
+    return found
 
 
 @skills_app.command("remove")
