@@ -296,6 +296,8 @@ def _read_back(run_dir: Path, record: dict) -> dict:
         (lambda r: r["source_specs"][0].pop("policy"), "source_specs: expected a list of "),
         (lambda r: r.update(sources_request=5), 'sources_request: expected "auto", a list'),
         (lambda r: r.update(method="itn "), "method: expected one of itn, nia"),
+        (lambda r: r.update(method=["itn"]), "method: expected one of itn, nia"),  # a TypeError
+        (lambda r: r["source_specs"][0]["policy"].update(stages=[]), "source_specs: expected"),
         (lambda r: r.update(format=2), "transfer record format 2, this version reads 1"),
     ],
 )

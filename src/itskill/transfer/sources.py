@@ -105,6 +105,16 @@ class SourceSkill:
         return {"id": self.name, "description": self.description, "actions": list(self.actions)}
 
 
+def is_stages(value: Any) -> bool:
+    """Whether ``value`` is a network's stages as a record holds them: a non-empty list of
+    layer widths (whole numbers above 0)."""
+    return (
+        isinstance(value, list)
+        and bool(value)
+        and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in value)
+    )
+
+
 def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSkill:
     run_dir = policy_location(space.checkpoint_path(skill))
     try:
@@ -112,11 +122,7 @@ def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSk
     except CheckpointError as err:
         raise SourceError(f"skill {skill.name!r} (id {skill.id}): {err}") from err
     stages = meta["policy"].get("stages")
-    if not (
-        isinstance(stages, list)
-        and stages
-        and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in stages)
-    ):
+    if not is_stages(stages):
         # The transfer networks take their lateral connections from these stages.
         raise SourceError(
             f"skill {skill.name!r} (id {skill.id}): {run_dir / META_FILE}: corrupt policy "

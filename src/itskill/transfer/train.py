@@ -53,7 +53,14 @@ from itskill.transfer.analyzer import ContributionMatrix, analyze, validate_matr
 from itskill.transfer.config import TransferConfig, load_transfer_config
 from itskill.transfer.lateral import weights_on_disk
 from itskill.transfer.methods import METHODS, Method, get_method, used_settings
-from itskill.transfer.sources import AUTO, SourceError, SourceSkill, parse_keys, resolve_sources
+from itskill.transfer.sources import (
+    AUTO,
+    SourceError,
+    SourceSkill,
+    is_stages,
+    parse_keys,
+    resolve_sources,
+)
 from itskill.transfer.stages import fill_performers, stage_map, stage_performers
 
 TRANSFER_FILE = "transfer.json"
@@ -115,14 +122,14 @@ def _is_source_specs(value: Any) -> bool:
     return _is_sources(value) and all(
         isinstance(s.get("policy_class"), str)
         and isinstance(s.get("policy"), dict)
-        and isinstance(s["policy"].get("stages"), list)
+        and is_stages(s["policy"].get("stages"))
         for s in value
     )
 
 
 _RECORD_FIELDS: dict[str, Check] = {
     "target": STRING,
-    "method": Check(f"one of {', '.join(METHODS)}", lambda v: v in METHODS),
+    "method": Check(f"one of {', '.join(METHODS)}", lambda v: isinstance(v, str) and v in METHODS),
     "config": OBJECT,
     "sources_request": Check(
         '"auto", a list of skill names and serial numbers, or null', _is_request
