@@ -18,7 +18,8 @@ TRACE_FILE = "attention.json"
 
 
 class TraceError(ValueError):
-    """A run whose attention cannot be traced: its policy has no contribution weights."""
+    """Attention that cannot be traced: a policy without contribution weights, or no episode
+    asked for."""
 
 
 def attention_trace(run_dir: str | Path, episodes: int = 1, seed: int = 0) -> dict[str, Any]:
@@ -106,14 +107,29 @@ def _is_trace(value: Any) -> bool:
     """Whether ``value`` has the shape :func:`attention_trace` returns, as far as the report
     reads it: a damaged ``attention.json`` is traced again, or refused where the weights are
     gone, rather than failing the report where a field is first used."""
-    return (
+    if not (
         isinstance(value, dict)
         and isinstance(value.get("sources"), list)
         and isinstance(value.get("segments"), list)
         and isinstance(value.get("episodes"), list)
-        and bool(value["episodes"])
-        and all(
-            isinstance(e, dict) and {"stage", "raw", "weights", "success"} <= e.keys()
-            for e in value["episodes"]
-        )
+        and value["episodes"]
+    ):
+        return False
+    return all(_is_episode(e) for e in value["episodes"])
+
+
+def _is_episode(episode: Any) -> bool:
+    """One episode of a trace: a stage and a row of weights per step, the same number of each."""
+    if not isinstance(episode, dict):
+        return False
+    stages, weights, raw = episode.get("stage"), episode.get("weights"), episode.get("raw")
+    return (
+        isinstance(stages, list)
+        and bool(stages)
+        and isinstance(weights, list)
+        and len(weights) == len(stages)
+        and all(isinstance(row, list) for row in weights)
+        and (raw is None or (isinstance(raw, list) and len(raw) == len(stages)))
+        and isinstance(episode.get("success"), bool)
+        and isinstance(episode.get("length"), int)
     )
