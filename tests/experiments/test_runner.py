@@ -252,8 +252,8 @@ def test_pst_keeping_as_many_as_the_file_names_is_refused_before_any_cell(tmp_pa
 
 
 def test_a_no_transfer_run_resumes_with_other_sources_k_and_analyzer(toy, tmp_path):
-    """Its cells never used them, so resuming it to add ITN may name them anew; the ITN run
-    then refuses another k."""
+    """Its cells never used them, so resuming it to add ITN may name them anew; the ITN run,
+    its sources named, then takes another k too (it retrieves nothing)."""
     config, _ = toy
     run = tmp_path / "run"
     small = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
@@ -266,8 +266,19 @@ def test_a_no_transfer_run_resumes_with_other_sources_k_and_analyzer(toy, tmp_pa
     assert json.loads((run / "config.json").read_text())["k"] == 2
     with_itn = type(config)(**{**unchanged.__dict__, "methods": ("itn",), "llm": "offline"})
     run_experiment(with_itn, run, "local", 1, resume=True, console=quiet())
+    summary = run_experiment(type(config)(**{**with_itn.__dict__, "k": 3}), run, "local", 1,
+                             resume=True, console=quiet())  # fmt: skip
+    assert not summary.failed
+
+
+def test_a_run_that_retrieved_its_sources_refuses_another_k(toy, tmp_path):
+    config, _ = toy
+    run = tmp_path / "run"
+    small = type(config)(**{**config.__dict__, "methods": ("dfs",), "seeds": (0,), "k": 2})
+    assert small.sources.get("pickplace_nut_m12", "auto") == "auto"
+    run_experiment(small, run, "local", 1, console=quiet())
     with pytest.raises(ExperimentRunError, match="k=2"):
-        run_experiment(type(config)(**{**with_itn.__dict__, "k": 3}), run, "local", 1,
+        run_experiment(type(config)(**{**small.__dict__, "k": 3}), run, "local", 1,
                        resume=True, console=quiet())  # fmt: skip
 
 

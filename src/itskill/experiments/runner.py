@@ -303,17 +303,21 @@ def read_run_config(run_dir: Path) -> ExperimentConfig:
 
 def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: Path) -> None:
     """Refuse a resume whose file changes a setting the run's cells were trained with. The
-    sources and ``k`` matter only to a run of methods that use sources, and the analyzer's
-    ``llm`` only to one of methods that use its matrix: a No_Transfer run resumed to add ITN
-    may name them anew. A run recorded before experiment files named hyper-parameters or
-    transfer settings may be resumed with a file that names them."""
+    sources and ``k`` matter only to a run of methods that use sources (``k`` only where a task
+    retrieved them), and the analyzer's ``llm`` only to one of methods that use its matrix: a
+    No_Transfer run resumed to add ITN may name them anew. A run recorded before experiment
+    files named hyper-parameters or transfer settings may be resumed with a file that names
+    them."""
     from itskill.transfer import get_method
 
     have, want = old.training_settings(), new.training_settings()
     methods = [get_method(m) for m in old.methods]
+    retrieved = any(old.sources.get(task, AUTO) == AUTO for task in old.tasks)
     unused = {
         *(() if any(m.uses_sources for m in methods) else ("sources", "k")),
         *(() if any(m.uses_prior for m in methods) else ("llm",)),
+        # How many to retrieve matters only where sources were retrieved, not named.
+        *(() if retrieved else ("k",)),
     }
     recorded = read_json(run_dir / CONFIG_FILE)
     # Recorded before files could name them: the cells trained with the packaged ones of their

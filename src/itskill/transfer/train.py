@@ -226,9 +226,7 @@ def _unused(method: str, request: Any) -> set[str]:
     neither the analyzer's retries nor the retrieval's success threshold matter again; a
     resumed network is loaded whole, so a setting its method does not read cannot change it."""
     everything = {f.name for f in fields(TransferConfig)}
-    meth = METHODS.get(method)
-    if meth is None:
-        return set()  # refused by the method's own comparison
+    meth = get_method(method)  # a record's was checked when it was read
     if not meth.uses_sources:
         return everything
     used = set(meth.settings) | ({"k", "distinct_actions"} if request == AUTO else set())
