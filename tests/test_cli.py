@@ -163,6 +163,11 @@ def test_eval_takes_a_skill_of_the_skill_space_by_name(tmp_path, monkeypatch):
     data = json.loads(result.stdout)
     assert data["episodes"] == 4 and data["successes"] >= 3  # shipped at 99.8%
     assert "reach_nut_m12" in data["policy"]
+    # The line names the skill as typed, then where it loaded from (only the path, before).
+    shown = runner.invoke(app, [*args, "--num-envs", "4"])
+    assert flat(shown.output).startswith(
+        f"reach_nut_m12 with skill:reach_nut_m12 ({data['policy']})"
+    )
     unknown = runner.invoke(app, ["eval", "reach_nut_m12", "--policy", "skill:reach_nut_m13"])
     assert unknown.exit_code == 2
     text = flat(unknown.output)

@@ -15,6 +15,7 @@ from rich.table import Table
 
 from itskill.cli.common import (
     SCRIPTED,
+    SKILL_PREFIX,
     CameraOpt,
     JsonOpt,
     PolicyOpt,
@@ -36,12 +37,17 @@ if TYPE_CHECKING:
     from itskill.tasks.spec import TaskSpec
 
 
-def _print_eval(result: EvalResult, spec: TaskSpec, as_json: bool) -> None:
+def _print_eval(
+    result: EvalResult, spec: TaskSpec, as_json: bool, named: str | None = None
+) -> None:
+    """The result as a line and the steps per subtask, or as JSON; ``named`` is the policy as
+    the user named it (``skill:NAME``), shown before where it loaded from."""
     if as_json:
         print_json(result.to_dict())
         return
+    shown = result.policy if named is None else f"{named} ({result.policy})"
     console.print(
-        f"[bold]{escape(result.task)}[/bold] with {escape(result.policy)}: "
+        f"[bold]{escape(result.task)}[/bold] with {escape(shown)}: "
         f"success {result.successes}/{result.episodes} = [bold]{result.success_rate:.1%}[/bold] "
         f"(95% CI {result.ci_low:.1%}–{result.ci_high:.1%}), "
         f"subtasks done {result.mean_stages_done:.2f}/{result.n_stages}, "
@@ -87,7 +93,7 @@ def eval_cmd(
         _note_another_task(policy, source, spec)
         if starts is None:
             result = evaluate(spec, ref, episodes=episodes, seed=seed, num_envs=num_envs)
-            _print_eval(result, spec, as_json)
+            _print_eval(result, spec, as_json, policy if policy.startswith(SKILL_PREFIX) else None)
             return
         own = "the task's own start"
         rows = []
