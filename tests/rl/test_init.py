@@ -164,8 +164,13 @@ def test_cli_init_takes_a_skill_by_name_and_its_weights_file(
     run = tmp_path / "source_run"
     shutil.copytree(SKILL, run)
     shutil.copytree(SHIPPED_LIBRARY / "lift_nut_m12", run / "best")
-    for ref, used in ((run / "policy.safetensors", run), (run, run / "best")):
-        out = tmp_path / f"from_{used.name}"
+    from itskill.skills import Skill, open_skill_space
+
+    with open_skill_space() as space:  # a skill added from the run's own weights file
+        space.add(Skill("mine", TASK, "reach", ("approach",), str(run / "policy.safetensors")))
+    cases = ((run / "policy.safetensors", run), ("skill:mine", run), (run, run / "best"))
+    for ref, used in cases:
+        out = tmp_path / f"from_{str(ref).replace('/', '_').replace(':', '_')}"
         args = ["train", TASK, "--steps", "8", "--num-envs", "2", "--demos", "0", "--out",
                 str(out), "--init", str(ref)]  # fmt: skip
         result = CliRunner().invoke(app, args)

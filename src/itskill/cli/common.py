@@ -252,7 +252,7 @@ def policy_source(policy: str) -> str | Path:
     from itskill.rl.checkpoint import policy_location
 
     if policy.startswith(SKILL_PREFIX):
-        return policy_location(_skill_checkpoint(policy[len(SKILL_PREFIX) :]))
+        return policy_location(skill_checkpoint(policy[len(SKILL_PREFIX) :]))
     if Path(policy).is_file():
         return policy_location(policy)
     return policy
@@ -266,7 +266,7 @@ def policy_ref(policy: str) -> Any:
     return as_policy(policy_source(policy))
 
 
-def _skill_checkpoint(name: str) -> Path:
+def skill_checkpoint(name: str) -> Path:
     """The checkpoint file of skill ``name``; :class:`CheckpointError` if the skill is unknown or
     its checkpoint is gone (the space keeps a skill whose files were deleted or moved)."""
     from itskill.skills import open_skill_space

@@ -14,10 +14,10 @@ from itskill.cli.common import (
     HyperparamsOpt,
     TaskArg,
     console,
-    policy_source,
     print_trained,
     run_dir_option,
     seed_option,
+    skill_checkpoint,
     steps_option,
     user_errors,
 )
@@ -79,12 +79,17 @@ def train_cmd(
                 console=console,
                 eval_every=eval_every,
                 eval_episodes=eval_episodes,
-                # A weights file named itself stays that file: its directory would mean the
-                # run's best policy.
-                init=None
-                if init is None
-                else Path(policy_source(init) if init.startswith(SKILL_PREFIX) else init),
+                init=None if init is None else _init_source(init),
             )
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
     print_trained(f"{task} with {algo}", result, steps)
+
+
+def _init_source(init: str) -> Path:
+    """What ``--init`` names, as :func:`~itskill.rl.init_policy.describe_init` takes it: a
+    skill's own weights file, or the path given. A weights file stays a file: its directory
+    would mean the best policy of the run it lies in."""
+    if init.startswith(SKILL_PREFIX):
+        return skill_checkpoint(init[len(SKILL_PREFIX) :])
+    return Path(init)

@@ -76,6 +76,8 @@ def describe_init(source: str | Path) -> dict[str, Any]:
     checkpoint; a skill directory as it is; a ``policy.safetensors`` named itself, its own
     directory's), its task, env-steps and the hash of its weights."""
     source = Path(source)
+    if source.suffix == ".safetensors" and source.name != POLICY_FILE:
+        raise CheckpointError(source, f"a run's or skill's weights are its {POLICY_FILE}")
     source_dir = source.parent if source.suffix == ".safetensors" else best_policy_dir(source)
     meta = read_meta(source_dir)
     if meta.get("policy_class", STAGED_POLICY_CLASS) != STAGED_POLICY_CLASS:
