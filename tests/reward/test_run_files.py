@@ -204,6 +204,12 @@ def test_a_search_whose_model_never_answered_leaves_nothing_behind(
         text = " ".join(result.output.split())
         assert "connection refused" in text and "nothing was kept: run the command again" in text
         assert not run.exists()
+    # A folder that was there stays, with what it held: only what the search wrote goes.
+    run.mkdir()
+    (run / ".DS_Store").write_bytes(b"\0")
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2 and "nothing was kept" in " ".join(result.output.split())
+    assert [p.name for p in run.iterdir()] == [".DS_Store"]
 
 
 def test_a_new_search_takes_a_folder_a_file_browser_has_shown(tmp_path: Path) -> None:

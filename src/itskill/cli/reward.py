@@ -213,7 +213,7 @@ def generate_cmd(
             if resume is None:
                 # Before the network is built into it: a directory of another run is refused.
                 check_new_run(run_dir)
-            fresh = resume is None and not (run_dir.is_dir() and any(run_dir.iterdir()))
+            before = set(run_dir.iterdir()) if run_dir.is_dir() else None
             client = search_client(run_dir, llm, base_url)
             network = plan = None
             if transfer is not None:
@@ -247,21 +247,41 @@ def generate_cmd(
                 raise typer.Exit(130) from None
             except LLMError as err:
                 # The directory now holds this search, so the same command again (with the
-                # model fixed, or --llm offline) was refused as taken.
-                if fresh and client.usage.requests == 0:
-                    shutil.rmtree(run_dir, ignore_errors=True)  # no reply was paid for: no loss
+                # model fixed, or --llm offline) was refused as taken. No reply paid for: it
+                # holds nothing of value, and what this call wrote goes.
+                new = resume is None and client.usage.requests == 0
+                if new and _remove_added(run_dir, before):
                     raise usage_error(f"{err} (nothing was kept: run the command again)") from err
                 if not (run_dir / CONFIG_FILE).is_file():
                     raise
+                kept = "the replies paid for" + (
+                    " and the candidates trained" if any(run_dir.glob("iter_*")) else ""
+                )
                 raise usage_error(
-                    f"{err}; the search in {run_dir} keeps the replies paid for and the "
-                    f"candidates trained: continue it with itskill reward generate --resume "
-                    f"{run_dir} (it keeps its --llm {client.name}), or start again with another "
-                    "--out"
+                    f"{err}; the search in {run_dir} keeps {kept}: continue it with itskill "
+                    f"reward generate --resume {run_dir} (it keeps its --llm {client.name}), or "
+                    "start again with another --out"
                 ) from err
     console.print(
         f"best reward: {result.best_path}; details: itskill reward show {run_dir}", markup=False
     )
+
+
+def _remove_added(run_dir: Path, before: set[Path] | None) -> bool:
+    """Remove what a new search wrote in ``run_dir``: the folder if it did not exist
+    (``before`` None), else the entries not in ``before``; whether all of it went."""
+    try:
+        if before is None:
+            shutil.rmtree(run_dir)
+            return True
+        for entry in set(run_dir.iterdir()) - before:
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+    except OSError:
+        return False
+    return True
 
 
 def _interval(band: dict[str, Any]) -> str:

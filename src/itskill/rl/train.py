@@ -426,10 +426,11 @@ def train(
 
     ``init`` starts the run from a trained policy instead of random weights: a run directory (its
     best policy if it was evaluated), a skill directory, or either's ``policy.safetensors`` (that
-    policy itself), of any task, with the same network shape (:mod:`itskill.rl.init_policy`). The run then explores and learns with the
-    hyper-parameters' ``init`` table, its critic is fitted to the policy's returns first, the
-    observation normaliser keeps the statistics it came with, and the starting policy is
-    evaluated at env-step 0, so the best policy kept is never worse than the one it started from.
+    policy itself), of any task, with the same network shape (:mod:`itskill.rl.init_policy`).
+    The run then explores and learns with the hyper-parameters' ``init`` table, its critic is
+    fitted to the policy's returns first, the observation normaliser keeps the statistics it
+    came with, and the starting policy is evaluated at env-step 0, so the best policy kept is
+    never worse than the one it started from.
 
     ``out`` is this call's alone while it runs (:func:`training_alone`).
     """
