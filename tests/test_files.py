@@ -193,14 +193,23 @@ def test_a_lock_folder_that_is_a_link_is_refused(tmp_path, monkeypatch) -> None:
     assert not any((tmp_path / "elsewhere").iterdir())
 
 
-@pytest.mark.parametrize("named", ["locks", "./locks"])
-def test_a_relative_lock_folder_is_refused(tmp_path, monkeypatch, named: str) -> None:
-    # Read against each session's working directory, it gave two sessions two locks of one run.
+@pytest.mark.parametrize(
+    ("named", "problem"),
+    [
+        # Read against each session's working directory: two sessions, two locks of one run.
+        ("locks", "must name an absolute path"),
+        ("./locks", "must name an absolute path"),
+        ("~no_such_user_zz/locks", "cannot expand ~"),  # a RuntimeError traceback
+    ],
+)
+def test_a_lock_folder_that_names_no_one_place_is_refused(
+    tmp_path, monkeypatch, named: str, problem: str
+) -> None:
     from itskill.files import LOCK_DIR_ENV, directory_lock, is_unusable_path
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv(LOCK_DIR_ENV, named)
-    with pytest.raises(PermissionError, match="must name an absolute path") as err:
+    with pytest.raises(PermissionError, match=problem) as err:
         directory_lock(tmp_path / "run", "run")
     assert is_unusable_path(err.value) and not (tmp_path / "locks").exists()
 

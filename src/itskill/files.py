@@ -252,13 +252,19 @@ LOCK_DIR_ENV = "ITSKILL_LOCK_DIR"
 
 
 def lock_folder() -> Path:
-    """The folder :func:`directory_lock` keeps its files in: ``$ITSKILL_LOCK_DIR`` if set, else
-    ``itskill-locks-UID`` in ``/tmp``, not in ``$TMPDIR``: every session must find the same lock
-    for a directory, and two sessions with different ``TMPDIR`` trained into one run at once
-    (without ``/tmp``, the system's temporary directory)."""
+    """The folder :func:`directory_lock` keeps its files in: ``$ITSKILL_LOCK_DIR`` if set (an
+    absolute path, ``~`` expanded; a relative one is refused), else ``itskill-locks-UID`` in
+    ``/tmp``, not in ``$TMPDIR``: every session must find the same lock for a directory, and two
+    sessions with different ``TMPDIR`` trained into one run at once (without ``/tmp``, the
+    system's temporary directory)."""
     named = os.environ.get(LOCK_DIR_ENV)
     if named:
-        path = Path(named).expanduser()
+        try:
+            path = Path(named).expanduser()
+        except RuntimeError as err:  # ~user of no such user
+            raise PermissionError(
+                errno.EACCES, f"{LOCK_DIR_ENV}: cannot expand ~ ({err})", named
+            ) from err
         if not path.is_absolute():
             # Each session would read it against its own working directory: other locks.
             raise PermissionError(
