@@ -219,7 +219,14 @@ def test_the_recorded_trace_outlives_the_weights_and_follows_their_changes(
     assert recorded_attention_trace(copy) == first  # no weights: the record is the figure's source
     # A damaged record is not the figure's source: traced again where the weights are (it was
     # returned as it was, and the report failed on its first index).
-    for episodes in ([], [{**first["episodes"][0], "weights": None}]):
+    episode = first["episodes"][0]
+    damaged_episodes = (
+        [],
+        [{**episode, "weights": None}],
+        [{**episode, "weights": [row[:1] for row in episode["weights"]]}],  # one source short
+        [{**episode, "stage": ["pick"] * len(episode["stage"])}],
+    )
+    for episodes in damaged_episodes:
         damaged = {**json.loads((out / "attention.json").read_text())}
         damaged["trace"] = {**damaged["trace"], "episodes": episodes}
         (out / "attention.json").write_text(json.dumps(damaged))

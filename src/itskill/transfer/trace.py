@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from itskill.datafile import is_number
 from itskill.files import read_json_or_none, write_json
 from itskill.rl.checkpoint import POLICY_FILE, load_policy, policy_sha256, read_meta
 from itskill.tasks import get_task, make_batch_env
@@ -115,21 +116,37 @@ def _is_trace(value: Any) -> bool:
         and value["episodes"]
     ):
         return False
-    return all(_is_episode(e) for e in value["episodes"])
+    n = len(value["sources"])
+    return all(_is_episode(e, n) for e in value["episodes"])
 
 
-def _is_episode(episode: Any) -> bool:
-    """One episode of a trace: a stage and a row of weights per step, the same number of each."""
+def _is_episode(episode: Any, n_sources: int) -> bool:
+    """One episode of a trace: per step a stage index and a weight for each of ``n_sources``
+    sources (and as many raw weights, or none), and whether it succeeded."""
+
+    def rows(value: Any, steps: int) -> bool:
+        return (
+            isinstance(value, list)
+            and len(value) == steps
+            and all(
+                isinstance(row, list) and len(row) == n_sources and all(map(is_number, row))
+                for row in value
+            )
+        )
+
     if not isinstance(episode, dict):
         return False
-    stages, weights, raw = episode.get("stage"), episode.get("weights"), episode.get("raw")
-    return (
+    stages = episode.get("stage")
+    if not (
         isinstance(stages, list)
-        and bool(stages)
-        and isinstance(weights, list)
-        and len(weights) == len(stages)
-        and all(isinstance(row, list) for row in weights)
-        and (raw is None or (isinstance(raw, list) and len(raw) == len(stages)))
+        and stages
+        and all(isinstance(k, int) and not isinstance(k, bool) and k >= 0 for k in stages)
+    ):
+        return False
+    raw = episode.get("raw")
+    return (
+        rows(episode.get("weights"), len(stages))
+        and (raw is None or rows(raw, len(stages)))
         and isinstance(episode.get("success"), bool)
-        and isinstance(episode.get("length"), int)
+        and is_number(episode.get("length"))
     )
