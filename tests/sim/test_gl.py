@@ -8,7 +8,7 @@ import platform
 
 import pytest
 
-from itskill.sim.gl import configure_gl
+from itskill.sim.gl import configure_gl, gl_help
 
 
 @pytest.fixture
@@ -17,12 +17,12 @@ def only_egl(monkeypatch):
         ctypes.util, "find_library", lambda name: "libEGL.so.1" if name == "EGL" else None
     )
     monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.setattr(platform, "system", lambda: "Linux")
 
 
 @pytest.mark.parametrize("named", ["glfw", "EGL", " glx", "disable", "off"])
 def test_a_value_mujoco_takes_is_kept(only_egl, monkeypatch, named: str) -> None:
     # As MuJoCo reads it: any case, spaces around; GL turned off is the user's choice too.
-    monkeypatch.setattr(platform, "system", lambda: "Linux")
     monkeypatch.setenv("MUJOCO_GL", named)
     assert configure_gl() == named and os.environ["MUJOCO_GL"] == named
 
@@ -39,3 +39,13 @@ def test_a_backend_mujoco_cannot_use_is_dropped_with_a_warning(
     with pytest.warns(UserWarning, match=why):
         assert configure_gl() == "egl"
     assert os.environ["MUJOCO_GL"] == "egl"
+
+
+def test_elsewhere_than_linux_no_linux_backend_is_chosen(only_egl, monkeypatch) -> None:
+    # MuJoCo takes neither EGL nor OSMesa on Windows or macOS: it refused itskill's own choice.
+    monkeypatch.setattr(platform, "system", lambda: "Windows")
+    assert configure_gl() is None and "MUJOCO_GL" not in os.environ
+
+
+def test_rendering_with_opengl_turned_off_says_to_turn_it_on() -> None:
+    assert gl_help("off").endswith("MUJOCO_GL='off' turns it off: unset it.")

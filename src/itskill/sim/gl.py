@@ -16,13 +16,11 @@ import warnings
 GL_PACKAGES = {"egl": "libegl1 libgl1-mesa-dri", "osmesa": "libosmesa6"}
 """Debian/Ubuntu packages each headless backend needs."""
 _LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
+_OFF = ("disable", "disabled", "off", "false", "0")
+"""The values of ``MUJOCO_GL`` that turn OpenGL off."""
 _ACCEPTED = {
     "": (
-        "disable",
-        "disabled",
-        "off",
-        "false",
-        "0",
+        *_OFF,
         "enable",
         "enabled",
         "on",
@@ -44,7 +42,8 @@ def configure_gl() -> str | None:
     A ``MUJOCO_GL`` MuJoCo cannot use (a value it does not take, or EGL or OSMesa without its
     library) is dropped with a warning and the choice made as if it were unset: MuJoCo fails on
     it at import, which stopped every command, rendering or not, with a traceback. Returns the
-    backend in force, or ``None`` if neither EGL nor OSMesa is installed.
+    user's value or the backend chosen, or ``None`` where none was (neither EGL nor OSMesa
+    installed, or not on Linux).
     """
     wanted = os.environ.get("MUJOCO_GL", "")
     value = wanted.strip().lower()
@@ -60,6 +59,8 @@ def configure_gl() -> str | None:
         )
         warnings.warn(f"MUJOCO_GL={wanted!r} is ignored: {why}", stacklevel=2)
         del os.environ["MUJOCO_GL"]
+    if platform.system() != "Linux":
+        return None  # EGL and OSMesa are Linux's; elsewhere MuJoCo chooses its own
     for backend, library in _LIBRARIES.items():
         if ctypes.util.find_library(library):
             os.environ["MUJOCO_GL"] = backend
@@ -69,6 +70,10 @@ def configure_gl() -> str | None:
 
 def gl_help(backend: str | None) -> str:
     """What to install or set when rendering with ``backend`` failed."""
+    if backend is not None and backend.strip().lower() in _OFF:
+        return (
+            f"offscreen rendering needs OpenGL, and MUJOCO_GL={backend!r} turns it off: unset it."
+        )
     installs = " or ".join(f"'apt-get install {pkgs}'" for pkgs in GL_PACKAGES.values())
     which = f"MUJOCO_GL={backend!r}" if backend else "no EGL or OSMesa library found"
     return (
