@@ -35,3 +35,5 @@ def test_a_policy_recorded_relative_to_another_directory_is_not_called_the_runs(
     run.mkdir()
     record = {"run_dir": "old/transfer", "policy_dir": "old/transfer/best"}
     assert kept_policy_words(run, record) == "old/transfer/best"
+    climbing = {"run_dir": "../old/transfer", "policy_dir": "../old/transfer/best"}
+    assert not kept_policy_words(run, climbing).startswith("the run's")

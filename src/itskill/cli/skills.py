@@ -262,9 +262,10 @@ def skills_add(
 
 def _recorded_run(checkpoint: Path) -> dict[str, Any]:
     """The training budget, algorithm and seed the ``checkpoint.json`` beside a
-    ``policy.safetensors`` records, those of them that are well formed (``steps`` and ``wall_s``
-    of the kept policy: where its evaluation chose it, else the run's end); empty for any other
-    checkpoint (a Stable-Baselines3 ``.zip`` is added without its run's record)."""
+    ``policy.safetensors`` records (read and checked by :func:`read_meta`): the budget of the
+    kept policy where its evaluation chose it (``selection``, when both its env-steps and its
+    seconds are well formed), else the checkpoint's own. Empty for any other checkpoint (a
+    Stable-Baselines3 ``.zip`` is added without its run's record)."""
     from itskill.datafile import is_number
     from itskill.rl.checkpoint import META_FILE, read_meta
     from itskill.rl.clock import TRAIN_WALL_KEY
@@ -274,26 +275,24 @@ def _recorded_run(checkpoint: Path) -> dict[str, Any]:
         return {}
     meta = read_meta(checkpoint.parent)
     chosen = meta.get(SELECTION_KEY)
-    chosen = chosen if isinstance(chosen, dict) else {}
-
-    def count(value: Any) -> bool:
-        return is_number(value) and value >= 0 and float(value).is_integer()
-
-    def seconds(value: Any) -> bool:
-        return is_number(value) and value >= 0
-
-    candidates = {
-        "steps": (count, chosen.get("env_steps"), meta.get("num_timesteps")),
-        "wall_s": (seconds, chosen.get("wall_s"), meta.get(TRAIN_WALL_KEY)),
-        "algo": (lambda v: isinstance(v, str), meta.get("algo")),
-        "seed": (count, meta.get("seed")),
+    steps, wall_s = (
+        (chosen.get("env_steps"), chosen.get("wall_s"))
+        if isinstance(chosen, dict)
+        else (None, None)
+    )
+    # A pair, or neither: the wall time of one budget beside the steps of another misleads.
+    if not (
+        is_number(steps) and steps >= 0 and float(steps).is_integer()
+        and is_number(wall_s) and wall_s >= 0
+    ):  # fmt: skip
+        steps, wall_s = meta["num_timesteps"], meta.get(TRAIN_WALL_KEY)
+    found = {
+        "steps": int(steps),
+        "wall_s": wall_s,
+        "algo": meta.get("algo"),
+        "seed": meta.get("seed"),
     }
-    found = {}
-    for key, (valid, *values) in candidates.items():
-        value = next((v for v in values if valid(v)), None)
-        if value is not None:
-            found[key] = int(value) if valid is count else value
-    return found
+    return {key: value for key, value in found.items() if value is not None}
 
 
 @skills_app.command("remove")

@@ -54,5 +54,9 @@ def kept_policy_words(run_dir: Path, transfer: dict[str, Any]) -> str:
     """Where the kept policy is, for a message: ``the run's transfer/best``, or the path where an
     older run's record names one outside the run."""
     path = policy_dir(run_dir, transfer)
-    # An older record may name a path relative to where its command ran: not the run's.
-    return f"the run's {in_run(path, run_dir)}" if path.is_relative_to(run_dir) else path.as_posix()
+    # Resolved: an older record may name a path relative to where its command ran, or one
+    # that climbs out of the run ("../old/transfer/best"), and neither is the run's.
+    where, root = path.resolve(), Path(run_dir).resolve()
+    if where.is_relative_to(root):
+        return f"the run's {where.relative_to(root).as_posix()}"
+    return path.as_posix()
