@@ -253,8 +253,8 @@ def skills_add(
             escape(
                 f"its success is unknown (retrieval treats it as working): measure it with "
                 f"itskill eval {added.task_id} --policy skill:{added.name}, then "
-                f"itskill skills remove {added.name} and add it again with --success (and "
-                "--ci-low, --ci-high)"
+                f"itskill skills remove {added.name} and add it again, with the same --task "
+                "and --checkpoint, and --success (and --ci-low, --ci-high)"
             ),
             highlight=False,
         )
