@@ -328,17 +328,20 @@ class _Steps:
         return value
 
 
-def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> None:
-    """Record ``settings`` in ``run_dir``; :class:`LearnError` when it holds a learn run and
-    ``resume`` is not given, one with other settings, or, with ``resume``, no learn run."""
+def _check_run_dir(
+    run_dir: Path, settings: dict[str, Any], resume: bool, recorded: Any | None
+) -> None:
+    """Record ``settings`` in ``run_dir``; :class:`LearnError` when it holds a learn run (its
+    ``learn.json``, ``recorded``) and ``resume`` is not given, one with other settings, or, with
+    ``resume``, no learn run."""
     path = run_dir / LEARN_FILE
-    if path.is_file():
+    if recorded is not None:
         if not resume:
             raise LearnError(
                 f"{run_dir} already holds a learn run; pass --resume to continue it or "
                 "--out to start another"
             )
-        found = _difference(read_json(path), settings)
+        found = _difference(recorded, settings)
         if found is not None:
             key, was, now = found
             raise LearnError(
@@ -370,12 +373,11 @@ def _check_run_dir(run_dir: Path, settings: dict[str, Any], resume: bool) -> Non
     write_json(path, settings)
 
 
-def _recorded_min_success(run_dir: Path, default: float) -> float:
-    """The ``min_success`` a learn run in ``run_dir`` recorded; ``default`` where it has none."""
-    path = run_dir / LEARN_FILE
-    data = read_json(path) if path.is_file() else {}
-    recorded = data.get("budget") if isinstance(data, dict) else None
-    value = recorded.get("min_success") if isinstance(recorded, dict) else None
+def _recorded_min_success(recorded: Any | None, default: float) -> float:
+    """The ``min_success`` a learn run's ``learn.json`` (``recorded``) holds; ``default`` where
+    it holds none."""
+    budget = recorded.get("budget") if isinstance(recorded, dict) else None
+    value = budget.get("min_success") if isinstance(budget, dict) else None
     return float(value) if is_number(value) and 0.0 <= value <= 1.0 else default
 
 
@@ -452,19 +454,21 @@ def learn(
         )
     command = command.strip()
     run_dir = learn_dir(command, out)
-    if resume and min_success is None:
-        # The threshold the run was started (or last resumed) with, not the budget's again.
-        b = replace(b, min_success=_recorded_min_success(run_dir, b.min_success))
     created = not run_dir.exists()
     client = make_client(llm, cache_dir=run_dir / "llm_cache")
-    settings = {"command": command, "budget": b.to_dict(), "seed": seed, "llm": client.name}
     # Before the record is checked or written.
     busy = LearnError(
         f"{run_dir} is in use by another itskill learn on this machine; wait for it to end, "
         "or stop it and --resume"
     )
     with held_alone(run_dir, "learn", busy):
-        _check_run_dir(run_dir, settings, resume)
+        path = run_dir / LEARN_FILE
+        recorded = read_json(path) if path.is_file() else None  # read once, under the lock
+        if resume and min_success is None:
+            # The threshold the run was started (or last resumed) with, not the budget's again.
+            b = replace(b, min_success=_recorded_min_success(recorded, b.min_success))
+        settings = {"command": command, "budget": b.to_dict(), "seed": seed, "llm": client.name}
+        _check_run_dir(run_dir, settings, resume, recorded)
         sessions = Sessions(run_dir / PROVENANCE_FILE)
         sessions.start()
         usage = UsageLog(run_dir / USAGE_FILE, client)
