@@ -611,7 +611,7 @@ def _user_error_examples() -> list[Exception]:
     from itskill.tasks.scripted import ScriptError
     from itskill.tasks.spec import TaskFileError, UnknownTaskError
     from itskill.transfer import AnalyzerError, SourceError, TransferConfigError
-    from itskill.transfer.fusion import IncompatibleSourceError
+    from itskill.transfer.sources import IncompatibleSourceError
 
     return [
         AnalyzerError("the reply's matrix has 2 rows; the target has 5 stages"),

@@ -18,8 +18,8 @@ from itskill.rl.train import train
 from itskill.sim.layout import OBSERVATION_LAYOUT
 from itskill.sim.vec_env import action_space, observation_space
 from itskill.transfer import DFSPolicy, ITNPolicy, NIAPolicy, TransferPolicy
-from itskill.transfer.attention import STAGE_SLICE
 from itskill.transfer.lateral import NOT_READY
+from itskill.transfer.stages import STAGE_SLICE
 
 PRIOR = [[0.9, 0.1], [0.2, 0.8], [0.5, 0.5], [0.3, 0.7], [0.6, 0.4]]  # 5 stages x 2 sources
 

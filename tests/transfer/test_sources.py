@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,11 +12,16 @@ from transfer_helpers import make_source
 from itskill.rl.checkpoint import POLICY_FILE
 from itskill.skills import open_skill_space, search
 from itskill.tasks import get_task
-from itskill.transfer import SourceError, resolve_sources
+from itskill.transfer import SourceError, TransferConfig, load_transfer_config, resolve_sources
+
+
+def _config(**changes: object) -> TransferConfig:
+    """The packaged transfer settings with ``changes``."""
+    return replace(load_transfer_config(), **changes)
 
 
 def test_auto_sources_for_pick_and_place_are_the_pick_and_place_skills(home: Path) -> None:
-    sources = resolve_sources("pickplace_nut_m12", "auto", k=3)
+    sources = resolve_sources("pickplace_nut_m12", "auto")
     names = [s.name for s in sources]
     assert "pick_nut_m12" in names and "place_nut_m12" in names
     assert len(names) == 3
@@ -30,18 +36,19 @@ def test_auto_sources_for_pick_and_place_are_the_pick_and_place_skills(home: Pat
         assert s.to_dict()["weights_sha256"]
     # The second pick would add no step the first does not perform; the place adds two.
     plain = [
-        s.name for s in resolve_sources("pickplace_nut_m12", "auto", 2, distinct_actions=False)
+        s.name
+        for s in resolve_sources("pickplace_nut_m12", "auto", _config(k=2, distinct_actions=False))
     ]
     assert plain == ["pick_nut_m12", "place_nut_m12"]
     # Once every step is covered, the rest follow by similarity; without de-duplication that
     # may be a second skill of the same steps.
-    more = resolve_sources("pickplace_nut_m12", "auto", 6, distinct_actions=False)
+    more = resolve_sources("pickplace_nut_m12", "auto", _config(k=6, distinct_actions=False))
     assert len({s.actions for s in more}) < 6
 
 
 def test_auto_sources_come_from_the_targets_own_family_first(home: Path) -> None:
     # A nut's place skill performs two of the peg task's steps, but the peg skills come first.
-    sources = resolve_sources("pickplaceinsert_peg_round", "auto", k=3)
+    sources = resolve_sources("pickplaceinsert_peg_round", "auto")
     assert {s.task_id.split("_")[1] for s in sources} == {"peg"}, [s.name for s in sources]
     assert "insert_peg_round" in [s.name for s in sources]
 
@@ -50,7 +57,7 @@ def test_each_auto_source_adds_steps_of_the_target_the_others_do_not_perform(hom
     # Pick-place-insert: approach, grasp, lift, approach, place, insert. The pick performs the
     # first three, the place the next two, the insert the last (a lift or a carry, though
     # similar to the command, repeats a step the others perform).
-    sources = resolve_sources("pickplaceinsert_peg_round", "auto", k=3)
+    sources = resolve_sources("pickplaceinsert_peg_round", "auto")
     assert [s.actions for s in sources] == [("approach", "grasp", "lift"), ("approach", "place"),
                                             ("insert",)]  # fmt: skip
 
@@ -62,7 +69,7 @@ def test_the_first_steps_go_to_a_skill_of_the_same_part_and_start(home: Path) ->
     with open_skill_space() as space:
         same = {s.name for s in space.list() if s.actions == ("approach", "grasp", "lift")}
     assert {"remove_peg_round", "pick_peg_rect", "pick_peg_round"} <= same
-    sources = resolve_sources("pickplaceinsert_peg_round", "auto", k=3)
+    sources = resolve_sources("pickplaceinsert_peg_round", "auto")
     assert sources[0].name == "pick_peg_round"
     assert [s.name for s in sources[1:]] == ["place_peg_round", "insert_peg_round"]
 
@@ -74,7 +81,7 @@ def test_once_every_step_is_covered_a_skill_of_the_targets_steps_comes_next(home
         command = get_task("pickplace_nut_m12").command
         ranked = [s.name for s, _ in search(space, command, k=len(space))]
     assert ranked.index("screw_nut_m12") < ranked.index("carry_nut_m12")
-    sources = resolve_sources("pickplace_nut_m12", "auto", k=3)
+    sources = resolve_sources("pickplace_nut_m12", "auto")
     assert [s.name for s in sources] == ["pick_nut_m12", "place_nut_m12", "carry_nut_m12"]
     # Where screwing is a step, the screw skill is a source.
     assert "screw_nut_m12" in [s.name for s in resolve_sources("pickplacescrew_nut_m12", "auto")]
@@ -103,9 +110,9 @@ def test_source_errors_name_the_problem(home: Path, tmp_path: Path) -> None:
     with pytest.raises(KeyError, match="unknown task"):
         resolve_sources("pickplace_nut_m99", "auto")
     with pytest.raises(ValueError, match="k must be at least 1"):
-        resolve_sources("pickplace_nut_m12", "auto", k=0)
+        resolve_sources("pickplace_nut_m12", "auto", _config(k=0))
     with pytest.raises(TypeError, match=r"k must be an integer, got float 2\.5"):
-        resolve_sources("pickplace_nut_m12", "auto", k=2.5)
+        resolve_sources("pickplace_nut_m12", "auto", _config(k=2.5))
     # True == 1 named skill 1.
     with pytest.raises(SourceError, match="serial number or name, got bool True"):
         resolve_sources("pickplace_nut_m12", [True])
@@ -209,8 +216,8 @@ def test_a_weak_skill_comes_after_the_working_skills_it_would_displace(
                  success_rate=0.02)  # fmt: skip
     with open_skill_space() as space:
         space.add(weak)
-    names = [s.name for s in resolve_sources("pickplacescrew_nut_m12", "auto", k=3)]
+    names = [s.name for s in resolve_sources("pickplacescrew_nut_m12", "auto")]
     assert names == ["pick_nut_m12", "place_nut_m12", "screw_nut_m12"]
     # With a threshold it passes, it leads again.
-    allowed = resolve_sources("pickplacescrew_nut_m12", "auto", k=3, min_success=0.0)
+    allowed = resolve_sources("pickplacescrew_nut_m12", "auto", _config(min_success=0.0))
     assert allowed[0].name == "learned-pick-and-place"

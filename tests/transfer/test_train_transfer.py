@@ -32,7 +32,7 @@ from itskill.transfer import (
     recorded_attention_trace,
     train_transfer,
 )
-from itskill.transfer.fusion import IncompatibleSourceError
+from itskill.transfer.sources import IncompatibleSourceError
 
 TARGET = "pickplace_nut_m12"
 SOURCES = "pick_nut_m12,place_nut_m12"

@@ -198,7 +198,7 @@ USER_ERRORS: tuple[tuple[str, str], ...] = (
     ("itskill.tasks.scripted", "ScriptError"),
     ("itskill.tasks.spec", "UnknownTaskError"),
     ("itskill.transfer.analyzer", "AnalyzerError"),
-    ("itskill.transfer.fusion", "IncompatibleSourceError"),
+    ("itskill.transfer.sources", "IncompatibleSourceError"),
     ("itskill.transfer.sources", "SourceError"),
     ("itskill.transfer.trace", "TraceError"),
 )

@@ -156,25 +156,14 @@ def transfer_analyze(
     """Print the analyzer's contribution matrix: TARGET's stages x the source skills."""
     from itskill.llm.client import make_client
     from itskill.tasks import get_task
-    from itskill.transfer import analyze, resolve_sources, target_entry
+    from itskill.transfer import analyze_sources, resolve_sources
 
     with user_errors():
         cfg = _config(config, k, sources)
         spec = get_task(target)
-        chosen = resolve_sources(
-            spec.id,
-            sources,
-            cfg.k,
-            distinct_actions=cfg.distinct_actions,
-            min_success=cfg.min_success,
-        )
+        chosen = resolve_sources(spec.id, sources, cfg)
         client = make_client(llm)
-        matrix = analyze(
-            target_entry(spec),
-            [s.analyzer_entry() for s in chosen],
-            client,
-            retries=cfg.analyzer_retries,
-        )
+        matrix = analyze_sources(spec, chosen, client, cfg)
     if as_json:
         print_json({**matrix.to_dict(), "source_skills": [s.to_dict() for s in chosen]})
         return

@@ -667,8 +667,9 @@ def _sources(task: str, b: LearnBudget, steps: _Steps) -> dict[str, list[dict[st
         method = get_method(b.transfer.method)
         retrieved = used = []
         if method.uses_sources:
-            retrieved = resolve_sources(task, "auto", k=b.transfer.k)
-            used = method.select(retrieved, load_transfer_config())
+            config = replace(load_transfer_config(), k=b.transfer.k)
+            retrieved = resolve_sources(task, "auto", config)
+            used = method.select(retrieved, config)
         cached = {
             "retrieved": [s.to_dict() for s in retrieved],
             "used": [s.to_dict() for s in used],

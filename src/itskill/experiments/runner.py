@@ -412,11 +412,7 @@ def resolve_all_sources(
         if not stored:
             try:
                 chosen = resolve_sources(
-                    task,
-                    wanted if wanted == AUTO else list(wanted),
-                    k=config.k,
-                    distinct_actions=transfer_config.distinct_actions,
-                    min_success=transfer_config.min_success,
+                    task, wanted if wanted == AUTO else list(wanted), transfer_config
                 )
             except SourceError as err:
                 if wanted == AUTO:

@@ -24,6 +24,7 @@ Design choices:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -61,6 +62,17 @@ class PolicyConfig:
                 f"activation must be one of {list(ACTIVATIONS)}, got {self.activation!r}"
             )
         object.__setattr__(self, "stages", tuple(int(w) for w in self.stages))
+
+    @classmethod
+    def of_policy(cls, sb3_kwargs: Mapping[str, Any], **shape: Any) -> PolicyConfig:
+        """The config of a policy built with ``shape`` (``stages``, ``activation``, ...) and
+        ``sb3_kwargs``, the keyword arguments its Stable-Baselines3 base class takes, whose own
+        defaults stand where they leave ``log_std_init`` or ``ortho_init`` out."""
+        return cls(
+            **shape,
+            log_std_init=sb3_kwargs.get("log_std_init", 0.0),
+            ortho_init=sb3_kwargs.get("ortho_init", True),
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "stages": list(self.stages)}
@@ -183,14 +195,13 @@ class StagedActorCriticPolicy(ActorCriticPolicy):
         **kwargs: Any,
     ) -> None:
         # Read by _build_mlp_extractor, which the base constructor calls.
-        self.config = PolicyConfig(
-            stages=tuple(stages),
+        self.config = PolicyConfig.of_policy(
+            kwargs,
+            stages=stages,
             activation=activation,
             shared_trunk=shared_trunk,
             normalize_obs=normalize_obs,
             obs_clip=obs_clip,
-            log_std_init=kwargs.get("log_std_init", 0.0),
-            ortho_init=kwargs.get("ortho_init", True),
         )
         kwargs.setdefault("activation_fn", ACTIVATIONS[activation])
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)

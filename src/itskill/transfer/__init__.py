@@ -19,6 +19,7 @@ from itskill.transfer.sources import SourceError, SourceSkill, resolve_sources
 from itskill.transfer.trace import attention_trace, recorded_attention_trace
 from itskill.transfer.train import (
     TRANSFER_FILE,
+    analyze_sources,
     prepare_transfer,
     read_transfer,
     search_network,
@@ -43,6 +44,7 @@ __all__ = [
     "TransferPolicy",
     "TransferPolicyConfig",
     "analyze",
+    "analyze_sources",
     "attention_trace",
     "get_method",
     "load_transfer_config",

@@ -22,16 +22,14 @@ import numpy as np
 import torch
 from torch import nn
 
-from itskill.sim.layout import MAX_STAGES, OBSERVATION_LAYOUT
-
-STAGE_SLICE = OBSERVATION_LAYOUT["stage_onehot"]
+from itskill.sim.layout import MAX_STAGES
+from itskill.transfer.stages import STAGE_SLICE, pad_stages
 
 
 class StagePrior(nn.Module):
     """The analyzer's contribution row for each observation's current stage.
 
-    ``prior`` is ``(m, n)`` for a target with ``m`` stages; the table is padded to the layout's
-    ``MAX_STAGES`` rows with the last row (unreachable: the stage index stops at ``m - 1``).
+    ``prior`` is ``(m, n)`` for a target with ``m`` stages (padded, :func:`pad_stages`).
     """
 
     def __init__(self, prior: np.ndarray) -> None:
@@ -39,8 +37,7 @@ class StagePrior(nn.Module):
         prior = np.asarray(prior, dtype=np.float32)
         if prior.ndim != 2 or not 1 <= prior.shape[0] <= MAX_STAGES:
             raise ValueError(f"prior must be (stages <= {MAX_STAGES}, sources), got {prior.shape}")
-        table = np.concatenate([prior, np.repeat(prior[-1:], MAX_STAGES - prior.shape[0], 0)])
-        self.register_buffer("table", torch.as_tensor(table))
+        self.register_buffer("table", torch.as_tensor(np.stack(pad_stages(prior))))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return obs[..., STAGE_SLICE].to(self.table.dtype) @ self.table

@@ -8,8 +8,9 @@ from typing import Any
 
 from torch import nn
 
-from itskill.transfer.fusion import FeatureSum, IncompatibleSourceError
+from itskill.transfer.fusion import FeatureSum
 from itskill.transfer.lateral import TransferPolicy
+from itskill.transfer.sources import IncompatibleSourceError
 
 
 class DFSPolicy(TransferPolicy):

@@ -18,10 +18,6 @@ import torch
 from torch import nn
 
 
-class IncompatibleSourceError(ValueError):
-    """A source network the target cannot join: its stages differ from the target's."""
-
-
 class FeatureFusion(nn.Module):
     """One MLP per target stage over ``[w_i * SO_i^j ..., SO_t^j]``."""
 

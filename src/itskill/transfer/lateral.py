@@ -64,10 +64,9 @@ from itskill.rl.policy import ACTIVATIONS, PolicyConfig, RunningNormalizer, Stag
 from itskill.sim.layout import MAX_STAGES
 from itskill.sim.vec_env import action_space, observation_space
 from itskill.transfer.analyzer import validate_matrix
-from itskill.transfer.attention import STAGE_SLICE
 from itskill.transfer.config import TransferConfig, check_setting
-from itskill.transfer.fusion import IncompatibleSourceError
-from itskill.transfer.sources import freeze, load_source
+from itskill.transfer.sources import IncompatibleSourceError, freeze, load_source
+from itskill.transfer.stages import STAGE_SLICE, pad_stages
 
 NOT_READY = (
     "the transfer policy's source weights were never loaded: a source's run directory is gone, or "
@@ -143,11 +142,10 @@ def weights_on_disk(spec: Mapping[str, Any]) -> bool:
 
 
 def _stage_table(rows: Sequence[int], width: int) -> torch.Tensor:
-    """``(MAX_STAGES, width)`` 0/1 table whose row ``j`` selects column ``rows[j]`` (none for -1);
-    rows past the target's last stage repeat it (unreachable: the stage index stops there)."""
-    full = [*rows, *[rows[-1]] * (MAX_STAGES - len(rows))]
+    """``(MAX_STAGES, width)`` 0/1 table whose row ``j`` selects column ``rows[j]`` (none for -1),
+    padded (:func:`pad_stages`)."""
     table = torch.zeros(MAX_STAGES, width)
-    for j, col in enumerate(full):
+    for j, col in enumerate(pad_stages(rows)):
         if col >= 0:
             table[j, col] = 1.0
     return table
@@ -349,14 +347,13 @@ class TransferPolicy(ActorCriticPolicy):
                 raise ValueError(f"{type(self).__name__} needs the analyzer's contribution matrix")
             matrix = np.asarray(prior, dtype=np.float64)
             prior = validate_matrix(matrix, matrix.shape[0] if matrix.ndim else 0, len(sources))
-        target = PolicyConfig(
-            stages=tuple(stages),
+        target = PolicyConfig.of_policy(
+            kwargs,
+            stages=stages,
             activation=activation,
             shared_trunk=shared_trunk,
             normalize_obs=normalize_obs,
             obs_clip=obs_clip,
-            log_std_init=kwargs.get("log_std_init", 0.0),
-            ortho_init=kwargs.get("ortho_init", True),
         )
         self.config = TransferPolicyConfig(
             target=target,

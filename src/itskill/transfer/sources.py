@@ -40,7 +40,7 @@ from itskill.skills.store import Skill, is_serial_number
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import CheckpointError
 from itskill.tasks.spec import TaskSpec
-from itskill.transfer.config import check_setting, load_transfer_config
+from itskill.transfer.config import TransferConfig, load_transfer_config
 from itskill.transfer.stages import runs
 
 AUTO = "auto"
@@ -54,6 +54,10 @@ class SourceError(ValueError):
     def __init__(self, message: str, setting: str | None = None) -> None:
         super().__init__(message)
         self.setting = setting
+
+
+class IncompatibleSourceError(ValueError):
+    """A source network the target cannot join: its stages differ from the target's."""
 
 
 @dataclass(frozen=True)
@@ -210,36 +214,29 @@ def _differences(skill: Skill, target: TaskSpec) -> tuple[bool, bool, bool]:
 def resolve_sources(
     target: str,
     sources: str | Sequence[int | str] = AUTO,
-    k: int = 3,
+    config: TransferConfig | None = None,
     space: SkillSpace | None = None,
     exclude_target: bool = True,
-    distinct_actions: bool | None = None,
-    min_success: float | None = None,
 ) -> list[SourceSkill]:
     """The source skills for ``target``: retrieved (``"auto"``) or named (ids or names).
 
-    ``"auto"`` takes ``k`` skills one at a time: the skill whose action sequence, as a contiguous
-    run of the target's, performs the most target steps no skill taken so far performs; skills
-    learned in the target's task family before others, then those learned on the target's own
-    parts, and for the target's first steps those whose task starts the parts as the target's
-    does; ties by similarity to the target's command. It skips the target's own task when
-    ``exclude_target``, repeated action sequences when ``distinct_actions``, and skills whose
-    checkpoint is a Stable-Baselines3 ``.zip`` (no transfer loads one; the error when no skill
-    is left names them). A skill whose recorded success is below ``min_success`` comes after
-    every other skill of its family: one learned on a smoke budget would otherwise, performing
-    more of the target's steps, displace the working skills it was learned from.
-    ``distinct_actions`` and ``min_success`` left None are the packaged ``transfer.toml``'s.
-    Named skills (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in
-    that order. ``space`` defaults to the user's skill space (:func:`open_skill_space`).
+    ``"auto"`` takes ``config.k`` skills one at a time: the skill whose action sequence, as a
+    contiguous run of the target's, performs the most target steps no skill taken so far
+    performs; skills learned in the target's task family before others, then those learned on
+    the target's own parts, and for the target's first steps those whose task starts the parts
+    as the target's does; ties by similarity to the target's command. It skips the target's own
+    task when ``exclude_target``, repeated action sequences when ``config.distinct_actions``, and
+    skills whose checkpoint is a Stable-Baselines3 ``.zip`` (no transfer loads one; the error
+    when no skill is left names them). A skill whose recorded success is below
+    ``config.min_success`` comes after every other skill of its family: one learned on a smoke
+    budget would otherwise, performing more of the target's steps, displace the working skills
+    it was learned from. ``config`` defaults to the packaged ``transfer.toml``'s. Named skills
+    (``"3,5"``, ``"pick_nut_m12,place_nut_m12"`` or a list) are used as given, in that order.
+    ``space`` defaults to the user's skill space (:func:`open_skill_space`).
     """
-    if distinct_actions is None or min_success is None:
-        packaged = load_transfer_config()
-        distinct_actions = (
-            packaged.distinct_actions if distinct_actions is None else distinct_actions
-        )
-        min_success = packaged.min_success if min_success is None else min_success
+    config = load_transfer_config() if config is None else config
+    k, distinct_actions, min_success = config.k, config.distinct_actions, config.min_success
     spec = get_task(target)
-    check_setting("k", k)
     own = space is None
     space = open_skill_space() if space is None else space
     try:

@@ -22,6 +22,21 @@ fixture that precedes the target's place stage.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TypeVar
+
+from itskill.sim.layout import MAX_STAGES, OBSERVATION_LAYOUT
+
+STAGE_SLICE = OBSERVATION_LAYOUT["stage_onehot"]
+"""Where an observation holds the one-hot of its task's current stage."""
+
+Row = TypeVar("Row")
+
+
+def pad_stages(rows: Sequence[Row]) -> list[Row]:
+    """``rows``, one per stage of a target, padded to the layout's ``MAX_STAGES`` with the last:
+    a table indexed by the stage one-hot needs a row for each entry, and those past the target's
+    last stage are never read (the stage index stops there)."""
+    return [*rows, *[rows[-1]] * (MAX_STAGES - len(rows))]
 
 
 def runs(target: Sequence[str], source: Sequence[str]) -> list[int]:

@@ -11,8 +11,8 @@ from itskill.datafile import is_number
 from itskill.files import read_json_or_none, write_json
 from itskill.rl.checkpoint import POLICY_FILE, load_policy, policy_sha256, read_meta
 from itskill.tasks import get_task, make_batch_env
-from itskill.transfer.attention import STAGE_SLICE
 from itskill.transfer.lateral import TransferPolicy
+from itskill.transfer.stages import STAGE_SLICE
 from itskill.transfer.train import TRANSFER_FILE, read_transfer
 
 TRACE_FILE = "attention.json"

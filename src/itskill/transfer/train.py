@@ -81,6 +81,19 @@ def target_entry(spec: TaskSpec) -> dict[str, Any]:
     }
 
 
+def analyze_sources(
+    spec: TaskSpec, chosen: Sequence[SourceSkill], client: LLMClient, config: TransferConfig
+) -> ContributionMatrix:
+    """The analyzer's contribution matrix of the ``chosen`` sources to the stages of ``spec``,
+    asked again up to ``config.analyzer_retries`` times after an invalid reply."""
+    return analyze(
+        target_entry(spec),
+        [s.analyzer_entry() for s in chosen],
+        client,
+        retries=config.analyzer_retries,
+    )
+
+
 def _stage_names(task_id: str) -> list[str] | None:
     """A source task's stage names; None for a task this installation does not know (a skill
     from a user's task files that are not loaded now), whose source then sees the target's stage."""
@@ -375,14 +388,7 @@ def prepare_transfer(
     chosen: list[SourceSkill] = []
     matrix: ContributionMatrix | None = None
     if meth.uses_sources:
-        chosen = resolve_sources(
-            spec.id,
-            sources,
-            config.k,
-            space,
-            distinct_actions=config.distinct_actions,
-            min_success=config.min_success,
-        )
+        chosen = resolve_sources(spec.id, sources, config, space)
         chosen = meth.select(chosen, config)
         if target_stages is None:
             target_stages = load_hyperparams(spec.family, algo, task=spec.id).policy.stages
@@ -392,12 +398,7 @@ def prepare_transfer(
             from itskill.llm.client import make_client
 
             client = make_client()
-        matrix = analyze(
-            target_entry(spec),
-            [s.analyzer_entry() for s in chosen],
-            client,
-            retries=config.analyzer_retries,
-        )
+        matrix = analyze_sources(spec, chosen, client, config)
     policy_class = meth.policy_class
     stage_names = [st.name for st in spec.stages]
     source_stages = [_stage_names(s.task_id) for s in chosen]
