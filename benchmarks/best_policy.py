@@ -30,8 +30,9 @@ from itskill.curves import read_curve
 from itskill.executors import run_jobs
 from itskill.files import write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy, read_meta
+from itskill.rl.config import HyperparamError, check_hyperparams_file
 from itskill.rl.eval_callback import read_selection
-from itskill.tasks import get_task
+from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
 from itskill.transfer import train_transfer
 
@@ -79,8 +80,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("runs/bench_best_policy"))
     parser.add_argument("--json", type=Path, help="also write the results as JSON")
     args = parser.parse_args(argv)
-    if args.hyperparams is not None and not args.hyperparams.is_file():
-        parser.error(f"--hyperparams: no such file {args.hyperparams}")  # before every job fails
+    if args.hyperparams is not None:
+        try:  # before every job fails
+            check_hyperparams_file(args.hyperparams, [(args.task, "ppo")])
+        except (HyperparamError, UnknownTaskError) as err:
+            parser.error(str(err))
 
     runs = {s: args.out / args.task / args.method / f"seed_{s}" for s in args.seeds}
     t0 = time.perf_counter()

@@ -32,6 +32,7 @@ import argparse
 import os
 import platform
 import sys
+from itertools import product
 from pathlib import Path
 
 import matplotlib
@@ -44,8 +45,10 @@ from itskill.curves import Curve, read_curve
 from itskill.executors import EXECUTORS, run_jobs
 from itskill.experiments.analysis import time_to_threshold
 from itskill.files import replaced_whole, write_json
+from itskill.rl.config import HyperparamError, check_hyperparams_file
 from itskill.rl.train import train
 from itskill.stats import mean_interval
+from itskill.tasks import UnknownTaskError
 
 THRESHOLDS = (0.8, 0.9)
 
@@ -215,6 +218,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.demos is not None and args.demos < 0:
         parser.error(f"--demos must be 0 or more, got {args.demos}")  # before every job fails
+    if args.hyperparams is not None:
+        try:
+            check_hyperparams_file(args.hyperparams, product(args.tasks, args.algos))
+        except (HyperparamError, UnknownTaskError) as err:
+            parser.error(str(err))
 
     args.out.mkdir(parents=True, exist_ok=True)
     cells = [(t, a, s) for t in args.tasks for a in args.algos for s in args.seeds]

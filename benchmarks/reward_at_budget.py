@@ -44,8 +44,9 @@ from itskill.experiments.analysis import (
 from itskill.experiments.plots import plot_learning_curves
 from itskill.files import read_json, replaced_whole, write_json
 from itskill.rl.checkpoint import BEST_DIR, as_policy
+from itskill.rl.config import HyperparamError, check_hyperparams_file
 from itskill.stats import format_rate_interval
-from itskill.tasks import get_task
+from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
 from itskill.transfer import train_transfer
 
@@ -125,6 +126,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.reward.is_file():
         parser.error(f"no reward file {args.reward}")
+    if args.hyperparams is not None:
+        try:  # before every job fails
+            check_hyperparams_file(args.hyperparams, [(args.task, "ppo")])
+        except (HyperparamError, UnknownTaskError) as err:
+            parser.error(str(err))
 
     settings: dict[str, Any] = {
         "task": args.task,

@@ -255,6 +255,30 @@ def test_thread_turns_refuses_a_contact_measurement_it_cannot_make(argv, capsys)
     assert stop.value.code == 2 and "error:" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("script", "extra"),
+    [
+        ("learn_basic", ["--algos", "ppo", "a2c"]),
+        ("best_policy", ["--task", "pickplace_nut_m12"]),
+        ("reward_at_budget", ["--reward", __file__, "--results", "unused"]),
+    ],
+)
+def test_training_benchmarks_refuse_a_bad_hyperparameter_file_before_training(
+    script, extra, tmp_path, monkeypatch, capsys
+) -> None:
+    bad = tmp_path / "hp.toml"
+    bad.write_text('[nutbolt]\nnum_envs = "many"\n')
+    module = _load(script)
+    trained = []
+    for name in ("train", "train_transfer"):
+        monkeypatch.setattr(module, name, lambda *a, **k: trained.append(a), raising=False)
+    with pytest.raises(SystemExit) as stop:
+        module.main([*extra, "--hyperparams", str(bad), "--out", str(tmp_path / "runs")])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and "nutbolt.num_envs: expected an integer" in err, err
+    assert not trained and not (tmp_path / "runs").exists()
+
+
 def test_source_chaining_with_action_noise_measures_a_fragile_skill(tmp_path, capsys) -> None:
     """The shipped insert of the rectangular peg, a clone of its script, inserts without noise
     and not at the exploration noise of log-std -0.5 (its transfer target's until 2026-12-06);

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
@@ -23,7 +23,7 @@ from itskill.limits import DEPTH_MAX, EPISODES_MAX, NUM_ENVS_MAX, WIDTH_MAX
 from itskill.rl.demos import DemoConfig
 from itskill.rl.init_policy import InitConfig
 from itskill.rl.policy import PolicyConfig
-from itskill.tasks.spec import UnknownTaskError, all_tasks
+from itskill.tasks.spec import UnknownTaskError, all_tasks, get_task
 
 Algo = Literal["a2c", "ppo"]
 ALGOS: tuple[str, ...] = ("a2c", "ppo")
@@ -373,6 +373,14 @@ def _file_layers(
         for name, task_table in tasks.items()
     }
     return hp, per_task
+
+
+def check_hyperparams_file(path: str | Path, cells: Iterable[tuple[str, str]]) -> None:
+    """Load the hyper-parameter file ``path`` for each ``(task, algo)`` of ``cells``, so that a
+    caller about to start runs with it learns of a bad file (:class:`HyperparamError`) or task
+    (:class:`UnknownTaskError`) before any run starts, not from every run failing."""
+    for task, algo in cells:
+        load_hyperparams(get_task(task).family, algo, path, task=task)
 
 
 def load_hyperparams(
