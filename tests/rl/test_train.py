@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import importlib
+import io
 import json
 import time
 from pathlib import Path
@@ -11,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from rich.console import Console
 from stable_baselines3.common.save_util import load_from_zip_file
 from typer.testing import CliRunner
 
@@ -74,6 +76,20 @@ def test_resume_continues_step_count(tmp_path: Path, reach_reward: Path) -> None
         _train(out, reach_reward, 128)
     # One the last rollout passed (it stops at the first rollout at or over its budget) is done.
     assert _train(out, reach_reward, 200).num_timesteps == 256
+
+
+def test_progress_bar_counts_to_where_training_stops(tmp_path: Path, reach_reward: Path) -> None:
+    # Whole rollouts of 4 environments x 16 steps: a budget of 1 trains 64 steps, and the bar
+    # says 64/64, not 64/1.
+    out = io.StringIO()
+    console = Console(file=out, width=200)
+    shown = LoggerConfig(progress=True, tensorboard=False, min_steps_per_row=1)
+    result = train(
+        TASK, "ppo", 1, seed=1, reward=reach_reward, out=tmp_path / "run", num_envs=4,
+        overrides=FAST_PPO, logger=shown, console=console,
+    )  # fmt: skip
+    assert result.num_timesteps == 64
+    assert "64/64" in out.getvalue() and "/1 " not in out.getvalue(), out.getvalue()
 
 
 def test_training_leaves_nothing_in_the_temporary_directory(

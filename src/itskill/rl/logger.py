@@ -167,7 +167,8 @@ class MetricsCallback(BaseCallback):
 
     ``env`` is the unwrapped :class:`BatchEnv` being trained on (its ``last_components`` attribute
     holds the reward components of the step just taken; an ending episode's info its raw
-    ``episode_return``). ``total_steps`` is the run's target step count, for the progress bar.
+    ``episode_return``). ``total_steps`` is the step count training will stop at, for the
+    progress bar.
     """
 
     def __init__(

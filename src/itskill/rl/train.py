@@ -714,7 +714,12 @@ def _learn(
     """Train ``model`` on to the run's budget, logging, checkpointing and evaluating on the
     way; the last metrics row logged. Ctrl-C saves a checkpoint before it stops the run."""
     run_dir, meta = setup.run_dir, setup.meta
-    metrics = MetricsCallback(env, run_dir, setup.steps, logger, console, clock)
+    # Stable-Baselines3 collects whole rollouts: training ends at the first rollout boundary at
+    # or past the budget (one rollout for --steps 1), and the progress bar counts to there.
+    rollout = model.n_steps * model.n_envs
+    left = max(0, setup.steps - model.num_timesteps)
+    end = model.num_timesteps + rollout * -(-left // rollout)
+    metrics = MetricsCallback(env, run_dir, end, logger, console, clock)
     checkpoints = CheckpointCallback(
         run_dir, setup.hp.checkpoint_every, meta, clock, start=model.num_timesteps
     )
