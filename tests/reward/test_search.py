@@ -364,11 +364,12 @@ def test_the_choice_is_made_on_more_seeds_than_the_search_saw(
     assert final["sha256"] == compile_reward(result.best_code.strip(), config.sandbox).sha256
 
 
-def test_a_worker_failure_is_not_fed_back_as_the_codes(
+def test_a_worker_failure_stops_the_search_until_a_resume_trains_it_again(
     tmp_path: Path, quiet, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # A full disk in sample 1's worker reached the next prompt as the reward's failure, and a
-    # paid request went to mending code that had nothing wrong with it.
+    # A full disk in sample 1's worker reached the next prompt as the reward's failure (a paid
+    # request to mend code with nothing wrong with it), and the finished search never trained
+    # that sample again.
     import itskill.reward.search as search_module
     from itskill.executors import JobResult
 
@@ -376,20 +377,33 @@ def test_a_worker_failure_is_not_fed_back_as_the_codes(
 
     def disk_full_for_sample_1(fn, jobs, *args, **kwargs):
         for res in real(fn, jobs, *args, **kwargs):
-            if Path(jobs[res.index][0].out).name == "sample_1":
+            out = Path(jobs[res.index][0].out)
+            if out.name == "sample_1":
+                (out / "result.json").unlink()  # the worker died before writing it
                 res = JobResult(res.index, error=OSError(28, "No space left on device"))
             yield res
 
-    monkeypatch.setattr(search_module, "run_jobs", disk_full_for_sample_1)
     run = tmp_path / "run"
+    config = tiny_config(iterations=2, samples=2)
     with FakeOpenAIServer([RAISES_LATER, GOOD, GOOD, GOOD]) as server:
+        monkeypatch.setattr(search_module, "run_jobs", disk_full_for_sample_1)
         client = search_client(run, "openai:fake-model", server.base_url)
-        generate_reward("pick_nut_m12", client, run, tiny_config(iterations=2, samples=2),
-                        compare_expert=False, console=quiet)  # fmt: skip
+        with pytest.raises(RewardSearchError, match=r"1 job\(s\) failed in their worker.*iter_0/"
+                           r"sample_1: OSError.*No space left.*--resume"):  # fmt: skip
+            generate_reward("pick_nut_m12", client, run, config, compare_expert=False,
+                            console=quiet)  # fmt: skip
+        assert len(server.requests) == 1  # the model was not asked again
+        assert (run / "iter_0" / "sample_0" / "result.json").is_file()
+        assert not (run / "iter_0" / "sample_1" / "result.json").exists()
+
+        monkeypatch.setattr(search_module, "run_jobs", real)
+        client = search_client(run, "openai:fake-model", server.base_url)
+        generate_reward("pick_nut_m12", client, run, config, compare_expert=False,
+                        console=quiet, resume=True)  # fmt: skip
         requests = server.requests
-    second = requests[1]["messages"][-1]["content"]
-    assert "<execution_error>" in second and "non-finite" in second
-    assert "No space left" not in second
+    sample_1 = json.loads((run / "iter_0" / "sample_1" / "result.json").read_text())
+    assert sample_1["status"] == "ok" and (run / "summary.json").is_file()
+    assert all("No space left" not in m["content"] for r in requests for m in r["messages"])
 
 
 def test_each_paid_request_is_on_record_before_the_next(tmp_path: Path, quiet) -> None:

@@ -43,7 +43,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 import itskill
-from itskill.executors import JobResult, check_executor, default_workers, run_jobs
+from itskill.executors import check_executor, default_workers, run_jobs
 from itskill.files import (
     check_shape,
     foreign_entries,
@@ -170,8 +170,10 @@ class _Run:
     def run_jobs(self, jobs: list[CandidateJob], config: RewardSearchConfig, label: str) -> dict:
         """Run the jobs without a ``result.json``; return every job's result by index.
 
-        A job whose worker itself failed (not its candidate: that writes a failed result) gets
-        an in-memory failure without a result file, so a resumed run tries it again.
+        A job whose worker itself failed (a full disk, a lost Ray worker; not its candidate,
+        which writes a failed result) leaves no result file: once the other jobs are done,
+        :class:`RewardSearchError` stops the search before the model is asked again, and a
+        resumed run trains that job again.
         """
         results: dict[int, dict[str, Any]] = {}
         todo = []
@@ -207,28 +209,34 @@ class _Run:
                 workers,
                 config.ray_address,
             )
+            lost = []
             for res in stream:
-                index = todo[res.index]
-                results[index] = _job_value(res)
+                job = jobs[todo[res.index]]
                 progress.advance(bar)
-                self.console.print(f"  {_job_line(jobs[index], results[index])}", highlight=False)
+                if not res.ok:
+                    # No fault of the reward's: carried on with as a failed candidate, it was fed
+                    # back to the model as one, and the finished search never trained it again.
+                    lost.append(f"{_job_where(job)}: {type(res.error).__name__}: {res.error}")
+                    self.console.print(f"  {lost[-1]}", highlight=False)
+                    continue
+                results[todo[res.index]] = res.value
+                self.console.print(f"  {_job_line(job, res.value)}", highlight=False)
+        if lost:
+            raise RewardSearchError(
+                f"{len(lost)} job(s) failed in their worker, not in the reward they trained "
+                f"(first: {lost[0]}); the others' results are kept: resume the search "
+                f"(--resume {self.out}) to train those again and go on"
+            )
         return results
 
 
-def _job_value(res: JobResult) -> dict[str, Any]:
-    if res.ok:
-        return res.value
-    # The job itself failed, not the reward it trained (that is a failed result of its own): a
-    # full disk or a lost worker, which is no fault of the code to feed back to the model.
-    return {
-        "status": "failed",
-        "error": f"worker error: {type(res.error).__name__}: {res.error}",
-        "worker_error": True,
-    }
+def _job_where(job: CandidateJob) -> str:
+    """The job's folder within the run: ``iter_0/sample_3``, ``final/<reward>_seed1``."""
+    return "/".join(Path(job.out).parts[-2:])
 
 
 def _job_line(job: CandidateJob, result: dict[str, Any]) -> str:
-    where = "/".join(Path(job.out).parts[-2:])
+    where = _job_where(job)
     if result.get("status") != "ok":
         return f"{where}: failed: {result.get('error')}"
     corr = result.get("correlation")
@@ -640,16 +648,10 @@ def _search(
                 best = {**it_best, "iteration": i, "code": code, "stats": stats}
                 write_text(out / BEST_FILE, code + "\n")
             if not trained:
-                # Every sample was rejected or failed: feed the last failure of the code itself
-                # back, not a worker's own (a full disk is no fault of the code).
-                code_failures = [
-                    (s.code, s.error if not s.accepted else by_sample[s.index].get("error"))
-                    for s in samples
-                    if not (s.accepted and by_sample[s.index].get("worker_error"))
-                ]
-                if code_failures:
-                    code, error = code_failures[-1]
-                    failure = (code, str(error))
+                # Every sample was rejected or failed: feed the last failure back.
+                last = samples[-1]
+                error = last.error if not last.accepted else by_sample[last.index].get("error")
+                failure = (last.code, str(error))
             summary = {
                 "iteration": i,
                 "samples": entries,
