@@ -109,10 +109,6 @@ def test_source_errors_name_the_problem(home: Path, tmp_path: Path) -> None:
         resolve_sources("pickplace_nut_m12", "pick_nut_m12,")
     with pytest.raises(KeyError, match="unknown task"):
         resolve_sources("pickplace_nut_m99", "auto")
-    with pytest.raises(ValueError, match="k must be at least 1"):
-        resolve_sources("pickplace_nut_m12", "auto", _config(k=0))
-    with pytest.raises(TypeError, match=r"k must be an integer, got float 2\.5"):
-        resolve_sources("pickplace_nut_m12", "auto", _config(k=2.5))
     # True == 1 named skill 1.
     with pytest.raises(SourceError, match="serial number or name, got bool True"):
         resolve_sources("pickplace_nut_m12", [True])

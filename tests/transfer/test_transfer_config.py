@@ -57,6 +57,8 @@ def test_a_partial_file_keeps_the_other_defaults(tmp_path: Path) -> None:
 def test_a_config_built_in_code_still_names_its_python_field() -> None:
     with pytest.raises(ValueError, match="pst_keep must be at least 1, got 0"):
         TransferConfig(pst_keep=0)
+    with pytest.raises(ValueError, match="k must be at least 1, got 0"):
+        TransferConfig(k=0)
     with pytest.raises(ValueError, match=r"prior_weight must be in \[0, 1\], got nan"):
         TransferConfig(prior_weight=float("nan"))
 
