@@ -282,6 +282,40 @@ def test_a_part_started_in_the_gripper_sits_its_hold_above_the_grip_point_and_st
     np.testing.assert_allclose(offsets, hold, atol=0.002)
 
 
+@pytest.mark.parametrize(
+    ("task", "period"),
+    [("place_nut_m12", np.pi / 3), ("insert_peg_rect", np.pi), ("insert_peg_round", 0.0)],
+)
+def test_a_part_started_in_the_hand_with_symmetric_yaw_is_turned_by_its_symmetries(task, period):
+    # The pads meet the same faces as without symmetric_yaw, but the part's yaw varies as that of
+    # a part picked from the table does: a nut by multiples of 60 degrees, a rectangular peg by
+    # 180, a round peg by any angle.
+    spec = get_task(task)
+    part = spec.init.objects[0]
+    turned = replace(spec.init, objects=(replace(part, symmetric_yaw=True),))
+    plain = replace(spec.init, objects=(replace(part, symmetric_yaw=False),))
+    offsets = {}
+    for name, init in (("turned", turned), ("plain", plain)):
+        env = make_batch_env(task, num_envs=24, seed=3, n_threads=1)
+        for i in range(24):
+            env.sim.reset_env(i, np.random.default_rng(i), init)
+        ctx = env.context()
+        assert (ctx["grasped"][:, 0] > 0.5).all()
+        offsets[name] = ctx["obj_yaw"][:, 0] - ctx["ee_yaw"]
+        env.close()
+    face = offsets["plain"][0]
+    np.testing.assert_allclose(offsets["plain"], face, atol=0.02)
+    turns = np.angle(np.exp(1j * (offsets["turned"] - face)))  # wrapped to (-pi, pi]
+    if period:
+        steps = turns / period
+        np.testing.assert_allclose(steps, np.round(steps), atol=0.02)
+        assert len(set(np.round(steps).astype(int) % round(2 * np.pi / period))) == round(
+            2 * np.pi / period
+        )
+    else:
+        assert np.ptp(turns) > np.pi
+
+
 @pytest.mark.parametrize("name", ["grasp_nut_m12", "grasp_peg_rect"])
 def test_a_part_started_between_the_open_fingers_is_grasped_by_closing(name):
     env = make_batch_env(name, num_envs=4, seed=5, n_threads=1)

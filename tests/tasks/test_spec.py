@@ -77,6 +77,19 @@ BROKEN = {
         "init.objects[0].hold",
         "gripper",
     ),
+    "symmetric_yaw_off_hand": (
+        ('{ mode = "table", x', '{ mode = "table", symmetric_yaw = true, x'),
+        "init.objects[0].symmetric_yaw",
+        "only a part in the hand",
+    ),
+    "symmetric_yaw_not_bool": (
+        (
+            '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }',
+            '{ mode = "gripper", x = 0.5, z = 0.05, symmetric_yaw = 1 }',
+        ),
+        "init.objects[0].symmetric_yaw",
+        "bool",
+    ),
     "hold_beyond_grasped": (
         (
             '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }',
@@ -528,6 +541,17 @@ def test_a_starts_file_changes_only_what_it_names(tmp_path):
     finally:
         env.close()
     np.testing.assert_allclose(grip[:, 0], 0.5526, atol=1e-3)
+
+
+def test_a_start_that_changes_the_hold_keeps_the_symmetric_yaw(tmp_path):
+    # place_nut_m12's nut is turned by its symmetries; a starts file or a training start that
+    # names other fields of it leaves that as the task has it.
+    place = get_task("place_nut_m12")
+    path = tmp_path / "starts.toml"
+    path.write_text('[[start]]\nname = "deep"\nobjects = [{ hold = -0.01 }]\n')
+    ((_, deep),) = spec_module.load_starts(path, place)
+    assert place.init.objects[0].symmetric_yaw and deep.init.objects[0].symmetric_yaw
+    assert all(start.init.objects[0].symmetric_yaw for start in place.training_starts)
 
 
 @pytest.mark.parametrize(

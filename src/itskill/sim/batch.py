@@ -33,7 +33,7 @@ from itskill.sim.controller import (
     yaw_rotation,
 )
 from itskill.sim.panda import HOME_QPOS
-from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec
+from itskill.sim.parts import BoltSpec, HoleSpec, NutSpec, PegSpec, yaw_symmetry
 from itskill.sim.scene import build_scene, fixture_anchor
 from itskill.sim.task import HAND_MODES, InitSpec, ObjectInit, SimTask, default_object_fixture
 from itskill.sim.thread import ThreadConfig, ThreadCoupling
@@ -51,6 +51,21 @@ NUT_GRIP_YAW = math.pi / 6
 REACH_TOLERANCE = 0.002
 """How far (m) the grip point may end from a start's hand position: the inverse kinematics
 gets every packaged start within 1 mm."""
+
+
+def symmetry_turn(part: NutSpec | PegSpec, rng: np.random.Generator) -> float:
+    """A random turn about ``part``'s axis that leaves its shape where it was (a multiple of its
+    :func:`~itskill.sim.parts.yaw_symmetry`, any angle for a round peg).
+
+    A part put into the hand facing the pads one way only always shows the same yaw relative to
+    the hand, while a part picked from the table shows any: a Place skill trained on the first
+    acted on the yaw it saw, and let go beside the bolt of a third of the nuts a scripted pick
+    handed it (docs/tasks.md).
+    """
+    period = yaw_symmetry(part)
+    if period == 0.0:
+        return float(rng.uniform(-math.pi, math.pi))
+    return period * float(rng.integers(round(2 * math.pi / period)))
 
 
 class UnreachableStartError(ValueError):
@@ -314,6 +329,9 @@ class BatchSim:
                 pos = ee + np.array([0.0, 0.0, init.hold.sample(rng)])
             else:
                 pos = np.array([ee[0], ee[1], on_table_z])
+            if init.symmetric_yaw:
+                # Drawn last, so the rest of a start is the same with it as without.
+                yaw += symmetry_turn(part, rng)
         elif init.mode == "table":
             pos = np.array([init.x.sample(rng), init.y.sample(rng), on_table_z])
             yaw = init.yaw.sample(rng)

@@ -225,6 +225,14 @@ PartSpec = NutSpec | PegSpec
 FixtureSpec = BoltSpec | HoleSpec
 
 
+def yaw_symmetry(part: PartSpec) -> float:
+    """The smallest turn about ``part``'s axis that leaves its shape where it was: 60 degrees for
+    a hex nut, 180 for a rectangular peg; 0 for a round peg, which any turn leaves so."""
+    if isinstance(part, NutSpec):
+        return math.pi / 3
+    return math.pi if part.shape == "rect" else 0.0
+
+
 def fits(part: PartSpec, fixture: FixtureSpec) -> bool:
     """Whether ``part`` goes onto or into ``fixture``: a nut onto a bolt of its thread (the
     thread coupling joins only those), a peg into a hole of its shape narrower than the bore."""

@@ -43,6 +43,9 @@ class ObjectInit:
     - ``gripper``: held between the fingers, the grip point at (x, y, z) and the part's centre
       ``hold`` metres above it (a part picked from the table is rarely held at its middle).
     - ``fingers``: standing on the table between the open fingers, the grip point at (x, y, z).
+      In either hand mode the part faces the pads; with ``symmetric_yaw`` it is also turned by a
+      random one of its symmetries (:func:`itskill.sim.batch.symmetry_turn`), so the fingers
+      meet the same faces but its yaw is as varied as that of a part picked from the table.
     - ``bolt``: threaded on fixture ``fixture``, its bottom ``turns`` pitches above the seat.
     - ``hole``: standing in fixture ``fixture``'s hole, inserted ``depth`` metres.
     """
@@ -56,6 +59,7 @@ class ObjectInit:
     depth: Range = Range(0.0, 0.0)
     hold: Range = Range(0.0, 0.0)
     fixture: int = 0
+    symmetric_yaw: bool = False
 
 
 HAND_MODES = ("gripper", "fingers")

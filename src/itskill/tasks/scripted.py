@@ -48,7 +48,7 @@ import numpy as np
 from itskill.sim.batch import NUT_GRIP_YAW
 from itskill.sim.context import wrap_angle
 from itskill.sim.controller import ControllerConfig
-from itskill.sim.parts import NutSpec, PegSpec
+from itskill.sim.parts import NutSpec, PegSpec, yaw_symmetry
 from itskill.sim.scene import TIMESTEP
 from itskill.tasks.predicates import fixture_offset, hole_depth
 from itskill.tasks.spec import TaskSpec
@@ -152,9 +152,7 @@ class _Part:
     @property
     def yaw_period(self) -> float:
         """Symmetry of the part's grip faces: a hex nut's flats repeat every 60 degrees."""
-        if self.is_nut:
-            return math.pi / 3
-        return math.pi if self.spec.shape == "rect" else 0.0
+        return yaw_symmetry(self.spec)
 
     @property
     def yaw_offset(self) -> float:

@@ -565,7 +565,9 @@ def _parse_init(
         )
     for k, oi in enumerate(raw_inits):
         orr = _Reader(path, f"{ir.where}.objects[{k}]", oi)
-        orr.check_keys({"mode", "x", "y", "z", "yaw", "turns", "depth", "hold", "fixture"})
+        orr.check_keys(
+            {"mode", "x", "y", "z", "yaw", "turns", "depth", "hold", "fixture", "symmetric_yaw"}
+        )
         mode = orr.get("mode", str)
         if mode not in _INIT_MODES:
             raise TaskFileError(
@@ -574,6 +576,14 @@ def _parse_init(
         if "hold" in oi and mode != "gripper":
             raise TaskFileError(path, orr.where + ".hold", "only a part in the gripper has a hold")
         hold = orr.range("hold", (0.0, 0.0))
+        symmetric_yaw = orr.get("symmetric_yaw", bool, False)
+        if "symmetric_yaw" in oi and mode not in HAND_MODES:
+            raise TaskFileError(
+                path,
+                orr.where + ".symmetric_yaw",
+                f"only a part in the hand ({', '.join(HAND_MODES)}) takes symmetric_yaw; a part "
+                f"in mode {mode!r} has its own yaw",
+            )
         bound = max_grip_offset(objects[k].height)
         if max(-hold.low, hold.high) > bound:
             # The start would put the part in the fingers where `grasped` says it is not held,
@@ -637,7 +647,9 @@ def _parse_init(
                     f"mode {mode!r} does not use {key} (it uses "
                     f"{', '.join(sorted(_MODE_FIELDS[mode]))}); leave it out",
                 )
-        obj_inits.append(ObjectInit(mode=mode, hold=hold, fixture=fixture, **ranges))
+        obj_inits.append(
+            ObjectInit(mode=mode, hold=hold, fixture=fixture, symmetric_yaw=symmetric_yaw, **ranges)
+        )
     if sum(o.mode in HAND_MODES for o in obj_inits) > 1:
         raise TaskFileError(
             path, ir.where + ".objects", "at most one object can start in the gripper"
@@ -710,6 +722,7 @@ def init_table(init: InitSpec) -> dict[str, Any]:
         {"mode": o.mode, "fixture": o.fixture}
         | {k: span(getattr(o, k)) for k in ("x", "y", "z", "yaw", "turns", "depth")}
         | ({"hold": span(o.hold)} if o.mode == "gripper" else {})
+        | ({"symmetric_yaw": True} if o.symmetric_yaw else {})
         for o in init.objects
     ]
     ee = {k: span(getattr(init, f"ee_{k}")) for k in ("x", "y", "z", "yaw")}
