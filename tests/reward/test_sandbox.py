@@ -169,6 +169,12 @@ ESCAPES = {
     "chained_repeat_bomb": ("x = 'a' * 10**6 * 10**6", "too large"),
     "float_size_bomb": ("x = np.arange(1e12)", "too large"),
     "keyword_size_bomb": ("x = np.zeros(shape=(10**5, 10**5))", "too large"),
+    # Sizes by keyword passed the static check (the memory limit caught them at run time).
+    "keyword_eye_bomb": ("x = np.eye(N=10**5)", "too large"),
+    "keyword_repeat_bomb": ("x = np.repeat(np.ones(10**8), repeats=100)", "too large"),
+    "keyword_tile_bomb": ("x = np.tile(ctx['ee_pos'], reps=10**10)", "too large"),
+    "keyword_linspace_bomb": ("x = np.linspace(0, 1, num=10**11)", "too large"),
+    "keyword_arange_bomb": ("x = np.arange(stop=1e12)", "too large"),
     # Sizes written through int() of a float and its kin were not folded, so not checked.
     "int_of_float_size_bomb": ("x = np.zeros(int(1e11))", "constant size 100000000000 is too"),
     "int_of_float_shape_bomb": ("x = np.ones((int(1e6), int(1e6)))", "too large"),

@@ -334,24 +334,42 @@ def _elements(node: ast.AST) -> int | None:
         return None
     if not _is_module(node.func.value, "np"):
         return None
-    name, args = node.func.attr, list(node.args)
-    if name == "eye" and args:
-        rows = _const_size(args[0])
-        cols = _const_size(args[1]) if len(args) > 1 else rows
+    name = node.func.attr
+
+    def arg(index: int, *keywords: str) -> ast.expr | None:
+        """The argument at ``index`` or given by one of its ``keywords``, as numpy names it:
+        a size passed either way is the same size."""
+        if index < len(node.args):
+            return node.args[index]
+        return next((k.value for k in node.keywords if k.arg in keywords), None)
+
+    def size(index: int, *keywords: str) -> int | None:
+        value = arg(index, *keywords)
+        return None if value is None else _const_size(value)
+
+    if name == "eye":
+        rows = size(0, "N")
+        cols = size(1, "M") if arg(1, "M") is not None else rows
         return None if rows is None or cols is None else rows * cols
-    if name in _SIZED_NUMPY and args:
-        return _const_size(args[0])
-    if name == "arange" and args:
-        bounds = [_const_size(arg) for arg in args[:2]]  # (stop) or (start, stop)
-        return None if None in bounds else max(bounds)  # type: ignore[type-var]
-    if name == "linspace" and len(args) > 2:
-        return _const_size(args[2])
-    if name in _REPEATING_NUMPY and len(args) > 1:
+    if name in _SIZED_NUMPY:
+        return size(0, "shape")
+    if name == "arange":
+        # (stop), (start, stop) or by keyword: unknown if a bound given comes from the data.
+        given = [(arg(0, "start"), size(0, "start")), (arg(1, "stop"), size(1, "stop"))]
+        if any(value is not None and bound is None for value, bound in given):
+            return None
+        known = [bound for _, bound in given if bound is not None]
+        return max(known) if known else None
+    if name == "linspace":
+        return size(2, "num")
+    if name in _REPEATING_NUMPY:
         # At least ``times`` elements whatever is repeated (it may be the data's).
-        inner, times = _elements(args[0]), _const_size(args[1])
-        return None if times is None else (inner or 1) * times
-    if name in _LIKE_NUMPY and args:
-        return _elements(args[0])
+        times = size(1, "repeats", "reps")
+        inner = arg(0, "a", "A")
+        return None if times is None else ((inner and _elements(inner)) or 1) * times
+    if name in _LIKE_NUMPY:
+        inner = arg(0, "a", "prototype")
+        return None if inner is None else _elements(inner)
     return None
 
 
@@ -471,11 +489,6 @@ class _Checker(ast.NodeVisitor):
             sizes = [_const_size(arg) for arg in node.args]
         else:
             sizes = [_elements(node)]
-            if isinstance(func, ast.Attribute) and _is_module(func.value, "np"):
-                # a size given by keyword: np.zeros(shape=...), np.linspace(0, 1, num=...)
-                sizes += [
-                    _const_size(k.value) for k in node.keywords if k.arg in ("shape", "num", "stop")
-                ]
         for size in sizes:
             if size is not None and size > MAX_CONSTANT_ELEMENTS:
                 raise _violation(node, f"constant size {_shown(size)} is too large")
