@@ -552,6 +552,10 @@ def test_a_start_that_changes_the_hold_keeps_the_symmetric_yaw(tmp_path):
     ((_, deep),) = spec_module.load_starts(path, place)
     assert place.init.objects[0].symmetric_yaw and deep.init.objects[0].symmetric_yaw
     assert all(start.init.objects[0].symmetric_yaw for start in place.training_starts)
+    # A training start named after place takes its start, turn included.
+    carry = get_task("carry_nut_m12")
+    assert not carry.init.objects[0].symmetric_yaw
+    assert [s.init.objects[0].symmetric_yaw for s in carry.training_starts] == [True]
 
 
 @pytest.mark.parametrize(
