@@ -294,6 +294,30 @@ def test_source_chaining_with_action_noise_measures_a_fragile_skill(tmp_path, ca
     assert record["noise"] == 0.61 and record["success_rate"] == 0.0
 
 
+def test_source_chaining_shows_the_skills_the_targets_stage_as_the_transfer_network_does(
+    monkeypatch,
+) -> None:
+    # --target-stage showed each skill the target's raw stage index (the place skill of a
+    # pick-and-place saw stages 3 and 4, which its task does not have); the transfer network
+    # shows a source the target's stage mapped onto its own by their names.
+    chaining = _load("source_chaining")
+    spec = get_task("pickplace_nut_m12")
+    chain = chaining.StageChain(spec, ["pick_nut_m12"] * 3 + ["place_nut_m12"] * 2, False)
+    seen = {}
+
+    def recorder(name):
+        def act(view):
+            seen[name] = view["stage"].copy()
+            return np.zeros((len(view["stage"]), 5))
+
+        return act
+
+    chain.actors = [recorder(name) for name in chain.names]
+    chain({"stage": np.arange(len(spec.stages))})
+    assert seen["pick_nut_m12"].tolist() == [0, 1, 2, 2, 2]
+    assert seen["place_nut_m12"].tolist() == [0, 0, 0, 0, 1]
+
+
 class _GripPolicy:
     """Holds the arm still with the fingers commanded open (``grip < 0``) or closed."""
 
