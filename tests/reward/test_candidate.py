@@ -48,6 +48,19 @@ def test_a_candidate_past_its_wall_clock_limit_is_stopped_and_recorded(tmp_path:
     assert path.stat().st_mtime_ns == stamp
 
 
+def test_a_failure_of_the_machine_in_the_child_is_not_recorded_as_the_candidates(
+    tmp_path: Path,
+) -> None:
+    # Any exception the child raised was the candidate's failure, never to be trained again, and
+    # fed back to the model as its code's fault.
+    job = _job(tmp_path / "cand", timeout_s=300)
+    (tmp_path / "cand").mkdir()
+    (tmp_path / "cand" / "train").write_text("a file where the training runs go")
+    with pytest.raises(OSError):
+        run_candidate(job)
+    assert not (tmp_path / "cand" / "result.json").exists()
+
+
 def _rerun_with_evaluations(tmp_path: Path, rows: str) -> dict:
     """The candidate's result once more, its finished run's ``eval.csv`` holding ``rows``."""
     job = _job(tmp_path / "cand", timeout_s=300)
