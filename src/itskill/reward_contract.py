@@ -28,6 +28,10 @@ LOG_COLUMNS = (
 """The training log's own columns (``metrics.csv``), which a reward component beside them may
 not be named: ``step`` is what a resumed run truncates the log by."""
 
+EPISODE_RETURN = "episode_return"
+"""The name the reward search's feedback gives the episode return beside the components, so no
+component may take it either."""
+
 
 class RewardOutputError(ValueError):
     """A reward callable's result that breaks the contract; the message says how."""
@@ -92,7 +96,7 @@ def check_reward_output(result: Any, n: int) -> tuple[np.ndarray, dict[str, np.n
                 f"component name {key[:40]!r}{'...' if len(key) > 40 else ''} must be 1 to "
                 f"{COMPONENT_NAME_MAX} printable characters"
             )
-        if key in LOG_COLUMNS:
+        if key in LOG_COLUMNS or key == EPISODE_RETURN:
             raise RewardOutputError(
                 f"component name {key!r} is taken by the training log; use another name"
             )

@@ -58,3 +58,17 @@ def test_a_damaged_metrics_file_is_named(tmp_path: Path) -> None:
     (run / "metrics.csv").write_bytes(METRICS.encode() + b"4096,\xff\n")
     with pytest.raises(CurveError, match=r"metrics\.csv: not UTF-8 text"):
         component_stats([run])
+
+
+@pytest.mark.parametrize(
+    ("row", "problem"),
+    [
+        ("4096,4.0,1,0,,,,905,lots,", r"column '0.approach/reach': not a number: 'lots'"),
+        ("4096,4.0,1,0,,,,905,0.2,0,9", "a row has more cells than the header"),
+    ],
+)
+def test_a_damaged_metrics_row_names_the_file(tmp_path: Path, row: str, problem: str) -> None:
+    # A ValueError or TypeError without the file's name reached the search.
+    run = _run(tmp_path, "a", METRICS + row + "\n")
+    with pytest.raises(CurveError, match=r"metrics\.csv: " + problem):
+        component_stats([run])

@@ -374,6 +374,8 @@ def test_the_context_is_read_only() -> None:
         ("z, {'a': z * np.nan}", "components['a'] has 3 non-finite"),
         ("z, {1: z}", "component names must be strings"),
         ("z, {'step': z}", "component name 'step' is taken by the training log"),
+        # The feedback's name for the episode return: a component so named was pooled with it.
+        ("z, {'episode_return': z}", "component name 'episode_return' is taken"),
         # Every name is a log column and a line of feedback: 200 names of 100,000 characters
         # made a feedback prompt of 20 million characters.
         ("z, {'c' * 101: z}", "component name 'cccc"),

@@ -15,16 +15,20 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from itskill.curves import CurveError
-from itskill.reward_contract import LOG_COLUMNS
-
-EPISODE_RETURN = "episode_return"
-"""Key of the total reward (return per episode) in the statistics, beside the components."""
+from itskill.reward_contract import EPISODE_RETURN, LOG_COLUMNS
 
 
-def _float(text: str | None) -> float | None:
+def _float(path: Path, column: str | None, text: str | list[str] | None) -> float | None:
+    """A finite cell's value, None for an empty or non-finite one; a cell that is no number, or
+    one past the header's columns, raises :class:`CurveError` naming the file."""
+    if column is None:
+        raise CurveError(path, f"a row has more cells than the header ({text!r})")
     if text is None or text == "":
         return None
-    value = float(text)
+    try:
+        value = float(text)
+    except ValueError as err:
+        raise CurveError(path, f"column {column!r}: not a number: {text!r}") from err
     return value if math.isfinite(value) else None
 
 
@@ -47,12 +51,13 @@ def component_stats(run_dirs: Iterable[Path]) -> dict[str, dict[str, float]]:
     """
     series: dict[str, list[float]] = {}
     for run_dir in run_dirs:
-        for row in _rows(Path(run_dir) / "metrics.csv"):
+        path = Path(run_dir) / "metrics.csv"
+        for row in _rows(path):
             for column, text in row.items():
                 name = EPISODE_RETURN if column == "ep_return" else column
                 if column in LOG_COLUMNS and column != "ep_return":
                     continue
-                value = _float(text)
+                value = _float(path, column, text)
                 if value is not None:
                     series.setdefault(name, []).append(value)
     return {

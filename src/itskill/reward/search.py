@@ -104,14 +104,15 @@ class RewardSearchResult:
 
     ``best_success`` and ``expert_success`` are means over the final seeds of the best
     deterministic success through training, with the same budget (``expert_success`` is None
-    when the expert was not compared). ``history`` has one entry per iteration.
+    when the expert was not compared; either is None when its reward failed on every final seed,
+    which ``final`` records). ``history`` has one entry per iteration.
     """
 
     run_dir: Path
     plan: TaskPlan
     best_code: str
     best_path: Path
-    best_success: float
+    best_success: float | None
     expert_success: float | None
     history: list[dict[str, Any]]
     best: dict[str, Any] = field(default_factory=dict)
