@@ -698,3 +698,20 @@ def test_render_with_a_policy_it_cannot_load_leaves_no_folders(tmp_path):
     )
     assert result.exit_code == 2, result.output
     assert not (tmp_path / "new").exists()
+
+
+def test_a_mujoco_gl_setting_it_drops_is_one_warning_line(tmp_path: Path) -> None:
+    # The warning came as Python prints it, path and source line included, because the command
+    # modules import the simulator (which checks MUJOCO_GL) before the commands' own warning
+    # format was set.
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "MUJOCO_GL": "bogus", "ITSKILL_HOME": str(tmp_path)}
+    done = subprocess.run(
+        [sys.executable, "-m", "itskill", "tasks", "list"],
+        capture_output=True, text=True, env=env, timeout=120, check=True,
+    )  # fmt: skip
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("warning: MUJOCO_GL='bogus' is ignored"), lines

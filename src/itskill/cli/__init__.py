@@ -6,11 +6,9 @@ Thin by design: each command parses its options, calls one library function and 
 from __future__ import annotations
 
 import signal
-import warnings
 
 import typer
 
-from itskill.cli.common import show_warning_line
 from itskill.cli.episodes import demo, eval_cmd, render_cmd
 from itskill.cli.experiment import experiment_app, report_cmd
 from itskill.cli.learn import learn_cmd
@@ -39,8 +37,6 @@ def _before_every_command() -> None:
     for sig in (signal.SIGTERM, signal.SIGHUP):
         if signal.getsignal(sig) is not signal.SIG_IGN:
             signal.signal(sig, signal.default_int_handler)
-    # itskill's own warnings (a damaged shipped library) as one line, not Python's two.
-    warnings.showwarning = show_warning_line
 
 
 app.add_typer(tasks_app, name="tasks")

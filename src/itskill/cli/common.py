@@ -43,6 +43,11 @@ def show_warning_line(
         _python_showwarning(message, category, filename, lineno, file, line)
 
 
+# Set on import, not per command: the command modules import the simulator, whose MUJOCO_GL
+# check warns as it is imported.
+warnings.showwarning = show_warning_line
+
+
 USAGE_ERROR = 2
 
 

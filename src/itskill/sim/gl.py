@@ -36,6 +36,11 @@ _ACCEPTED = {
 every platform, then on each one's own."""
 
 
+class GLSettingWarning(UserWarning):
+    """A ``MUJOCO_GL`` value that itskill drops (an itskill warning: the commands print it as one
+    line)."""
+
+
 def configure_gl() -> str | None:
     """Set ``MUJOCO_GL`` (unless the user did) to the first installed headless backend.
 
@@ -57,7 +62,7 @@ def configure_gl() -> str | None:
             if value in accepted
             else f"MuJoCo takes {', '.join(accepted)}"
         )
-        warnings.warn(f"MUJOCO_GL={wanted!r} is ignored: {why}", stacklevel=2)
+        warnings.warn(f"MUJOCO_GL={wanted!r} is ignored: {why}", GLSettingWarning, stacklevel=2)
         del os.environ["MUJOCO_GL"]
     if platform.system() != "Linux":
         return None  # EGL and OSMesa are Linux's; elsewhere MuJoCo chooses its own
