@@ -37,6 +37,12 @@ class RewardOutputError(ValueError):
     """A reward callable's result that breaks the contract; the message says how."""
 
 
+REWARD_MAGNITUDE_MAX = 1e9
+"""The largest reward or component value a reward may return, either sign: far above any
+sensible reward, far below float32's 3.4e38, past which the training environment's float32
+rewards turn to inf and the reward normalisation's statistics to nan."""
+
+
 def _finite_vector(value: Any, n: int, what: str) -> np.ndarray:
     if isinstance(value, list | tuple) and any(
         isinstance(v, list | tuple | dict | set) for v in value
@@ -60,6 +66,12 @@ def _finite_vector(value: Any, n: int, what: str) -> np.ndarray:
     if not np.all(np.isfinite(array)):
         bad = int(np.sum(~np.isfinite(array)))
         raise RewardOutputError(f"{what} has {bad} non-finite value(s) (nan or inf)")
+    if np.any(np.abs(array) > REWARD_MAGNITUDE_MAX):
+        largest = np.abs(array).max()
+        raise RewardOutputError(
+            f"{what} has values beyond ±{REWARD_MAGNITUDE_MAX:g} (largest {largest:g}); scale the "
+            "reward down"
+        )
     return array
 
 

@@ -175,6 +175,11 @@ ESCAPES = {
     "keyword_tile_bomb": ("x = np.tile(ctx['ee_pos'], reps=10**10)", "too large"),
     "keyword_linspace_bomb": ("x = np.linspace(0, 1, num=10**11)", "too large"),
     "keyword_arange_bomb": ("x = np.arange(stop=1e12)", "too large"),
+    "like_shape_bomb": ("x = np.zeros_like(ctx['ee_pos'], shape=(10**5, 10**5))", "too large"),
+    "broadcast_bomb": ("x = np.broadcast_to(1.0, (10**5, 10**5))", "too large"),
+    "eye_none_columns_bomb": ("x = np.eye(10**5, None)", "too large"),
+    "starred_size_bomb": ("x = np.zeros(*[(10**5, 10**5)])", "not through * or **"),
+    "double_starred_size_bomb": ("x = np.zeros(**{'shape': (10**5, 10**5)})", "through"),
     # Sizes written through int() of a float and its kin were not folded, so not checked.
     "int_of_float_size_bomb": ("x = np.zeros(int(1e11))", "constant size 100000000000 is too"),
     "int_of_float_shape_bomb": ("x = np.ones((int(1e6), int(1e6)))", "too large"),
@@ -374,6 +379,9 @@ def test_the_context_is_read_only() -> None:
         ("z, {'a': z * np.nan}", "components['a'] has 3 non-finite"),
         ("z, {1: z}", "component names must be strings"),
         ("z, {'step': z}", "component name 'step' is taken by the training log"),
+        # Finite in float64, inf once the environment stores it as float32: the reward
+        # normalisation turned it to nan and training raised outside the sandbox.
+        ("z + 1e39, {'a': z}", "total has values beyond ±1e+09"),
         # The feedback's name for the episode return: a component so named was pooled with it.
         ("z, {'episode_return': z}", "component name 'episode_return' is taken"),
         # Every name is a log column and a line of feedback: 200 names of 100,000 characters

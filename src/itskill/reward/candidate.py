@@ -31,17 +31,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from itskill.curves import CurveError
 from itskill.files import read_json, write_json
 from itskill.reward.limited import ChildFailed, RemoteTraceback, run_limited
-from itskill.reward.sandbox import (
-    SandboxConfig,
-    SandboxError,
-    SandboxTimeout,
-    SandboxViolation,
-    compile_reward,
-)
-from itskill.reward_contract import EXPERT, RewardOutputError
+from itskill.reward.sandbox import SandboxConfig, compile_reward
+from itskill.reward_contract import EXPERT
 
 if TYPE_CHECKING:  # the worker that only supervises the child imports no simulator
     from itskill.sim.task import RewardFn
@@ -49,11 +42,11 @@ if TYPE_CHECKING:  # the worker that only supervises the child imports no simula
 RESULT_FILE = "result.json"
 TRAIN_DIR = "train"
 _CORRELATION_SEED = 30_000
-_CANDIDATE_FAULTS = (SandboxError, SandboxTimeout, SandboxViolation, RewardOutputError, CurveError)
-"""What the child raises that is the candidate's own failure: its code (it raised, ran too long,
-or returned what the reward contract refuses) or its run's damaged evaluation record. Anything
-else (a full disk, a broken installation) is the machine's, and a resumed search runs the
-candidate again."""
+_MACHINE_FAULTS = (OSError, ImportError)
+"""What the child raises that is the machine's failure, not the candidate's (a full disk, a
+broken installation): no result is written, and a resumed search trains the candidate again.
+Anything else is the candidate's, whether its code raised in the sandbox or made training fail
+outside it (rewards that drive the networks' weights to nan), and a resume would only repeat it."""
 
 
 @dataclass(frozen=True)
@@ -130,7 +123,7 @@ def run_candidate(job: CandidateJob) -> dict[str, Any]:
     except ChildFailed as err:  # killed by a limit or a signal, or past its time limit
         result = {"status": "failed", "error": str(err)}
     except Exception as err:
-        if not (isinstance(err.__cause__, RemoteTraceback) and isinstance(err, _CANDIDATE_FAULTS)):
+        if not isinstance(err.__cause__, RemoteTraceback) or isinstance(err, _MACHINE_FAULTS):
             raise  # not the candidate's failure: no result, so a resume runs it again
         tail = traceback.format_exception_only(type(err), err)[-1].strip()
         result = {"status": "failed", "error": tail}  # the reward raised or timed out

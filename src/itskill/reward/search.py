@@ -225,8 +225,8 @@ class _Run:
         if lost:
             raise RewardSearchError(
                 f"{len(lost)} job(s) failed in their worker, not in the reward they trained "
-                f"(first: {lost[0]}); the others' results are kept: resume the search "
-                f"(--resume {self.out}) to train those again and go on"
+                f"(first: {lost[0]}); the others' results are kept: run the command again with "
+                "--resume to train those again and go on"
             )
         return results
 
