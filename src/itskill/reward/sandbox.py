@@ -180,6 +180,8 @@ _SIZED_NUMPY = {"zeros", "ones", "full"}
 _REPEATING_NUMPY = {"tile", "repeat"}
 """Functions whose first argument is repeated by the others."""
 _LIKE_NUMPY = {"empty_like", "zeros_like", "ones_like", "full_like"}
+_SIZE_CHECKED = _SIZED_NUMPY | _REPEATING_NUMPY | _LIKE_NUMPY | {"eye", "arange", "linspace"}
+"""The numpy functions whose size :func:`_elements` reads from their arguments."""
 
 
 def _violation(node: ast.AST, what: str) -> SandboxViolation:
@@ -349,7 +351,10 @@ def _elements(node: ast.AST) -> int | None:
 
     if name == "eye":
         rows = size(0, "N")
-        cols = size(1, "M") if arg(1, "M") is not None else rows
+        given = arg(1, "M")
+        # M=None is numpy's default: as many columns as rows.
+        none = given is None or (isinstance(given, ast.Constant) and given.value is None)
+        cols = rows if none else size(1, "M")
         return None if rows is None or cols is None else rows * cols
     if name in _SIZED_NUMPY:
         return size(0, "shape")
@@ -368,8 +373,13 @@ def _elements(node: ast.AST) -> int | None:
         inner = arg(0, "a", "A")
         return None if times is None else ((inner and _elements(inner)) or 1) * times
     if name in _LIKE_NUMPY:
+        shape = arg(99, "shape")  # only ever by keyword: it replaces the prototype's shape
+        if shape is not None:
+            return _const_size(shape)
         inner = arg(0, "a", "prototype")
         return None if inner is None else _elements(inner)
+    if name == "broadcast_to":
+        return size(1, "shape")
     return None
 
 
@@ -485,6 +495,17 @@ class _Checker(ast.NodeVisitor):
 
     def visit_Call(self, node: ast.Call) -> None:
         func = node.func
+        if (
+            isinstance(func, ast.Attribute)
+            and _is_module(func.value, "np")
+            and func.attr in _SIZE_CHECKED | {"broadcast_to"}
+            and (
+                any(isinstance(a, ast.Starred) for a in node.args)
+                or any(k.arg is None for k in node.keywords)
+            )
+        ):
+            # A size unpacked from * or ** cannot be read before the code runs.
+            raise _violation(node, f"np.{func.attr} takes its size as written, not through * or **")
         if isinstance(func, ast.Name) and func.id == "range":
             sizes = [_const_size(arg) for arg in node.args]
         else:
