@@ -634,6 +634,14 @@ def _reward(
             network=network,
             plan=TaskPlan.from_dict(plan),
         )
+        if res.best_success is None:
+            # Nothing to transfer with: the reward that won the search fails when trained again.
+            errors = res.final["generated"]["failed"]
+            first = next(iter(errors.values()), "")
+            raise LearnError(
+                f"the search's chosen reward failed on every final seed ({first}); its code and "
+                f"results are in {out}"
+            )
         cached = {
             # Relative to the learn run, which may be moved or copied to results/.
             "run_dir": REWARD_DIR,
