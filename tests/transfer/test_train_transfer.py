@@ -172,7 +172,8 @@ def test_a_run_from_before_the_residual_resumes_without_it(home: Path, tmp_path:
 def test_the_kept_best_policy_describes_itself_like_its_run(home: Path, tmp_path: Path) -> None:
     out = tmp_path / "itn"
     result = run(out, "itn", steps=16, eval_every=8, eval_episodes=2)
-    assert result.best is not None and result.best["env_steps"] in (8, 16)
+    # The sources' chain at the start (step 0) may be the best of the evaluations.
+    assert result.best is not None and result.best["env_steps"] in (0, 8, 16)
     assert read_transfer(out / "best") == read_transfer(out)
     trace = attention_trace(out / "best")
     assert trace["method"] == "itn" and trace["sources"] == ["pick_nut_m12", "place_nut_m12"]

@@ -6,9 +6,11 @@ Thin by design: each command parses its options, calls one library function and 
 from __future__ import annotations
 
 import signal
+import warnings
 
 import typer
 
+from itskill.cli.common import show_warning_line
 from itskill.cli.episodes import demo, eval_cmd, render_cmd
 from itskill.cli.experiment import experiment_app, report_cmd
 from itskill.cli.learn import learn_cmd
@@ -37,6 +39,9 @@ def _before_every_command() -> None:
     for sig in (signal.SIGTERM, signal.SIGHUP):
         if signal.getsignal(sig) is not signal.SIG_IGN:
             signal.signal(sig, signal.default_int_handler)
+    # Again per command (itskill.cli.common sets it on import, for the simulator's import-time
+    # warning): whoever runs the app in-process, a test runner among them, may have replaced it.
+    warnings.showwarning = show_warning_line
 
 
 app.add_typer(tasks_app, name="tasks")
