@@ -330,7 +330,7 @@ class BatchSim:
             else:
                 pos = np.array([ee[0], ee[1], on_table_z])
             if init.symmetric_yaw:
-                # Drawn last, so the rest of a start is the same with it as without.
+                # Drawn after the hold, so this part is held as it would be without the turn.
                 yaw += symmetry_turn(part, rng)
         elif init.mode == "table":
             pos = np.array([init.x.sample(rng), init.y.sample(rng), on_table_z])
