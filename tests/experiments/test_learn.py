@@ -621,3 +621,32 @@ def test_a_run_in_use_by_another_session_is_refused(tmp_path, budgets):
     assert result.exit_code == 2
     assert "in use by another itskill learn" in flat(result.output)
     assert sorted(p.name for p in out.iterdir()) == ["learn.json"]
+
+
+def test_a_chosen_reward_that_failed_on_every_final_seed_stops_learn_with_its_errors(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # best_success None reached a "{:.0%}" format: a TypeError after reward.json was written
+    # with null, which a resume then refused as damaged, and deleting it led back to the same.
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    import itskill.reward
+    import itskill.transfer
+    from itskill.experiments.learn import LearnError, _reward, _Steps
+
+    failed = SimpleNamespace(
+        best_success=None,
+        final={"generated": {"failed": {"1": "SandboxError: the reward code raised"}}},
+    )
+    monkeypatch.setattr(itskill.transfer, "search_network", lambda *a, **k: None)
+    monkeypatch.setattr(itskill.reward, "generate_reward", lambda *a, **k: failed)
+    budget = load_budgets()["tiny"]
+    plan = {"task": "pick_nut_m12", "command": "Pick up the M12 nut", "subtasks": [],
+            "actions": ["approach", "grasp", "lift"], "objects": ["nut_m12"]}  # fmt: skip
+    console = Console(file=None, quiet=True)
+    with pytest.raises(LearnError, match=r"failed on every final seed.*the reward code raised"):
+        _reward("Pick up the M12 nut", plan, budget, 0, {"retrieved": []}, None, tmp_path,
+                _Steps(console, tmp_path), console)  # fmt: skip
+    assert not (tmp_path / "reward.json").exists()
