@@ -175,11 +175,12 @@ class BatchSim:
                 hole = placed.part
                 half = hole.diameter / 2 if hole.shape == "round" else hole.depth / 2
                 self.hole_radius[j] = half + hole.clearance
-        # Symmetry period of each part's yaw against its fixture: rect pegs repeat every pi.
+        # Symmetry period of each part's yaw against its fixture: a peg's own (a rectangular
+        # one's pi, 0 for a round one); none for a nut, whose yaw on its bolt does not matter.
         self.yaw_period = np.zeros(MAX_OBJECTS)
         for i, part in enumerate(self._objects):
-            if isinstance(part, PegSpec) and part.shape == "rect":
-                self.yaw_period[i] = math.pi
+            if isinstance(part, PegSpec):
+                self.yaw_period[i] = yaw_symmetry(part)
         self._thread_obj = np.array([p.obj for p in self.scene.threads], dtype=int)
 
         # The fixture constants each object slot is measured against (zero for empty slots).

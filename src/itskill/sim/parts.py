@@ -225,11 +225,15 @@ PartSpec = NutSpec | PegSpec
 FixtureSpec = BoltSpec | HoleSpec
 
 
+HEX_SYMMETRY = math.pi / 3
+"""A hex nut's rotational symmetry: turning it by this angle moves no geometry."""
+
+
 def yaw_symmetry(part: PartSpec) -> float:
     """The smallest turn about ``part``'s axis that leaves its shape where it was: 60 degrees for
     a hex nut, 180 for a rectangular peg; 0 for a round peg, which any turn leaves so."""
     if isinstance(part, NutSpec):
-        return math.pi / 3
+        return HEX_SYMMETRY
     return math.pi if part.shape == "rect" else 0.0
 
 

@@ -20,10 +20,8 @@ from dataclasses import dataclass
 
 import mujoco
 
+from itskill.sim.parts import HEX_SYMMETRY
 from itskill.sim.scene import PARKED_Z, Scene
-
-HEX_SYMMETRY = math.pi / 3
-"""A hex nut's rotational symmetry: turning it by this angle moves no geometry."""
 
 
 @dataclass(frozen=True)
