@@ -180,7 +180,8 @@ _SIZED_NUMPY = {"zeros", "ones", "full"}
 _REPEATING_NUMPY = {"tile", "repeat"}
 """Functions whose first argument is repeated by the others."""
 _LIKE_NUMPY = {"empty_like", "zeros_like", "ones_like", "full_like"}
-_SIZE_CHECKED = _SIZED_NUMPY | _REPEATING_NUMPY | _LIKE_NUMPY | {"eye", "arange", "linspace"}
+_OTHER_SIZED_NUMPY = {"eye", "arange", "linspace", "broadcast_to"}
+_SIZE_CHECKED = _SIZED_NUMPY | _REPEATING_NUMPY | _LIKE_NUMPY | _OTHER_SIZED_NUMPY
 """The numpy functions whose size :func:`_elements` reads from their arguments."""
 
 
@@ -338,10 +339,10 @@ def _elements(node: ast.AST) -> int | None:
         return None
     name = node.func.attr
 
-    def arg(index: int, *keywords: str) -> ast.expr | None:
-        """The argument at ``index`` or given by one of its ``keywords``, as numpy names it:
-        a size passed either way is the same size."""
-        if index < len(node.args):
+    def arg(index: int | None, *keywords: str) -> ast.expr | None:
+        """The argument at ``index`` (None: a keyword-only one) or given by one of its
+        ``keywords``, as numpy names it: a size passed either way is the same size."""
+        if index is not None and index < len(node.args):
             return node.args[index]
         return next((k.value for k in node.keywords if k.arg in keywords), None)
 
@@ -373,7 +374,7 @@ def _elements(node: ast.AST) -> int | None:
         inner = arg(0, "a", "A")
         return None if times is None else ((inner and _elements(inner)) or 1) * times
     if name in _LIKE_NUMPY:
-        shape = arg(99, "shape")  # only ever by keyword: it replaces the prototype's shape
+        shape = arg(None, "shape")  # it replaces the prototype's shape
         if shape is not None:
             return _const_size(shape)
         inner = arg(0, "a", "prototype")
@@ -498,7 +499,7 @@ class _Checker(ast.NodeVisitor):
         if (
             isinstance(func, ast.Attribute)
             and _is_module(func.value, "np")
-            and func.attr in _SIZE_CHECKED | {"broadcast_to"}
+            and func.attr in _SIZE_CHECKED
             and (
                 any(isinstance(a, ast.Starred) for a in node.args)
                 or any(k.arg is None for k in node.keywords)
