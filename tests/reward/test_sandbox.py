@@ -210,6 +210,11 @@ ESCAPES = {
     "math_as_star_argument": ("def f(*math):\n    return 0", "'math' may only be bound"),
     "np_from_math": ("from math import pi as np", "'np' may only be bound by its import"),
     "np_as_loop_target": ("for np in range(3):\n    pass", "assigning to 'np'"),
+    # A step and a shape built by tuple arithmetic were not read: left to the memory limit.
+    "tiny_step_arange_bomb": ("x = np.arange(0, 1, 1e-12)", "constant size 1000000000000 is"),
+    "keyword_step_arange_bomb": ("x = np.arange(5, step=1e-9)", "size 5000000000 is too"),
+    "repeated_shape_bomb": ("x = np.ones((10**5,) * 2)", "constant size 10000000000 is"),
+    "joined_shape_bomb": ("x = np.zeros((10,) + (10**5,) * 2)", "too large"),
     # The checker itself raised, killing the probe's process with a traceback.
     "power_of_a_power_bomb": ("x = 2 ** 2 ** 1100", "power too large (2 ** a 1101-bit number)"),
     "product_of_powers_bomb": (
@@ -246,6 +251,18 @@ def test_small_or_computed_int_sizes_are_not_mistaken_for_bombs() -> None:
     )
     total, _ = compile_reward(source)(ctx())
     assert total.tolist() == [4.0, 3.0, 3.0]
+
+
+def test_ranges_are_sized_by_their_span_and_step() -> None:
+    # range() was sized by its largest bound, refusing a short range far from zero.
+    source = (
+        "import numpy as np\n\ndef compute_reward(ctx):\n"
+        "    n = len(list(range(10**9, 10**9 + 3))) + np.arange(0, 1, 0.25).size\n"
+        "    shaped = np.zeros((ctx['ee_pos'].shape[0],) + (2,) * 2).sum(axis=(1, 2)) + n\n"
+        "    return shaped, {'shaped': shaped}\n"
+    )
+    total, _ = compile_reward(source)(ctx())
+    assert total.tolist() == [7.0, 7.0, 7.0]
 
 
 def test_a_constant_past_a_float_is_left_to_run() -> None:

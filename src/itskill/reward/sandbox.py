@@ -307,10 +307,30 @@ def _const_int(node: ast.AST) -> int | None:
     return number if isinstance(number, int) else None
 
 
+def _dims(node: ast.AST) -> list[ast.expr] | None:
+    """The dimensions of a shape written as a tuple or list, repeated (``(10**5,) * 2``) or
+    joined (``(n,) + (10**5,)``); None for any other expression, which is one number."""
+    if isinstance(node, (ast.Tuple, ast.List)):
+        return list(node.elts)
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add):
+        left, right = _dims(node.left), _dims(node.right)
+        return None if left is None or right is None else left + right
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mult):
+        for seq, count in ((node.left, node.right), (node.right, node.left)):
+            dims, times = _dims(seq), _const_int(count)
+            if dims is not None and times is not None:
+                # numpy takes at most 64 dimensions, and 65 of 2 or more are past any limit:
+                # the cap only keeps ``(1,) * 10**9`` from being unrolled here.
+                return dims * min(max(times, 0), 65)
+    return None
+
+
 def _const_size(node: ast.AST) -> int | None:
     """Number of elements a constant size argument asks for: a number (a float too, as
-    ``np.arange(1e12)`` takes) or a tuple of them."""
-    dims = node.elts if isinstance(node, (ast.Tuple, ast.List)) else [node]
+    ``np.arange(1e12)`` takes) or a shape of them (:func:`_dims`)."""
+    dims = _dims(node)
+    if dims is None:
+        dims = [node]
     numbers = [_const_number(dim) for dim in dims]
     sizes = [abs(int(number)) for number in numbers if number is not None]
     return math.prod(sizes) if len(sizes) == len(numbers) else None
@@ -360,12 +380,7 @@ def _elements(node: ast.AST) -> int | None:
     if name in _SIZED_NUMPY:
         return size(0, "shape")
     if name == "arange":
-        # (stop), (start, stop) or by keyword: unknown if a bound given comes from the data.
-        given = [(arg(0, "start"), size(0, "start")), (arg(1, "stop"), size(1, "stop"))]
-        if any(value is not None and bound is None for value, bound in given):
-            return None
-        known = [bound for _, bound in given if bound is not None]
-        return max(known) if known else None
+        return _arange_length(arg(0, "start"), arg(1, "stop"), arg(2, "step"))
     if name == "linspace":
         return size(2, "num")
     if name in _REPEATING_NUMPY:
@@ -382,6 +397,31 @@ def _elements(node: ast.AST) -> int | None:
     if name == "broadcast_to":
         return size(1, "shape")
     return None
+
+
+def _arange_length(*given: ast.expr | None) -> int | None:
+    """How many elements ``np.arange`` or ``range`` makes from its arguments ``(start, stop,
+    step)`` as written (None where left out), a lone first argument being the stop; None when
+    one comes from the data, with no bound, or with a zero step (refused when it runs)."""
+    numbers = [None if value is None else _const_number(value) for value in given]
+    if any(
+        value is not None and number is None for value, number in zip(given, numbers, strict=True)
+    ):
+        return None
+    start, stop, step = numbers
+    if start is None and stop is None:
+        return None
+    low, high = (0, start) if stop is None else (start or 0, stop)
+    step = 1 if step is None else step
+    if step == 0:
+        return None
+    span = abs(high - low)
+    if isinstance(span, int) and isinstance(step, int):
+        return -(-span // abs(step))
+    try:
+        return math.ceil(span / abs(step))
+    except OverflowError:  # 1.0 / 1e-320 is inf: numpy refuses a size past its maximum itself
+        return None
 
 
 class _Checker(ast.NodeVisitor):
@@ -507,13 +547,12 @@ class _Checker(ast.NodeVisitor):
         ):
             # A size unpacked from * or ** cannot be read before the code runs.
             raise _violation(node, f"np.{func.attr} takes its size as written, not through * or **")
-        if isinstance(func, ast.Name) and func.id == "range":
-            sizes = [_const_size(arg) for arg in node.args]
+        if isinstance(func, ast.Name) and func.id == "range" and len(node.args) <= 3:
+            size = _arange_length(*node.args, *[None] * (3 - len(node.args)))
         else:
-            sizes = [_elements(node)]
-        for size in sizes:
-            if size is not None and size > MAX_CONSTANT_ELEMENTS:
-                raise _violation(node, f"constant size {_shown(size)} is too large")
+            size = _elements(node)
+        if size is not None and size > MAX_CONSTANT_ELEMENTS:
+            raise _violation(node, f"constant size {_shown(size)} is too large")
         self.generic_visit(node)
 
 
