@@ -226,6 +226,27 @@ def test_a_run_resumed_with_fewer_methods_is_not_refused_for_those_left_out(toy,
         run_experiment(plain, run, "local", 1, resume=True, console=quiet())
 
 
+def test_a_resume_with_fewer_methods_keeps_the_settings_of_those_left_out(toy, tmp_path):
+    # The record took the new file's [transfer] alone: ITN's prior weight was forgotten, a third
+    # session with the first file was refused, and one without it trained new ITN seeds at the
+    # packaged weight beside the first.
+    config, _ = toy
+    run = tmp_path / "run"
+    weighted = {"attention": {"prior_weight": 0.25}}
+    itn = type(config)(**{**config.__dict__, "methods": ("itn",), "seeds": (0,),
+                          "transfer": weighted})  # fmt: skip
+    run_experiment(itn, run, "local", 1, console=quiet())
+    plain = type(config)(**{**itn.__dict__, "methods": ("no_transfer",), "transfer": {}})
+    run_experiment(plain, run, "local", 1, resume=True, console=quiet())
+    assert json.loads((run / "config.json").read_text())["transfer"] == weighted
+    packaged = type(config)(**{**itn.__dict__, "seeds": (0, 1), "transfer": {}})
+    with pytest.raises(ExperimentRunError, match="prior_weight"):
+        run_experiment(packaged, run, "local", 1, resume=True, console=quiet())
+    again = type(config)(**{**itn.__dict__, "seeds": (0, 1)})
+    summary = run_experiment(again, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.finished] == ["pickplace_nut_m12/itn/seed_1"]
+
+
 def test_a_no_transfer_run_resumed_with_transfer_settings_keeps_its_cells(toy, tmp_path):
     """Its cells use none of them; a default written out is the default."""
     config, _ = toy

@@ -357,6 +357,12 @@ def _union(old: ExperimentConfig, new: ExperimentConfig, trains: bool) -> Experi
         reward={**old.reward, **new.reward},
         sources={**old.sources, **new.sources},
         hyperparams={**old.hyperparams, **new.hyperparams},
+        # By setting: one the new file leaves out stays as the cells of methods it does not
+        # run trained with it (a setting both use was checked equal).
+        transfer={
+            table: {**old.transfer.get(table, {}), **new.transfer.get(table, {})}
+            for table in dict.fromkeys((*old.transfer, *new.transfer))
+        },
         execution=new.execution if trains else old.execution,
     )
 
@@ -471,8 +477,11 @@ def run_experiment(
 
     A run resumed with another experiment file (``resume``) keeps its name and description (its
     identity, what its report is titled with) and the training settings, which must match. It
-    records the union of every session's tasks, methods and seeds (and their rewards and
-    sources), so the report covers every cell in the directory, and the file's report settings;
+    records the union of every session's tasks, methods and seeds (and their rewards, sources,
+    hyper-parameters and transfer settings), so the report covers every cell in the directory,
+    and the file's report settings. The union is one grid: a cell of it no session asked for
+    (ITN on seed 0, then No_Transfer on seed 1) is listed as not started, and trains when the run
+    is resumed with a file that names it;
     its ``[execution]`` only when cells train (nothing ran with it otherwise). Whenever the run's
     files are written, ``source_file`` is copied to ``experiment.toml``: the file of the latest
     session that trained or changed what is recorded. A call refused (``run_dir`` in use by
