@@ -213,6 +213,11 @@ def test_a_serial_number_past_sqlites_integers_names_no_skill(home, checkpoint):
         ({"train_wall_s": math.nan}, "train_wall_s: nan is not a finite number of seconds"),
         ({"train_wall_s": -1.0}, "train_wall_s: -1.0 is not a finite number of seconds"),
         ({"train_steps": -5}, "train_steps: -5 is not a whole number of env-steps"),
+        # Past SQLite's integers: an OverflowError traceback from the insert.
+        ({"train_steps": 2**64}, "train_steps: 18446744073709551616 is not a whole number"),
+        ({"seed": 2**64}, "seed: 18446744073709551616 is not a whole number"),
+        ({"seed": -3}, "seed: -3 is not a whole number"),
+        ({"algo": 5}, "algo: 5 is not an algorithm's name"),
         (
             {"success_rate": 0.1, "success_ci": (0.9, 0.99)},
             "success: 0.1 is outside its own interval [0.9, 0.99]",
@@ -224,13 +229,34 @@ def test_every_write_refuses_measurements_no_run_gives(home, checkpoint, measure
     # JSON; a rate outside its own interval was stored as measured.
     with SkillSpace() as space:
         with pytest.raises(InvalidMeasurementError) as added:
-            space.add(make_skill("a", Path(checkpoint), **measurements))
+            space.add(replace(make_skill("a", Path(checkpoint)), **measurements))
         assert str(added.value).startswith(problem) and len(space) == 0
         space.add(make_skill("a", Path(checkpoint)))
         with pytest.raises(InvalidMeasurementError) as updated:
             space.update("a", **measurements)
         assert str(updated.value).startswith(problem)
         assert space.get("a").train_wall_s is None and space.get("a").success_rate is None
+
+
+def test_a_full_disk_is_named_and_loses_no_skill(home, checkpoint):
+    # SQLite rolls a transaction back itself on a full disk; the ROLLBACK after it failed, and
+    # its "no transaction is active" hid the cause.
+    with SkillSpace() as space:
+        space.add(make_skill("kept", Path(checkpoint)))
+        pages = space._conn.execute("PRAGMA page_count").fetchone()[0]
+        space._conn.execute(f"PRAGMA max_page_count = {pages + 2}")  # a full disk's error code
+        with pytest.raises(SkillSpaceError, match="full") as err:
+            for i in range(200):
+                space.add(make_skill(f"s{i}", Path(checkpoint), seed=i, description="x" * 3000))
+        assert "no transaction" not in str(err.value)
+        assert "kept" in [s.name for s in space.list()]
+
+
+def test_a_constraint_other_than_the_name_is_not_called_a_taken_name(home, checkpoint):
+    with SkillSpace() as space, pytest.raises(SkillSpaceError) as err:
+        space.add(replace(make_skill("fresh", Path(checkpoint)), task_id=None))
+    assert not isinstance(err.value, DuplicateSkillError)
+    assert "NOT NULL constraint failed: skills.task_id" in str(err.value)
 
 
 def test_a_removed_skills_serial_number_is_never_given_again(home, checkpoint):

@@ -211,9 +211,10 @@ def check_budget(steps: int | None, wall_s: float | None) -> None:
     """Raise :class:`InvalidMeasurementError` unless ``steps`` is a whole number of 0 or more and
     ``wall_s`` a finite number of 0 or more (either may be None: not recorded): no run takes
     forever, and JSON has no infinity to list it with."""
-    if steps is not None and not is_count(steps):
+    if steps is not None and not _is_stored_count(steps):
         raise InvalidMeasurementError(
-            "train_steps", f"{steps!r} is not a whole number of env-steps of 0 or more"
+            "train_steps",
+            f"{steps!r} is not a whole number of env-steps from 0 to {SQLITE_INTEGER_MAX:,}",
         )
     if wall_s is not None and not (is_number(wall_s) and wall_s >= 0):
         raise InvalidMeasurementError(
@@ -223,9 +224,22 @@ def check_budget(steps: int | None, wall_s: float | None) -> None:
 
 def check_measurements(skill: Skill) -> None:
     """Raise :class:`InvalidMeasurementError` unless ``skill``'s success and training budget pass
-    :func:`check_success` and :func:`check_budget`: what every write to the space checks."""
+    :func:`check_success` and :func:`check_budget`, and its algorithm is a name and its seed a
+    whole number (either may be None: not recorded): what every write to the space checks."""
     check_success(skill.success_rate, skill.success_ci)
     check_budget(skill.train_steps, skill.train_wall_s)
+    if skill.algo is not None and not isinstance(skill.algo, str):
+        raise InvalidMeasurementError("algo", f"{skill.algo!r} is not an algorithm's name")
+    if skill.seed is not None and not _is_stored_count(skill.seed):
+        raise InvalidMeasurementError(
+            "seed", f"{skill.seed!r} is not a whole number from 0 to {SQLITE_INTEGER_MAX:,}"
+        )
+
+
+def _is_stored_count(value: Any) -> bool:
+    """Whether ``value`` is a whole number of 0 or more that fits an SQLite integer (past it,
+    the insert fails with an OverflowError, not an error of the space's)."""
+    return is_count(value) and value <= SQLITE_INTEGER_MAX
 
 
 UPDATABLE_FIELDS = (
@@ -547,7 +561,10 @@ class SkillSpace:
         try:
             yield self._conn
         except BaseException:
-            self._conn.execute("ROLLBACK")
+            # SQLite has rolled back itself after some errors (a full disk): a ROLLBACK then
+            # fails and its error would hide the one that happened.
+            if self._conn.in_transaction:
+                self._conn.execute("ROLLBACK")
             raise
         self._conn.execute("COMMIT")
 
@@ -710,7 +727,9 @@ class SkillSpace:
                         ),
                     )
                 except sqlite3.IntegrityError as err:
-                    raise DuplicateSkillError(s.name) from err
+                    if "UNIQUE constraint failed: skills.name" in str(err):
+                        raise DuplicateSkillError(s.name) from err
+                    raise SkillSpaceError(f"skill {s.name!r} cannot be stored: {err}") from err
                 added.append(replace(s, id=cur.lastrowid, created=created))
         return added
 
