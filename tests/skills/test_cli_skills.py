@@ -106,6 +106,22 @@ def test_add_list_search_show_remove(home):
     assert table.exit_code == 0 and "pick" in table.stdout
 
 
+def test_add_stores_a_checkpoint_of_the_library_relative_to_it_and_refuses_a_taken_name(home):
+    # Stored as an absolute path, the skill broke when the skill space moved; a taken name (the
+    # task's, by default) was found only after the policy loaded, without a hint.
+    mine = home / "library" / "mine"
+    shutil.copytree(shipped("reach_nut_m12").parent, mine)
+    first = add(mine, "reach_nut_m12")
+    assert first.exit_code == 0, first.output
+    assert json.loads(first.stdout)["checkpoint"] == "mine/policy.safetensors"
+    again = add(shipped("reach_nut_m12"), "reach_nut_m12")
+    message = " ".join(again.output.split())
+    assert again.exit_code == 2 and "a skill named 'reach_nut_m12' already exists" in message
+    assert "without --name a skill takes its task's name" in message
+    named = add(shipped("reach_nut_m12"), "reach_nut_m12", "--name", "reach_nut_m12")
+    assert named.exit_code == 2 and "without --name" not in " ".join(named.output.split())
+
+
 def test_unknown_skill_exits_2_with_close_names(home):
     assert add(shipped("pick_nut_m12"), "pick_nut_m12").exit_code == 0
     result = runner.invoke(app, ["skills", "show", "pick_nut_m16"])
@@ -325,14 +341,16 @@ def test_a_database_damaged_below_its_header_exits_2_naming_its_path(home, check
 
 def test_pretrain_reports_the_seeds_it_tried(home, tmp_path, monkeypatch):
     # No run reaches --min-success (the held-out measure is stubbed): both seeds train, the
-    # better is reported, not added.
+    # better is reported, not added. A task named twice trains once (twice, it trained into
+    # one folder at once and failed).
     monkeypatch.setattr("itskill.skills.pretrain.measure_skill", measured("seed1", 0.5))
-    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--steps", "512", "--seeds", "2"]
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12,reach_nut_m12", "--steps", "512"]
+    args += ["--seeds", "2"]
     args += ["--eval-every", "256", "--episodes", "4", "--min-success", "0.9", "--workers", "1"]
     args += ["--runs", str(tmp_path / "runs"), "--library", str(tmp_path / "library")]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    assert "reach_nut_m12: success" in result.output
+    assert result.output.count("reach_nut_m12: success") == 1
     assert "not learned, not added" in result.output
     assert result.output.count("not kept: seed") == 1
     assert sorted(p.name for p in (tmp_path / "runs" / "reach_nut_m12").iterdir()) == [

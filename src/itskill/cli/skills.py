@@ -7,6 +7,7 @@ not pay for them.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -222,7 +223,6 @@ def skills_add(
             task_id=spec.id,
             description=description or spec.command,
             actions=tuple(a for a in acts if a),
-            # Absolute: a path relative to the shell's directory means nothing to other processes.
             checkpoint=str(checkpoint),
             success_rate=success,
             success_ci=None if ci_low is None or ci_high is None else (ci_low, ci_high),
@@ -237,13 +237,21 @@ def skills_add(
         except InvalidMeasurementError as err:
             hint = _MEASUREMENT_OPTIONS[err.field]
             raise typer.BadParameter(err.problem, param_hint=hint) from err
-        try:
-            check_admissible(spec.id, checkpoint, acts)
-        except InadmissibleSkillError as err:
-            hint = "--checkpoint" if checkpoint.exists() and any(acts) else "--actions"
-            raise typer.BadParameter(str(err), param_hint=hint) from err
         with open_skill_space() as space:
-            added = space.add(skill)
+            if skill.name in space:  # before the policy loads too
+                taken = f"a skill named {skill.name!r} already exists"
+                if name is None:
+                    taken += " (without --name a skill takes its task's name)"
+                raise typer.BadParameter(f"{taken}: give another --name", param_hint="--name")
+            try:
+                check_admissible(spec.id, checkpoint, acts)
+            except InadmissibleSkillError as err:
+                hint = "--checkpoint" if checkpoint.exists() and any(acts) else "--actions"
+                raise typer.BadParameter(str(err), param_hint=hint) from err
+            # Inside the space's or the shipped library, relative to it, as installs and
+            # pretraining store theirs (either may move); absolute anywhere else: a path
+            # relative to the shell's directory means nothing to other processes.
+            added = space.add(replace(skill, checkpoint=space.checkpoint_ref(checkpoint)))
     if as_json:
         print_json(added.to_dict())
         return

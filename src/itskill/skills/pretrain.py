@@ -291,7 +291,9 @@ def pretrain(
     refining, beat the skill it started from); a task whose job fails is reported with its
     exception and skipped, and the others go on.
     """
-    tasks = [get_task(t).id for t in tasks]  # unknown names fail before any training starts
+    # Unknown names fail before any training starts; a task named twice would train twice at
+    # once into one folder.
+    tasks = list(dict.fromkeys(get_task(t).id for t in tasks))
     Path(library_dir).mkdir(parents=True, exist_ok=True)
     budgets = budgets or {}
     jobs = [

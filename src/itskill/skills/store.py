@@ -733,6 +733,11 @@ class SkillSpace:
                 added.append(replace(s, id=cur.lastrowid, created=created))
         return added
 
+    @_reporting_sqlite_errors
+    def __contains__(self, name: object) -> bool:
+        """Whether a skill is named ``name``."""
+        return isinstance(name, str) and self._taken(self._conn, name)
+
     @staticmethod
     def _taken(conn: sqlite3.Connection, name: str) -> bool:
         return conn.execute("SELECT 1 FROM skills WHERE name = ?", (name,)).fetchone() is not None
