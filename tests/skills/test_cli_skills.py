@@ -304,6 +304,26 @@ def test_install_refuses_a_manifest_field_of_the_wrong_type_or_range(
     assert not home.exists()  # not even the skill space was created
 
 
+def test_install_refuses_a_repeated_name_and_says_which_it_skipped(home, tmp_path):
+    # The second entry was dropped without a word, as was every name the space already had.
+    lib = tmp_path / "lib"
+    shutil.copytree(SHIPPED_LIBRARY / "reach_nut_m12", lib / "reach_nut_m12")
+    manifest = json.loads((SHIPPED_LIBRARY / "manifest.json").read_text())
+    entry = next(e for e in manifest["skills"] if e["name"] == "reach_nut_m12")
+    (lib / "manifest.json").write_text(
+        json.dumps({"skills": [entry, {**entry, "description": "x"}]})
+    )
+    twice = runner.invoke(app, ["skills", "install", str(lib)])
+    assert twice.exit_code == 2 and "skills[1]: name 'reach_nut_m12' is taken by skills[0]" in (
+        " ".join(twice.stderr.split())
+    )
+    (lib / "manifest.json").write_text(json.dumps({"skills": [entry]}))
+    assert "installed 1 skill(s)" in runner.invoke(app, ["skills", "install", str(lib)]).output
+    again = runner.invoke(app, ["skills", "install", str(lib)])
+    skipped = "skipped 1 whose name the skill space has: reach_nut_m12"
+    assert again.exit_code == 0 and skipped in " ".join(again.output.split())
+
+
 @pytest.mark.parametrize("query", ["", "   "])
 def test_search_refuses_a_blank_query(home, query):
     # It printed the skills closest to the embedding of nothing, and exited 0.

@@ -221,6 +221,17 @@ def test_shipped_skills_follow_the_package_when_it_is_reinstalled_elsewhere(
             assert space.checkpoint_path(skill) == second / name / "policy.safetensors"
             assert space.checkpoint_path(skill).is_file()
             assert skill.success_rate == 0.97
+    # A new install missing a shipped policy is a damaged one: the space still opens (every
+    # command failed, naming the missing file) and the skill keeps the path it had.
+    with open_skill_space() as space:
+        space.set_checkpoint("reach_nut_m12", str(second / "reach_nut_m12/policy.safetensors"))
+    third = tmp_path / "venv3" / "itskill" / "skills" / "library"
+    _ship(third, ("reach_nut_m12", "pick_nut_m12"))
+    (third / "reach_nut_m12" / "policy.safetensors").unlink()
+    monkeypatch.setattr("itskill.skills.store.SHIPPED_LIBRARY", third)
+    with open_skill_space() as space:
+        kept = space.get("reach_nut_m12").checkpoint
+        assert kept == str(second / "reach_nut_m12/policy.safetensors")
 
 
 def test_pretraining_budgets_are_those_the_shipped_library_records(tmp_path, monkeypatch) -> None:

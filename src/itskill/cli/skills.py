@@ -325,13 +325,19 @@ def skills_install(
     from itskill.skills import install_library, open_skill_space, read_manifest
 
     with user_errors():
-        read_manifest(library)  # a bad manifest fails before the space opens, which may create it
+        # A bad manifest fails before the space opens, which may create it.
+        names = [e.name for e in read_manifest(library)]
         with open_skill_space() as space:
             added = install_library(space, library)
     if as_json:
         print_json([s.to_dict() for s in added])
         return
     console.print(escape(f"installed {len(added)} skill(s) from {library}"))
+    skipped = [n for n in names if n not in {s.name for s in added}]
+    if skipped:
+        console.print(
+            escape(f"skipped {len(skipped)} whose name the skill space has: {', '.join(skipped)}")
+        )
 
 
 @skills_app.command("pretrain")

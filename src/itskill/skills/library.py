@@ -115,7 +115,11 @@ def _repoint_to_package(
         if skill is None or not Path(skill.checkpoint).is_absolute():
             continue
         tail = ("itskill", "skills", "library", *Path(entry.checkpoint).parts)
-        if Path(skill.checkpoint).parts[-len(tail) :] == tail:
+        # Not to a copy this install lacks (a damaged one): the space must still open.
+        if (
+            Path(skill.checkpoint).parts[-len(tail) :] == tail
+            and (library / entry.checkpoint).is_file()
+        ):
             space.set_checkpoint(skill.name, space.checkpoint_ref(library / entry.checkpoint))
 
 

@@ -222,9 +222,18 @@ def read_manifest(library_dir: Path | str) -> list[ManifestEntry]:
             f"{path}: manifest format {data['format']} is newer than this itskill supports "
             f"({MANIFEST_FORMAT})"
         )
-    return [
+    entries = [
         ManifestEntry.from_json(e, f"{path}: skills[{i}]") for i, e in enumerate(data["skills"])
     ]
+    first: dict[str, int] = {}
+    for i, entry in enumerate(entries):
+        # An install kept the first and dropped the other without a word.
+        if entry.name in first:
+            raise ManifestError(
+                f"{path}: skills[{i}]: name {entry.name!r} is taken by skills[{first[entry.name]}]"
+            )
+        first[entry.name] = i
+    return entries
 
 
 def read_manifest_or_empty(library_dir: Path | str) -> list[ManifestEntry]:
