@@ -13,8 +13,9 @@ from typer.testing import CliRunner
 
 from itskill.cli import app
 from itskill.experiments.config import EvalSettings, ExperimentConfig, ReportSettings
-from itskill.experiments.provenance import Sessions
-from itskill.experiments.report import ReportError, experiment_report
+from itskill.experiments.document import Document, to_markdown
+from itskill.experiments.provenance import Sessions, machine_facts
+from itskill.experiments.report import ReportError, experiment_report, header_section
 from itskill.experiments.runner import Cell, read_run_config
 from itskill.files import write_json
 from itskill.transfer import train_transfer
@@ -824,3 +825,23 @@ def test_a_baseline_runs_schedule_and_unfinished_runs_are_said(run, tmp_path):
         in text
     )
     assert "baseline run: pickplace_nut_m12/no_transfer/seed_3: not started" in text
+
+
+def test_the_provenance_lists_each_machine_the_sessions_ran_on(tmp_path):
+    # A run resumed on another machine was attributed to that one alone, its wall times too.
+    here = machine_facts()
+    there = {**here, "cpu_count": 16, "cpu_model": "Other CPU", "torch": "0.0"}
+    session = {"command": "itskill experiment run x.toml", "started": "2026-12-07T00:00:00",
+               "finished": None, "wall_s": 60.0}  # fmt: skip
+    path = tmp_path / "provenance.json"
+    path.write_text(json.dumps({"sessions": [{**session, "machine": m}
+                                             for m in (here, there, here)]}))  # fmt: skip
+    doc = Document("run")
+    header_section(doc, Sessions(path), {})
+    text = to_markdown(doc, tmp_path)
+    assert "sessions 1, 3 ran on machine: " in text
+    assert "session 2 ran on machine: 16 × Other CPU" in text and "torch 0.0" in text
+    doc = Document("run")
+    path.write_text(json.dumps({"sessions": [{**session, "machine": here}]}))
+    header_section(doc, Sessions(path), {})
+    assert f"- machine: {here['cpu_count']} × " in to_markdown(doc, tmp_path)

@@ -125,7 +125,6 @@ class ReportFiles:
 def header_section(doc: Document, sessions: Sessions, extra: dict[str, str]) -> None:
     """Date, commands, total wall time and the machine."""
     runs = sessions.data.get("sessions", [])
-    machine = runs[-1]["machine"] if runs else machine_facts()
     items = [f"{k}: {v}" for k, v in extra.items()]
     items.append(f"report written: {now()}")
     for i, s in enumerate(runs, 1):
@@ -133,24 +132,36 @@ def header_section(doc: Document, sessions: Sessions, extra: dict[str, str]) -> 
         status = f", {s['status']}" if s.get("status") else ""
         items.append(f"session {i}: `{s['command']}` started {s['started']} ({wall}{status})")
     items.append(f"total wall time of the sessions: {sessions.wall_s / 60:.1f} min")
-    items.append(
-        f"machine: {machine['cpu_count']} × {machine['cpu_model']}, {machine['os']}, "
-        f"GPU {machine.get('gpu') or 'none'}"
-    )
-    items.append(
-        "versions: "
-        + ", ".join(
-            f"{k} {machine[k]}"
-            for k in ("python", "itskill", "torch", "mujoco", "stable_baselines3", "numpy")
-            if k in machine
-        )
-    )
+    # Each machine the sessions ran on, not the last one's alone: wall times from two machines
+    # add up in the figures.
+    machines: dict[str, list[int]] = {}
+    for i, s in enumerate(runs, 1):
+        machines.setdefault(_machine_text(s["machine"]), []).append(i)
+    if len(machines) > 1:
+        for text, numbers in machines.items():
+            which = "session" if len(numbers) == 1 else "sessions"
+            items.append(f"{which} {', '.join(map(str, numbers))} ran on {text}")
+    else:
+        items.append(next(iter(machines), _machine_text(machine_facts())))
     commits = list(dict.fromkeys(s["machine"].get("commit") for s in runs))
     if any(commits):
         items.append(
             "code: " + ", ".join(f"commit {c}" if c else "no commit recorded" for c in commits)
         )
     doc.add(Heading("Provenance"), Bullets(tuple(items)))
+
+
+def _machine_text(machine: dict[str, Any]) -> str:
+    """The machine and library versions a session recorded, as the report lists them."""
+    versions = ", ".join(
+        f"{k} {machine[k]}"
+        for k in ("python", "itskill", "torch", "mujoco", "stable_baselines3", "numpy")
+        if k in machine
+    )
+    return (
+        f"machine: {machine['cpu_count']} × {machine['cpu_model']}, {machine['os']}, "
+        f"GPU {machine.get('gpu') or 'none'}; versions: {versions}"
+    )
 
 
 def attention_section(
