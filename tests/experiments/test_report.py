@@ -103,6 +103,7 @@ def test_report_has_every_section_with_the_known_numbers(run, tmp_path):
     ):
         assert section in md, section
     assert "Source skills: place_nut_m12, reach_nut_m12, pick_nut_m12" in md
+    assert re.search(r"The ITN policy of seed \d, the one with the highest final success\.", md)
     # Table II at 20% of the budget (200 env-steps): ITN 50% in every seed.
     # Seeds that agree have no spread to estimate an interval from: said, not shown as ± 0.
     assert "| ITN | 3 | 50.0% (all 3 seeds) |" in md

@@ -236,18 +236,27 @@ def _check_rewards_unchanged(rewards: dict[str, Path], run_dir: Path) -> None:
     train would learn another reward than the finished ones, and the report mix the two. A run
     from before the copies were kept is checked against what its cells' checkpoints record."""
     for task, reward in rewards.items():
-        now, copy = reward.read_bytes(), reward_copy(run_dir, task)
-        if copy.is_file():
-            changed, version = now != copy.read_bytes(), f"that version is in {copy}"
-        else:
-            trained = trained_reward_hashes(run_dir, task)
-            changed = bool(trained) and hashlib.sha256(now).hexdigest() not in trained
-            version = "its cells' checkpoints record another sha256"
+        trained, copy = reward_hashes(run_dir, task), reward_copy(run_dir, task)
+        changed = bool(trained) and hashlib.sha256(reward.read_bytes()).hexdigest() not in trained
         if changed:
+            version = (
+                f"that version is in {copy}"
+                if copy.is_file()
+                else "its cells' checkpoints record another sha256"
+            )
             raise ExperimentRunError(
                 f"{reward}: changed since {run_dir} started training {task} with it ({version}); "
                 "put it back to resume, or use another --out"
             )
+
+
+def reward_hashes(run_dir: Path, task: str) -> set[str]:
+    """The sha256 of the reward file ``run_dir`` trained ``task`` with: of its copy, else those
+    its cells' checkpoints record (a run from before copies were kept; empty if neither)."""
+    copy = reward_copy(run_dir, task)
+    if copy.is_file():
+        return {hashlib.sha256(copy.read_bytes()).hexdigest()}
+    return trained_reward_hashes(run_dir, task)
 
 
 def trained_reward_hashes(run_dir: Path, task: str) -> set[str]:
