@@ -269,6 +269,11 @@ class Skill:
     ``embedding`` is the normalised vector of :func:`itskill.skills.retrieval.skill_text` and
     ``description_embedding`` that of the description alone, or None for a row that predates them
     (they are filled in by the first search).
+    ``train_steps`` and ``train_wall_s`` are the budget as the skill's maker recorded it, in two
+    senses: ``skills pretrain`` (so the shipped library) counts its whole run, every round of a
+    refined skill included, though the policy it keeps is its best evaluation's, often earlier;
+    ``skills add`` and ``itskill learn`` count up to the kept policy (what its run's
+    ``checkpoint.json`` records). The same policy added both ways shows two budgets.
     """
 
     name: str
