@@ -247,6 +247,36 @@ def test_a_resume_with_fewer_methods_keeps_the_settings_of_those_left_out(toy, t
     assert [c.name for c in summary.finished] == ["pickplace_nut_m12/itn/seed_1"]
 
 
+def test_new_seeds_are_refused_where_the_packaged_settings_changed_since_the_run_began(
+    toy, tmp_path
+):
+    # The file's settings were compared, the packaged ones under them not: after a release that
+    # changed a default, new seeds trained at the new value beside the finished ones.
+    config, _ = toy
+    run = tmp_path / "run"
+    first = type(config)(**{**config.__dict__, "methods": ("itn",), "seeds": (0,)})
+    run_experiment(first, run, "local", 1, console=quiet())
+    cell = Cell("pickplace_nut_m12", "itn", 0).dir(run)
+    more = type(config)(**{**first.__dict__, "seeds": (0, 1)})
+    for name, edit, setting in (
+        ("checkpoint.json", lambda r: r["hyperparams"]["policy"].update(log_std_init=-9.0),
+         "policy.log_std_init: -9.0 -> "),
+        ("transfer.json", lambda r: r["config"].update(prior_weight=0.125),
+         "prior_weight: 0.125 -> 0.5"),
+    ):  # fmt: skip
+        kept = (cell / name).read_text()
+        record = json.loads(kept)
+        edit(record)  # as a release with another default would have recorded it
+        (cell / name).write_text(json.dumps(record))
+        with pytest.raises(ExperimentRunError, match="packaged defaults having changed") as err:
+            run_experiment(more, run, "local", 1, resume=True, console=quiet())
+        assert setting in str(err.value)
+        assert not Cell("pickplace_nut_m12", "itn", 1).dir(run).exists()
+        (cell / name).write_text(kept)
+    summary = run_experiment(more, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.finished] == ["pickplace_nut_m12/itn/seed_1"]
+
+
 def test_a_no_transfer_run_resumed_with_transfer_settings_keeps_its_cells(toy, tmp_path):
     """Its cells use none of them; a default written out is the default."""
     config, _ = toy

@@ -69,6 +69,7 @@ from itskill.experiments.runner import (
     finished_result,
     read_run_config,
     read_stored_sources,
+    recorded_training,
     reward_hashes,
 )
 from itskill.files import CorruptFileError, copy_whole, read_json, read_json_or_none
@@ -358,24 +359,12 @@ def _compare_recorded(
     value runs before it trained with); the learning-rate schedule the baseline's cells recorded
     (None where none of them records it, as in a copy from before checkpoints were kept). The
     demonstrations are not compared: methods with sources train without the task's."""
-    from itskill.rl.checkpoint import CheckpointError, read_meta
     from itskill.rl.train import changed_settings
-
-    def first_settings(conf: ExperimentConfig, where: Path, task: str) -> dict | None:
-        for cell in cells(conf):
-            if cell.task == task and finished_result(cell.dir(where)) is not None:
-                try:
-                    saved = read_meta(cell.dir(where))
-                except CheckpointError:
-                    continue
-                hp = saved["hyperparams"]
-                keys = (saved["algo"], "policy", "normalize_reward")
-                return {key: hp[key] for key in keys if key in hp}
-        return None
 
     schedule = None
     for task in config.tasks:
-        mine, theirs = first_settings(config, run_dir, task), first_settings(other, other_dir, task)
+        mine = recorded_training(config, run_dir, task)
+        theirs = recorded_training(other, other_dir, task)
         if theirs is not None:
             schedule = theirs.get(config.algo, {}).get("lr_schedule", schedule)
         if mine is None or theirs is None:

@@ -270,6 +270,76 @@ def trained_reward_hashes(run_dir: Path, task: str) -> set[str]:
     return hashes
 
 
+def recorded_training(config: ExperimentConfig, run_dir: Path, task: str) -> dict | None:
+    """The settings of the algorithm, the network and the reward's normalisation that the first
+    finished cell of ``task`` in ``run_dir`` recorded in its checkpoint (every method's cells
+    share them); None where no finished cell has a readable one."""
+    from itskill.rl.checkpoint import CheckpointError, read_meta
+
+    for cell in cells(config):
+        if cell.task == task and finished_result(cell.dir(run_dir)) is not None:
+            try:
+                saved = read_meta(cell.dir(run_dir))
+            except CheckpointError:
+                continue
+            return _training_part(saved["hyperparams"], saved["algo"])
+    return None
+
+
+def _training_part(hyperparams: dict[str, Any], algo: str) -> dict[str, Any]:
+    """What :func:`recorded_training` compares of a run's hyper-parameters."""
+    return {
+        key: hyperparams[key] for key in (algo, "policy", "normalize_reward") if key in hyperparams
+    }
+
+
+def _check_as_recorded(config: ExperimentConfig, run_dir: Path, new: list[Cell]) -> None:
+    """Refuse a session whose new cells would train otherwise than the run's finished cells of
+    their task (and, for the transfer settings, their method) recorded. The file's settings
+    were compared already; the packaged ones under them may have changed since the run began
+    (another itskill release), and the new seeds would learn beside the old ones at other
+    values. Cells resumed from a checkpoint are checked against their own records."""
+    from itskill.rl.checkpoint import CheckpointError
+    from itskill.rl.config import load_hyperparams
+    from itskill.rl.train import changed_settings
+    from itskill.tasks import get_task
+    from itskill.transfer import get_method
+    from itskill.transfer.methods import used_settings
+    from itskill.transfer.train import network_settings, read_transfer
+
+    def refuse(what: str, differ: list[str]) -> ExperimentRunError:
+        return ExperimentRunError(
+            f"{run_dir}: its finished {what} trained with other settings than new ones would "
+            f"now ({'; '.join(differ)}: recorded -> now), packaged defaults having changed "
+            "since; name the recorded values in the experiment file, or use another --out"
+        )
+
+    for task in dict.fromkeys(cell.task for cell in new):
+        have = recorded_training(config, run_dir, task)
+        if have is None:
+            continue
+        overrides = dict(config.hyperparams.get(task, {}))
+        if config.num_envs is not None:
+            overrides["num_envs"] = config.num_envs
+        hp = load_hyperparams(get_task(task).family, config.algo, None, overrides, task=task)
+        differ = changed_settings(have, _training_part(hp.to_dict(), config.algo))
+        if differ:
+            raise refuse(f"cells of {task}", differ)
+    now = config.transfer_config().to_dict()
+    for method in dict.fromkeys(cell.method for cell in new if get_method(cell.method).settings):
+        for cell in (c for c in cells(config) if c.method == method):
+            if finished_result(cell.dir(run_dir)) is None:
+                continue
+            try:
+                have = network_settings(read_transfer(cell.dir(run_dir)))
+            except CheckpointError:
+                continue
+            differ = changed_settings(have, used_settings([method], now))
+            if differ:
+                raise refuse(f"{method} cells", differ)
+            break
+
+
 def _same_file(a: Path, b: Path) -> bool:
     return a.exists() and b.exists() and os.path.samefile(a, b)
 
@@ -547,6 +617,8 @@ def _run(
         if (out / "checkpoint.json").is_file():
             summary.resumed.append(cell)
         todo.append(cell)
+    if old is not None:
+        _check_as_recorded(config, run_dir, [c for c in todo if c not in summary.resumed])
     record = config if old is None else _union(old, config, trains=bool(todo))
     if old is not None and config.name != old.name:
         console.print(
