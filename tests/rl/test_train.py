@@ -6,6 +6,8 @@ import csv
 import importlib
 import io
 import json
+import os
+import signal
 import time
 from pathlib import Path
 
@@ -423,6 +425,33 @@ def test_an_update_cut_short_leaves_its_rollout_uncounted(
     assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 64
     monkeypatch.undo()
     assert _train(out, reach_reward, 192).num_timesteps == 192
+
+
+def test_ctrl_c_during_an_update_saves_the_update_whole_with_its_rollout_counted(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # The checkpoint counted the steps before the rollout while its weights had learned from it
+    # (in part or whole): the resumed run learned that rollout again.
+    from stable_baselines3 import PPO
+
+    calls, learned = {"n": 0}, {}
+    original = PPO.train
+
+    def interrupted(self):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            os.kill(os.getpid(), signal.SIGINT)  # arrives while the update runs
+        original(self)
+        learned.update({k: v.clone() for k, v in self.policy.state_dict().items()})
+
+    monkeypatch.setattr(PPO, "train", interrupted)
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        _train(out, reach_reward, 10_000)
+    assert calls["n"] == 2
+    assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 128
+    saved = load_from_zip_file(out / "model.zip")[1]["policy"]
+    assert all(torch.equal(saved[k], v) for k, v in learned.items())
 
 
 def test_an_evaluation_is_labelled_with_the_steps_its_policy_learned_from(

@@ -12,8 +12,8 @@ import hashlib
 import json
 import runpy
 import shutil
-from collections.abc import Callable, Collection, Iterable, Mapping
-from contextlib import AbstractContextManager
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -43,6 +43,7 @@ from itskill.rl.checkpoint import (
     REWARD_NORM_FILE,
     STAGED_POLICY_CLASS,
     class_path,
+    interrupts_deferred,
     read_meta,
     restore_reward_norm,
     save_checkpoint,
@@ -259,8 +260,9 @@ class CheckpointCallback(BaseCallback):
     A rollout starts once the previous one's update is done, so a checkpoint's step count is
     exactly the env-steps its weights learned from. ``trained`` keeps that count for an
     interrupted run: ``start`` (the model's count as the session begins) until the first
-    rollout, then the count at the start of each rollout (the steps of a rollout or an update
-    cut short are not counted), and every step once the last update is done (an interrupt in the
+    rollout, then the count at the start of each rollout and at the end of each update (the
+    steps of a rollout cut short are not counted; an update is never cut short,
+    :func:`_whole_updates`), and every step once the last update is done (an interrupt in the
     final evaluation keeps the finished run finished).
     """
 
@@ -745,13 +747,14 @@ def _learn(
     # TensorBoard one once training starts).
     model.set_logger(Logger(folder=None, output_formats=[]))
     try:
-        model.learn(
-            # 0 for a finished run whose final evaluation was cut short: it runs only that.
-            total_timesteps=max(0, setup.steps - model.num_timesteps),
-            callback=CallbackList(callbacks),
-            log_interval=None,  # type: ignore[arg-type]
-            reset_num_timesteps=False,
-        )
+        with _whole_updates(model, checkpoints):
+            model.learn(
+                # 0 for a finished run whose final evaluation was cut short: it runs only that.
+                total_timesteps=max(0, setup.steps - model.num_timesteps),
+                callback=CallbackList(callbacks),
+                log_interval=None,  # type: ignore[arg-type]
+                reset_num_timesteps=False,
+            )
     except BaseException as err:
         # An error stops the progress bar and flushes TensorBoard (the callback does at a
         # normal end); Ctrl-C also saves the checkpoint.
@@ -767,6 +770,27 @@ def _learn(
         )
         raise
     return metrics.last_row
+
+
+@contextmanager
+def _whole_updates(model: BaseAlgorithm, checkpoints: CheckpointCallback) -> Iterator[None]:
+    """Run each of ``model``'s updates whole: Ctrl-C (or SIGTERM, SIGHUP) during one is acted on
+    once it is done, and the rollout it learned from is then counted (``checkpoints.trained``).
+    Cut short, an update left weights that had learned part of a rollout the checkpoint saved
+    with them did not count, and the resumed run learned it again. An update takes about a
+    second."""
+    update = model.train
+
+    def whole_update() -> None:
+        with interrupts_deferred():
+            update()
+            checkpoints.trained = model.num_timesteps
+
+    model.train = whole_update  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        del model.train  # the class's again, before the model is saved
 
 
 def run_training(
