@@ -78,6 +78,10 @@ def test_resume_continues_step_count(tmp_path: Path, reach_reward: Path) -> None
         _train(out, reach_reward, 128)
     # One the last rollout passed (it stops at the first rollout at or over its budget) is done.
     assert _train(out, reach_reward, 200).num_timesteps == 256
+    # Without the reward scale a resume started from fresh statistics, rescaling every reward.
+    (out / "reward_norm.json").unlink()
+    with pytest.raises(CheckpointError, match="reward_norm.json: missing: the run normalises"):
+        _train(out, reach_reward, 384)
 
 
 def test_progress_bar_counts_to_where_training_stops(tmp_path: Path, reach_reward: Path) -> None:

@@ -197,11 +197,16 @@ def _save_checkpoint(
 
 
 def restore_reward_norm(env: VecNormalize, run_dir: Path) -> None:
-    """Give ``env`` the return statistics saved with the checkpoint in ``run_dir`` (if any), so a
-    resumed run scales rewards as the interrupted one did."""
+    """Give ``env`` the return statistics saved with the checkpoint in ``run_dir``, so a resumed
+    run scales rewards as the interrupted one did; :class:`CheckpointError` if they are missing
+    (fresh statistics would rescale every reward the policy learned from) or damaged."""
     path = Path(run_dir) / REWARD_NORM_FILE
     if not path.is_file():
-        return
+        raise CheckpointError(
+            path,
+            "missing: the run normalises its rewards and the statistics it scaled them with are "
+            "gone; the run cannot be resumed from it: train into another run directory (--out)",
+        )
     try:
         stats = json.loads(path.read_text())
         env.ret_rms.mean, env.ret_rms.var = float(stats["mean"]), float(stats["var"])
