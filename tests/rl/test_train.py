@@ -80,7 +80,7 @@ def test_resume_continues_step_count(tmp_path: Path, reach_reward: Path) -> None
     assert _train(out, reach_reward, 200).num_timesteps == 256
     # Without the reward scale a resume started from fresh statistics, rescaling every reward.
     (out / "reward_norm.json").unlink()
-    with pytest.raises(CheckpointError, match="reward_norm.json: missing: the run normalises"):
+    with pytest.raises(CheckpointError, match=r"reward_norm\.json: missing: the run normalises"):
         _train(out, reach_reward, 384)
 
 

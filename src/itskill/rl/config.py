@@ -204,13 +204,12 @@ EPOCHS_MAX = 1000
 (the warm start's ``epochs``, 100): a mistyped 50000 trains on for days before the first
 evaluation."""
 _RANGES: dict[str, tuple[Callable[[Any], bool], str]] = {
-    **dict.fromkeys(
-        (
-            "checkpoint_every", "learning_rate", "clip_range", "max_grad_norm", "rms_prop_eps",
-            "obs_clip",
-        ),
-        _POSITIVE,
-    ),
+    **dict.fromkeys(("checkpoint_every", "max_grad_norm", "rms_prop_eps"), _POSITIVE),
+    # A mistyped exponent (3e4 for 3e-4) loaded, then training failed on NaN actions after a
+    # rollout; a clip range past 1 makes PPO's lower ratio bound negative.
+    **dict.fromkeys(("learning_rate", "clip_range"), (lambda v: 0 < v <= 1, "a value in (0, 1]")),
+    # Normalised observations span a few units: clipped to under one, they carry little.
+    "obs_clip": (lambda v: v >= 1, "a value of 1 or more"),
     **dict.fromkeys(("ent_coef", "vf_coef", "target_kl"), _NON_NEGATIVE),
     "gamma": (lambda v: 0 < v <= 1, "a value in (0, 1]"),
     "gae_lambda": (lambda v: 0 <= v <= 1, "a value in [0, 1]"),
