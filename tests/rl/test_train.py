@@ -431,6 +431,19 @@ def test_an_update_cut_short_leaves_its_rollout_uncounted(
     assert _train(out, reach_reward, 192).num_timesteps == 192
 
 
+def test_a_resume_ignores_settings_of_tables_the_run_never_used(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    # A release retuning the starting policy's or the warm start's settings stopped every run
+    # that used neither.
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64, overrides={"demos": {"episodes": 0}})
+    unused = {"demos": {"episodes": 0, "epochs": 7}, "init": {"learning_rate": 5e-5}}
+    assert _train(out, reach_reward, 128, overrides=unused).num_timesteps == 128
+    with pytest.raises(ResumeMismatchError, match=r"policy\.log_std_init"):
+        _train(out, reach_reward, 192, overrides={"policy": {"log_std_init": -2.5}})
+
+
 def test_ctrl_c_during_an_update_saves_the_update_whole_with_its_rollout_counted(
     tmp_path: Path, reach_reward: Path, monkeypatch
 ) -> None:

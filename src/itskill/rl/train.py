@@ -328,8 +328,15 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
             f"{run_dir}: holds a run trained with reward {have!r}, this call gives {new!r}"
         )
     # As the checkpoint stores them: through JSON, tuples become lists.
+    have_hp, want_hp = meta.get("hyperparams", {}), json.loads(json.dumps(want["hyperparams"]))
+    # Tables the run never used (the starting policy's settings of a run from random weights,
+    # the warm start's of one with none) may change: a release retuning them stopped every run.
+    unused = {"init"} if not (meta.get("init") or want.get("init")) else set()
+    if not any(hp.get("demos", {}).get("episodes") for hp in (have_hp, want_hp)):
+        unused.add("demos")
     changed = changed_settings(
-        meta.get("hyperparams", {}), json.loads(json.dumps(want["hyperparams"]))
+        {k: v for k, v in have_hp.items() if k not in unused},
+        {k: v for k, v in want_hp.items() if k not in unused},
     )
     if changed:
         raise ResumeMismatchError(
