@@ -88,6 +88,7 @@ META_FIELDS: dict[str, Check] = {
     "algo": STRING,
     "seed": _COUNT,
     "num_timesteps": _COUNT,
+    "budget": _COUNT,
     "obs_size": _COUNT,
     "obs_version": _COUNT,
     "action_size": _COUNT,

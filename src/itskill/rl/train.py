@@ -12,6 +12,7 @@ import hashlib
 import json
 import runpy
 import shutil
+import warnings
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
 from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
@@ -570,6 +571,7 @@ def check_training(
         "num_envs": hp.num_envs,
         "hyperparams": hp.to_dict(),
         "policy_class": class_path(policy_class),
+        "budget": steps,  # a linear learning rate decays to 0 there
     }
     if init is not None:
         meta["init"] = describe_init(init)
@@ -615,6 +617,31 @@ def check_training(
         previous,
         eval_every,
         eval_episodes,
+    )
+
+
+class ScheduleWarning(UserWarning):
+    """A resumed run's linear learning rate follows another budget than before."""
+
+
+def _warn_of_a_moved_schedule(setup: TrainSetup, resumed_from: int) -> None:
+    """Warn when a run with a linear learning rate resumes toward another budget than it was
+    trained toward: the rate jumps (or falls faster) where it resumes, and the run follows the
+    schedule of neither budget."""
+    before, now = (setup.previous or {}).get("budget"), setup.steps
+    algo = setup.hp.algo_config
+    if before in (None, now) or algo.lr_schedule != "linear" or resumed_from >= now:
+        return  # the same schedule, none, or nothing left to train
+    rate = algo.learning_rate
+    warnings.warn(
+        f"{setup.run_dir}: its learning rate decays linearly to 0 at its budget, {before:,} "
+        f"env-steps until now: with --steps {now:,} it goes on at "
+        f"{rate * max(0.0, 1 - resumed_from / now):.3g}, not "
+        f"{rate * max(0.0, 1 - resumed_from / before):.3g}, from {resumed_from:,} env-steps, "
+        f"and the run follows neither budget's schedule (a constant lr_schedule trains on "
+        "without this)",
+        ScheduleWarning,
+        stacklevel=3,
     )
 
 
@@ -838,6 +865,7 @@ def run_training(
         if resuming:
             model = _resumed_model(setup, train_env, clock, note)
             resumed_from = int(model.num_timesteps)
+            _warn_of_a_moved_schedule(setup, resumed_from)
             set_random_seed(env_seed)  # seed + resumed_from may pass the 2**32 numpy takes
         else:
             model = _new_model(setup, env, train_env, policy_kwargs, note)
