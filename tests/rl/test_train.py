@@ -440,6 +440,24 @@ def test_an_update_cut_short_leaves_its_rollout_uncounted(
     assert _train(out, reach_reward, 192).num_timesteps == 192
 
 
+def test_an_expert_run_resumes_only_under_the_expert_reward_it_trained_with(
+    tmp_path: Path,
+) -> None:
+    # Both sides recorded {"kind": "expert"} alone: a run resumed after the reward's terms or
+    # the task's stages changed went on under the new reward without a word.
+    out = tmp_path / "run"
+    _train(out, "expert", 64)
+    record = json.loads((out / "checkpoint.json").read_text())
+    assert len(record["reward"]["sha256"]) == 64
+    record["reward"]["sha256"] = "0" * 64  # as a run of another version of the reward records
+    (out / "checkpoint.json").write_text(json.dumps(record))
+    with pytest.raises(ResumeMismatchError, match="expert reward as it was then"):
+        _train(out, "expert", 128)
+    del record["reward"]["sha256"]  # a run from before the fingerprint: taken as it was
+    (out / "checkpoint.json").write_text(json.dumps(record))
+    assert _train(out, "expert", 128).num_timesteps == 128
+
+
 def test_a_resume_ignores_settings_of_tables_the_run_never_used(
     tmp_path: Path, reach_reward: Path
 ) -> None:

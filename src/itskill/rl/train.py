@@ -198,9 +198,9 @@ def load_reward(
     if isinstance(reward, RewardSource):
         return reward.fn, dict(reward.meta)
     if str(reward) == EXPERT:
-        from itskill.tasks.rewards import expert_reward
+        from itskill.tasks.rewards import expert_fingerprint, expert_reward
 
-        return expert_reward(spec), {"kind": EXPERT}
+        return expert_reward(spec), {"kind": EXPERT, "sha256": expert_fingerprint(spec)}
     path = Path(reward)
     if not path.is_file():
         what = "a directory" if path.is_dir() else "no such reward file"
@@ -324,7 +324,15 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
             "use another --out directory or the same --init"
         )
     have, new = meta.get("reward", {}), want["reward"]
-    if have.get("kind") != new.get("kind") or have.get("sha256") != new.get("sha256"):
+    if have.get("kind") == new.get("kind") == EXPERT:
+        # A run recorded before the expert reward's fingerprint was kept is taken as it was.
+        if have.get("sha256", new["sha256"]) != new["sha256"]:
+            raise ResumeMismatchError(
+                f"{run_dir}: holds a run trained with the expert reward as it was then; the "
+                "reward's code or the task's stages have changed since (their sha256 differs), "
+                "so it would go on under another reward: use another --out directory"
+            )
+    elif have.get("kind") != new.get("kind") or have.get("sha256") != new.get("sha256"):
         raise ResumeMismatchError(
             f"{run_dir}: holds a run trained with reward {have!r}, this call gives {new!r}"
         )

@@ -27,8 +27,10 @@ as the two ``approach`` stages of pick-and-place apart) plus ``"stage_bonus"``, 
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -383,3 +385,13 @@ def _weight(term: str) -> float:
         return TERM_WEIGHTS[term]
     base = term.rsplit("_", 1)[0]
     return TERM_WEIGHTS.get(base, 1.0) if term[-1:].isdigit() else 1.0
+
+
+def expert_fingerprint(spec: TaskSpec) -> str:
+    """A sha256 of what decides ``spec``'s expert reward: this module's code and the task's
+    stages and success predicate. A run records it, so one resumed after either changed (a
+    term added, a stage's radius narrowed) is refused rather than continued under another
+    reward. The predicates' own code is not covered."""
+    digest = hashlib.sha256(Path(__file__).read_bytes())
+    digest.update(repr((spec.stages, spec.success)).encode())
+    return digest.hexdigest()
