@@ -19,6 +19,7 @@ from itskill.rl.config import HyperparamError
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.rl.train import ResumeMismatchError, train
+from itskill.skills import open_skill_space
 from itskill.tasks import get_task
 from itskill.tasks.evaluate import evaluate
 from itskill.transfer import (
@@ -511,6 +512,8 @@ def test_a_task_whose_hyperparameters_warm_start_it_transfers_from_its_sources_a
         # (the matrix's shape) or another skill's weights.
         (lambda r: r["source_specs"].append(dict(r["source_specs"][0])), "source_specs: the "),
         (lambda r: r["source_specs"][1].update(name="other"), "source_specs: the networks of"),
+        # Columns in another order than the sources weighted each source with another's.
+        (lambda r: r["contribution"]["sources"].reverse(), "contribution: its columns are"),
     ],
 )
 def test_a_record_that_does_not_fit_its_task_is_refused_naming_the_record(
@@ -526,6 +529,29 @@ def test_a_record_that_does_not_fit_its_task_is_refused_naming_the_record(
         run(out, "itn", steps=32)
     assert str(err.value).startswith(f"{out / 'transfer.json'}: {problem}")
     assert "cannot be resumed" in str(err.value)
+
+
+def test_no_transfer_on_a_plain_training_run_says_what_the_directory_holds(
+    home: Path, tmp_path: Path
+):
+    # It said the run's sources and contribution matrix were unknown: No_Transfer has neither.
+    out = tmp_path / "run"
+    train(TARGET, "a2c", 16, 0, out=out, num_envs=2, logger=QUIET, n_threads=1)
+    with pytest.raises(CheckpointError, match="a run not trained as a transfer"):
+        run(out, "no_transfer", steps=32)
+
+
+def test_sources_named_by_numpy_ids_are_recorded(home: Path, tmp_path: Path):
+    # parse_keys takes NumPy's integers; the record kept them and could not be written (after
+    # the analyzer was asked).
+    with open_skill_space() as space:
+        ids = [np.int64(space.get(name).id) for name in SOURCES.split(",")]
+    out = tmp_path / "run"
+    train_transfer(TARGET, "dfs", ids, seed=0, steps=16, algo="a2c", out=out, num_envs=2,
+                   logger=QUIET)  # fmt: skip
+    assert json.loads((out / "transfer.json").read_text())["sources_request"] == [
+        int(i) for i in ids
+    ]
 
 
 def test_a_plain_training_run_is_not_resumed_as_a_transfer_network(home: Path, tmp_path: Path):

@@ -104,7 +104,8 @@ def _stage_names(task_id: str) -> list[str] | None:
 
 
 def _request(sources: str | Sequence[int | str]) -> str | list[int | str]:
-    return sources.strip() if isinstance(sources, str) else list(sources)
+    # A list as parse_keys reads it: NumPy's ids, which it takes, are no JSON for the record.
+    return sources.strip() if isinstance(sources, str) else parse_keys(sources)
 
 
 def _is_objects(value: Any) -> bool:
@@ -323,6 +324,11 @@ def _check_against_target(path: Path, record: dict[str, Any]) -> None:
     contribution = record["contribution"]
     if contribution is None:
         return
+    if contribution.get("sources", names) != names:
+        refuse(
+            f"contribution: its columns are {contribution['sources']}, but the sources are "
+            f"{names}: each column would weight another source"
+        )
     if contribution.get("segments", stages) != stages:
         refuse(
             f"contribution: its segments {contribution['segments']} are not the stages of "
@@ -555,10 +561,12 @@ def train_transfer(
         if setup.previous is not None and not (out / TRANSFER_FILE).is_file():
             # Resumed with whatever sources this call names, the checkpoint's network would go on
             # under a record of another one.
-            raise CheckpointError(
-                out / TRANSFER_FILE,
-                "missing: the run's sources and contribution matrix are unknown" + CANNOT_RESUME,
+            what = (
+                "the run's sources and contribution matrix are unknown"
+                if meth.uses_sources
+                else "the directory holds a run not trained as a transfer (an `itskill train` run?)"
             )
+            raise CheckpointError(out / TRANSFER_FILE, f"missing: {what}" + CANNOT_RESUME)
         record = prepare_transfer(
             target, method, sources, seed, algo, out, client, config, space, setup.hp.policy.stages
         )
