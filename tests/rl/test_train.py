@@ -839,6 +839,24 @@ def test_tensorflows_rmsprop_needs_rmsprop(tmp_path: Path, reach_reward: Path) -
         _train(tmp_path / "run", reach_reward, 16, algo="a2c", overrides=tf_without_rms_prop)
 
 
+def test_the_training_rate_leaves_the_evaluations_out(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # A row after an evaluation counted its seconds: 22 steps/s beside 155-294 for the others.
+    fake, _ = _scripted_evaluate(iter([0.5] * 10))
+
+    def slow(*args, **kwargs):
+        time.sleep(1.5)
+        return fake(*args, **kwargs)
+
+    monkeypatch.setattr(eval_callback, "evaluate", slow)
+    out = tmp_path / "run"
+    _train(out, reach_reward, 256, eval_every=64, eval_episodes=2)
+    rates = [row["steps_per_s"] for row in read_metrics(out)]
+    # Rows of 64 env-steps: with each evaluation's 1.5 s in them, every rate is under 43.
+    assert len(rates) == 4 and min(rates) > 64 / 1.5, rates
+
+
 def _scripted_evaluate(scores, interrupt_at=()):
     """An ``evaluate`` stand-in: each call takes the next success from ``scores``, and the calls
     numbered in ``interrupt_at`` (from 1) raise KeyboardInterrupt as a Ctrl-C during it would."""

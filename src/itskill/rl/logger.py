@@ -3,11 +3,13 @@
 A row holds the env-steps done, wall time, the success rate and mean return and length of the
 episodes that ended since the previous row (those begun from the task's own start: training starts,
 see ``BatchEnv``, are left out), the mean of every reward component over the steps
-since the previous row, and end-to-end env-steps per second (rollouts and gradient updates).
+since the previous row, and end-to-end env-steps per second (rollouts and gradient updates, not
+the deterministic evaluations).
 
-A2C updates are small (``n_steps * num_envs`` env-steps), so a row is written at the end of the
-first update after at least ``LoggerConfig.min_steps_per_row`` env-steps; with PPO's default
-rollout sizes that is every update.
+A row is written as a rollout ends, before the update that learns from it, once at least
+``LoggerConfig.min_steps_per_row`` env-steps were collected since the previous row: A2C's
+rollouts are small (``n_steps * num_envs`` env-steps), and with PPO's default sizes that is every
+rollout.
 
 Resuming appends to the same files: :meth:`MetricsWriter.truncate_after` first drops rows logged
 after the checkpoint the run resumes from, so the step column stays increasing and unique.
@@ -19,7 +21,6 @@ import csv
 import io
 import json
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -202,7 +203,8 @@ class MetricsCallback(BaseCallback):
         self._comp_sums: dict[str, float] = {}
         self._comp_count = 0
         self._updates = 0
-        self._t0 = time.perf_counter()
+        # The window's training seconds: an evaluation run at a rollout's start is not training.
+        self._train0 = self.clock.training_s()
         self._step0 = step0
 
     # ------------------------------------------------------------------ SB3 hooks
@@ -260,7 +262,6 @@ class MetricsCallback(BaseCallback):
     # ------------------------------------------------------------------ rows
     def flush(self) -> dict[str, Any]:
         """Write a row for the steps since the previous one."""
-        now = time.perf_counter()
         steps = self.num_timesteps - (self._step0 or 0)
         n_ep = len(self._successes)
         row: dict[str, Any] = {
@@ -271,7 +272,7 @@ class MetricsCallback(BaseCallback):
             "success_rate": float(np.mean(self._successes)) if n_ep else float("nan"),
             "ep_return": float(np.mean(self._returns)) if n_ep else float("nan"),
             "ep_length": float(np.mean(self._lengths)) if n_ep else float("nan"),
-            "steps_per_s": steps / max(now - self._t0, 1e-9),
+            "steps_per_s": steps / max(self.clock.training_s() - self._train0, 1e-9),
         }
         for key in sorted(self._comp_sums):
             row[key] = self._comp_sums[key] / max(self._comp_count, 1)
