@@ -839,6 +839,30 @@ def test_tensorflows_rmsprop_needs_rmsprop(tmp_path: Path, reach_reward: Path) -
         _train(tmp_path / "run", reach_reward, 16, algo="a2c", overrides=tf_without_rms_prop)
 
 
+def test_tensorboard_labels_each_update_with_the_steps_it_learned_from(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    # Each update's statistics were written with the next rollout's row, a rollout late, and
+    # the last update's never.
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    out = tmp_path / "run"
+    logger = LoggerConfig(progress=False, tensorboard=True, min_steps_per_row=1)
+    train(TASK, "ppo", 256, seed=1, reward=reach_reward, out=out, num_envs=4,
+          overrides={**FAST_PPO, "lr_schedule": "linear"}, logger=logger)  # fmt: skip
+    events = EventAccumulator(str(out / "tb"))
+    events.Reload()
+    rates = [(e.step, e.value) for e in events.Scalars("train/learning_rate")]
+    start = json.loads((out / "checkpoint.json").read_text())["hyperparams"]["ppo"]
+    # Rollouts of 64: the update after the rollout that ends at N runs at 1 - N / 256 of the
+    # starting rate (SB3 computes its progress once the rollout is collected).
+    expected = [(n, start["learning_rate"] * (1 - n / 256)) for n in (64, 128, 192, 256)]
+    assert [s for s, _ in rates] == [s for s, _ in expected]
+    assert all(
+        v == pytest.approx(w, rel=1e-5) for (_, v), (_, w) in zip(rates, expected, strict=True)
+    )
+
+
 def test_the_training_rate_leaves_the_evaluations_out(
     tmp_path: Path, reach_reward: Path, monkeypatch
 ) -> None:

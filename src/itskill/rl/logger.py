@@ -249,12 +249,24 @@ class MetricsCallback(BaseCallback):
             self._len[e] = 0
         return True
 
+    def _on_rollout_start(self) -> None:
+        self._dump_update()
+
+    def _dump_update(self) -> None:
+        """Write to TensorBoard what Stable-Baselines3 recorded of the update just done (losses,
+        entropy, learning rate), labelled with the env-steps it learned from. It records them as
+        the update runs, after the row of its rollout was written: left for the next row, each
+        was labelled a rollout late and the last update's never written."""
+        if self._tb is not None:
+            self._tb.dump(self.num_timesteps)
+
     def _on_rollout_end(self) -> None:
         self._updates += 1
         if self.num_timesteps - self._step0 >= self.config.min_steps_per_row:
             self.flush()
 
     def _on_training_end(self) -> None:
+        self._dump_update()
         if self._step0 is not None and self.num_timesteps > self._step0 and self._updates:
             self.flush()
         self.close()
