@@ -2,7 +2,8 @@
 
 The packaged file is ``itskill/rl/data/hyperparams.toml``; ``load_hyperparams(..., path=...)``
 reads a user's file of the same shape instead. Every problem is reported with the file, the field
-and what was expected (:class:`HyperparamError`).
+(the table, for a problem of two fields together, such as ``rms_prop_tf_like`` without
+``use_rms_prop``) and what was expected (:class:`HyperparamError`).
 """
 
 from __future__ import annotations
@@ -393,8 +394,8 @@ def load_hyperparams(
 
     A ``[<family>.tasks.<task>]`` table, with the fields of the family's table, changes them for
     one task. ``overrides`` are applied on top, with the same checks: algorithm fields by name,
-    plus ``num_envs``, ``checkpoint_every``, ``normalize_reward`` and ``policy`` (a dict of
-    :class:`PolicyConfig` fields).
+    plus ``num_envs``, ``checkpoint_every``, ``normalize_reward``, and ``policy``, ``demos`` and
+    ``init`` (each a dict of the fields of its table).
     """
     path = Path(path) if path is not None else default_path()
     if algo not in ALGO_CONFIGS:

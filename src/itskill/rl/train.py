@@ -447,8 +447,9 @@ def train(
     policy itself), of any task, with the same network shape (:mod:`itskill.rl.init_policy`).
     The run then explores and learns with the hyper-parameters' ``init`` table, its critic is
     fitted to the policy's returns first, the observation normaliser keeps the statistics it
-    came with, and the starting policy is evaluated at env-step 0, so the best policy kept is
-    never worse than the one it started from.
+    came with, and, with ``eval_every``, the starting policy is evaluated at env-step 0, so the
+    best policy kept is never worse than the one it started from (without evaluations there is
+    no best policy to keep).
 
     ``out`` is this call's alone while it runs (:func:`training_alone`).
     """
