@@ -26,7 +26,7 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from itskill.curves import EVAL_COLUMNS, EVAL_FILE, EVAL_SEED
+from itskill.curves import EVAL_COLUMNS, EVAL_FILE
 from itskill.rl.checkpoint import BEST_DIR, META_FILE, save_checkpoint
 from itskill.rl.clock import WallClock
 from itskill.rl.logger import drop_rows_after
@@ -81,8 +81,8 @@ class DeterministicEvalCallback(BaseCallback):
     """Evaluate the deterministic policy over ``episodes`` episodes for every ``every``
     env-steps (between updates, at the last one at or before each multiple), and at the end.
 
-    With ``meta`` (the run's checkpoint metadata), the best policy so far is written to
-    ``run_dir/best`` after each evaluation that matches or beats it. With ``at_start``, a run that
+    The best policy so far is written to ``run_dir/best`` with ``meta`` (the run's checkpoint
+    metadata) after each evaluation that matches or beats it. With ``at_start``, a run that
     starts from step 0 is evaluated before its first update too (a warm-started policy, which
     reinforcement learning may make worse before it makes it better). A row's ``wall_s`` is the
     training time of ``clock`` (the run's, counted across the sessions of a resumed run), the
@@ -95,19 +95,19 @@ class DeterministicEvalCallback(BaseCallback):
         spec: TaskSpec,
         run_dir: Path,
         every: int,
-        episodes: int = 50,
-        seed: int = EVAL_SEED,
-        meta: Mapping[str, Any] | None = None,
+        episodes: int,
+        seed: int,
+        meta: Mapping[str, Any],
+        clock: WallClock,
         at_start: bool = False,
-        clock: WallClock | None = None,
     ) -> None:
         super().__init__()
         self.at_start = at_start
         self.spec, self.run_dir, self.path = spec, Path(run_dir), Path(run_dir) / EVAL_FILE
         self.every, self.episodes, self.seed = every, episodes, seed
-        self.meta = None if meta is None else dict(meta)
+        self.meta = dict(meta)
         self._next = every
-        self.clock = clock or WallClock()
+        self.clock = clock
         self._last_evaluated = -1
         self._best: tuple[float, float] | None = None
 
@@ -184,7 +184,7 @@ class DeterministicEvalCallback(BaseCallback):
         with open(self.path, "a", newline="") as fh:
             csv.writer(fh).writerow([row[c] for c in self._columns])
         score = (row["success"], row["stages_done"])
-        if self.meta is not None and (self._best is None or score >= self._best):
+        if self._best is None or score >= self._best:
             self._best = score
             selection = {**row, "episodes": self.episodes, "seed": self.seed}
             save_checkpoint(
