@@ -3,7 +3,9 @@
 Which part is data: ``[pst] keep`` in ``transfer.toml`` keeps the first ``keep`` sources in the
 order ``auto`` chose them (default 1: the skill that performs most of the target's steps, for
 the nut pick-and-place the pick); sources named explicitly keep the order given. The analyzer
-is then asked about those sources only.
+is then asked about those sources only; about one source it is not asked (every stage is that
+source's), and the attention over it weights it 1 whatever its settings (``attention_hidden``,
+``prior_weight``), which then change nothing.
 """
 
 from __future__ import annotations

@@ -18,6 +18,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any, NoReturn
 
+import numpy as np
 from rich.console import Console
 from stable_baselines3.common.policies import ActorCriticPolicy
 
@@ -399,7 +400,18 @@ def prepare_transfer(
         if target_stages is None:
             target_stages = load_hyperparams(spec.family, algo, task=spec.id).policy.stages
         meth.policy_class.check_sources([s.spec() for s in chosen], target_stages)
-    if meth.uses_prior:
+    if meth.uses_prior and len(chosen) == 1:
+        # Each row is [1] however the analyzer answers (a fair answer of 0 for the stages the
+        # one source cannot do was refused after its retries, failing the run), and attention
+        # over one source weights it 1.
+        matrix = ContributionMatrix(
+            np.ones((len(spec.stages), 1)),
+            tuple(st.name for st in spec.stages),
+            (chosen[0].name,),
+            reasoning="one source: it takes every stage",
+            client="none (one source)",
+        )
+    elif meth.uses_prior:
         if client is None:
             from itskill.llm.client import make_client
 
