@@ -58,16 +58,6 @@ class ContributionMatrix:
             "client": self.client,
         }
 
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> ContributionMatrix:
-        return cls(
-            np.asarray(data["matrix"], dtype=np.float64),
-            tuple(data["segments"]),
-            tuple(data["sources"]),
-            data.get("reasoning", ""),
-            data.get("client", ""),
-        )
-
 
 def validate_matrix(matrix: Any, m: int, n: int) -> np.ndarray:
     """``matrix`` as an ``(m, n)`` array with rows summing to 1; ``ValueError`` names a flaw."""
