@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import pytest
 from transfer_helpers import make_source
 
 from itskill.rl.checkpoint import POLICY_FILE
+from itskill.sim.layout import OBSERVATION_VERSION
 from itskill.skills import open_skill_space, search
 from itskill.tasks import get_task
 from itskill.transfer import SourceError, TransferConfig, load_transfer_config, resolve_sources
@@ -134,11 +136,21 @@ def test_auto_passes_over_a_skill_from_a_stable_baselines3_zip(tmp_path: Path, m
     with SkillSpace() as space:
         pick = ("approach", "grasp", "lift")
         space.add(Skill("zipped", "pick_nut_m12", "Pick up the M12 nut", pick, str(zipped)))
-        with pytest.raises(SourceError, match=r"no skill to transfer.*\.zip is none: zipped"):
+        with pytest.raises(SourceError, match=r"no skill to transfer.*passed over.*: zipped\)"):
             resolve_sources("pickplace_nut_m12", "auto", space=space)
         place = ("approach", "place")
         weights = str(tmp_path / "place" / "policy.safetensors")
         space.add(Skill("place", "place_nut_m12", "Place the M12 nut on the bolt", place, weights))
+        assert [s.name for s in resolve_sources("pickplace_nut_m12", "auto", space=space)] == [
+            "place"
+        ]
+        # A skill of an older observation layout too: ranked first, it failed every retrieval.
+        make_source(tmp_path / "old", seed=1)
+        meta = json.loads((tmp_path / "old" / "checkpoint.json").read_text())
+        meta["obs_version"] = OBSERVATION_VERSION - 1
+        (tmp_path / "old" / "checkpoint.json").write_text(json.dumps(meta))
+        old = str(tmp_path / "old" / "policy.safetensors")
+        space.add(Skill("old_pick", "pick_nut_m12", "Pick up the M12 nut", pick, old))
         assert [s.name for s in resolve_sources("pickplace_nut_m12", "auto", space=space)] == [
             "place"
         ]
@@ -175,8 +187,6 @@ def test_a_skill_whose_policy_description_is_damaged_is_named(
     tmp_path: Path, monkeypatch, policy: dict
 ) -> None:
     # The networks read the source's stages when they are built: a KeyError or a TypeError.
-    import json
-
     from itskill.skills import Skill, SkillSpace
 
     monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))

@@ -159,9 +159,18 @@ def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSk
 
 def _loads_as_source(space: SkillSpace, skill: Skill) -> bool:
     """Whether ``skill``'s checkpoint is of the kind a transfer loads: weights whose directory
-    holds their metadata (:func:`policy_location`), not a Stable-Baselines3 ``.zip``."""
+    holds readable metadata of this release's observations (:func:`policy_location`,
+    :func:`read_meta`), not a Stable-Baselines3 ``.zip`` or a skill trained on an older layout
+    (which, ranked first, failed every retrieval it won a place in)."""
     path = space.checkpoint_path(skill)
-    return policy_location(path) != path
+    location = policy_location(path)
+    if location == path:
+        return False
+    try:
+        read_meta(location)
+    except CheckpointError:
+        return False
+    return True
 
 
 def parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
@@ -291,7 +300,8 @@ def resolve_sources(
                 chosen.append((skill, score))
             if not chosen:
                 passed_over = (
-                    f" (a Stable-Baselines3 .zip is none: {', '.join(unloadable)})"
+                    " (passed over, as a Stable-Baselines3 .zip or a checkpoint this release "
+                    f"cannot read as a source: {', '.join(unloadable)})"
                     if unloadable
                     else ""
                 )
