@@ -174,7 +174,10 @@ def _save_checkpoint(
     run_dir.mkdir(parents=True, exist_ok=True)
     if resumable:
         with replaced_whole(run_dir / MODEL_FILE) as tmp:
-            model.save(tmp)
+            # While it trains, the model holds the session's wrapper of its update (the one
+            # that holds Ctrl-C until an update is done, itskill.rl.train): no state, and it
+            # cannot be pickled.
+            model.save(tmp, exclude=["train"])
     state = {k: v.detach().cpu().contiguous() for k, v in model.policy.state_dict().items()}
     with replaced_whole(run_dir / POLICY_FILE) as tmp:
         save_file(state, str(tmp), metadata={"format": str(FORMAT_VERSION)})

@@ -833,7 +833,7 @@ def _whole_updates(model: BaseAlgorithm, checkpoints: CheckpointCallback) -> Ite
     try:
         yield
     finally:
-        del model.train  # the class's again, before the model is saved
+        del model.train  # the class's again (a checkpoint leaves the wrapper out)
 
 
 def run_training(
