@@ -215,6 +215,7 @@ ESCAPES = {
     "keyword_step_arange_bomb": ("x = np.arange(5, step=1e-9)", "size 5000000000 is too"),
     "repeated_shape_bomb": ("x = np.ones((10**5,) * 2)", "constant size 10000000000 is"),
     "joined_shape_bomb": ("x = np.zeros((10,) + (10**5,) * 2)", "too large"),
+    "float_and_huge_int_arange": ("x = np.arange(0.5, 10**400)", "a 1329-bit number is too"),
     # The checker itself raised, killing the probe's process with a traceback.
     "power_of_a_power_bomb": ("x = 2 ** 2 ** 1100", "power too large (2 ** a 1101-bit number)"),
     "product_of_powers_bomb": (

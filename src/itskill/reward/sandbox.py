@@ -415,7 +415,10 @@ def _arange_length(*given: ast.expr | None) -> int | None:
     step = 1 if step is None else step
     if step == 0:
         return None
-    span = abs(high - low)
+    try:
+        span = abs(high - low)
+    except OverflowError:  # a float bound beside an integer past any float: that integer's size
+        return max(abs(bound) for bound in (low, high) if isinstance(bound, int))
     if isinstance(span, int) and isinstance(step, int):
         return -(-span // abs(step))
     try:
