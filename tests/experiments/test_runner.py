@@ -239,6 +239,11 @@ def test_a_resume_with_fewer_methods_keeps_the_settings_of_those_left_out(toy, t
     plain = type(config)(**{**itn.__dict__, "methods": ("no_transfer",), "transfer": {}})
     run_experiment(plain, run, "local", 1, resume=True, console=quiet())
     assert json.loads((run / "config.json").read_text())["transfer"] == weighted
+    # Named by a file whose methods do not use it, it is not what ITN trained with either.
+    other = {"attention": {"prior_weight": 0.125}}
+    plain = type(config)(**{**plain.__dict__, "seeds": (0, 1), "transfer": other})
+    run_experiment(plain, run, "local", 1, resume=True, console=quiet())
+    assert json.loads((run / "config.json").read_text())["transfer"] == weighted
     packaged = type(config)(**{**itn.__dict__, "seeds": (0, 1), "transfer": {}})
     with pytest.raises(ExperimentRunError, match="prior_weight"):
         run_experiment(packaged, run, "local", 1, resume=True, console=quiet())
@@ -275,6 +280,30 @@ def test_new_seeds_are_refused_where_the_packaged_settings_changed_since_the_run
         (cell / name).write_text(kept)
     summary = run_experiment(more, run, "local", 1, resume=True, console=quiet())
     assert [c.name for c in summary.finished] == ["pickplace_nut_m12/itn/seed_1"]
+
+
+def test_new_seeds_alone_are_checked_against_the_runs_finished_cells(toy, tmp_path):
+    # A file naming only new seeds has none of the finished cells in its grid: nothing was
+    # compared, and the new seeds trained at changed packaged values or a changed expert reward.
+    config, _ = toy
+    run = tmp_path / "run"
+    first = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
+    run_experiment(first, run, "local", 1, console=quiet())
+    meta_path = Cell("pickplace_nut_m12", "no_transfer", 0).dir(run) / "checkpoint.json"
+    kept = meta_path.read_text()
+    later = type(config)(**{**first.__dict__, "seeds": (1,)})
+    for edit, problem in (
+        (lambda r: r["hyperparams"]["policy"].update(log_std_init=-9.0), "policy.log_std_init"),
+        (lambda r: r["reward"].update(sha256="0" * 64), "another version of the expert reward"),
+    ):
+        record = json.loads(kept)
+        edit(record)
+        meta_path.write_text(json.dumps(record))
+        with pytest.raises(ExperimentRunError, match=problem):
+            run_experiment(later, run, "local", 1, resume=True, console=quiet())
+    meta_path.write_text(kept)
+    summary = run_experiment(later, run, "local", 1, resume=True, console=quiet())
+    assert [c.name for c in summary.finished] == ["pickplace_nut_m12/no_transfer/seed_1"]
 
 
 def test_a_no_transfer_run_resumed_with_transfer_settings_keeps_its_cells(toy, tmp_path):

@@ -293,16 +293,21 @@ def _training_part(hyperparams: dict[str, Any], algo: str) -> dict[str, Any]:
     }
 
 
-def _check_as_recorded(config: ExperimentConfig, run_dir: Path, new: list[Cell]) -> None:
-    """Refuse a session whose new cells would train otherwise than the run's finished cells of
-    their task (and, for the transfer settings, their method) recorded. The file's settings
-    were compared already; the packaged ones under them may have changed since the run began
-    (another itskill release), and the new seeds would learn beside the old ones at other
-    values. Cells resumed from a checkpoint are checked against their own records."""
+def _check_as_recorded(
+    config: ExperimentConfig, record: ExperimentConfig, run_dir: Path, new: list[Cell]
+) -> None:
+    """Refuse a session whose new cells would train, by the file ``config``, otherwise than the
+    finished cells of the run (``record``: every session's grid) of their task (and, for the
+    transfer settings, their method) recorded: other hyper-parameters or network settings, or
+    another version of the expert reward. The file's settings were compared already; the
+    packaged ones under them, and the expert reward's code, may have changed since the run
+    began (another itskill release), and the new seeds would learn beside the old ones under
+    them. Cells resumed from a checkpoint are checked against their own records."""
     from itskill.rl.checkpoint import CheckpointError
     from itskill.rl.config import load_hyperparams
     from itskill.rl.train import changed_settings
     from itskill.tasks import get_task
+    from itskill.tasks.rewards import expert_fingerprint
     from itskill.transfer import get_method
     from itskill.transfer.methods import used_settings
     from itskill.transfer.train import network_settings, read_transfer
@@ -315,7 +320,15 @@ def _check_as_recorded(config: ExperimentConfig, run_dir: Path, new: list[Cell])
         )
 
     for task in dict.fromkeys(cell.task for cell in new):
-        have = recorded_training(config, run_dir, task)
+        if config.reward.get(task, EXPERT) == EXPERT:
+            trained = trained_reward_hashes(run_dir, task)
+            if trained and expert_fingerprint(get_task(task)) not in trained:
+                raise ExperimentRunError(
+                    f"{run_dir}: its cells of {task} trained with another version of the expert "
+                    "reward (its code or the task's stages changed since the run began): new "
+                    "seeds would learn another reward beside them; use another --out"
+                )
+        have = recorded_training(record, run_dir, task)
         if have is None:
             continue
         overrides = dict(config.hyperparams.get(task, {}))
@@ -327,7 +340,7 @@ def _check_as_recorded(config: ExperimentConfig, run_dir: Path, new: list[Cell])
             raise refuse(f"cells of {task}", differ)
     now = config.transfer_config().to_dict()
     for method in dict.fromkeys(cell.method for cell in new if get_method(cell.method).settings):
-        for cell in (c for c in cells(config) if c.method == method):
+        for cell in (c for c in cells(record) if c.method == method):
             if finished_result(cell.dir(run_dir)) is None:
                 continue
             try:
@@ -423,8 +436,18 @@ def _check_same_training(old: ExperimentConfig, new: ExperimentConfig, run_dir: 
 def _union(old: ExperimentConfig, new: ExperimentConfig, trains: bool) -> ExperimentConfig:
     """What a run resumed with ``new`` records: see :func:`run_experiment`."""
 
+    from itskill.transfer.config import setting_key
+    from itskill.transfer.methods import used_settings
+
     def merged(a: tuple, b: tuple) -> tuple:
         return tuple(dict.fromkeys((*a, *b)))
+
+    def keys(methods: tuple[str, ...]) -> set[tuple[str, str]]:
+        return {setting_key(n) for n in used_settings(methods, new.transfer_config().to_dict())}
+
+    # What the old methods alone use stays as their cells trained with it: a file without them
+    # may name it, but nothing of this session trains with it.
+    theirs = keys(old.methods) - keys(new.methods)
 
     return replace(
         new,
@@ -436,10 +459,16 @@ def _union(old: ExperimentConfig, new: ExperimentConfig, trains: bool) -> Experi
         reward={**old.reward, **new.reward},
         sources={**old.sources, **new.sources},
         hyperparams={**old.hyperparams, **new.hyperparams},
-        # By setting: one the new file leaves out stays as the cells of methods it does not
-        # run trained with it (a setting both use was checked equal).
+        # By setting (one both sessions' methods use was checked equal).
         transfer={
-            table: {**old.transfer.get(table, {}), **new.transfer.get(table, {})}
+            table: {
+                **old.transfer.get(table, {}),
+                **{
+                    key: value
+                    for key, value in new.transfer.get(table, {}).items()
+                    if (table, key) not in theirs
+                },
+            }
             for table in dict.fromkeys((*old.transfer, *new.transfer))
         },
         execution=new.execution if trains else old.execution,
@@ -617,9 +646,10 @@ def _run(
         if (out / "checkpoint.json").is_file():
             summary.resumed.append(cell)
         todo.append(cell)
-    if old is not None:
-        _check_as_recorded(config, run_dir, [c for c in todo if c not in summary.resumed])
     record = config if old is None else _union(old, config, trains=bool(todo))
+    if old is not None:
+        new = [c for c in todo if c not in summary.resumed]
+        _check_as_recorded(config, record, run_dir, new)
     if old is not None and config.name != old.name:
         console.print(
             f"note: the run in {escape(str(run_dir))} keeps its name "
