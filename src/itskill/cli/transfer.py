@@ -121,7 +121,7 @@ def transfer_train(
         with user_errors():
             cfg = _config(config, k, sources)
             model_spec(llm)  # a mistyped --llm is said even where no model is asked
-            client = make_client(llm) if asks_analyzer(method, out) else None
+            client = make_client(llm) if asks_analyzer(method, out, cfg) else None
             result = train_transfer(
                 target,
                 method,

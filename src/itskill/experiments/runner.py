@@ -126,7 +126,7 @@ def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
     # Only where the analyzer is asked: a cell that needs no model must not need its API key.
     client = (
         make_client(settings.llm, cache_dir=Path(settings.llm_cache))
-        if asks_analyzer(cell.method, out)
+        if asks_analyzer(cell.method, out, settings.transfer)
         else None
     )
     res = train_transfer(
