@@ -15,6 +15,7 @@ from itskill.sim.layout import OBSERVATION_VERSION
 from itskill.skills import open_skill_space, search
 from itskill.tasks import get_task
 from itskill.transfer import SourceError, TransferConfig, load_transfer_config, resolve_sources
+from itskill.transfer.sources import SourceWarning
 
 
 def _config(**changes: object) -> TransferConfig:
@@ -151,9 +152,12 @@ def test_auto_passes_over_a_skill_from_a_stable_baselines3_zip(tmp_path: Path, m
         (tmp_path / "old" / "checkpoint.json").write_text(json.dumps(meta))
         old = str(tmp_path / "old" / "policy.safetensors")
         space.add(Skill("old_pick", "pick_nut_m12", "Pick up the M12 nut", pick, old))
-        assert [s.name for s in resolve_sources("pickplace_nut_m12", "auto", space=space)] == [
-            "place"
-        ]
+        # Said, unlike the .zip: a damaged or outdated checkpoint is the user's to mend.
+        with pytest.warns(
+            SourceWarning, match="skill 'old_pick' passed over: .*observation layout"
+        ):
+            chosen = resolve_sources("pickplace_nut_m12", "auto", space=space)
+        assert [s.name for s in chosen] == ["place"]
         with pytest.raises(SourceError, match=r"skill 'zipped'.*not a directory"):
             resolve_sources("pickplace_nut_m12", "zipped", space=space)
 

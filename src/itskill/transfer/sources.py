@@ -18,6 +18,7 @@ load as a source; named, such a skill is an error.
 from __future__ import annotations
 
 import numbers
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -157,20 +158,25 @@ def _source_of(space: SkillSpace, skill: Skill, score: float | None) -> SourceSk
     )
 
 
-def _loads_as_source(space: SkillSpace, skill: Skill) -> bool:
-    """Whether ``skill``'s checkpoint is of the kind a transfer loads: weights whose directory
-    holds readable metadata of this release's observations (:func:`policy_location`,
-    :func:`read_meta`), not a Stable-Baselines3 ``.zip`` or a skill trained on an older layout
-    (which, ranked first, failed every retrieval it won a place in)."""
+class SourceWarning(UserWarning):
+    """A skill retrieval passed over: its checkpoint cannot be read as a source."""
+
+
+def _passed_over(space: SkillSpace, skill: Skill) -> str | None:
+    """Why ``skill``'s checkpoint is not of the kind a transfer loads, or None if it is: weights
+    whose directory holds readable metadata of this release's observations
+    (:func:`policy_location`, :func:`read_meta`). A Stable-Baselines3 ``.zip`` (which ``skills
+    add`` takes, for eval) is not; nor is a damaged checkpoint or one of an older observation
+    layout, which, ranked first, failed every retrieval it won a place in."""
     path = space.checkpoint_path(skill)
     location = policy_location(path)
     if location == path:
-        return False
+        return "a Stable-Baselines3 .zip"
     try:
         read_meta(location)
-    except CheckpointError:
-        return False
-    return True
+    except CheckpointError as err:
+        return str(err)
+    return None
 
 
 def parse_keys(sources: str | Sequence[int | str]) -> list[int | str]:
@@ -252,7 +258,12 @@ def resolve_sources(
         if isinstance(sources, str) and sources.strip() == AUTO:
             exclude = {spec.id} if exclude_target else set()
             ranked = search(space, spec.command, k=len(space), exclude_tasks=exclude)
-            unloadable = [skill.name for skill, _ in ranked if not _loads_as_source(space, skill)]
+            unloadable = {
+                skill.name: why for skill, _ in ranked if (why := _passed_over(space, skill))
+            }
+            for name, why in unloadable.items():
+                if not why.endswith(".zip"):  # the user's to mend, where they would look
+                    warnings.warn(f"skill {name!r} passed over: {why}", SourceWarning, stacklevel=2)
             ranked = [(skill, score) for skill, score in ranked if skill.name not in unloadable]
             target_steps = tuple(spec.actions)
             chosen: list[tuple[Skill, float | None]] = []
