@@ -237,17 +237,19 @@ def skills_add(
         except InvalidMeasurementError as err:
             hint = _MEASUREMENT_OPTIONS[err.field]
             raise typer.BadParameter(err.problem, param_hint=hint) from err
+        try:
+            # Before the space opens: a refused add must not create it (with the shipped
+            # library in it).
+            check_admissible(spec.id, checkpoint, acts)
+        except InadmissibleSkillError as err:
+            hint = "--checkpoint" if checkpoint.exists() and any(acts) else "--actions"
+            raise typer.BadParameter(str(err), param_hint=hint) from err
         with open_skill_space() as space:
-            if skill.name in space:  # before the policy loads too
+            if skill.name in space:  # the space's error, but naming the option and the default
                 taken = f"a skill named {skill.name!r} already exists"
                 if name is None:
                     taken += " (without --name a skill takes its task's name)"
                 raise typer.BadParameter(f"{taken}: give another --name", param_hint="--name")
-            try:
-                check_admissible(spec.id, checkpoint, acts)
-            except InadmissibleSkillError as err:
-                hint = "--checkpoint" if checkpoint.exists() and any(acts) else "--actions"
-                raise typer.BadParameter(str(err), param_hint=hint) from err
             # Inside the space's or the shipped library, relative to it, as installs and
             # pretraining store theirs (either may move); absolute anywhere else: a path
             # relative to the shell's directory means nothing to other processes.
