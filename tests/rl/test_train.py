@@ -87,8 +87,10 @@ def test_resume_continues_step_count(tmp_path: Path, reach_reward: Path) -> None
         _train(out, reach_reward, 128)
     # One the last rollout passed (it stops at the first rollout at or over its budget) is done.
     assert _train(out, reach_reward, 200).num_timesteps == 256
-    # Without the reward scale a resume started from fresh statistics, rescaling every reward.
+    # Without the reward scale a resume started from fresh statistics, rescaling every reward;
+    # a finished run, which trains on no reward, is read as it is.
     (out / "reward_norm.json").unlink()
+    assert _train(out, reach_reward, 256).num_timesteps == 256
     with pytest.raises(CheckpointError, match=r"reward_norm\.json: missing: the run normalises"):
         _train(out, reach_reward, 384)
 

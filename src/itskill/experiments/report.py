@@ -141,7 +141,8 @@ def header_section(doc: Document, sessions: Sessions, extra: dict[str, str]) -> 
             which = "session" if len(numbers) == 1 else "sessions"
             items.append(f"{which} {', '.join(map(str, numbers))} ran on {text}")
     else:
-        items.append(next(iter(machines), _machine_text(machine_facts())))
+        # This machine's facts only for a record with no session (they import torch, ask git).
+        items.append(next(iter(machines)) if machines else _machine_text(machine_facts()))
     commits = list(dict.fromkeys(s["machine"].get("commit") for s in runs))
     if any(commits):
         items.append(

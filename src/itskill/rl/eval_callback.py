@@ -7,7 +7,7 @@ this callback runs :func:`itskill.tasks.evaluate.evaluate` on the live policy be
 updates, at the last one at or before that step, and appends a row to ``eval.csv`` labelled
 with the env-steps the policy learned from.
 
-Given the run's metadata, it also keeps the best policy so far in ``best/``: PPO can lose a level
+It also keeps the best policy so far in ``best/``, with the run's metadata: PPO can lose a level
 it reached (docs/experiments.md), and a user wants the policy the run was best at, not only its
 last one. "Best" is the highest success, then the most subtasks done, the later evaluation winning
 a tie (it has trained longer at the same level). The choice is made on these evaluation episodes,

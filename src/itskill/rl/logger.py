@@ -164,7 +164,8 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
 
 
 class MetricsCallback(BaseCallback):
-    """Collects episode outcomes and reward components each step; writes a row per update.
+    """Collects episode outcomes and reward components each step; writes a row as a rollout
+    ends, once ``min_steps_per_row`` env-steps were collected since the previous one.
 
     ``env`` is the unwrapped :class:`BatchEnv` being trained on (its ``last_components`` attribute
     holds the reward components of the step just taken; an ending episode's info its raw

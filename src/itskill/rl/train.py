@@ -866,7 +866,7 @@ def run_training(
         train_env = VecNormalize(
             env, norm_obs=False, norm_reward=True, gamma=hp.algo_config.gamma, clip_reward=10.0
         )
-        if resuming:
+        if resuming and resumed_from < steps:  # a finished run trains on no reward
             restore_reward_norm(train_env, run_dir)
 
     clock = WallClock.from_checkpoint(setup.previous or {})  # a warm start's time counts
