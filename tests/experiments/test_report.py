@@ -761,6 +761,24 @@ def test_a_baseline_run_of_a_reward_file_is_compared_by_its_code(
             experiment_report(mine_dir, video=False, baseline_run=base)
 
 
+def test_a_baseline_run_of_another_version_of_the_expert_reward_is_refused(run, tmp_path):
+    # Expert and expert compared equal, however the reward's terms or stages had changed.
+    def recorded(sha: str) -> str:
+        meta = json.loads((Cell(TASK, "itn", 0).dir(run) / "checkpoint.json").read_text())
+        return json.dumps({**meta, "reward": {"kind": "expert", "sha256": sha}})
+
+    mine = tmp_path / "mine"
+    shutil.copytree(run, mine)
+    for path in mine.glob("cells/*/*/seed_*/checkpoint.json"):
+        path.write_text(recorded("a" * 64))
+    with pytest.raises(ReportError, match="another version of the expert reward"):
+        experiment_report(
+            mine, video=False, baseline_run=_baseline_run(tmp_path, recorded("b" * 64))
+        )
+    same = _baseline_run(tmp_path / "same", recorded("a" * 64))
+    assert experiment_report(mine, tmp_path / "report", video=False, baseline_run=same)
+
+
 def test_a_baseline_run_whose_seeds_shared_their_episodes_is_said(run, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(run, copy)

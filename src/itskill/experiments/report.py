@@ -71,6 +71,7 @@ from itskill.experiments.runner import (
     read_stored_sources,
     recorded_training,
     reward_hashes,
+    trained_reward_hashes,
 )
 from itskill.files import CorruptFileError, copy_whole, read_json, read_json_or_none
 from itskill.reward_contract import EXPERT
@@ -389,7 +390,16 @@ def _reward_difference(task: str, a: tuple[Path, str], b: tuple[Path, str]) -> s
     sha256 its cells' checkpoints record)."""
     (dir_a, reward_a), (dir_b, reward_b) = a, b
     if EXPERT in (reward_a, reward_b):
-        return None if reward_a == reward_b else f"{task} trained with another reward than here"
+        if reward_a != reward_b:
+            return f"{task} trained with another reward than here"
+        # The expert reward's version, where both runs' cells record it (since 2026-12-07).
+        versions = [trained_reward_hashes(d, task) for d in (dir_a, dir_b)]
+        if all(versions) and versions[0].isdisjoint(versions[1]):
+            return (
+                f"{task} trained with another version of the expert reward than here (its code "
+                "or the task's stages changed between the runs)"
+            )
+        return None
     hashes = [reward_hashes(d, task) for d in (dir_a, dir_b)]
     unknown = [str(d) for d, h in zip((dir_a, dir_b), hashes, strict=True) if not h]
     if unknown:
