@@ -492,9 +492,14 @@ def test_ctrl_c_during_an_update_saves_the_update_whole_with_its_rollout_counted
 
     monkeypatch.setattr(PPO, "train", interrupted)
     out = tmp_path / "run"
-    with pytest.raises(KeyboardInterrupt):
-        # A periodic checkpoint at 64 too: saved while the update's wrapper is in place.
-        _train(out, reach_reward, 10_000, overrides={"checkpoint_every": 64})
+    # Python's own handler, as a terminal's process has: pytest-xdist's workers ignore SIGINT.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            # A periodic checkpoint at 64 too: saved while the update's wrapper is in place.
+            _train(out, reach_reward, 10_000, overrides={"checkpoint_every": 64})
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert calls["n"] == 2
     assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 128
     saved = load_from_zip_file(out / "model.zip")[1]["policy"]
