@@ -162,6 +162,9 @@ class SourceWarning(UserWarning):
     """A skill retrieval passed over: its checkpoint cannot be read as a source."""
 
 
+_SB3_ZIP = "a Stable-Baselines3 .zip"
+
+
 def _passed_over(space: SkillSpace, skill: Skill) -> str | None:
     """Why ``skill``'s checkpoint is not of the kind a transfer loads, or None if it is: weights
     whose directory holds readable metadata of this release's observations
@@ -171,7 +174,7 @@ def _passed_over(space: SkillSpace, skill: Skill) -> str | None:
     path = space.checkpoint_path(skill)
     location = policy_location(path)
     if location == path:
-        return "a Stable-Baselines3 .zip"
+        return _SB3_ZIP
     try:
         read_meta(location)
     except CheckpointError as err:
@@ -262,7 +265,7 @@ def resolve_sources(
                 skill.name: why for skill, _ in ranked if (why := _passed_over(space, skill))
             }
             for name, why in unloadable.items():
-                if not why.endswith(".zip"):  # the user's to mend, where they would look
+                if why != _SB3_ZIP:  # the user's to mend, where they would look
                     warnings.warn(f"skill {name!r} passed over: {why}", SourceWarning, stacklevel=2)
             ranked = [(skill, score) for skill, score in ranked if skill.name not in unloadable]
             target_steps = tuple(spec.actions)
