@@ -70,6 +70,11 @@ META_FILE = "checkpoint.json"
 REWARD_NORM_FILE = "reward_norm.json"
 FORMAT_VERSION = 1
 REQUIRED_META = ("format", "task", "algo", "seed", "num_timesteps", "obs_size", "policy")
+CANNOT_RESUME = (
+    "; the run cannot be resumed from it: train into another run directory (--out). Its "
+    "metrics.csv and eval.csv stay readable"
+)
+"""What a damaged checkpoint's error adds when a run was to resume from it."""
 
 
 _COUNT = Check("an integer of 0 or more", is_count)
@@ -209,7 +214,7 @@ def restore_reward_norm(env: VecNormalize, run_dir: Path) -> None:
         raise CheckpointError(
             path,
             "missing: the run normalises its rewards and the statistics it scaled them with are "
-            "gone; the run cannot be resumed from it: train into another run directory (--out)",
+            "gone" + CANNOT_RESUME,
         )
     try:
         stats = json.loads(path.read_text())

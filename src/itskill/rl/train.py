@@ -38,6 +38,7 @@ from itskill.limits import SEED_MAX, check_steps
 from itskill.reward_contract import EXPERT, RewardOutputError, check_reward_output
 from itskill.rl.checkpoint import (
     BEST_DIR,
+    CANNOT_RESUME,
     META_FILE,
     MODEL_FILE,
     POLICY_FILE,
@@ -165,13 +166,6 @@ class TrainResult:
         if self.num_timesteps == self.resumed_from:
             return " (finished in an earlier session; nothing trained now)"
         return f" (resumed from {self.resumed_from:,})"
-
-
-CANNOT_RESUME = (
-    "; the run cannot be resumed from it: train into another run directory (--out). Its "
-    "metrics.csv and eval.csv stay readable"
-)
-"""What a damaged checkpoint's error adds when a run was to resume from it."""
 
 
 def _save(model: Any, run_dir: Path, meta: Mapping[str, Any], clock: WallClock) -> float:

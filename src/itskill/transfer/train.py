@@ -27,6 +27,7 @@ from itskill.llm.client import LLMClient
 from itskill.reward.candidate import CandidateNetwork
 from itskill.rl.checkpoint import (
     BEST_DIR,
+    CANNOT_RESUME,
     META_FILE,
     OBJECT,
     STRING,
@@ -37,7 +38,6 @@ from itskill.rl.checkpoint import (
 from itskill.rl.config import load_hyperparams
 from itskill.rl.logger import LoggerConfig
 from itskill.rl.train import (
-    CANNOT_RESUME,
     EXPERT,
     RewardSource,
     TrainResult,
