@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -270,20 +271,30 @@ def trained_reward_hashes(run_dir: Path, task: str) -> set[str]:
     return hashes
 
 
+def _first_record(
+    candidates: Iterable[Cell], run_dir: Path, read: Callable[[Path], dict[str, Any]]
+) -> dict[str, Any] | None:
+    """What ``read`` gives of the first finished cell of ``candidates`` in ``run_dir`` whose
+    record it can read (a damaged one is that cell's own error); None where there is none."""
+    from itskill.rl.checkpoint import CheckpointError
+
+    for cell in candidates:
+        if finished_result(cell.dir(run_dir)) is not None:
+            try:
+                return read(cell.dir(run_dir))
+            except CheckpointError:
+                continue
+    return None
+
+
 def recorded_training(config: ExperimentConfig, run_dir: Path, task: str) -> dict | None:
     """The settings of the algorithm, the network and the reward's normalisation that the first
     finished cell of ``task`` in ``run_dir`` recorded in its checkpoint (every method's cells
     share them); None where no finished cell has a readable one."""
-    from itskill.rl.checkpoint import CheckpointError, read_meta
+    from itskill.rl.checkpoint import read_meta
 
-    for cell in cells(config):
-        if cell.task == task and finished_result(cell.dir(run_dir)) is not None:
-            try:
-                saved = read_meta(cell.dir(run_dir))
-            except CheckpointError:
-                continue
-            return _training_part(saved["hyperparams"], saved["algo"])
-    return None
+    saved = _first_record((c for c in cells(config) if c.task == task), run_dir, read_meta)
+    return None if saved is None else _training_part(saved["hyperparams"], saved["algo"])
 
 
 def _training_part(hyperparams: dict[str, Any], algo: str) -> dict[str, Any]:
@@ -303,7 +314,6 @@ def _check_as_recorded(
     packaged ones under them, and the expert reward's code, may have changed since the run
     began (another itskill release), and the new seeds would learn beside the old ones under
     them. Cells resumed from a checkpoint are checked against their own records."""
-    from itskill.rl.checkpoint import CheckpointError
     from itskill.rl.config import load_hyperparams
     from itskill.rl.train import changed_settings
     from itskill.tasks import get_task
@@ -340,17 +350,11 @@ def _check_as_recorded(
             raise refuse(f"cells of {task}", differ)
     now = config.transfer_config().to_dict()
     for method in dict.fromkeys(cell.method for cell in new if get_method(cell.method).settings):
-        for cell in (c for c in cells(record) if c.method == method):
-            if finished_result(cell.dir(run_dir)) is None:
-                continue
-            try:
-                have = network_settings(read_transfer(cell.dir(run_dir)))
-            except CheckpointError:
-                continue
-            differ = changed_settings(have, used_settings([method], now))
-            if differ:
-                raise refuse(f"{method} cells", differ)
-            break
+        of_method = (c for c in cells(record) if c.method == method)
+        have = _first_record(of_method, run_dir, lambda d: network_settings(read_transfer(d)))
+        differ = [] if have is None else changed_settings(have, used_settings([method], now))
+        if differ:
+            raise refuse(f"{method} cells", differ)
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -442,8 +446,10 @@ def _union(old: ExperimentConfig, new: ExperimentConfig, trains: bool) -> Experi
     def merged(a: tuple, b: tuple) -> tuple:
         return tuple(dict.fromkeys((*a, *b)))
 
+    settings = new.transfer_config().to_dict()
+
     def keys(methods: tuple[str, ...]) -> set[tuple[str, str]]:
-        return {setting_key(n) for n in used_settings(methods, new.transfer_config().to_dict())}
+        return {setting_key(n) for n in used_settings(methods, settings)}
 
     # What the old methods alone use stays as their cells trained with it: a file without them
     # may name it, but nothing of this session trains with it.
