@@ -335,7 +335,8 @@ def skills_install(
         print_json([s.to_dict() for s in added])
         return
     console.print(escape(f"installed {len(added)} skill(s) from {library}"))
-    skipped = [n for n in names if n not in {s.name for s in added}]
+    installed = {s.name for s in added}
+    skipped = [n for n in names if n not in installed]
     if skipped:
         console.print(
             escape(f"skipped {len(skipped)} whose name the skill space has: {', '.join(skipped)}")

@@ -814,8 +814,7 @@ def _whole_updates(model: BaseAlgorithm, checkpoints: CheckpointCallback) -> Ite
     """Run each of ``model``'s updates whole: Ctrl-C (or SIGTERM, SIGHUP) during one is acted on
     once it is done, and the rollout it learned from is then counted (``checkpoints.trained``).
     Cut short, an update left weights that had learned part of a rollout the checkpoint saved
-    with them did not count, and the resumed run learned it again. An update takes about a
-    second."""
+    with them did not count, and the resumed run learned it again."""
     update = model.train
 
     def whole_update() -> None:

@@ -400,13 +400,14 @@ def prepare_transfer(
         if target_stages is None:
             target_stages = load_hyperparams(spec.family, algo, task=spec.id).policy.stages
         meth.policy_class.check_sources([s.spec() for s in chosen], target_stages)
+    stage_names = [st.name for st in spec.stages]
     if meth.uses_prior and len(chosen) == 1:
         # Each row is [1] however the analyzer answers (a fair answer of 0 for the stages the
         # one source cannot do was refused after its retries, failing the run), and attention
         # over one source weights it 1.
         matrix = ContributionMatrix(
-            np.ones((len(spec.stages), 1)),
-            tuple(st.name for st in spec.stages),
+            np.ones((len(stage_names), 1)),
+            tuple(stage_names),
             (chosen[0].name,),
             reasoning="one source: it takes every stage",
             client="none (one source)",
@@ -418,7 +419,6 @@ def prepare_transfer(
             client = make_client()
         matrix = analyze_sources(spec, chosen, client, config)
     policy_class = meth.policy_class
-    stage_names = [st.name for st in spec.stages]
     source_stages = [_stage_names(s.task_id) for s in chosen]
     record.update(
         sources=[s.to_dict() for s in chosen],
