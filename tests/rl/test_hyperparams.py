@@ -148,6 +148,16 @@ def test_fewer_environments_shrink_the_minibatch_to_the_rollout() -> None:
     assert small.algo_config.batch_size == 2 * small.algo_config.n_steps
 
 
+def test_num_envs_wins_over_the_overrides_and_takes_their_bounds() -> None:
+    overrides = {"num_envs": 4, "learning_rate": 1e-5}
+    hp = load_hyperparams("nutbolt", "ppo", overrides=overrides, num_envs=2)
+    assert (hp.num_envs, hp.algo_config.learning_rate) == (2, 1e-5)
+    assert overrides["num_envs"] == 4  # the caller's table is left as it was
+    with pytest.raises(HyperparamError) as info:
+        load_hyperparams("nutbolt", "ppo", num_envs=0)
+    assert info.value.where == "overrides.num_envs"
+
+
 def test_a_task_table_changes_its_task_only(tmp_path: Path) -> None:
     path = tmp_path / "hp.toml"
     path.write_text(

@@ -271,8 +271,9 @@ def _parse_hyperparams(
         if not recorded:
             spec = get_task(task)
             try:
-                with_envs = table if num_envs is None else {**table, "num_envs": num_envs}
-                load_hyperparams(spec.family, algo, overrides=with_envs, task=spec.id)
+                load_hyperparams(
+                    spec.family, algo, overrides=table, task=spec.id, num_envs=num_envs
+                )
             except HyperparamError as err:
                 # Named as this file has it: algorithm fields by name, no "overrides" table.
                 if err.where.startswith("overrides."):

@@ -341,10 +341,13 @@ def _check_as_recorded(
         have = recorded_training(record, run_dir, task)
         if have is None:
             continue
-        overrides = dict(config.hyperparams.get(task, {}))
-        if config.num_envs is not None:
-            overrides["num_envs"] = config.num_envs
-        hp = load_hyperparams(get_task(task).family, config.algo, None, overrides, task=task)
+        hp = load_hyperparams(
+            get_task(task).family,
+            config.algo,
+            overrides=config.hyperparams.get(task),
+            task=task,
+            num_envs=config.num_envs,
+        )
         differ = changed_settings(have, _training_part(hp.to_dict(), config.algo))
         if differ:
             raise refuse(f"cells of {task}", differ)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
@@ -387,16 +387,20 @@ def load_hyperparams(
     family: str,
     algo: str,
     path: str | Path | None = None,
-    overrides: dict[str, Any] | None = None,
+    overrides: Mapping[str, Any] | None = None,
     task: str | None = None,
+    num_envs: int | None = None,
 ) -> Hyperparams:
     """Hyper-parameters for ``family`` and ``algo`` from ``path`` (default: the packaged file).
 
     A ``[<family>.tasks.<task>]`` table, with the fields of the family's table, changes them for
     one task. ``overrides`` are applied on top, with the same checks: algorithm fields by name,
     plus ``num_envs``, ``checkpoint_every``, ``normalize_reward``, and ``policy``, ``demos`` and
-    ``init`` (each a dict of the fields of its table).
+    ``init`` (each a dict of the fields of its table). ``num_envs``, where given, wins over every
+    table and the overrides' own.
     """
+    if num_envs is not None:
+        overrides = {**(overrides or {}), "num_envs": num_envs}
     path = Path(path) if path is not None else default_path()
     if algo not in ALGO_CONFIGS:
         raise HyperparamError(path, "algo", f"expected one of {list(ALGOS)}, got {algo!r}")

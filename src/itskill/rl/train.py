@@ -539,9 +539,7 @@ def check_training(
     spec = get_task(task)
     run_dir = Path(out)
     ov = dict(overrides or {})
-    if num_envs is not None:
-        ov["num_envs"] = num_envs
-    hp: Hyperparams = load_hyperparams(spec.family, algo, hyperparams, ov, task=spec.id)
+    hp: Hyperparams = load_hyperparams(spec.family, algo, hyperparams, ov, spec.id, num_envs)
     if init is not None:
         hp = hp.starting_from_policy()
     if hp.demos.episodes and init is not None:
