@@ -426,6 +426,23 @@ def test_a_resume_of_pst_compares_what_pst_keeps(home: Path, tmp_path: Path) -> 
         run(out, "pst", steps=32, config=TransferConfig(pst_keep=2))
 
 
+def test_pst_resumes_with_its_sources_named_by_serial_number_or_by_name(
+    home: Path, tmp_path: Path
+) -> None:
+    # PST keeps the pick of the two asked for; the place it dropped is the same skill however
+    # it is named, so each way of writing the list resumes the other's run.
+    with open_skill_space() as space:
+        ids = ",".join(str(space.get(name).id) for name in SOURCES.split(","))
+    for first, then in ((SOURCES, ids), (ids, SOURCES)):
+        out = tmp_path / f"from_{first}"
+        train_transfer(TARGET, "pst", first, seed=0, steps=16, algo="a2c", out=out, num_envs=2,
+                       logger=QUIET)  # fmt: skip
+        again = train_transfer(TARGET, "pst", then, seed=0, steps=32, algo="a2c", out=out,
+                               num_envs=2, logger=QUIET)  # fmt: skip
+        assert again.resumed_from == 16
+        assert [s["name"] for s in read_transfer(out)["sources"]] == ["pick_nut_m12"]
+
+
 def test_a_run_that_trained_nothing_yet_names_a_source_retrained_since_its_record(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -156,11 +156,13 @@ _RECORD_FIELDS: dict[str, Check] = {
     ),
     "contribution": Check("an object with a matrix, or null", _is_contribution),
     "performers": Check("a list or null", lambda v: v is None or isinstance(v, list)),
+    "requested": Check("a list of objects with a string name", _is_sources),
 }
 """What each ``transfer.json`` field its readers index must hold: :func:`read_transfer` checks
 them, so a hand-edited or damaged record is refused with its file named, not by a TypeError
 where the field is first used."""
-_OPTIONAL_FIELDS = ("performers",)  # absent from records written before the residual
+# Absent from records written before the residual, and before PST's dropped sources were kept.
+_OPTIONAL_FIELDS = ("performers", "requested")
 
 
 def read_transfer(run_dir: str | Path) -> dict[str, Any]:
@@ -202,8 +204,9 @@ def _check_resume(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
     old = {**old, "config": _recorded_config(old)}
     keys = ("target", "method", "algo", "seed", "sources_request", "k")
     # A skill named by its serial number is the same source as by its name: the record knows
-    # which serial numbers its sources had.
-    names = {s.get("id"): s["name"] for s in old["sources"] if isinstance(s.get("id"), int)}
+    # which serial numbers the skills asked for had, those PST did not keep included.
+    asked = old.get("requested", old["sources"])
+    names = {s.get("id"): s["name"] for s in asked if isinstance(s.get("id"), int)}
     have, want = _as_compared(old, names), _as_compared(new, names)
     require_same(have, want, keys, out, "transfer run")
     # Setting by setting, so that the message names the one that differs.
@@ -392,11 +395,12 @@ def prepare_transfer(
     if old is not None:
         _check_untrained_sources(out, old)
         return old
+    requested: list[SourceSkill] = []
     chosen: list[SourceSkill] = []
     matrix: ContributionMatrix | None = None
     if meth.uses_sources:
-        chosen = resolve_sources(spec.id, sources, config, space)
-        chosen = meth.select(chosen, config)
+        requested = resolve_sources(spec.id, sources, config, space)
+        chosen = meth.select(requested, config)
         if target_stages is None:
             target_stages = load_hyperparams(spec.family, algo, task=spec.id).policy.stages
         meth.policy_class.check_sources([s.spec() for s in chosen], target_stages)
@@ -422,6 +426,7 @@ def prepare_transfer(
     source_stages = [_stage_names(s.task_id) for s in chosen]
     record.update(
         sources=[s.to_dict() for s in chosen],
+        requested=[{"id": s.id, "name": s.name} for s in requested],
         source_specs=[
             s.spec()
             if names is None
