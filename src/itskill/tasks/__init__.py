@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from itskill.sim.env import TaskEnv
+from typing import TYPE_CHECKING
+
 from itskill.sim.task import RewardFn
-from itskill.sim.vec_env import BatchEnv
 from itskill.tasks.spec import (
     TaskFileError,
     TaskSpec,
@@ -13,9 +13,17 @@ from itskill.tasks.spec import (
     get_task,
 )
 
+if TYPE_CHECKING:
+    from itskill.sim.env import TaskEnv
+    from itskill.sim.vec_env import BatchEnv
+
 
 def make_env(name: str, reward_fn: RewardFn | None = None, **kwargs) -> TaskEnv:
     """A single Gymnasium environment for task ``name``."""
+    # Imported here: the environments bring Stable-Baselines3 and torch, which reading tasks
+    # (the skill space's commands, the planner) does not need.
+    from itskill.sim.env import TaskEnv
+
     return TaskEnv(get_task(name).to_sim_task(), reward_fn=reward_fn, **kwargs)
 
 
@@ -29,6 +37,8 @@ def make_batch_env(
 ) -> BatchEnv:
     """``num_envs`` copies of ``task`` (a task id or a spec) stepped together (an SB3
     ``VecEnv``); ``training`` turns on the task's training starts."""
+    from itskill.sim.vec_env import BatchEnv
+
     spec = get_task(task) if isinstance(task, str) else task
     return BatchEnv(
         spec.to_sim_task(),
