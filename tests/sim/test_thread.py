@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import math
+from importlib import resources
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
+from itskill.sim.vec_env import BatchEnv
 from itskill.tasks import all_tasks, make_env
+from itskill.tasks.spec import load_parts, load_task_file
 
 TURN_TORQUE = 0.01
 """N m on the nut's yaw joint: well above its friction (2e-3 N m), tiny for the thread locks."""
@@ -162,3 +166,36 @@ def test_a_nut_upright_after_a_whole_turn_of_tilt_engages_and_stays_put():
     # Engaged, the locks hold the tilt at 0: the hinge is unwound, not spun back a whole turn.
     assert abs(nut.data.qpos[nut.qpos[4]]) < 0.05
     assert abs(nut.data.qpos[nut.qpos[0]] - x) < 1e-3
+
+
+def test_a_nut_threaded_on_another_bolt_is_not_engaged_on_its_own(tmp_path):
+    # A task that moves the nut from one bolt to the other started out done: the nut counted as
+    # engaged (and seated) on its bolt while it sat on the other one, 18 cm away.
+    path = tmp_path / "move.toml"
+    path.write_text(
+        """[[task]]
+id = "move_nut_m12"
+family = "nutbolt"
+kind = "basic"
+command = "Move the nut to the other bolt"
+skills = ["Place"]
+actions = ["place"]
+objects = ["nut_m12"]
+fixtures = [{ part = "bolt_m12", xy = [0.55, 0.08] }, { part = "bolt_m12", xy = [0.55, -0.1] }]
+object_fixture = [0]
+max_steps = 30
+success = "seated(0, 0.004)"
+stages = [{ name = "place", done = "engaged(0)" }]
+[task.init]
+objects = [{ mode = "bolt", fixture = 1, turns = [1.0, 1.0] }]
+"""
+    )
+    parts = load_parts(Path(str(resources.files("itskill.tasks") / "data" / "parts.toml")))
+    (spec,) = load_task_file(path, parts)
+    env = BatchEnv(spec.to_sim_task(), num_envs=1, seed=0, n_threads=1)
+    env.reset()
+    ctx = env.context()
+    env.close()
+    assert ctx["obj_pos"][0, 0, 1] < -0.09  # on the other bolt, threaded
+    assert ctx["engaged"][0, 0] == 0.0 and ctx["insertion_depth"][0, 0] == 0.0
+    assert not spec.success(ctx)[0]

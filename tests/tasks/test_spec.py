@@ -90,6 +90,15 @@ BROKEN = {
         "init.objects[0].symmetric_yaw",
         "bool",
     ),
+    # A bool is an int to Python but a mask to NumPy.
+    "object_fixture_bool": (
+        (
+            'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]',
+            'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]\nobject_fixture = [true]',
+        ),
+        "object_fixture",
+        "one fixture index per object",
+    ),
     "hold_beyond_grasped": (
         (
             '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }',

@@ -105,7 +105,8 @@ class BatchSim:
         self._objects = task.scene.objects
         self._fixtures = task.scene.fixtures
         self._obj_fixture = np.array(
-            task.object_fixture or default_object_fixture(len(self._objects), len(self._fixtures))
+            task.object_fixture or default_object_fixture(len(self._objects), len(self._fixtures)),
+            dtype=int,
         )
         self._static_context()
         self._home_rot = self._home_rotation()
@@ -181,7 +182,13 @@ class BatchSim:
         for i, part in enumerate(self._objects):
             if isinstance(part, PegSpec):
                 self.yaw_period[i] = yaw_symmetry(part)
-        self._thread_obj = np.array([p.obj for p in self.scene.threads], dtype=int)
+        # Engagement counts on the object's own bolt only: the seat gap and depth are measured
+        # there, and a nut threaded on another bolt is not where its task wants it.
+        self._own_threads = [
+            (t, p.obj)
+            for t, p in enumerate(self.scene.threads)
+            if p.fixture == self._obj_fixture[p.obj]
+        ]
 
         # The fixture constants each object slot is measured against (zero for empty slots).
         fidx = self._obj_fixture
@@ -502,7 +509,7 @@ class BatchSim:
         )
 
         engaged = np.zeros((n, MAX_OBJECTS), dtype=bool)
-        for t, obj in enumerate(self._thread_obj):
+        for t, obj in self._own_threads:
             engaged[:, obj] |= self.engaged_thread[:, t]
         in_hole = (
             self.is_peg[None]

@@ -357,7 +357,10 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
     default_map = list(default_object_fixture(len(objects), len(fixtures)))
     object_fixture = tuple(r.get("object_fixture", list, default_map))
     if len(object_fixture) != len(objects) or any(
-        not isinstance(f, int) or not 0 <= f < max(len(fixtures), 1) for f in object_fixture
+        # A bool is an int to Python but a mask to NumPy, which then measures every object
+        # against the fixtures it selects.
+        not isinstance(f, int) or isinstance(f, bool) or not 0 <= f < max(len(fixtures), 1)
+        for f in object_fixture
     ):
         raise TaskFileError(
             path, f"task {task_id!r}.object_fixture", "one fixture index per object"
