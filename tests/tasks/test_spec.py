@@ -150,6 +150,12 @@ BROKEN = {
         "script[0]",
         "object slot",
     ),
+    # It loaded and never ran: the reach before it holds its goal to the episode's end.
+    "script step after one that never ends": (
+        ("max_steps = 60", 'max_steps = 60\nscript = ["reach 0", "lift 0.05"]'),
+        "script[1]",
+        "follows 'reach 0', which never ends",
+    ),
     # float() reads nan: the controller's first action was NaN, then an SVD error.
     "script nan": (
         ("max_steps = 60", 'max_steps = 60\nscript = ["lift nan"]'),

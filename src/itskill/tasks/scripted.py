@@ -504,6 +504,12 @@ def compile_script(spec: TaskSpec) -> list[Phase]:
         name, *args = step.split() or [""]
         if name not in _PRIMITIVES:
             raise bad(f"unknown primitive {name!r}; known: {', '.join(_PRIMITIVES)}")
+        if phases and phases[-1].done is _never:
+            # It would load and never run: the step before holds its goal to the episode's end.
+            raise bad(
+                f"follows {spec.script[k - 1]!r}, which never ends (it holds its goal until "
+                "the episode does): that step must be the script's last"
+            )
         builder, needs_object, extra = _PRIMITIVES[name]
         if name in FIXTURE_STEPS and not spec.fixtures:
             # It steered to the fixture slot's zeros: the robot's base.
