@@ -7,8 +7,17 @@ import dataclasses
 import numpy as np
 import pytest
 
+from itskill.sim.context import wrap_angle
 from itskill.tasks import all_tasks, get_task, make_batch_env
-from itskill.tasks.scripted import ScriptedPolicy, ScriptError, run_episodes
+from itskill.tasks.scripted import (
+    YAW_HIGH,
+    YAW_LOW,
+    ScriptedPolicy,
+    ScriptError,
+    _fixture_yaw_goal,
+    _Part,
+    run_episodes,
+)
 
 
 def _run(task: str, num_envs: int, steps: int | None = None, seed: int = 0):
@@ -96,3 +105,17 @@ def test_table_i_success_rate(task: str) -> None:
     outcomes = run_episodes(task, episodes=100, num_envs=25, seed=0)
     assert len(outcomes) == 100
     assert np.mean(outcomes) >= 0.9, f"{task}: {np.mean(outcomes):.0%} success"
+
+
+def test_the_scripted_hand_lines_a_peg_up_with_a_turned_hole_within_the_wrists_range():
+    # With the hole turned 1 rad, every hand yaw below about -0.57 rad aimed at -2.14 rad, past
+    # the wrist's limit, and the peg stayed 8 degrees off: the goal a half turn away is reachable
+    # and the rectangular peg looks the same there.
+    part = _Part(0, get_task("insert_peg_rect").objects[0])
+    hole_yaw = 1.0
+    hand = np.linspace(-np.pi / 2, np.pi / 2, 13)
+    error = wrap_angle(hand - hole_yaw, np.pi)
+    ctx = {"ee_yaw": hand, "yaw_error": np.stack([error, np.zeros_like(hand)], -1)}
+    goal = _fixture_yaw_goal(part, ctx, np.arange(len(hand)))
+    assert ((goal >= YAW_LOW) & (goal <= YAW_HIGH)).all()
+    np.testing.assert_allclose(wrap_angle(goal - hole_yaw, np.pi), 0.0, atol=1e-9)

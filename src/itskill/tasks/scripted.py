@@ -174,10 +174,7 @@ class _Part:
             return ctx["ee_yaw"][rows]
         base = ctx["obj_yaw"][rows, self.index] - self.yaw_offset
         period = self.yaw_period
-        yaw = base + period * np.round((toward - base) / period)
-        # Stay inside the hand's range: step a period back in where the nearest one is outside.
-        yaw = np.where(yaw > YAW_HIGH, yaw - period, yaw)
-        return np.where(yaw < YAW_LOW, yaw + period, yaw)
+        return _within_reach(base + period * np.round((toward - base) / period), period)
 
     def grip_point(self, ctx: Ctx, rows: np.ndarray) -> np.ndarray:
         pos = ctx["obj_pos"][rows, self.index].copy()
@@ -189,11 +186,20 @@ class _Part:
         return ctx["obj_to_fix"][rows, self.index]
 
 
+def _within_reach(yaw: np.ndarray, period: float) -> np.ndarray:
+    """``yaw``, or where it is outside the hand's range the yaw a symmetry ``period`` away:
+    the part looks the same either way, and the wrist stops at its limits (a goal past one left
+    a turned hole's peg 8 degrees off, more than it enters with)."""
+    yaw = np.where(yaw > YAW_HIGH, yaw - period, yaw)
+    return np.where(yaw < YAW_LOW, yaw + period, yaw)
+
+
 def _fixture_yaw_goal(part: _Part, ctx: Ctx, rows: np.ndarray) -> np.ndarray:
     """Hand yaw that lines a held part up with its fixture (only a rectangular peg cares)."""
     if part.is_nut or part.yaw_period == 0.0:
         return ctx["ee_yaw"][rows]
-    return ctx["ee_yaw"][rows] - ctx["yaw_error"][rows, part.index]
+    goal = ctx["ee_yaw"][rows] - ctx["yaw_error"][rows, part.index]
+    return _within_reach(goal, part.yaw_period)
 
 
 def _near(ctx: Ctx, rows: np.ndarray, goal: np.ndarray, tol: float) -> np.ndarray:
