@@ -11,6 +11,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from itskill.sim.scene import offscreen_renderer
 from itskill.sim.task import RewardFn, SimTask
 from itskill.sim.vec_env import BatchEnv, action_space, observation_space
 
@@ -86,7 +87,7 @@ class TaskEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.model, height=self._size[1], width=self._size[0])
+            self._renderer = offscreen_renderer(self.model, *self._size)
         self._renderer.update_scene(self.data, camera=self._camera)
         return self._renderer.render()
 

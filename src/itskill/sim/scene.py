@@ -296,10 +296,29 @@ def _index(scene_spec: SceneSpec, model: mujoco.MjModel, pairs) -> Scene:
     )
 
 
+def offscreen_renderer(model: mujoco.MjModel, width: int, height: int) -> mujoco.Renderer:
+    """A renderer of ``width`` x ``height`` pixels for ``model``, whose offscreen buffer is
+    enlarged first where the image is bigger than it (MuJoCo's error otherwise sends the user
+    to a model XML that a scene built in code does not have)."""
+    if width < 1 or height < 1:
+        raise ValueError(f"an image needs a positive size, got {width} x {height}")
+    buffer = model.vis.global_
+    buffer.offwidth, buffer.offheight = max(buffer.offwidth, width), max(buffer.offheight, height)
+    return mujoco.Renderer(model, height=height, width=width)
+
+
 def fixture_anchor(placed: PlacedFixture) -> np.ndarray:
     """The point a part is brought to: a bolt's tip or a hole's entrance centre."""
     z = placed.part.tip_z if isinstance(placed.part, BoltSpec) else placed.part.entrance_z
     return np.array([placed.xy[0], placed.xy[1], z])
 
 
-__all__ = ["HoleSpec", "Scene", "SceneSpec", "ThreadPair", "build_scene", "fixture_anchor"]
+__all__ = [
+    "HoleSpec",
+    "Scene",
+    "SceneSpec",
+    "ThreadPair",
+    "build_scene",
+    "fixture_anchor",
+    "offscreen_renderer",
+]

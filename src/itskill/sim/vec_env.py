@@ -134,7 +134,6 @@ class BatchEnv(VecEnv):
                 info["terminal_observation"] = obs[e].copy()
                 info["TimeLimit.truncated"] = bool(res.truncated[e] and not res.terminated[e])
                 info["is_success"] = bool(res.success[e])
-                info["episode_success"] = bool(res.success[e])
                 # The reward function's own sum: a wrapper may rescale what the learner sees.
                 info["episode_return"] = float(self.episode_return[e])
                 # Subtasks finished when the episode ended: all of them on success, else the

@@ -15,6 +15,7 @@ import numpy as np
 
 from itskill.sim import GL_BACKEND
 from itskill.sim.gl import gl_help
+from itskill.sim.scene import offscreen_renderer
 from itskill.tasks import make_batch_env
 from itskill.tasks.evaluate import Policy, PolicyFactory, make_policy
 from itskill.tasks.spec import TaskSpec
@@ -30,9 +31,9 @@ class RenderError(RuntimeError):
 
 def _renderer(model: mujoco.MjModel, width: int, height: int) -> mujoco.Renderer:
     try:
-        return mujoco.Renderer(model, height=height, width=width)
+        return offscreen_renderer(model, width, height)
     except ValueError:
-        raise  # a size above the model's offscreen buffer: the message says so
+        raise  # a size below one pixel: the message says so
     except Exception as err:  # the GL stack fails with ImportError, AttributeError, FatalError...
         backend = os.environ.get("MUJOCO_GL")
         if backend != GL_BACKEND:
