@@ -82,7 +82,7 @@ def eval_cmd(
     """Evaluate a policy: success rate over N episodes with its 95% interval."""
     from itskill.rl.checkpoint import as_policy
     from itskill.sim.batch import UnreachableStartError
-    from itskill.tasks import get_task
+    from itskill.tasks import get_task, make_batch_env
     from itskill.tasks.evaluate import evaluate
     from itskill.tasks.spec import load_starts
 
@@ -95,15 +95,16 @@ def eval_cmd(
             result = evaluate(spec, ref, episodes=episodes, seed=seed, num_envs=num_envs)
             _print_eval(result, spec, as_json, policy if policy.startswith(SKILL_PREFIX) else None)
             return
-        own = "the task's own start"
-        rows = []
-        for name, variant in [(own, spec), *load_starts(starts, spec)]:
+        variants = load_starts(starts, spec)
+        # Every start's reach is checked before the first is evaluated, which can take minutes.
+        for name, variant in variants:
             try:
-                result = evaluate(variant, ref, episodes=episodes, seed=seed, num_envs=num_envs)
+                make_batch_env(variant, num_envs=1, n_threads=1).close()
             except UnreachableStartError as err:
-                if name == own:
-                    raise
                 raise UnreachableStartError(f"{starts}: start {name!r}: {err}") from err
+        rows = []
+        for name, variant in [("the task's own start", spec), *variants]:
+            result = evaluate(variant, ref, episodes=episodes, seed=seed, num_envs=num_envs)
             rows.append({"start": name, **result.to_dict()})
             err_console.print(f"{name}: {result.success_rate:.0%}", highlight=False, markup=False)
     if as_json:
