@@ -1,5 +1,5 @@
 # Staged reward for: Pick up the nut and place it on the bolt
-# Written by itskill's offline rule-based backend (not a language model), sample 0.
+# Written by itskill's offline rule-based backend (not a language model), sample 1.
 import numpy as np
 
 
@@ -7,23 +7,23 @@ def compute_reward(ctx):
     """Staged shaping per subtask + stage bonus + success bonus - action penalty."""
     stage = np.asarray(ctx["stage"]).astype(np.int64)
     # Temperatures (metres or radians): one per transformed term.
-    temp_reach_0 = 0.08  # grip point to the part's centre
-    temp_centre_1 = 0.012  # grip point to the part's grip zone (lateral offset and the vertical offset beyond half the part height)
-    temp_upright_1 = 0.3  # part tilt beyond half the 20.0 degrees allowed
-    temp_lift_2 = 0.03  # height still to gain until the part bottom is at 1.0 * ctx["obj_height"][:, 0], while held
-    temp_upright_2 = 0.3  # part tilt beyond half the 20.0 degrees allowed
-    temp_to_fixture_3 = 0.05  # part bottom to a point 0.015 m over its fixture point
-    temp_engage_4 = 0.01  # part bottom to the fixture point, 1 once engaged
+    temp_reach_0 = 0.047291  # grip point to the part's centre
+    temp_centre_1 = 0.01032  # grip point to the part's grip zone (lateral offset and the vertical offset beyond half the part height)
+    temp_upright_1 = 0.45088  # part tilt beyond half the 20.0 degrees allowed
+    temp_lift_2 = 0.025106  # height still to gain until the part bottom is at 1.0 * ctx["obj_height"][:, 0], while held
+    temp_upright_2 = 0.20057  # part tilt beyond half the 20.0 degrees allowed
+    temp_to_fixture_3 = 0.097234  # part bottom to a point 0.015 m over its fixture point
+    temp_engage_4 = 0.018193  # part bottom to the fixture point, 1 once engaged
     # Term weights: a completed stage keeps paying its terms' full weight.
-    w_reach_0 = 1
-    w_centre_1 = 0.6
-    w_grasped_1 = 1
-    w_upright_1 = 0.5
-    w_lift_2 = 1
-    w_upright_2 = 0.5
-    w_to_fixture_3 = 1
-    w_hold_3 = 0.3
-    w_engage_4 = 1
+    w_reach_0 = 1.258
+    w_centre_1 = 0.6596
+    w_grasped_1 = 1.085
+    w_upright_1 = 0.6572
+    w_lift_2 = 0.8523
+    w_upright_2 = 0.4481
+    w_to_fixture_3 = 0.9527
+    w_hold_3 = 0.3767
+    w_engage_4 = 0.8028
     stage_bonus = 1
     success_bonus = 2
     action_penalty = 0.01
