@@ -812,6 +812,8 @@ def test_a_start_outside_what_the_scene_has_names_the_field(tmp_path, parts, cas
     [
         ('[[start]]\nname = "a"\nobjects = [{ x = 5.0 }]\n', "objects[0].x", "workspace"),
         ('[[start]]\nname = "a"\nee = { z = 1e300 }\n', "ee.z", "workspace"),
+        # The hand starts where the held peg is: the loader read this and it changed nothing.
+        ('[[start]]\nname = "a"\nee = { x = 0.5 }\n', "ee.x", "at the held part's x, y and z"),
         ('[[start]]\nname = "a"\nobjects = [{ yaw = 0.1 }]\n', "objects[0].yaw", "does not use"),
         ('[[start]]\nname = ""\n', "start[0].name", "expected some text"),
         ('[[start]]\nname = "a"\n[[start]]\nname = "a"\n', "start[1].name", "earlier start"),

@@ -658,14 +658,27 @@ def _parse_init(
             path, ir.where + ".objects", "at most one object can start in the gripper"
         )
     _check_parts_apart(path, ir.where, obj_inits, objects, fixtures)
+    if any(o.mode in HAND_MODES for o in obj_inits):
+        for key, default in (("x", _EE_X), ("y", _EE_Y), ("z", _EE_Z)):
+            if er.range(key, default, _REACH[key]) != Range(*default):
+                # It was read, checked and then ignored without a word.
+                raise TaskFileError(
+                    path,
+                    f"{er.where}.{key}",
+                    "the hand starts at the held part's x, y and z (its object's start); "
+                    "leave ee.x, ee.y and ee.z out (ee.yaw still applies)",
+                )
     return InitSpec(
-        ee_x=er.range("x", (0.45, 0.45), _REACH["x"]),
-        ee_y=er.range("y", (0.0, 0.0), _REACH["y"]),
-        ee_z=er.range("z", (0.2, 0.2), _REACH["z"]),
+        ee_x=er.range("x", _EE_X, _REACH["x"]),
+        ee_y=er.range("y", _EE_Y, _REACH["y"]),
+        ee_z=er.range("z", _EE_Z, _REACH["z"]),
         ee_yaw=er.range("yaw", (0.0, 0.0), _HAND_YAW),
         objects=tuple(obj_inits),
     )
 
+
+_EE_X, _EE_Y, _EE_Z = (0.45, 0.45), (0.0, 0.0), (0.2, 0.2)
+"""The hand's start where ``ee`` leaves it out and no part starts in the hand."""
 
 _ON_TABLE = ("table", "fingers")
 """The start modes that stand a part on the table: at its x and y, or between the open fingers
