@@ -151,6 +151,15 @@ def test_a_plan_with_an_empty_error_key_is_a_plan(empty: str) -> None:
         assert plan_command("pick up the nut", _openai(server)).task == "pick_nut_m12"
 
 
+def test_a_plan_with_null_notes_is_a_plan_asked_once() -> None:
+    # Refused as "notes must be a string", each refusal a paid request again.
+    reply = VALID.replace('"notes": ""', '"notes": null')
+    assert '"notes": null' in reply
+    with FakeOpenAIServer([reply]) as server:
+        plan = plan_command("pick up the nut", _openai(server))
+        assert (plan.task, plan.notes, len(server.requests)) == ("pick_nut_m12", "", 1)
+
+
 def test_a_refused_command_names_the_closest_tasks() -> None:
     with FakeOpenAIServer(['{"error": "which nut?"}']) as server, pytest.raises(PlanError) as info:
         plan_command("pick up the nut", _openai(server))

@@ -143,8 +143,15 @@ def test_a_final_retraining_on_several_seeds_shows_its_interval(
     path.write_text(json.dumps(summary))
     code, output = _show(run)
     assert code == 0, output
-    assert "generated (best): success 30% (95% CI 5%–55%) over seeds [5, 6, 7]" in output
+    assert "generated (best): success 30% [5%, 55%] over seeds [5, 6, 7]" in output
     assert re.search(r"expert: success \d+% \(1 seed, no interval\)", output), output
+    # A t-interval over three seeds of 0, 100 and 0% reaches past both ends: it showed
+    # "95% CI -110%–177%", where no rate can lie.
+    wide = {"seeds": [5, 6, 7], "success": [0.0, 1.0, 0.0], "mean": 1 / 3, "ci_low": -1.1,
+            "ci_high": 1.77}  # fmt: skip
+    summary["final"]["generated"].update(wide)
+    path.write_text(json.dumps(summary))
+    assert "generated (best): success 33% [0%, 100%] over seeds" in _show(run)[1]
 
 
 @pytest.mark.parametrize(

@@ -129,6 +129,27 @@ def test_a_run_made_on_a_cluster_resumes_here_without_its_address(tmp_path) -> N
     assert (again.executor, again.ray_address) == ("ray", "10.0.0.5:6379")
 
 
+def test_a_stored_setting_that_no_longer_validates_names_the_run_not_a_flag(tmp_path) -> None:
+    # It was reported as a bad value of --iterations, a flag the user had not typed.
+    import json
+
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+    from itskill.reward.search import CONFIG_FILE, RUN_KIND
+
+    config = load_search_config().to_dict() | {"iterations": 500}
+    run = tmp_path / "run"
+    run.mkdir()
+    stored = {"kind": RUN_KIND, "target": "pick_nut_m12", "llm": "offline", "compare_expert": True}
+    (run / CONFIG_FILE).write_text(json.dumps({**stored, "config": config}))
+    result = CliRunner().invoke(app, ["reward", "generate", "--resume", str(run)])
+    assert result.exit_code == 2
+    message = " ".join(result.output.split())
+    assert f"{run / CONFIG_FILE}: iterations: expected at most 100, got 500" in message
+    assert "--iterations" not in message
+
+
 @pytest.mark.parametrize(
     ("text", "where", "problem"),
     [

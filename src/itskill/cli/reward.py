@@ -284,14 +284,15 @@ def _remove_added(run_dir: Path, before: set[Path] | None) -> bool:
     return True
 
 
-def _interval(band: dict[str, Any]) -> str:
-    """A final retraining's 95% interval, or why there is none: one seed has no spread to
-    estimate, and the zero-width interval stored for it would read as certainty."""
-    from itskill.stats import format_rate
+def _rate(band: dict[str, Any]) -> str:
+    """A final retraining's success with its 95% interval, cut to [0, 100%] as every rate is,
+    or why there is none: one seed has no spread to estimate, and the zero-width interval
+    stored for it would read as certainty."""
+    from itskill.stats import format_rate, format_rate_interval
 
     if len(band["seeds"]) < 2:
-        return f"{len(band['seeds'])} seed, no interval"
-    return f"95% CI {format_rate(band['ci_low'])}–{format_rate(band['ci_high'])}"
+        return f"{format_rate(band['mean'])} ({len(band['seeds'])} seed, no interval)"
+    return format_rate_interval(band["mean"], band["ci_low"], band["ci_high"])
 
 
 def _flags_named(overrides: dict[str, Any], load: Callable[[], Any]) -> Any:
@@ -302,7 +303,8 @@ def _flags_named(overrides: dict[str, Any], load: Callable[[], Any]) -> Any:
     try:
         return load()
     except SearchConfigError as err:
-        if err.path == "overrides" and err.where in overrides:
+        # A flag left out is None here: a stored setting that no longer validates is not its.
+        if err.path == "overrides" and overrides.get(err.where) is not None:
             flag = "--" + err.where.replace("_", "-")
             raise typer.BadParameter(err.problem, param_hint=flag) from err
         raise
@@ -394,7 +396,7 @@ def show_cmd(
             band = final.get(key)
             if band and band.get("mean") is not None:
                 console.print(
-                    f"{label}: success {format_rate(band['mean'])} ({_interval(band)}) "
+                    f"{label}: success {_rate(band)} "
                     f"over seeds {band['seeds']}, "
                     f"{final['steps']} env-steps each",
                     highlight=False,

@@ -307,7 +307,8 @@ def validate_plan(command: str, data: dict[str, Any]) -> TaskPlan:
             f"subtasks must be {len(stage_names)} non-empty sentences, one per action, "
             f"got {subtasks!r}"
         )
-    notes = data.get("notes", "")
+    # JSON-mode models write null for an empty field, as for "error" above.
+    notes = data.get("notes") or ""
     if not isinstance(notes, str):
         raise _InvalidPlan(f"notes must be a string, got {notes!r}")
     return TaskPlan(

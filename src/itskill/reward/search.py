@@ -63,7 +63,7 @@ from itskill.reward.candidate import (
     CandidateNetwork,
     run_candidate,
 )
-from itskill.reward.config import RewardSearchConfig, load_search_config
+from itskill.reward.config import RewardSearchConfig, SearchConfigError, load_search_config
 from itskill.reward.generator import Sample, fenced, generate_samples, probe_contexts
 from itskill.reward.plan import TaskPlan, plan_command, plan_for_task
 from itskill.stats import format_rate, mean_interval
@@ -961,4 +961,10 @@ def config_from_run(
         # The stored address goes with the stored cluster: resuming with `--executor local`
         # (the cluster gone) leaves it behind; one given with it is refused.
         stored = {k: v for k, v in stored.items() if k != "ray_address"}
+    try:
+        load_search_config(overrides=stored)
+    except SearchConfigError as err:
+        # A setting this version no longer takes (a bound lowered, the file edited) is the
+        # record's, not a flag's: name the file.
+        raise SearchConfigError(Path(run_dir) / CONFIG_FILE, err.where, err.problem) from err
     return load_search_config(overrides={**stored, **given})
