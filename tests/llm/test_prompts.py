@@ -99,6 +99,14 @@ def test_execution_error_feedback_has_code_and_error() -> None:
     assert "```python\nx = 1\n```" in text
 
 
+def test_the_same_failure_in_two_iterations_makes_two_requests() -> None:
+    # Without the iteration, a search that trained nothing twice on the same failure sent the
+    # same request again, and the reply cache answered it with the replies it already held.
+    first = execution_error_feedback("x = 1", "boom", iteration=2)
+    second = execution_error_feedback("x = 1", "boom", iteration=3)
+    assert first != second and "iteration 3 of the search" in second
+
+
 def test_analyzer_prompt_and_its_checks() -> None:
     target = {"id": "t", "description": "pick and place", "actions": ["approach", "grasp"]}
     sources = [{"id": "s", "description": "pick", "actions": ["grasp"], "extra": 1}]

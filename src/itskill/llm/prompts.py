@@ -42,7 +42,7 @@ TEMPLATE_FIELDS: dict[str, frozenset[str]] = {
     "reward_task": frozenset({"task_description"}),
     "reward_constraints": frozenset(),
     "policy_feedback": frozenset({"success_rate", "stats_table", "code", "iteration"}),
-    "execution_error": frozenset({"code", "error"}),
+    "execution_error": frozenset({"code", "error", "iteration"}),
     "analyzer_system": frozenset(),
     "analyzer_user": frozenset({"target", "sources"}),
     "analyzer_retry": frozenset({"error", "m", "n"}),
@@ -248,9 +248,19 @@ def policy_feedback(
     )
 
 
-def execution_error_feedback(code: str, error: str) -> str:
-    """Ask for a corrected function after ``code`` failed the sandbox or raised."""
-    return render("execution_error", code=code.strip(), error=error.strip() or "(no message)")
+def execution_error_feedback(code: str, error: str, iteration: int = 1) -> str:
+    """Ask for a corrected function after ``code`` failed the sandbox or raised.
+
+    ``iteration`` (1-based) is the search iteration the reply is for, as in
+    :func:`policy_feedback`: two iterations in a row that train nothing and end on the same
+    failure would otherwise send the same request, which the reply cache then answers with the
+    replies it already holds."""
+    return render(
+        "execution_error",
+        code=code.strip(),
+        error=error.strip() or "(no message)",
+        iteration=str(iteration),
+    )
 
 
 # --------------------------------------------------------------------------- analyzer

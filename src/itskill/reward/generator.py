@@ -175,11 +175,13 @@ def generate_samples(
     max_regenerations: int,
     temperature: float = 1.0,
     after_request: Callable[[], object] | None = None,
+    iteration: int = 1,
 ) -> list[Sample]:
     """``k`` samples for ``messages``, each regenerated with its error up to ``max_regenerations``
     times. The requests are made in a fixed order, so a rerun replays them from the reply cache.
     ``after_request`` is called after each request (a run records its usage there: killed
-    mid-generation, the requests paid for would be replayed from the cache as free ones)."""
+    mid-generation, the requests paid for would be replayed from the cache as free ones);
+    ``iteration`` is the search iteration the error feedback names."""
 
     def ask(request: list[Message], n: int) -> list[str]:
         replies = client.complete(request, n=n, purpose="reward", temperature=temperature)
@@ -200,7 +202,7 @@ def generate_samples(
                 retry = [
                     *messages,
                     {"role": "assistant", "content": reply},
-                    {"role": "user", "content": execution_error_feedback(code, error)},
+                    {"role": "user", "content": execution_error_feedback(code, error, iteration)},
                 ]
                 reply = ask(retry, 1)[0]
             samples.append(sample)

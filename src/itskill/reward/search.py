@@ -364,7 +364,7 @@ def _feedback(
         code = best["code"]
     elif failure is not None:
         code, error = failure
-        text = execution_error_feedback(code, error)
+        text = execution_error_feedback(code, error, iteration)
     else:
         return []
     return [{"role": "assistant", "content": fenced(code)}, {"role": "user", "content": text}]
@@ -610,6 +610,7 @@ def _search(
                 config.max_regenerations,
                 config.temperature,
                 after_request=run.usage.save,
+                iteration=i + 1,
             )
             it_dir = out / f"iter_{i}"
             for sample in samples:
