@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from itskill.files import replaced_whole
+from itskill.llm.offline.backend import BACKEND
 
 _BANDS = (
     ("generated", "tab:blue", "chosen generated reward"),
@@ -61,7 +62,7 @@ def plot_fig6(summary: dict[str, Any], out: Path) -> Path:
         if n > 1:
             ax.axhspan(band["ci_low"], band["ci_high"], color=colour, alpha=0.12, linewidth=0)
     llm = summary.get("llm", "")
-    source = "offline rule-based backend" if summary.get("offline") else llm
+    source = BACKEND if summary.get("offline") else llm
     steps = final.get("steps")
     network = summary.get("network")
     runs = f"every run: {steps:,} env-steps" if steps else ""

@@ -54,6 +54,7 @@ from itskill.files import (
     write_text,
 )
 from itskill.llm.client import LLMClient, Message, Usage, make_client
+from itskill.llm.offline.backend import BACKEND
 from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
 from itskill.llm.usage_log import UsageLog
 from itskill.reward.candidate import (
@@ -80,7 +81,7 @@ FIGURE_FILE = "fig6.png"
 CACHE_DIR = "llm_cache"
 NETWORK_DIR = "network"
 """Where a search whose candidates train a transfer network keeps that network's record."""
-OFFLINE_NOTE = "offline rule-based backend (not a language model)"
+OFFLINE_NOTE = f"{BACKEND} (not a language model)"
 
 __all__ = [
     "RewardSearchConfig",

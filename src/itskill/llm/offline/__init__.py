@@ -25,7 +25,6 @@ class OfflineClient(BaseClient):
 
     name = "offline"
     offline = True
-    description = "offline rule-based backend (deterministic, no language model, no network)"
 
     def __init__(self, cache_dir: Path | None = None) -> None:
         super().__init__(cache_dir)

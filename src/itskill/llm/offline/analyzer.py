@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import json
 
-BACKEND = "offline rule-based backend"
+from itskill.llm.offline.backend import BACKEND
+
 FLOOR = 0.05
 CONTEXT_BONUS = 0.5
 

@@ -33,7 +33,7 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-BACKEND = "offline rule-based backend"
+from itskill.llm.offline.backend import BACKEND
 
 # What a verb acts on: "it", "them" or "the" and up to three words ("the held M12 nut").
 _OBJ = r"(?:it |them |the (?:\w+ ){0,3})?"

@@ -35,10 +35,9 @@ from itskill.datafile import (
     check_table,
     read_toml,
 )
+from itskill.llm.offline.backend import BACKEND
 from itskill.llm.offline.blocks import fenced
 from itskill.tasks.predicates import PREDICATES, PredicateError, parse
-
-BACKEND = "offline rule-based backend"
 
 _STAGE = re.compile(
     r"^\s*stage\s+(\d+)\s*:\s*([A-Za-z_][\w\-]*)\s*\|\s*object\s+(\d+)\s*\|"
