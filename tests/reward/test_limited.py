@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import resource
 import signal
@@ -129,3 +130,16 @@ def test_an_exception_whose_constructor_differs_from_its_args_keeps_its_type() -
     with pytest.raises(CheckpointError) as info:
         run_limited(_missing_checkpoint, ("/runs/x",), sandbox=LIMITS, name="child")
     assert info.value.path == "/runs/x" and str(info.value).startswith("/runs/x: missing")
+
+
+def _disk_full(path: str) -> None:
+    raise OSError(errno.ENOSPC, "No space left on device", path)
+
+
+def test_an_os_error_in_the_child_keeps_its_errno_and_file_name() -> None:
+    # It came back as "(28, 'No space left on device')" with no errno or path: the user was
+    # not told which path, and a read-only disk was no longer recognised as a path problem.
+    with pytest.raises(OSError) as info:
+        run_limited(_disk_full, ("/runs/x/model.zip",), sandbox=LIMITS, name="child")
+    assert (info.value.errno, info.value.filename) == (errno.ENOSPC, "/runs/x/model.zip")
+    assert str(info.value) == "[Errno 28] No space left on device: '/runs/x/model.zip'"

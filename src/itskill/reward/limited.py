@@ -127,8 +127,17 @@ def _pack(err: BaseException) -> Any:
 
     Pickling an exception rebuilds it as ``type(err)(*err.args)``, which fails, or builds another
     message, for an exception whose constructor takes other arguments than its ``args``
-    (``CheckpointError(path, problem)``). A RuntimeError naming it where even that cannot travel.
+    (``CheckpointError(path, problem)``). An OSError goes as pickle sends it: its errno,
+    message and file name are set by its constructor alone, from the arguments pickle keeps. A
+    RuntimeError naming it where even that cannot travel.
     """
+    if isinstance(err, OSError):
+        try:
+            copy = pickle.loads(pickle.dumps(err))
+        except Exception:
+            return RuntimeError(f"{type(err).__name__}: {err}")
+        if str(copy) == str(err):
+            return copy
     packed = (type(err), err.args, dict(vars(err)))
     try:
         pickle.loads(pickle.dumps(packed))
