@@ -16,6 +16,10 @@ ACCEPTED = {
     "one-line-fence": f"```json {OBJECT}```",
     "bare": OBJECT,
     "prose-around": f"Here it is: {OBJECT} Hope this helps.",
+    # The closing fence of the code block opened a block of the prose after it.
+    "after-a-code-block": f"Some code:\n```python\nx = 1\n```\nThe plan:\n```json\n{OBJECT}\n```",
+    # From the first brace to the last was not JSON.
+    "brace-in-prose": f"I fill the {{task}} field: {OBJECT}",
 }
 
 

@@ -11,7 +11,9 @@ import json
 import re
 from typing import Any
 
-_FENCE = re.compile(r"```[ \t]*(?:json)?[ \t]*\n(.*?)```", re.DOTALL | re.IGNORECASE)
+# A fence opens at the start of a line: the closing ``` of an earlier block (a ```python one)
+# would otherwise open the next one, and the prose between them be read as the object.
+_FENCE = re.compile(r"^[ \t]*```[ \t]*(\w*)[ \t]*\n(.*?)^[ \t]*```", re.DOTALL | re.MULTILINE)
 
 
 class JSONReplyError(ValueError):
@@ -19,22 +21,37 @@ class JSONReplyError(ValueError):
 
 
 def parse_json_reply(reply: str) -> dict[str, Any]:
-    """The JSON object in ``reply``: inside its first ```json fence, or its outermost braces.
+    """The JSON object in ``reply``: the first ```json (or untagged) fenced block that holds one,
+    else the first object found from one of its opening braces (prose around it, a ``{`` in
+    that prose, a fence on one line).
 
     Raises :class:`JSONReplyError` when the object is cut off, is not valid JSON or is not an
     object.
     """
-    match = _FENCE.search(reply)
-    text = match.group(1) if match else reply
-    if not match and "{" in text:
-        start, end = text.index("{"), text.rfind("}")
-        if end < start:
-            raise JSONReplyError("the reply's JSON object is not closed (cut off?)")
-        text = text[start : end + 1]
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise JSONReplyError(f"the reply holds no valid JSON object ({err})") from err
-    if not isinstance(data, dict):
-        raise JSONReplyError(f"expected a JSON object, got {type(data).__name__}")
-    return data
+    not_object: str | None = None
+    first_error: json.JSONDecodeError | None = None
+    blocks = [m.group(2) for m in _FENCE.finditer(reply) if m.group(1).lower() in ("", "json")]
+    for block in blocks:
+        try:
+            data = json.loads(block)
+        except json.JSONDecodeError as err:
+            first_error = first_error or err
+            continue
+        if isinstance(data, dict):
+            return data
+        not_object = not_object or type(data).__name__
+    decoder = json.JSONDecoder()
+    for brace in re.finditer(r"\{", reply):
+        try:
+            data, _ = decoder.raw_decode(reply, brace.start())
+        except json.JSONDecodeError as err:
+            first_error = first_error or err
+            continue
+        if isinstance(data, dict):
+            return data
+    if not_object is not None:
+        raise JSONReplyError(f"expected a JSON object, got {not_object}")
+    if "{" in reply and reply.rfind("}") < reply.index("{"):
+        raise JSONReplyError("the reply's JSON object is not closed (cut off?)")
+    why = f" ({first_error})" if first_error else ""
+    raise JSONReplyError(f"the reply holds no valid JSON object{why}")
