@@ -222,6 +222,16 @@ ESCAPES = {
         "x = (2**4000 * 2**4000 * 2**4000 * 2**4000) ** 2",
         "constant too large (a 8001-bit",
     ),
+    # Counted in elements, 400 GB passed: each element of "U1000" is 4 kB.
+    "wide_string_dtype_bomb": ("x = np.ones(10**8, dtype='U1000')", "string, bytes, void and"),
+    "string_astype_bomb": ("x = ctx['ee_pos'].astype('U100000')", "string, bytes, void and"),
+    "object_dtype": ("x = np.zeros(3, dtype=object)", "string, bytes, void and object"),
+    # A 10 GB string made in one C call, which the timeout cannot interrupt.
+    "format_width_bomb": ("x = f'{0:10000000000}'", "format width 10000000000 is too large"),
+    "percent_width_bomb": ("x = '%.10000000000f' % 1.0", "format width 10000000000 is too"),
+    # Each argument passed the size check; their product is 10**10 elements.
+    "outer_product_bomb": ("x = np.outer(np.ones(10**5), np.ones(10**5))", "size 10000000000"),
+    "kron_bomb": ("x = np.kron(np.ones(10**5), np.ones(10**5))", "size 10000000000 is too"),
 }
 
 
@@ -337,10 +347,12 @@ def test_deep_recursion_is_a_sandbox_error() -> None:
 
 
 def test_a_computed_memory_bomb_is_a_sandbox_error() -> None:
-    # Not constant, so only the run time can stop it: numpy refuses 8 TB at once.
+    # Not constant, so only the run time can stop it: numpy refuses 8 TB at once. The line is
+    # fed back (the message of a MemoryError is often empty, and the model was told nothing).
     source = wrap("k = ctx['ee_pos'].shape[0] * 10**12\nx = np.ones(k)")
-    with pytest.raises(SandboxError, match="out of memory"):
+    with pytest.raises(SandboxError, match="out of memory") as err:
         compile_reward(source)(ctx())
+    assert "x = np.ones(k)" in str(err.value)
 
 
 def test_runtime_errors_carry_the_line_and_message() -> None:

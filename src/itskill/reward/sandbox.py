@@ -181,8 +181,19 @@ _REPEATING_NUMPY = {"tile", "repeat"}
 """Functions whose first argument is repeated by the others."""
 _LIKE_NUMPY = {"empty_like", "zeros_like", "ones_like", "full_like"}
 _OTHER_SIZED_NUMPY = {"eye", "arange", "linspace", "broadcast_to"}
-_SIZE_CHECKED = _SIZED_NUMPY | _REPEATING_NUMPY | _LIKE_NUMPY | _OTHER_SIZED_NUMPY
+_PRODUCT_NUMPY = {"outer", "kron"}
+"""Functions whose result holds the product of their two arguments' sizes."""
+_SIZE_CHECKED = _SIZED_NUMPY | _REPEATING_NUMPY | _LIKE_NUMPY | _OTHER_SIZED_NUMPY | _PRODUCT_NUMPY
 """The numpy functions whose size :func:`_elements` reads from their arguments."""
+MAX_FORMAT_WIDTH = 10_000
+"""Largest constant width or precision in a format: ``f"{0:10000000000}"`` is a 10 GB string
+made in one C call, which no timeout interrupts."""
+_FLEXIBLE_DTYPES = re.compile(r"^[<>=|]?[USVaO]|^(str|bytes|object|void|str_|bytes_)$")
+"""The dtypes of strings, bytes, raw memory and Python objects, as ``dtype=`` or ``astype``
+name them: no reward needs one, and their item size (``"U1000"``, 4 kB an element) multiplies
+every size this module counts."""
+_FORMAT_NUMBER = re.compile(r"\d+")
+_PERCENT_SPEC = re.compile(r"%[-#0 +]*(\d*)(?:\.(\d*))?")
 
 
 def _violation(node: ast.AST, what: str) -> SandboxViolation:
@@ -396,6 +407,10 @@ def _elements(node: ast.AST) -> int | None:
         return None if inner is None else _elements(inner)
     if name == "broadcast_to":
         return size(1, "shape")
+    if name in _PRODUCT_NUMPY:
+        first, second = arg(0, "a"), arg(1, "b")
+        sizes = [None if x is None else _elements(x) for x in (first, second)]
+        return None if None in sizes else math.prod(sizes)
     return None
 
 
@@ -531,6 +546,13 @@ class _Checker(ast.NodeVisitor):
 
     def visit_BinOp(self, node: ast.BinOp) -> None:
         _const_int(node)  # refuses huge constant powers
+        if (
+            isinstance(node.op, ast.Mod)
+            and isinstance(node.left, ast.Constant)
+            and isinstance(node.left.value, str)
+        ):
+            specs = _PERCENT_SPEC.findall(node.left.value)
+            _check_format_widths(node, *(f"{width} {precision}" for width, precision in specs))
         if isinstance(node.op, ast.Mult):
             size = _elements(node)
             if size is not None and size > MAX_CONSTANT_ELEMENTS:
@@ -556,7 +578,47 @@ class _Checker(ast.NodeVisitor):
             size = _elements(node)
         if size is not None and size > MAX_CONSTANT_ELEMENTS:
             raise _violation(node, f"constant size {_shown(size)} is too large")
+        dtypes = [k.value for k in node.keywords if k.arg == "dtype"]
+        if isinstance(func, ast.Attribute) and func.attr == "astype" and node.args:
+            dtypes.append(node.args[0])
+        for dtype in dtypes:
+            if _names_flexible_dtype(dtype):
+                raise _violation(
+                    node, "string, bytes, void and object arrays are not allowed (a reward is "
+                    "made of numbers)"
+                )  # fmt: skip
         self.generic_visit(node)
+
+    def visit_FormattedValue(self, node: ast.FormattedValue) -> None:
+        spec = node.format_spec
+        if isinstance(spec, ast.JoinedStr):
+            for part in spec.values:
+                if isinstance(part, ast.Constant) and isinstance(part.value, str):
+                    _check_format_widths(node, part.value)
+        self.generic_visit(node)
+
+
+def _names_flexible_dtype(node: ast.AST) -> bool:
+    """Whether ``node`` names a string, bytes, void or object dtype as written: a string
+    (``"U1000"``, ``"S"``) or the type (``str``, ``np.bytes_``). A dtype computed from the data
+    is left to the process limits."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        return bool(_FLEXIBLE_DTYPES.match(node.value.strip()))
+    if isinstance(node, ast.Name):
+        return bool(_FLEXIBLE_DTYPES.match(node.id))
+    if isinstance(node, ast.Attribute) and _is_module(node.value, "np"):
+        return bool(_FLEXIBLE_DTYPES.match(node.attr))
+    return False
+
+
+def _check_format_widths(node: ast.AST, *specs: str) -> None:
+    """Refuse format specs (an f-string's, those of a ``%`` template; ``str.format`` is not
+    allowed) that ask for a width or precision above :data:`MAX_FORMAT_WIDTH`."""
+    for number in (n for spec in specs for n in _FORMAT_NUMBER.findall(spec)):
+        if len(number) > 12 or int(number) > MAX_FORMAT_WIDTH:
+            raise _violation(
+                node, f"format width {number} is too large (at most {MAX_FORMAT_WIDTH:,})"
+            )
 
 
 def _is_module(node: ast.AST, name: str) -> bool:
@@ -712,7 +774,9 @@ def _run(fn, *args: Any, source: str, timeout: float | None) -> Any:
     except RewardOutputError as err:
         raise SandboxError(_cut(str(err))) from err
     except MemoryError as err:
-        raise SandboxError(f"the reward code ran out of memory: {err}") from err
+        # Its message is often empty: the line it failed on is what tells the model what to fix.
+        tail = _traceback_tail(err, source)
+        raise SandboxError(f"the reward code ran out of memory:\n{tail}") from err
     except RecursionError as err:
         tail = _traceback_tail(err, source)
         raise SandboxError(f"the reward code recursed too deeply:\n{tail}") from err
