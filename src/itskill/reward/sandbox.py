@@ -11,7 +11,9 @@ Layers, each for a reason:
    ``np.ones(10**12)``, ``range(10**12)``, ``[0] * int(1e12)``) are refused here: sizes are
    folded from number literals through ``+ - * **`` and ``int``, ``round``, ``abs``,
    ``math.floor``/``ceil``/``trunc`` and numpy's scalar types and roundings (``np.int64(1e12)``);
-   a size computed from the data is left to layer 4.
+   a size computed from the data is left to layer 4. String, bytes, void and object dtypes (an
+   element of ``"U1000"`` is 4 kB) and format widths above :data:`MAX_FORMAT_WIDTH` (one C call
+   builds the string, which no timeout interrupts) are refused too.
 2. :func:`compile_reward` runs the module in a fresh namespace whose builtins are only the safe
    ones (no ``open``, ``eval``, ``getattr``, ``type``, ``__import__``...; ``import`` statements are
    served by a private importer that hands out numpy and math and nothing else, and numpy's own
