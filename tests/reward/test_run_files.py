@@ -251,3 +251,26 @@ def test_a_search_in_use_is_refused_before_its_network_is_built(tmp_path: Path) 
     assert result.exit_code == 2, result.output
     assert f"{run} is in use by another itskill reward generate" in " ".join(result.output.split())
     assert not run.exists()
+
+
+def test_a_run_whose_reward_prompt_changed_is_not_resumed(
+    finished_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Every request missed the reply cache and was paid for again, and each finished candidate
+    # whose new code differed was trained again in place of its result, without a word.
+    from itskill.llm import prompts
+
+    run = _copy(finished_run, tmp_path / "run")
+    (run / "summary.json").unlink()  # unfinished: a resume goes on with it
+    assert json.loads((run / "config.json").read_text())["prompt_sha256"]
+    shipped = Path(str(prompts._template_path("reward_system"))).read_text(encoding="utf-8")
+    mine = tmp_path / "prompts"
+    mine.mkdir()
+    (mine / "reward_system.txt").write_text("Be brief. " + shipped, encoding="utf-8")
+    monkeypatch.setenv(prompts.PROMPTS_DIR_ENV, str(mine))
+    before = sorted(p.relative_to(run) for p in run.rglob("*"))
+    with pytest.raises(RewardSearchError, match="its reward prompt changed since the run began"):
+        generate_reward("pick_nut_m12", search_client(run, "offline"), run,
+                        tiny_config(samples=1, select_top=1), resume=True,
+                        console=Console(file=io.StringIO()))  # fmt: skip
+    assert sorted(p.relative_to(run) for p in run.rglob("*")) == before

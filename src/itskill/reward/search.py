@@ -320,6 +320,21 @@ def _check_resume(out: Path, header: dict[str, Any]) -> dict[str, Any]:
     return stored
 
 
+def _check_prompt(out: Path, prompt_sha256: str) -> None:
+    """Refuse to resume a search whose reward prompt changed since it began (a run from before
+    the prompt was recorded is not checked): no reply would replay from the cache, every
+    request would be paid for again, and each finished candidate whose new code differs would
+    be trained again in place of its result."""
+    stored = read_json(out / CONFIG_FILE).get("prompt_sha256")
+    if stored is not None and stored != prompt_sha256:
+        raise RewardSearchError(
+            f"{out}: its reward prompt changed since the run began (the prompt templates or "
+            "ITSKILL_PROMPTS_DIR, the task's file, or an itskill upgrade): resuming would ask "
+            "the model anew and train its finished candidates again; restore them, or start a "
+            "new run with another --out"
+        )
+
+
 def plan_target(target: str, client: LLMClient) -> TaskPlan:
     """The plan of ``target``: from its task file for a task id, by ``client`` for a command."""
     task = resolve_target(target)
@@ -573,7 +588,11 @@ def _search(
         if created:  # all it holds is the reply cache of a command that cannot be planned
             shutil.rmtree(out, ignore_errors=True)
         raise
-    if not resume:
+    base = reward_messages(plan.describe())
+    prompt_sha256 = hashlib.sha256(json.dumps(base, sort_keys=True).encode()).hexdigest()
+    if resume:
+        _check_prompt(out, prompt_sha256)
+    else:
         write_json(
             out / CONFIG_FILE,
             {
@@ -581,6 +600,7 @@ def _search(
                 "offline": client.offline,
                 "config": config.to_dict(),
                 "itskill": itskill.__version__,
+                "prompt_sha256": prompt_sha256,
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             },
         )
@@ -594,7 +614,6 @@ def _search(
         console.print(f"plan: task {plan.task}; " + " ".join(plan.subtasks), highlight=False)
 
         contexts = probe_contexts(plan.task, config.probe_envs, config.probe_steps)
-        base = reward_messages(plan.describe())
         history: list[dict[str, Any]] = []
         candidates: list[dict[str, Any]] = []  # every trained sample, with its code and _code_key
         results_of: dict[str, Path] = {}  # _code_key -> the result of its training in this search
