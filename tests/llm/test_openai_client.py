@@ -235,11 +235,17 @@ def _connection_error(c: OpenAIClient, cause: BaseException | None) -> openai.AP
     ("cause", "attempts", "said"),
     [
         (ConnectionRefusedError(111, "Connection refused"), 2, "connection refused"),
-        # A name that does not resolve, a reset and a timeout can pass within the back-off (a
-        # resolver or network hiccup, a busy server): they are asked again as before.
+        # A name that does not resolve and a reset can pass within the back-off (a resolver or
+        # network hiccup): they are asked again as before.
         (socket.gaierror(-3, "Temporary failure in name resolution"), 6, "name resolution"),
         (ConnectionResetError(104, "Connection reset by peer"), 6, "reset by peer"),
-        (None, 6, "timed out"),
+        # A timeout is asked again once: each try started the whole generation again, and six
+        # paid ones ended in "cannot reach", though the server answered, slowly.
+        (
+            None,
+            2,
+            "the server may be slow: raise ITSKILL_LLM_TIMEOUT",
+        ),
     ],
 )
 def test_only_a_refused_connection_skips_the_back_off(
@@ -568,3 +574,17 @@ def test_choices_and_usage_that_are_not_openais_shape_are_named_or_not_counted()
         c._texts(SimpleNamespace(choices=[SimpleNamespace(text="hello")]))
     c._account(SimpleNamespace(usage=SimpleNamespace(prompt_tokens="n/a", completion_tokens=7)))
     assert c.usage.prompt_tokens == 0 and c.usage.completion_tokens == 7
+
+
+def test_the_request_timeout_is_set_by_its_environment_variable(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from itskill.llm.client import TIMEOUT_ENV, make_client
+
+    monkeypatch.setenv(TIMEOUT_ENV, "600")
+    slow = make_client("openai:m", base_url="http://example.invalid/v1", api_key="x")
+    assert slow.retry.timeout_s == 600.0
+    for bad in ("0", "-5", "inf", "soon"):
+        monkeypatch.setenv(TIMEOUT_ENV, bad)
+        with pytest.raises(LLMError, match=f"{TIMEOUT_ENV}='{bad}': expected a number of seconds"):
+            make_client("openai:m", base_url="http://example.invalid/v1", api_key="x")

@@ -9,6 +9,7 @@ the token and cost accounting, so every backend behaves the same to its caller.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
@@ -26,6 +27,9 @@ PURPOSES = ("plan", "reward", "analyze")
 ROLES = ("system", "user", "assistant")
 MODEL_ENV = "ITSKILL_LLM_MODEL"
 BASE_URL_ENV = "OPENAI_BASE_URL"
+TIMEOUT_ENV = "ITSKILL_LLM_TIMEOUT"
+"""Seconds an OpenAI-compatible endpoint has to answer a request (default 180): K samples of a
+reasoning model, or of a local server on a small machine, can take longer."""
 API_KEY_ENV = "OPENAI_API_KEY"
 
 
@@ -173,15 +177,25 @@ def make_client(
     to the empty string counts as unset, but an empty ``base_url`` given here (``--base-url ""``)
     is refused as no URL. ``price`` is ``(USD per 1M input tokens, USD per 1M output tokens)`` and
     overrides the price table. ``cache_dir`` turns on the reply cache (a rerun replays instead of
-    asking again).
+    asking again). ``$ITSKILL_LLM_TIMEOUT`` sets the seconds a request may take (default 180).
     """
     backend, model = model_spec(spec)
     if backend == "offline":
         from itskill.llm.offline import OfflineClient
 
         return OfflineClient(cache_dir=cache_dir)
-    from itskill.llm.openai_client import OpenAIClient
+    from itskill.llm.openai_client import OpenAIClient, RetryConfig
 
+    retry = RetryConfig()
+    timeout = os.environ.get(TIMEOUT_ENV) or None
+    if timeout is not None:
+        try:
+            seconds = float(timeout)
+        except ValueError:
+            seconds = math.nan
+        if not (math.isfinite(seconds) and seconds > 0):
+            raise LLMError(f"{TIMEOUT_ENV}={timeout!r}: expected a number of seconds above 0")
+        retry = RetryConfig(timeout_s=seconds)
     if base_url is None:
         # An empty variable is how deployment templates (`OPENAI_BASE_URL=${URL:-}`) leave it
         # unset, so it means the default; an empty flag was typed and is refused by the client.
@@ -192,4 +206,5 @@ def make_client(
         api_key=api_key or os.environ.get(API_KEY_ENV) or None,
         cache_dir=cache_dir,
         price=price,
+        retry=retry,
     )

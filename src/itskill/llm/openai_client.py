@@ -29,7 +29,14 @@ from urllib.parse import urlsplit
 import openai
 
 from itskill.datafile import DataFileError, check_nonnegative, check_table, read_toml
-from itskill.llm.client import BASE_URL_ENV, BaseClient, LLMError, LLMUnavailableError, Message
+from itskill.llm.client import (
+    BASE_URL_ENV,
+    TIMEOUT_ENV,
+    BaseClient,
+    LLMError,
+    LLMUnavailableError,
+    Message,
+)
 
 OPENAI_URL = "https://api.openai.com/v1"
 LOCAL_DUMMY_KEY = "sk-no-key-needed"
@@ -89,6 +96,9 @@ class RetryConfig:
 
     max_retries: int = 5
     refused_retries: int = 1
+    timeout_retries: int = 1
+    """A request that timed out is asked again once: each try starts its whole generation (K
+    samples) again, which a slow server does not finish sooner and a provider bills."""
     backoff_initial_s: float = 1.0
     backoff_max_s: float = 30.0
     timeout_s: float = 180.0
@@ -277,6 +287,8 @@ class OpenAIClient(BaseClient):
                 # A refused connection is not transient like a rate limit or a timeout: waiting
                 # the whole back-off (half a minute) only delays the news that no server runs.
                 last = min(attempts - 1, self.retry.refused_retries) if refused else attempts - 1
+                if isinstance(err, openai.APITimeoutError):
+                    last = min(attempts - 1, self.retry.timeout_retries)
                 if attempt >= last:
                     raise _unavailable(self, err, attempt + 1) from err
                 time.sleep(self._backoff(0 if refused else attempt, err))
@@ -399,6 +411,12 @@ def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnav
     elif isinstance(err, CUT_OFF):
         what = f"a cut-off or invalid JSON reply from {client.base_url}"
         advice = "try again later or check any proxy in between"
+    elif isinstance(err, openai.APITimeoutError):
+        # The server may well be up: it did not finish K samples within the limit.
+        what = (
+            f"no answer from {client.name} at {client.base_url} within {client.retry.timeout_s:g} s"
+        )
+        advice = f"the server may be slow: raise {TIMEOUT_ENV} (seconds)"
     elif _refused(err):
         return LLMUnavailableError(
             f"cannot reach {client.name} at {client.base_url}: connection refused ({gave_up}); "
