@@ -893,3 +893,15 @@ def test_two_parts_that_can_start_in_one_place_are_refused(tmp_path, parts):
     with pytest.raises(TaskFileError, match=r"objects\[1\].*nut_m16 can start inside nut_m12"):
         load_task_file(write(tmp_path, text), parts)
     load_task_file(write(tmp_path, text.replace("x = [0.52, 0.58]", "x = [0.54, 0.58]")), parts)
+
+
+def test_a_rectangular_peg_in_its_hole_starts_only_at_yaws_it_fits(tmp_path):
+    # Turned 90 degrees it started 2.25 mm inside the hole's walls and read as engaged; turned
+    # 0.5 rad the walls snapped it back to another yaw than the one asked for.
+    path = tmp_path / "starts.toml"
+    spec = get_task("grasp_peg_rect_hole")
+    path.write_text('[[start]]\nname = "a"\nobjects = [{ yaw = [-0.05, 0.05] }]\n')
+    spec_module.load_starts(path, spec)  # a few degrees: inside the clearance
+    path.write_text('[[start]]\nname = "a"\nobjects = [{ yaw = [0.0, 1.5708] }]\n')
+    err = _refused(path, lambda: spec_module.load_starts(path, spec))
+    assert "objects[0].yaw" in err.where and "wider than its bore" in err.problem

@@ -260,6 +260,20 @@ def fits(part: PartSpec, fixture: FixtureSpec) -> bool:
     return narrower(part.width, fixture.width) and narrower(part.depth, fixture.depth)
 
 
+def fits_turned(peg: PegSpec, hole: HoleSpec, turn: float) -> bool:
+    """Whether a rectangular ``peg`` turned by ``turn`` radians from its hole's axes stays inside
+    the bore (any turn for a round one): the box the turned rectangle spans against the bore's
+    size plus its clearance on each side."""
+    if peg.shape == "round":
+        return True
+    c, s = abs(math.cos(turn)), abs(math.sin(turn))
+    room = 2 * hole.clearance
+    return (
+        peg.width * c + peg.depth * s <= hole.width + room
+        and peg.width * s + peg.depth * c <= hole.depth + room
+    )
+
+
 @dataclass(frozen=True)
 class PlacedFixture:
     """A fixture at a fixed table position (x, y) with a yaw (radians)."""

@@ -30,6 +30,7 @@ from itskill.sim.parts import (
     PegSpec,
     PlacedFixture,
     fits,
+    fits_turned,
 )
 from itskill.sim.scene import SceneSpec
 from itskill.sim.task import (
@@ -649,6 +650,18 @@ def _parse_init(
                     f"{orr.where}.{key}",
                     f"mode {mode!r} does not use {key} (it uses "
                     f"{', '.join(sorted(_MODE_FIELDS[mode]))}); leave it out",
+                )
+        if mode == "hole" and isinstance(objects[k], PegSpec):
+            hole, yaw = fixtures[fixture].part, ranges["yaw"]
+            turns = [yaw.low + (yaw.high - yaw.low) * j / 64 for j in range(65)]
+            wide = next((t for t in turns if not fits_turned(objects[k], hole, t)), None)
+            if wide is not None:
+                # The physics started it inside the walls, or snapped it back to another yaw.
+                raise TaskFileError(
+                    path,
+                    orr.where + ".yaw",
+                    f"{objects[k].name} turned {wide:g} rad from {hole.name}'s axes is wider "
+                    "than its bore; narrow the yaw range",
                 )
         obj_inits.append(
             ObjectInit(mode=mode, hold=hold, fixture=fixture, symmetric_yaw=symmetric_yaw, **ranges)
