@@ -905,3 +905,15 @@ def test_a_rectangular_peg_in_its_hole_starts_only_at_yaws_it_fits(tmp_path):
     path.write_text('[[start]]\nname = "a"\nobjects = [{ yaw = [0.0, 1.5708] }]\n')
     err = _refused(path, lambda: spec_module.load_starts(path, spec))
     assert "objects[0].yaw" in err.where and "wider than its bore" in err.problem
+
+
+def test_a_start_that_puts_the_part_in_the_hand_drops_the_tasks_own_hand_position(tmp_path):
+    # pick_nut_m12's start sets the hand's x, y and z; a start holding the nut instead was
+    # refused for an ee position it never wrote.
+    path = tmp_path / "starts.toml"
+    path.write_text(
+        '[[start]]\nname = "held"\n'
+        'objects = [{ mode = "gripper", x = [0.5, 0.5], y = [0.0, 0.0], z = [0.1, 0.1] }]\n'
+    )
+    ((_, held),) = spec_module.load_starts(path, get_task("pick_nut_m12"))
+    assert held.init.objects[0].mode == "gripper"

@@ -802,7 +802,8 @@ def _changed_init(path: Path, where: str, own: dict[str, Any], changes: Any) -> 
     and, per object, the fields that ``changes`` names; the rest keeps ``own``'s values."""
     r = _Reader(path, where, changes)
     r.check_keys({"ee", "objects"})
-    ee = own["ee"] | _Reader(path, f"{where}.ee", r.get("ee", dict, {})).table
+    ee_changes = _Reader(path, f"{where}.ee", r.get("ee", dict, {})).table
+    ee = own["ee"] | ee_changes
     object_changes = r.get("objects", list, [])
     if len(object_changes) > len(own["objects"]):
         raise TaskFileError(
@@ -815,6 +816,10 @@ def _changed_init(path: Path, where: str, own: dict[str, Any], changes: Any) -> 
         if "mode" in change and change["mode"] != base["mode"]:
             base = {"mode": change["mode"]}  # another mode: nothing of the old start applies
         objects.append(base | change)
+    if any(o.get("mode") in HAND_MODES for o in objects):
+        # The hand starts at the held part: only an ee position written here is refused, not
+        # the one a task whose own start has the part elsewhere left behind.
+        ee = {k: v for k, v in ee.items() if k not in "xyz" or k in ee_changes}
     return _Reader(path, where, {"ee": ee, "objects": objects})
 
 
