@@ -263,14 +263,16 @@ def test_a_run_whose_reward_prompt_changed_is_not_resumed(
     run = _copy(finished_run, tmp_path / "run")
     (run / "summary.json").unlink()  # unfinished: a resume goes on with it
     assert json.loads((run / "config.json").read_text())["prompt_sha256"]
-    shipped = Path(str(prompts._template_path("reward_system"))).read_text(encoding="utf-8")
-    mine = tmp_path / "prompts"
-    mine.mkdir()
-    (mine / "reward_system.txt").write_text("Be brief. " + shipped, encoding="utf-8")
-    monkeypatch.setenv(prompts.PROMPTS_DIR_ENV, str(mine))
     before = sorted(p.relative_to(run) for p in run.rglob("*"))
-    with pytest.raises(RewardSearchError, match="its reward prompt changed since the run began"):
-        generate_reward("pick_nut_m12", search_client(run, "offline"), run,
-                        tiny_config(samples=1, select_top=1), resume=True,
-                        console=Console(file=io.StringIO()))  # fmt: skip
-    assert sorted(p.relative_to(run) for p in run.rglob("*")) == before
+    # The base prompt, and a feedback template that only the later iterations' requests carry.
+    for name in ("reward_system", "policy_feedback"):
+        shipped = Path(str(prompts._template_path(name))).read_text(encoding="utf-8")
+        mine = tmp_path / f"prompts_{name}"
+        mine.mkdir()
+        (mine / f"{name}.txt").write_text("Be brief. " + shipped, encoding="utf-8")
+        monkeypatch.setenv(prompts.PROMPTS_DIR_ENV, str(mine))
+        with pytest.raises(RewardSearchError, match="reward prompt changed since the run began"):
+            generate_reward("pick_nut_m12", search_client(run, "offline"), run,
+                            tiny_config(samples=1, select_top=1), resume=True,
+                            console=Console(file=io.StringIO()))  # fmt: skip
+        assert sorted(p.relative_to(run) for p in run.rglob("*")) == before

@@ -152,12 +152,17 @@ def check_template(name: str, text: str, where: Path | str = "") -> None:
         raise PromptError(f"{label}: cannot be filled with text: {err}") from err
 
 
-def render(name: str, **fields: str) -> str:
-    """Template ``name`` filled with ``fields``."""
+def template_text(name: str) -> str:
+    """Template ``name`` as it will be rendered: the user's override where
+    ``$ITSKILL_PROMPTS_DIR`` has one, else the packaged file (checked either way)."""
     if name not in TEMPLATE_FIELDS:
         raise PromptError(f"unknown prompt template {name!r}; known: {', '.join(TEMPLATE_FIELDS)}")
-    text = _load_template(_template_path(name), name)
-    return text.format(**fields).strip() + "\n"
+    return _load_template(_template_path(name), name)
+
+
+def render(name: str, **fields: str) -> str:
+    """Template ``name`` filled with ``fields``."""
+    return template_text(name).format(**fields).strip() + "\n"
 
 
 # --------------------------------------------------------------------------- planner

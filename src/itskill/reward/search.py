@@ -55,7 +55,12 @@ from itskill.files import (
 )
 from itskill.llm.client import LLMClient, Message, Usage, make_client
 from itskill.llm.offline.backend import BACKEND
-from itskill.llm.prompts import execution_error_feedback, policy_feedback, reward_messages
+from itskill.llm.prompts import (
+    execution_error_feedback,
+    policy_feedback,
+    reward_messages,
+    template_text,
+)
 from itskill.llm.usage_log import UsageLog
 from itskill.reward.candidate import (
     RESULT_FILE,
@@ -589,7 +594,10 @@ def _search(
             shutil.rmtree(out, ignore_errors=True)
         raise
     base = reward_messages(plan.describe())
-    prompt_sha256 = hashlib.sha256(json.dumps(base, sort_keys=True).encode()).hexdigest()
+    # The feedback templates too: from the second iteration on, every request carries one.
+    feedback = [template_text(name) for name in ("policy_feedback", "execution_error")]
+    prompt = json.dumps([base, feedback], sort_keys=True)
+    prompt_sha256 = hashlib.sha256(prompt.encode()).hexdigest()
     if resume:
         _check_prompt(out, prompt_sha256)
     else:
