@@ -33,6 +33,15 @@ REFUSED = {
     "cut-off": ('Here: {"matrix": [[1.0], [', r"not closed \(cut off\?\)"),
     "invalid": ("{'matrix': [[1.0]]}", "no valid JSON object"),
     "not-an-object": ("```json\n[[1.0]]\n```", "expected a JSON object, got list"),
+    # Its inner object was handed back as the reply's.
+    "cut-off-after-an-inner-object": (
+        '{"task": "t", "meta": {"a": 1}, "subtasks": ["Fi',
+        r"not closed \(cut off\?\)",
+    ),
+    "invalid-with-an-inner-object": (
+        '```json\n{"meta": {"a": 1}, "b": 2,}\n```',
+        "no valid JSON object",
+    ),
 }
 
 

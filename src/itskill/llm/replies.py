@@ -22,8 +22,9 @@ class JSONReplyError(ValueError):
 
 def parse_json_reply(reply: str) -> dict[str, Any]:
     """The JSON object in ``reply``: the first ```json (or untagged) fenced block that holds one,
-    else the first object found from one of its opening braces (prose around it, a ``{`` in
-    that prose, a fence on one line).
+    else the first object that starts at an outermost brace (prose around it, a ``{`` in that
+    prose, a fence on one line). A brace inside an object that does not decode is not tried:
+    a reply cut off mid-object would otherwise hand back one of its inner objects.
 
     Raises :class:`JSONReplyError` when the object is cut off, is not valid JSON or is not an
     object.
@@ -41,9 +42,10 @@ def parse_json_reply(reply: str) -> dict[str, Any]:
             return data
         not_object = not_object or type(data).__name__
     decoder = json.JSONDecoder()
-    for brace in re.finditer(r"\{", reply):
+    starts, unclosed = _outermost_braces(reply)
+    for start in starts:
         try:
-            data, _ = decoder.raw_decode(reply, brace.start())
+            data, _ = decoder.raw_decode(reply, start)
         except json.JSONDecodeError as err:
             first_error = first_error or err
             continue
@@ -51,7 +53,32 @@ def parse_json_reply(reply: str) -> dict[str, Any]:
             return data
     if not_object is not None:
         raise JSONReplyError(f"expected a JSON object, got {not_object}")
-    if "{" in reply and reply.rfind("}") < reply.index("{"):
+    if unclosed:
         raise JSONReplyError("the reply's JSON object is not closed (cut off?)")
     why = f" ({first_error})" if first_error else ""
     raise JSONReplyError(f"the reply holds no valid JSON object{why}")
+
+
+def _outermost_braces(text: str) -> tuple[list[int], bool]:
+    """The positions of the braces in ``text`` that no earlier brace encloses (braces inside
+    the double-quoted strings of an enclosing object not counted), and whether the last of them
+    is still open where the text ends."""
+    starts: list[int] = []
+    depth, in_string, escaped = 0, False, False
+    for i, char in enumerate(text):
+        if in_string:
+            if escaped:
+                escaped = False
+            elif char == "\\":
+                escaped = True
+            elif char == '"':
+                in_string = False
+        elif char == '"' and depth:
+            in_string = True
+        elif char == "{":
+            if not depth:
+                starts.append(i)
+            depth += 1
+        elif char == "}" and depth:
+            depth -= 1
+    return starts, depth > 0

@@ -190,10 +190,16 @@ _SIZE_CHECKED = _SIZED_NUMPY | _REPEATING_NUMPY | _LIKE_NUMPY | _OTHER_SIZED_NUM
 MAX_FORMAT_WIDTH = 10_000
 """Largest constant width or precision in a format: ``f"{0:10000000000}"`` is a 10 GB string
 made in one C call, which no timeout interrupts."""
-_FLEXIBLE_DTYPES = re.compile(r"^[<>=|]?[USVaO]|^(str|bytes|object|void|str_|bytes_)$")
+_FLEXIBLE_DTYPES = re.compile(r"^[<>=|]?[USVaO]|^(str|bytes|object|void|str_|bytes_|object_)$")
 """The dtypes of strings, bytes, raw memory and Python objects, as ``dtype=`` or ``astype``
 name them: no reward needs one, and their item size (``"U1000"``, 4 kB an element) multiplies
 every size this module counts."""
+_DTYPE_POSITION = {
+    "zeros": 1, "ones": 1, "empty": 1, "full": 2, "array": 1, "asarray": 1, "eye": 3,
+    "identity": 1, "arange": 3, "linspace": 5,
+}  # fmt: skip
+"""The position of ``dtype`` among the arguments of the numpy functions that take one."""
+_TEXT_ARRAYS = "string, bytes, void and object arrays are not allowed (a reward is made of numbers)"
 _FORMAT_NUMBER = re.compile(r"\d+")
 _PERCENT_SPEC = re.compile(r"%[-#0 +]*(\d*)(?:\.(\d*))?")
 
@@ -581,14 +587,27 @@ class _Checker(ast.NodeVisitor):
         if size is not None and size > MAX_CONSTANT_ELEMENTS:
             raise _violation(node, f"constant size {_shown(size)} is too large")
         dtypes = [k.value for k in node.keywords if k.arg == "dtype"]
-        if isinstance(func, ast.Attribute) and func.attr == "astype" and node.args:
-            dtypes.append(node.args[0])
+        if isinstance(func, ast.Attribute):
+            # Where numpy takes the dtype by position; a text fill value makes a text array.
+            at = 0 if func.attr == "astype" else _DTYPE_POSITION.get(func.attr)
+            if at is not None and (func.attr == "astype" or _is_module(func.value, "np")):
+                dtypes += node.args[at : at + 1]
         for dtype in dtypes:
             if _names_flexible_dtype(dtype):
-                raise _violation(
-                    node, "string, bytes, void and object arrays are not allowed (a reward is "
-                    "made of numbers)"
-                )  # fmt: skip
+                raise _violation(node, _TEXT_ARRAYS)
+        if (
+            isinstance(func, ast.Attribute)
+            and _is_module(func.value, "np")
+            and func.attr in ("full", "full_like")
+            and any(
+                _is_text(a)
+                for a in [
+                    *node.args[1:2],
+                    *(k.value for k in node.keywords if k.arg == "fill_value"),
+                ]
+            )
+        ):
+            raise _violation(node, _TEXT_ARRAYS)
         self.generic_visit(node)
 
     def visit_FormattedValue(self, node: ast.FormattedValue) -> None:
@@ -607,10 +626,21 @@ def _names_flexible_dtype(node: ast.AST) -> bool:
     if isinstance(node, ast.Constant) and isinstance(node.value, str):
         return bool(_FLEXIBLE_DTYPES.match(node.value.strip()))
     if isinstance(node, ast.Name):
-        return bool(_FLEXIBLE_DTYPES.match(node.id))
+        # The builtins only: a variable of the reward's own (``acc = np.float64``) says nothing.
+        return node.id in ("str", "bytes", "object")
     if isinstance(node, ast.Attribute) and _is_module(node.value, "np"):
         return bool(_FLEXIBLE_DTYPES.match(node.attr))
     return False
+
+
+def _is_text(node: ast.AST) -> bool:
+    """Whether ``node`` is a string or bytes as written: a literal, an f-string, or one repeated,
+    joined or %-formatted (``"x" * 1000``)."""
+    if isinstance(node, ast.Constant):
+        return isinstance(node.value, (str, bytes))
+    if isinstance(node, ast.JoinedStr):
+        return True
+    return isinstance(node, ast.BinOp) and (_is_text(node.left) or _is_text(node.right))
 
 
 def _check_format_widths(node: ast.AST, *specs: str) -> None:
