@@ -232,6 +232,10 @@ ESCAPES = {
     # Each argument passed the size check; their product is 10**10 elements.
     "outer_product_bomb": ("x = np.outer(np.ones(10**5), np.ones(10**5))", "size 10000000000"),
     "kron_bomb": ("x = np.kron(np.ones(10**5), np.ones(10**5))", "size 10000000000 is too"),
+    "positional_string_dtype": ("x = np.ones(10**8, 'U1000')", "string, bytes, void and"),
+    "string_fill_value": ("x = np.full(10**8, 'x' * 1000)", "string, bytes, void and object"),
+    "mapping_key_width_bomb": ("x = '%(a)10000000000d' % {'a': 1}", "format width 10000000000"),
+    "bytes_width_bomb": ("x = b'%10000000000d' % 1", "format width 10000000000 is too large"),
 }
 
 
@@ -242,6 +246,13 @@ def test_escape_attempt_is_refused_before_running(body: str, expected: str) -> N
     message = str(err.value)
     assert message.startswith("line "), message
     assert expected in message, message
+
+
+def test_numbers_and_dtypes_of_the_rewards_own_are_not_mistaken_for_text() -> None:
+    # A dtype held in a variable was matched as a dtype string ("acc" read as "a"), and a
+    # literal percent sign's following number as a format width.
+    check_source(wrap("acc = np.float64\nx = np.zeros(3, acc)\ny = np.ones(2, dtype=acc)"))
+    check_source(wrap("s = '50%% of 12345678 steps' % ()\nz = np.full(3, 1.5)"))
 
 
 def test_arithmetic_with_large_numbers_is_not_mistaken_for_a_bomb() -> None:

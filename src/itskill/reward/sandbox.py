@@ -201,7 +201,9 @@ _DTYPE_POSITION = {
 """The position of ``dtype`` among the arguments of the numpy functions that take one."""
 _TEXT_ARRAYS = "string, bytes, void and object arrays are not allowed (a reward is made of numbers)"
 _FORMAT_NUMBER = re.compile(r"\d+")
-_PERCENT_SPEC = re.compile(r"%[-#0 +]*(\d*)(?:\.(\d*))?")
+_PERCENT_SPEC = re.compile(r"%%|%(?:\([^)]*\))?[-#0 +]*(\d*)(?:\.(\d*))?")
+"""A ``%`` conversion's width and precision (after an optional mapping key); ``%%`` is a
+literal percent sign, whose groups are empty."""
 
 
 def _violation(node: ast.AST, what: str) -> SandboxViolation:
@@ -557,9 +559,12 @@ class _Checker(ast.NodeVisitor):
         if (
             isinstance(node.op, ast.Mod)
             and isinstance(node.left, ast.Constant)
-            and isinstance(node.left.value, str)
+            and isinstance(node.left.value, (str, bytes))
         ):
-            specs = _PERCENT_SPEC.findall(node.left.value)
+            template = node.left.value
+            if isinstance(template, bytes):
+                template = template.decode("latin-1")
+            specs = _PERCENT_SPEC.findall(template)
             _check_format_widths(node, *(f"{width} {precision}" for width, precision in specs))
         if isinstance(node.op, ast.Mult):
             size = _elements(node)
