@@ -588,3 +588,24 @@ def test_the_request_timeout_is_set_by_its_environment_variable(
         monkeypatch.setenv(TIMEOUT_ENV, bad)
         with pytest.raises(LLMError, match=f"{TIMEOUT_ENV}='{bad}': expected a number of seconds"):
             make_client("openai:m", base_url="http://example.invalid/v1", api_key="x")
+
+
+def test_a_timeout_after_another_failure_still_gets_its_retry(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The timeout's limit was compared with the attempt count: after a reset, the first timeout
+    # ended the request at once, though a timed-out request is asked once more.
+    monkeypatch.setattr(openai_client, "time", SimpleNamespace(sleep=lambda s: None))
+    c = OpenAIClient("m", base_url="http://example.invalid/v1", api_key="x")
+    causes = [ConnectionResetError(104, "Connection reset by peer"), None, None]
+    sent: list[int] = []
+
+    def create(**kwargs):
+        cause = causes[len(sent)]
+        sent.append(1)
+        raise _connection_error(c, cause)
+
+    c._sdk.chat.completions.create = create  # type: ignore[method-assign]
+    with pytest.raises(LLMUnavailableError, match="gave up after 3 attempts") as err:
+        c.complete(MESSAGES, purpose="plan")
+    assert len(sent) == 3 and "the server may be slow" in str(err.value)

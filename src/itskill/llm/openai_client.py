@@ -255,6 +255,10 @@ class OpenAIClient(BaseClient):
         if n > 1:
             kwargs["n"] = n
         attempts = self.retry.max_retries + 1
+        # Refused connections and timeouts have retry limits of their own, counted apart from
+        # the rate limits and server errors that may come before them.
+        limits = {"refused": self.retry.refused_retries, "timeout": self.retry.timeout_retries}
+        retried = dict.fromkeys(limits, 0)
         for attempt in range(attempts):
             try:
                 response = self._sdk.chat.completions.create(**kwargs)
@@ -286,11 +290,17 @@ class OpenAIClient(BaseClient):
                 refused = _refused(err)
                 # A refused connection is not transient like a rate limit or a timeout: waiting
                 # the whole back-off (half a minute) only delays the news that no server runs.
-                last = min(attempts - 1, self.retry.refused_retries) if refused else attempts - 1
-                if isinstance(err, openai.APITimeoutError):
-                    last = min(attempts - 1, self.retry.timeout_retries)
-                if attempt >= last:
+                kind = (
+                    "refused"
+                    if refused
+                    else "timeout"
+                    if isinstance(err, openai.APITimeoutError)
+                    else None
+                )
+                if attempt == attempts - 1 or (kind and retried[kind] >= limits[kind]):
                     raise _unavailable(self, err, attempt + 1) from err
+                if kind:
+                    retried[kind] += 1
                 time.sleep(self._backoff(0 if refused else attempt, err))
                 continue
             self._account(response)
