@@ -136,7 +136,7 @@ def test_a_stored_setting_that_no_longer_validates_names_the_run_not_a_flag(tmp_
     from typer.testing import CliRunner
 
     from itskill.cli import app
-    from itskill.reward.search import CONFIG_FILE, RUN_KIND
+    from itskill.reward.search import CONFIG_FILE, RUN_KIND, config_from_run
 
     config = load_search_config().to_dict() | {"iterations": 500}
     run = tmp_path / "run"
@@ -148,6 +148,12 @@ def test_a_stored_setting_that_no_longer_validates_names_the_run_not_a_flag(tmp_
     message = " ".join(result.output.split())
     assert f"{run / CONFIG_FILE}: iterations: expected at most 100, got 500" in message
     assert "--iterations" not in message
+    # A setting a resume may change is mended by its flag.
+    config = load_search_config().to_dict() | {"workers": 1025}
+    (run / CONFIG_FILE).write_text(json.dumps({**stored, "config": config}))
+    with pytest.raises(SearchConfigError, match=r"config\.json: workers"):
+        config_from_run(run, {})
+    assert config_from_run(run, {"workers": 2}).workers == 2
 
 
 @pytest.mark.parametrize(

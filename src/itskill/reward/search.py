@@ -991,7 +991,8 @@ def config_from_run(
         # (the cluster gone) leaves it behind; one given with it is refused.
         stored = {k: v for k, v in stored.items() if k != "ray_address"}
     try:
-        load_search_config(overrides=stored)
+        # The stored settings no flag replaces: a flag may mend one a resume can change.
+        load_search_config(overrides={k: v for k, v in stored.items() if k not in given})
     except SearchConfigError as err:
         # A setting this version no longer takes (a bound lowered, the file edited) is the
         # record's, not a flag's: name the file.
