@@ -905,6 +905,10 @@ def test_a_rectangular_peg_in_its_hole_starts_only_at_yaws_it_fits(tmp_path):
     path.write_text('[[start]]\nname = "a"\nobjects = [{ yaw = [0.0, 1.5708] }]\n')
     err = _refused(path, lambda: spec_module.load_starts(path, spec))
     assert "objects[0].yaw" in err.where and "wider than its bore" in err.problem
+    # Held in the hole by the closed fingers, the peg is turned as the hand is.
+    path.write_text('[[start]]\nname = "a"\nee = { yaw = [1.2, 1.5] }\n')
+    err = _refused(path, lambda: spec_module.load_starts(path, get_task("extract_peg_rect")))
+    assert "ee.yaw" in err.where and "wider than its bore" in err.problem
 
 
 def test_a_start_that_puts_the_part_in_the_hand_drops_the_tasks_own_hand_position(tmp_path):

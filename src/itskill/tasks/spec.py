@@ -652,17 +652,7 @@ def _parse_init(
                     f"{', '.join(sorted(_MODE_FIELDS[mode]))}); leave it out",
                 )
         if mode == "hole" and isinstance(objects[k], PegSpec):
-            hole, yaw = fixtures[fixture].part, ranges["yaw"]
-            turns = [yaw.low + (yaw.high - yaw.low) * j / 64 for j in range(65)]
-            wide = next((t for t in turns if not fits_turned(objects[k], hole, t)), None)
-            if wide is not None:
-                # The physics started it inside the walls, or snapped it back to another yaw.
-                raise TaskFileError(
-                    path,
-                    orr.where + ".yaw",
-                    f"{objects[k].name} turned {wide:g} rad from {hole.name}'s axes is wider "
-                    "than its bore; narrow the yaw range",
-                )
+            _check_turn_fits(path, orr.where + ".yaw", objects[k], fixtures[fixture], ranges["yaw"])
         obj_inits.append(
             ObjectInit(mode=mode, hold=hold, fixture=fixture, symmetric_yaw=symmetric_yaw, **ranges)
         )
@@ -671,6 +661,19 @@ def _parse_init(
             path, ir.where + ".objects", "at most one object can start in the gripper"
         )
     _check_parts_apart(path, ir.where, obj_inits, objects, fixtures)
+    for init, part in zip(obj_inits, objects, strict=True):
+        placed = fixtures[init.fixture] if init.fixture < len(fixtures) else None
+        if (
+            init.mode == "gripper"
+            and isinstance(part, PegSpec)
+            and placed is not None
+            and isinstance(placed.part, HoleSpec)
+            and init.z.low + init.hold.low - part.height / 2 < placed.part.entrance_z
+            and _gap(init.x, init.y, *(Range(c, c) for c in placed.xy)) < placed.part.radius
+        ):
+            # Held with its bottom in the hole (extract's start), it is turned as the hand is.
+            hand_yaw = er.range("yaw", (0.0, 0.0), _HAND_YAW)
+            _check_turn_fits(path, f"{er.where}.yaw", part, placed, hand_yaw)
     if any(o.mode in HAND_MODES for o in obj_inits):
         for key, default in (("x", _EE_X), ("y", _EE_Y), ("z", _EE_Z)):
             if er.range(key, default, _REACH[key]) != Range(*default):
@@ -703,6 +706,26 @@ def _gap(x: Range, y: Range, other_x: Range, other_y: Range) -> float:
     dx = max(x.low - other_x.high, other_x.low - x.high, 0.0)
     dy = max(y.low - other_y.high, other_y.low - y.high, 0.0)
     return math.hypot(dx, dy)
+
+
+def _check_turn_fits(
+    path: Path, where: str, peg: PegSpec, placed: PlacedFixture, yaw: Range
+) -> None:
+    """Refuse a yaw range at which ``peg``, started in ``placed``'s hole, would be turned wider
+    than the bore: the physics started it inside the walls (reading engaged), or snapped it back
+    to another yaw than the one asked for."""
+    hole = placed.part
+    if not isinstance(hole, HoleSpec):
+        return
+    turns = [yaw.low + (yaw.high - yaw.low) * j / 64 - placed.yaw for j in range(65)]
+    wide = next((t for t in turns if not fits_turned(peg, hole, t)), None)
+    if wide is not None:
+        raise TaskFileError(
+            path,
+            where,
+            f"{peg.name} turned {wide:g} rad from {hole.name}'s axes is wider than its bore; "
+            "narrow the yaw range",
+        )
 
 
 def _check_parts_apart(
