@@ -18,3 +18,10 @@ for STAGE in "" --target-stage; do
       --episodes 200 $STAGE \
       --json results/refine/place_clone_symmetric_yaw/chain_heldout_200${STAGE:+_target_stage}_seed1.json
 done
+# Later the same day: both place skills under the noise a transfer target at log-std -3.0 adds
+# (sigma 0.05 on every action), target's stages; the refined skill (Twenty-fourth pretraining)
+# from the code and library of commit 69fcf26 (a worktree there, a new skill space).
+python benchmarks/source_chaining.py pickplace_nut_m12 \
+    --chain pick_nut_m12 pick_nut_m12 pick_nut_m12 place_nut_m12 place_nut_m12 \
+    --episodes 200 --target-stage --noise 0.05 \
+    --json results/refine/place_clone_symmetric_yaw/chain_heldout_200_target_stage_noise0.05_seed1.json
