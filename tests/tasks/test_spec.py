@@ -921,3 +921,20 @@ def test_a_start_that_puts_the_part_in_the_hand_drops_the_tasks_own_hand_positio
     )
     ((_, held),) = spec_module.load_starts(path, get_task("pick_nut_m12"))
     assert held.init.objects[0].mode == "gripper"
+
+
+def test_a_peg_in_a_turned_hole_is_checked_against_the_hole_not_the_table(tmp_path, parts):
+    # A start's yaw in a hole is measured from the hole: aligned with a hole turned 90 degrees
+    # it was refused, and turned into the walls it was let through.
+    head = (
+        '[[task]]\nid = "turned_hole"\nfamily = "peghole"\nkind = "basic"\n'
+        'command = "Grasp the peg in the turned hole"\nskills = ["Grasp"]\n'
+        'actions = ["grasp"]\nobjects = ["peg_rect_16mm"]\n'
+        'fixtures = [{ part = "hole_rect_16mm", xy = [0.55, 0.12], yaw = 1.5708 }]\n'
+        'max_steps = 20\nsuccess = "grasped(0)"\n'
+        'stages = [{ name = "grasp", done = "grasped(0)" }]\n'
+    )
+    start = '[task.init]\nobjects = [{ mode = "hole", depth = [0.01, 0.01], yaw = YAW }]\n'
+    load_task_file(write(tmp_path, head + start.replace("YAW", "0.0")), parts)
+    with pytest.raises(TaskFileError, match="wider than its bore"):
+        load_task_file(write(tmp_path, head + start.replace("YAW", "1.5708")), parts)

@@ -672,8 +672,9 @@ def _parse_init(
             and _gap(init.x, init.y, *(Range(c, c) for c in placed.xy)) < placed.part.radius
         ):
             # Held with its bottom in the hole (extract's start), it is turned as the hand is.
-            hand_yaw = er.range("yaw", (0.0, 0.0), _HAND_YAW)
-            _check_turn_fits(path, f"{er.where}.yaw", part, placed, hand_yaw)
+            hand = er.range("yaw", (0.0, 0.0), _HAND_YAW)
+            turn = Range(hand.low - placed.yaw, hand.high - placed.yaw)  # from the hole's axes
+            _check_turn_fits(path, f"{er.where}.yaw", part, placed, turn)
     if any(o.mode in HAND_MODES for o in obj_inits):
         for key, default in (("x", _EE_X), ("y", _EE_Y), ("z", _EE_Z)):
             if er.range(key, default, _REACH[key]) != Range(*default):
@@ -709,15 +710,15 @@ def _gap(x: Range, y: Range, other_x: Range, other_y: Range) -> float:
 
 
 def _check_turn_fits(
-    path: Path, where: str, peg: PegSpec, placed: PlacedFixture, yaw: Range
+    path: Path, where: str, peg: PegSpec, placed: PlacedFixture, turn: Range
 ) -> None:
-    """Refuse a yaw range at which ``peg``, started in ``placed``'s hole, would be turned wider
-    than the bore: the physics started it inside the walls (reading engaged), or snapped it back
-    to another yaw than the one asked for."""
+    """Refuse a range of turns from the hole's axes at which ``peg``, started in ``placed``'s
+    hole, would be wider than the bore: the physics started it inside the walls (reading
+    engaged), or snapped it back to another yaw than the one asked for."""
     hole = placed.part
     if not isinstance(hole, HoleSpec):
         return
-    turns = [yaw.low + (yaw.high - yaw.low) * j / 64 - placed.yaw for j in range(65)]
+    turns = [turn.low + (turn.high - turn.low) * j / 64 for j in range(65)]
     wide = next((t for t in turns if not fits_turned(peg, hole, t)), None)
     if wide is not None:
         raise TaskFileError(
