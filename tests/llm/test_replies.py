@@ -20,6 +20,10 @@ ACCEPTED = {
     "after-a-code-block": f"Some code:\n```python\nx = 1\n```\nThe plan:\n```json\n{OBJECT}\n```",
     # From the first brace to the last was not JSON.
     "brace-in-prose": f"I fill the {{task}} field: {OBJECT}",
+    # A brace or a quote in the prose before it hid the object as "not closed".
+    "lone-brace-in-prose": f"A dict opens with {{. Here: {OBJECT}",
+    "quoted-brace-in-prose": f'I use the "{{" character. {OBJECT}',
+    "brace-in-a-code-block": f'Code:\n```python\nx = "{{"\n```\n{OBJECT}',
 }
 
 

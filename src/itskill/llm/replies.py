@@ -14,6 +14,9 @@ from typing import Any
 # A fence opens at the start of a line: the closing ``` of an earlier block (a ```python one)
 # would otherwise open the next one, and the prose between them be read as the object.
 _FENCE = re.compile(r"^[ \t]*```[ \t]*(\w*)[ \t]*\n(.*?)^[ \t]*```", re.DOTALL | re.MULTILINE)
+_OPENING = re.compile(r'\{(?=\s*["}])')
+"""A brace that opens an object: a key or the closing brace follows it (``{.`` in prose does
+not)."""
 
 
 class JSONReplyError(ValueError):
@@ -22,19 +25,22 @@ class JSONReplyError(ValueError):
 
 def parse_json_reply(reply: str) -> dict[str, Any]:
     """The JSON object in ``reply``: the first ```json (or untagged) fenced block that holds one,
-    else the first object that starts at an outermost brace (prose around it, a ``{`` in that
-    prose, a fence on one line). A brace inside an object that does not decode is not tried:
-    a reply cut off mid-object would otherwise hand back one of its inner objects.
+    else the first object decoded from a brace that opens one (``{`` then a key or ``}``) outside
+    those blocks: prose around it, a brace in that prose, a fence on one line. A reply cut off
+    inside an object is reported as such, not answered with one of that object's inner objects.
 
     Raises :class:`JSONReplyError` when the object is cut off, is not valid JSON or is not an
     object.
     """
     not_object: str | None = None
     first_error: json.JSONDecodeError | None = None
-    blocks = [m.group(2) for m in _FENCE.finditer(reply) if m.group(1).lower() in ("", "json")]
-    for block in blocks:
+    tried: list[tuple[int, int]] = []
+    for m in _FENCE.finditer(reply):
+        if m.group(1).lower() not in ("", "json"):
+            continue
+        tried.append(m.span(2))
         try:
-            data = json.loads(block)
+            data = json.loads(m.group(2))
         except json.JSONDecodeError as err:
             first_error = first_error or err
             continue
@@ -42,43 +48,20 @@ def parse_json_reply(reply: str) -> dict[str, Any]:
             return data
         not_object = not_object or type(data).__name__
     decoder = json.JSONDecoder()
-    starts, unclosed = _outermost_braces(reply)
-    for start in starts:
+    for brace in _OPENING.finditer(reply):
+        if any(start <= brace.start() < end for start, end in tried):
+            continue  # a block that did not decode: its inner objects are not the reply's
         try:
-            data, _ = decoder.raw_decode(reply, start)
+            data, _ = decoder.raw_decode(reply, brace.start())
         except json.JSONDecodeError as err:
             first_error = first_error or err
+            if err.pos >= len(reply.rstrip()) or err.msg.startswith("Unterminated string"):
+                # Everything after this brace is inside its unfinished object.
+                raise JSONReplyError("the reply's JSON object is not closed (cut off?)") from err
             continue
         if isinstance(data, dict):
             return data
     if not_object is not None:
         raise JSONReplyError(f"expected a JSON object, got {not_object}")
-    if unclosed:
-        raise JSONReplyError("the reply's JSON object is not closed (cut off?)")
     why = f" ({first_error})" if first_error else ""
     raise JSONReplyError(f"the reply holds no valid JSON object{why}")
-
-
-def _outermost_braces(text: str) -> tuple[list[int], bool]:
-    """The positions of the braces in ``text`` that no earlier brace encloses (braces inside
-    the double-quoted strings of an enclosing object not counted), and whether the last of them
-    is still open where the text ends."""
-    starts: list[int] = []
-    depth, in_string, escaped = 0, False, False
-    for i, char in enumerate(text):
-        if in_string:
-            if escaped:
-                escaped = False
-            elif char == "\\":
-                escaped = True
-            elif char == '"':
-                in_string = False
-        elif char == '"' and depth:
-            in_string = True
-        elif char == "{":
-            if not depth:
-                starts.append(i)
-            depth += 1
-        elif char == "}" and depth:
-            depth -= 1
-    return starts, depth > 0
