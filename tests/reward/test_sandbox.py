@@ -236,6 +236,9 @@ ESCAPES = {
     "string_fill_value": ("x = np.full(10**8, 'x' * 1000)", "string, bytes, void and object"),
     "mapping_key_width_bomb": ("x = '%(a)10000000000d' % {'a': 1}", "format width 10000000000"),
     "bytes_width_bomb": ("x = b'%10000000000d' % 1", "format width 10000000000 is too large"),
+    "nested_key_width_bomb": ("x = '%((a)1)10000000000d' % {'(a)1': 1}", "mapping key with"),
+    "star_width_bomb": ("x = '%*d' % (10**10, 1)", "a * width"),
+    "like_positional_string_dtype": ("x = np.zeros_like(np.ones(3), 'U1000')", "string, bytes"),
 }
 
 
@@ -252,7 +255,7 @@ def test_numbers_and_dtypes_of_the_rewards_own_are_not_mistaken_for_text() -> No
     # A dtype held in a variable was matched as a dtype string ("acc" read as "a"), and a
     # literal percent sign's following number as a format width.
     check_source(wrap("acc = np.float64\nx = np.zeros(3, acc)\ny = np.ones(2, dtype=acc)"))
-    check_source(wrap("s = '50%% of 12345678 steps' % ()\nz = np.full(3, 1.5)"))
+    check_source(wrap("s = '%%12345678d steps' % ()\nz = np.full(3, 1.5)"))
 
 
 def test_arithmetic_with_large_numbers_is_not_mistaken_for_a_bomb() -> None:

@@ -197,10 +197,14 @@ every size this module counts."""
 _DTYPE_POSITION = {
     "zeros": 1, "ones": 1, "empty": 1, "full": 2, "array": 1, "asarray": 1, "eye": 3,
     "identity": 1, "arange": 3, "linspace": 5,
+    "zeros_like": 1, "ones_like": 1, "empty_like": 1, "full_like": 2,
 }  # fmt: skip
 """The position of ``dtype`` among the arguments of the numpy functions that take one."""
 _TEXT_ARRAYS = "string, bytes, void and object arrays are not allowed (a reward is made of numbers)"
 _FORMAT_NUMBER = re.compile(r"\d+")
+_UNREAD_PERCENT = re.compile(r"(?<!%)(?:%%)*%(?:\([^)]*\(|[-#0 +]*\*|[-#0 +]*\d*\.\*)")
+"""A ``%`` conversion whose width comes from the arguments (``%*d``) or whose mapping key holds
+parentheses, which :data:`_PERCENT_SPEC` cannot read."""
 _PERCENT_SPEC = re.compile(r"%%|%(?:\([^)]*\))?[-#0 +]*(\d*)(?:\.(\d*))?")
 """A ``%`` conversion's width and precision (after an optional mapping key); ``%%`` is a
 literal percent sign, whose groups are empty."""
@@ -564,6 +568,10 @@ class _Checker(ast.NodeVisitor):
             template = node.left.value
             if isinstance(template, bytes):
                 template = template.decode("latin-1")
+            if _UNREAD_PERCENT.search(template):
+                # A width taken from the arguments, or a mapping key this check cannot read.
+                raise _violation(node, "a * width or a mapping key with parentheses in a % "
+                                 "template is not allowed")  # fmt: skip
             specs = _PERCENT_SPEC.findall(template)
             _check_format_widths(node, *(f"{width} {precision}" for width, precision in specs))
         if isinstance(node.op, ast.Mult):
