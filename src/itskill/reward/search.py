@@ -991,10 +991,10 @@ def config_from_run(
         # (the cluster gone) leaves it behind; one given with it is refused.
         stored = {k: v for k, v in stored.items() if k != "ray_address"}
     try:
-        # The stored settings no flag replaces: a flag may mend one a resume can change.
-        load_search_config(overrides={k: v for k, v in stored.items() if k not in given})
+        return load_search_config(overrides={**stored, **given})
     except SearchConfigError as err:
+        if err.where.split(".")[0].split("[")[0] in given:
+            raise  # a flag's value: the command line names it
         # A setting this version no longer takes (a bound lowered, the file edited) is the
         # record's, not a flag's: name the file.
         raise SearchConfigError(Path(run_dir) / CONFIG_FILE, err.where, err.problem) from err
-    return load_search_config(overrides={**stored, **given})
