@@ -25,3 +25,8 @@ python benchmarks/source_chaining.py pickplace_nut_m12 \
     --chain pick_nut_m12 pick_nut_m12 pick_nut_m12 place_nut_m12 place_nut_m12 \
     --episodes 200 --target-stage --noise 0.05 \
     --json results/refine/place_clone_symmetric_yaw/chain_heldout_200_target_stage_noise0.05_seed1.json
+git worktree add --detach ../itskill-69fcf26 69fcf26
+ITSKILL_HOME=home_refined PYTHONPATH=../itskill-69fcf26/src python ../itskill-69fcf26/benchmarks/source_chaining.py \
+    pickplace_nut_m12 --chain pick_nut_m12 pick_nut_m12 pick_nut_m12 place_nut_m12 place_nut_m12 \
+    --episodes 200 --target-stage --noise 0.05 \
+    --json results/refine/place_clone_symmetric_yaw/chain_heldout_200_target_stage_noise0.05_refined.json
