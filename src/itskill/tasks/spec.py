@@ -843,7 +843,7 @@ def _changed_init(path: Path, where: str, own: dict[str, Any], changes: Any) -> 
     if any(o.get("mode") in HAND_MODES for o in objects):
         # The hand starts at the held part: only an ee position written here is refused, not
         # the one a task whose own start has the part elsewhere left behind.
-        ee = {k: v for k, v in ee.items() if k not in "xyz" or k in ee_changes}
+        ee = {k: v for k, v in ee.items() if k not in ("x", "y", "z") or k in ee_changes}
     return _Reader(path, where, {"ee": ee, "objects": objects})
 
 
