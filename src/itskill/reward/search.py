@@ -589,13 +589,14 @@ def _search(
     created = not out.exists()
     try:
         plan = _plan(target, client, out, plan, resume)
+        # A prompt template that does not validate fails here too, before the run is written.
+        base = reward_messages(plan.describe())
+        # The feedback templates too: from the second iteration on, every request carries one.
+        feedback = [template_text(name) for name in ("policy_feedback", "execution_error")]
     except BaseException:
         if created:  # all it holds is the reply cache of a command that cannot be planned
             shutil.rmtree(out, ignore_errors=True)
         raise
-    base = reward_messages(plan.describe())
-    # The feedback templates too: from the second iteration on, every request carries one.
-    feedback = [template_text(name) for name in ("policy_feedback", "execution_error")]
     prompt = json.dumps([base, feedback], sort_keys=True)
     prompt_sha256 = hashlib.sha256(prompt.encode()).hexdigest()
     if resume:
