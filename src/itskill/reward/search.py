@@ -325,12 +325,13 @@ def _check_resume(out: Path, header: dict[str, Any]) -> dict[str, Any]:
     return stored
 
 
-def _check_prompt(out: Path, prompt_sha256: str) -> None:
-    """Refuse to resume a search whose reward prompt changed since it began (a run from before
-    the prompt was recorded is not checked): no reply would replay from the cache, every
-    request would be paid for again, and each finished candidate whose new code differs would
-    be trained again in place of its result."""
-    stored = read_json(out / CONFIG_FILE).get("prompt_sha256")
+def _check_prompt(out: Path, recorded: dict[str, Any], prompt_sha256: str) -> None:
+    """Refuse to resume the search in ``out``, whose ``config.json`` is ``recorded``, if its
+    reward prompt changed since it began (a run from before the prompt was recorded is not
+    checked): no reply would replay from the cache, every request would be paid for again, and
+    each finished candidate whose new code differs would be trained again in place of its
+    result."""
+    stored = recorded.get("prompt_sha256")
     if stored is not None and stored != prompt_sha256:
         raise RewardSearchError(
             f"{out}: its reward prompt changed since the run began (the prompt templates or "
@@ -574,8 +575,9 @@ def _search(
     usage_since: Usage | None,
 ) -> RewardSearchResult:
     """:func:`generate_reward`'s search, once its run directory is this session's alone."""
+    recorded: dict[str, Any] | None = None
     if resume:
-        _check_resume(out, header)
+        recorded = _check_resume(out, header)
         if (out / SUMMARY_FILE).is_file():
             # Nothing is left to train; replaying the search would only add its time to the
             # recorded duration.
@@ -599,8 +601,8 @@ def _search(
         raise
     prompt = json.dumps([base, feedback], sort_keys=True)
     prompt_sha256 = hashlib.sha256(prompt.encode()).hexdigest()
-    if resume:
-        _check_prompt(out, prompt_sha256)
+    if recorded is not None:
+        _check_prompt(out, recorded, prompt_sha256)
     else:
         write_json(
             out / CONFIG_FILE,
