@@ -572,8 +572,10 @@ class _Checker(ast.NodeVisitor):
                 # A width taken from the arguments, or a mapping key this check cannot read.
                 raise _violation(node, "a * width or a mapping key with parentheses in a % "
                                  "template is not allowed")  # fmt: skip
-            specs = _PERCENT_SPEC.findall(template)
-            _check_format_widths(node, *(f"{width} {precision}" for width, precision in specs))
+            # Each conversion's width and precision, as digits (empty where not given).
+            _check_format_widths(
+                node, *(n for spec in _PERCENT_SPEC.findall(template) for n in spec)
+            )
         if isinstance(node.op, ast.Mult):
             size = _elements(node)
             if size is not None and size > MAX_CONSTANT_ELEMENTS:
