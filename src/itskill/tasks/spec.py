@@ -661,6 +661,8 @@ def _parse_init(
             path, ir.where + ".objects", "at most one object can start in the gripper"
         )
     _check_parts_apart(path, ir.where, obj_inits, objects, fixtures)
+    defaults = {"x": _EE_X, "y": _EE_Y, "z": _EE_Z, "yaw": (0.0, 0.0)}
+    ee = {k: er.range(k, d, _HAND_YAW if k == "yaw" else _REACH[k]) for k, d in defaults.items()}
     for init, part in zip(obj_inits, objects, strict=True):
         placed = fixtures[init.fixture] if init.fixture < len(fixtures) else None
         if (
@@ -672,12 +674,12 @@ def _parse_init(
             and _gap(init.x, init.y, *(Range(c, c) for c in placed.xy)) < placed.part.radius
         ):
             # Held with its bottom in the hole (extract's start), it is turned as the hand is.
-            hand = er.range("yaw", (0.0, 0.0), _HAND_YAW)
+            hand = ee["yaw"]
             turn = Range(hand.low - placed.yaw, hand.high - placed.yaw)  # from the hole's axes
             _check_turn_fits(path, f"{er.where}.yaw", part, placed, turn)
     if any(o.mode in HAND_MODES for o in obj_inits):
-        for key, default in (("x", _EE_X), ("y", _EE_Y), ("z", _EE_Z)):
-            if er.range(key, default, _REACH[key]) != Range(*default):
+        for key in ("x", "y", "z"):
+            if ee[key] != Range(*defaults[key]):
                 # It was read, checked and then ignored without a word.
                 raise TaskFileError(
                     path,
@@ -686,10 +688,10 @@ def _parse_init(
                     "leave ee.x, ee.y and ee.z out (ee.yaw still applies)",
                 )
     return InitSpec(
-        ee_x=er.range("x", _EE_X, _REACH["x"]),
-        ee_y=er.range("y", _EE_Y, _REACH["y"]),
-        ee_z=er.range("z", _EE_Z, _REACH["z"]),
-        ee_yaw=er.range("yaw", (0.0, 0.0), _HAND_YAW),
+        ee_x=ee["x"],
+        ee_y=ee["y"],
+        ee_z=ee["z"],
+        ee_yaw=ee["yaw"],
         objects=tuple(obj_inits),
     )
 
