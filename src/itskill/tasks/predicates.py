@@ -60,11 +60,19 @@ def lifted(ctx: Context, i: int, heights: float = 3.0) -> np.ndarray:
     return ctx["obj_bottom_z"][:, i] >= heights * ctx["obj_height"][:, i]
 
 
-def above_fixture(ctx: Context, i: int, radius: float = 0.004, height: float = 0.03) -> np.ndarray:
-    """Object ``i`` hangs over its fixture: centred within ``radius``, at most ``height`` above."""
+def above_fixture(
+    ctx: Context, i: int, radius: float = 0.004, height: float = 0.03, depth: float = 0.002
+) -> np.ndarray:
+    """Object ``i`` hangs over its fixture: centred within ``radius``, its bottom at most
+    ``height`` above the fixture point and at most ``depth`` below it.
+
+    A stage that ends over a hole, followed by one that ends with the peg deep in it, needs a
+    ``depth`` as deep as the next stage's goal: otherwise, between the two, neither holds and the
+    stage falls back to the approach while the peg goes in.
+    """
     off = ctx["obj_to_fix"][:, i]
     lateral = np.linalg.norm(off[:, :2], axis=-1)
-    return (lateral < radius) & (-off[:, 2] > -0.002) & (-off[:, 2] < height)
+    return (lateral < radius) & (off[:, 2] < depth) & (-off[:, 2] < height)
 
 
 def engaged(ctx: Context, i: int) -> np.ndarray:
