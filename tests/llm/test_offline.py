@@ -689,6 +689,31 @@ def test_the_success_bonus_is_paid_exactly_when_a_scripted_episode_succeeds(task
     assert not solved[0].any() and solved[-1].all()
 
 
+@pytest.mark.parametrize("task", ["pickplaceinsert_peg_rect", "pickplace_nut_m12"])
+def test_generated_stage_conditions_agree_with_the_task_through_a_scripted_episode(
+    task: str,
+) -> None:
+    # The generated reward pays each stage by the condition it writes out as NumPy code; code
+    # that read a predicate differently (a default where the task gives an argument) would pay
+    # a stage the task is not in.
+    spec = get_task(task)
+    fixture_of = dict(enumerate(spec.object_fixture))
+    codes = [synthesiser._expression_code(st.done.source, fixture_of) for st in spec.stages]
+    env = make_batch_env(task, 2, seed=1, n_threads=1)
+    policy = ScriptedPolicy(spec, 2)
+    try:
+        env.reset()
+        policy.reset()
+        for _ in range(spec.max_steps - 1):
+            ctx = env.context()
+            for stage, code in zip(spec.stages, codes, strict=True):
+                written = eval(code, {"np": np, "ctx": ctx})
+                np.testing.assert_array_equal(written, stage.done(ctx), err_msg=stage.done.source)
+            env.step(policy(ctx))
+    finally:
+        env.close()
+
+
 def test_the_reward_rises_through_a_scripted_pick_and_place() -> None:
     task = "pickplace_nut_m12"
     spec = get_task(task)

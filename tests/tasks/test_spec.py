@@ -260,6 +260,32 @@ def test_a_peg_started_in_a_hole_it_does_not_fit_is_refused(tmp_path, parts):
         load_task_file(write(tmp_path, text), parts)
 
 
+def test_a_stage_over_a_hole_that_stops_holding_before_the_insert_does_is_refused(
+    tmp_path, parts
+):
+    # Between 2 mm (above_fixture's default) and 10 mm in (half the 2 cm hole), neither stage
+    # held: the task fell back to its approach while the peg went in.
+    text = (
+        VALID.replace('objects = ["nut_m12"]', 'objects = ["peg_rect_16mm"]')
+        .replace('part = "bolt_m12"', 'part = "hole_rect_16mm"')
+        .replace('actions = ["approach", "grasp"]', 'actions = ["place", "insert"]')
+        .replace('success = "lifted(0, 3) and grasped(0)"', 'success = "inserted(0, 0.5)"')
+        .replace('name = "approach", done = "near(0, 0.02)"', 'name = "place", done = "DONE"')
+        .replace('name = "grasp", done = "grasped(0)"', 'name = "insert", done = "inserted(0)"')
+        .replace('{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }',
+                 '{ mode = "gripper", x = 0.55, y = 0.12, z = 0.05 }')
+        .replace("ee = { x = [0.4, 0.5], y = [-0.08, 0.08], z = [0.15, 0.22] }", "")
+    )  # fmt: skip
+    above = "above_fixture(0, 0.0015, 0.01) and grasped(0)"
+    with pytest.raises(
+        TaskFileError, match=r"stages\[0\]\.done.*2 mm into hole_rect_16mm.*at least 0\.01"
+    ):
+        load_task_file(write(tmp_path, text.replace("DONE", above)), parts)
+    deep = above.replace("0.01)", "0.01, 0.01)")
+    (task,) = load_task_file(write(tmp_path, text.replace("DONE", deep)), parts)
+    assert task.stages[0].done.source == deep
+
+
 def test_a_fixture_predicate_in_a_task_without_fixtures_is_refused(tmp_path, parts):
     # Its fixture slots read as zeros: "above the fixture" meant above the robot's base.
     text = VALID.replace(

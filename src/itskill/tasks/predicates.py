@@ -17,6 +17,7 @@ import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -195,6 +196,16 @@ def _check_args(term: str, name: str, args: tuple[float, ...]) -> None:
             )
         if param.name not in _SIGNED and value < 0:
             raise PredicateError(f"{term!r}: {param.name} must be 0 or more, got {value:g}")
+
+
+def predicate_params(name: str, args: tuple[float, ...]) -> dict[str, Any]:
+    """A predicate's arguments by parameter name, defaults filled in (slot included as ``i``)."""
+    signature = inspect.signature(PREDICATES[name])
+    bound = signature.bind(None, *[int(args[0]), *args[1:]])
+    bound.apply_defaults()
+    params = dict(bound.arguments)
+    params.pop(next(iter(signature.parameters)))
+    return params
 
 
 def parse(source: str) -> Expression:

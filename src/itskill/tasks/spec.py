@@ -8,6 +8,7 @@ file is reported with the file, the field and what was expected.
 from __future__ import annotations
 
 import difflib
+import itertools
 import math
 import os
 import re
@@ -43,7 +44,13 @@ from itskill.sim.task import (
     check_start_shares,
     default_object_fixture,
 )
-from itskill.tasks.predicates import FIXTURE_PREDICATES, Expression, PredicateError, parse
+from itskill.tasks.predicates import (
+    FIXTURE_PREDICATES,
+    Expression,
+    PredicateError,
+    parse,
+    predicate_params,
+)
 
 TASKS_DIR_ENV = "ITSKILL_TASKS_DIR"
 _PART_KINDS = {"nut": NutSpec, "bolt": BoltSpec, "peg": PegSpec, "hole": HoleSpec}
@@ -468,6 +475,7 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
     )
     _check_script(path, spec)
     _check_parts_fit(path, spec)
+    _check_stage_holds_into_hole(path, spec)
     return spec
 
 
@@ -520,6 +528,39 @@ def _check_script(path: Path, spec: TaskSpec) -> None:
         compile_script(spec)
     except ScriptError as err:
         raise TaskFileError(path, f"task {spec.id!r}.script[{err.index}]", err.problem) from err
+
+
+def _check_stage_holds_into_hole(path: Path, spec: TaskSpec) -> None:
+    """A stage ending with a peg over its hole (``above_fixture``) and followed by one ending
+    with it inserted must go on holding as the peg goes down: a stage's index is one past the
+    furthest stage done, so where neither holds it falls back to an earlier stage, whose skill
+    then pulls the peg out, and the expert reward drops by the stage bonuses in between."""
+    for k in range(len(spec.stages) - 1):
+        over = [
+            predicate_params(n, a)
+            for neg, n, a in spec.stages[k].done.terms
+            if n == "above_fixture" and not neg
+        ]
+        into = [
+            predicate_params(n, a)
+            for neg, n, a in spec.stages[k + 1].done.terms
+            if n == "inserted" and not neg
+        ]
+        for above, inserted in itertools.product(over, into):
+            hole = spec.fixtures[spec.object_fixture[above["i"]]].part
+            if inserted["i"] != above["i"] or not isinstance(hole, HoleSpec):
+                continue
+            depth, need = above["depth"], inserted["fraction"] * hole.hole_depth
+            if depth < need:
+                raise TaskFileError(
+                    path,
+                    f"task {spec.id!r}.stages[{k}].done",
+                    f"above_fixture stops holding {depth * 1000:g} mm into {hole.name}, and "
+                    f"stage {k + 1} ({spec.stages[k + 1].name!r}) is done only from "
+                    f"{need * 1000:g} mm: between the two the task's stage falls back while the "
+                    f"part goes in; give above_fixture a depth (its fourth argument) of at least "
+                    f"{need:g}",
+                )
 
 
 _FIT_PREDICATES = frozenset({"engaged", "seated", "inserted"})

@@ -37,7 +37,7 @@ from itskill.datafile import (
 )
 from itskill.llm.offline.backend import BACKEND
 from itskill.llm.offline.blocks import fenced
-from itskill.tasks.predicates import PREDICATES, PredicateError, parse
+from itskill.tasks.predicates import PREDICATES, PredicateError, parse, predicate_params
 
 _STAGE = re.compile(
     r"^\s*stage\s+(\d+)\s*:\s*([A-Za-z_][\w\-]*)\s*\|\s*object\s+(\d+)\s*\|"
@@ -293,16 +293,6 @@ class TaskStructure:
     command: str
     stages: tuple[StageSpec, ...]
     success: str  # NumPy expression
-
-
-def predicate_params(name: str, args: tuple[float, ...]) -> dict[str, Any]:
-    """A predicate's arguments by parameter name, defaults filled in (slot included as ``i``)."""
-    signature = inspect.signature(PREDICATES[name])
-    bound = signature.bind(None, *[int(args[0]), *args[1:]])
-    bound.apply_defaults()
-    params = dict(bound.arguments)
-    params.pop(next(iter(signature.parameters)))
-    return params
 
 
 def _expression_code(source: str, fixture_of: dict[int, int]) -> str:
