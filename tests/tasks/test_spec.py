@@ -260,9 +260,7 @@ def test_a_peg_started_in_a_hole_it_does_not_fit_is_refused(tmp_path, parts):
         load_task_file(write(tmp_path, text), parts)
 
 
-def test_a_stage_over_a_hole_that_stops_holding_before_the_insert_does_is_refused(
-    tmp_path, parts
-):
+def test_a_stage_over_a_hole_that_stops_holding_before_the_insert_does_is_refused(tmp_path, parts):
     # Between 2 mm (above_fixture's default) and 10 mm in (half the 2 cm hole), neither stage
     # held: the task fell back to its approach while the peg went in.
     text = (
