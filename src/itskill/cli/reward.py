@@ -304,8 +304,8 @@ def _flags_named(overrides: dict[str, Any], load: Callable[[], Any]) -> Any:
         return load()
     except SearchConfigError as err:
         # A flag left out is None here: a stored setting that no longer validates is not its.
-        if err.path == "overrides" and overrides.get(err.where) is not None:
-            flag = "--" + err.where.replace("_", "-")
+        if err.path == "overrides" and overrides.get(err.setting) is not None:
+            flag = "--" + err.setting.replace("_", "-")
             raise typer.BadParameter(err.problem, param_hint=flag) from err
         raise
 

@@ -37,6 +37,11 @@ from itskill.rl.config import ALGOS
 class SearchConfigError(DataFileError):
     """A search setting that does not validate: names the source, the field and the problem."""
 
+    @property
+    def setting(self) -> str:
+        """The setting at fault, without an index or sub-field (``seeds`` for ``seeds[0]``)."""
+        return self.where.split(".")[0].split("[")[0]
+
 
 _KINDS: dict[str, type] = {
     "iterations": int, "samples": int, "steps": int, "num_envs": int, "algo": str,

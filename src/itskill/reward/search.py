@@ -996,7 +996,7 @@ def config_from_run(
     try:
         return load_search_config(overrides={**stored, **given})
     except SearchConfigError as err:
-        if err.where.split(".")[0].split("[")[0] in given:
+        if err.setting in given:
             raise  # a flag's value: the command line names it
         # A setting this version no longer takes (a bound lowered, the file edited) is the
         # record's, not a flag's: name the file.
