@@ -92,6 +92,21 @@ def test_a_cell_without_its_weights_fails_by_name_and_the_others_are_measured(
     assert (Cell(TASK, "no_transfer", 0).dir(copy) / HELD_OUT_FILE).is_file()
 
 
+def test_a_policy_trained_on_an_earlier_definition_of_its_task_is_not_measured(
+    run: Path,
+) -> None:
+    # Its figure would have been of another task: other stages to see, another success.
+    meta_path = Cell(TASK, "no_transfer", 1).dir(run) / "checkpoint.json"
+    meta = json.loads(meta_path.read_text())
+    write_json(meta_path, {**meta, "task_sha256": "0" * 64})
+    summary = measure_held_out(run, 2, workers=1)
+    assert summary.measured == [Cell(TASK, "no_transfer", 0)]
+    assert "as the task was then" in summary.failed[Cell(TASK, "no_transfer", 1)]
+    del meta["task_sha256"]  # a checkpoint from before the fingerprint: measured as it is
+    write_json(meta_path, meta)
+    assert measure_held_out(run, 2, workers=1).measured == [Cell(TASK, "no_transfer", 1)]
+
+
 def test_a_directory_that_is_not_a_run_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ExperimentRunError, match="not an experiment run directory"):
         measure_held_out(tmp_path, 2)

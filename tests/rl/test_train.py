@@ -460,6 +460,24 @@ def test_an_expert_run_resumes_only_under_the_expert_reward_it_trained_with(
     assert _train(out, "expert", 128).num_timesteps == 128
 
 
+def test_a_run_resumes_only_on_the_task_as_it_trained_on_it(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    # A reward file's fingerprint does not cover the task: a run resumed after its stages
+    # changed (the peg's place stage, 2026-12-07) saw another stage one-hot without a word.
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64)
+    record = json.loads((out / "checkpoint.json").read_text())
+    assert record["task_sha256"] == get_task(record["task"]).fingerprint
+    record["task_sha256"] = "0" * 64  # as a run of the task's earlier file records
+    (out / "checkpoint.json").write_text(json.dumps(record))
+    with pytest.raises(ResumeMismatchError, match="as the task was then"):
+        _train(out, reach_reward, 128)
+    del record["task_sha256"]  # a run from before the fingerprint: taken as it was
+    (out / "checkpoint.json").write_text(json.dumps(record))
+    assert _train(out, reach_reward, 128).num_timesteps == 128
+
+
 def test_a_resume_ignores_settings_of_tables_the_run_never_used(
     tmp_path: Path, reach_reward: Path
 ) -> None:

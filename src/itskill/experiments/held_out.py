@@ -26,6 +26,12 @@ from itskill.files import read_json_or_none, write_json
 from itskill.rl.checkpoint import BEST_DIR, META_FILE
 
 HELD_OUT_FILE = "held_out.json"
+
+
+class TaskChangedError(ValueError):
+    """A cell's policy was trained on its task as the task file defined it then, not now."""
+
+
 POLICY_DIRS = {"final": ".", "best": BEST_DIR}
 """Which of a cell's policies, and where it lies in the cell's directory."""
 
@@ -126,10 +132,18 @@ def _measure_cell(task: str, cell_dir: str, episodes: int, policy: str) -> dict[
     where = policy_dir(Path(cell_dir), policy)
     if not (where / META_FILE).is_file():
         raise FileNotFoundError(f"{where}: no {policy} policy kept (no {META_FILE})")
-    res = evaluate(get_task(task), as_policy(where), episodes, HELD_OUT_SEED, HELD_OUT_ENVS)
+    spec, meta = get_task(task), read_meta(where)
+    # Checkpoints written before the fingerprint was kept are measured as they are.
+    if meta.get("task_sha256", spec.fingerprint) != spec.fingerprint:
+        raise TaskChangedError(
+            f"{where}: trained on {task} as the task was then; its parts, start, stages, "
+            "success or length have changed since, so a held-out figure now would measure "
+            "another task"
+        )
+    res = evaluate(spec, as_policy(where), episodes, HELD_OUT_SEED, HELD_OUT_ENVS)
     return {
         "policy": policy,
-        "num_timesteps": read_meta(where)["num_timesteps"],
+        "num_timesteps": meta["num_timesteps"],
         "episodes": episodes,
         "seed": HELD_OUT_SEED,
         "num_envs": HELD_OUT_ENVS,

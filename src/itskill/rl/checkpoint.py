@@ -90,6 +90,7 @@ _EVALUATION = Check(
 META_FIELDS: dict[str, Check] = {
     "format": _COUNT,
     "task": STRING,
+    "task_sha256": STRING,
     "algo": STRING,
     "seed": _COUNT,
     "num_timesteps": _COUNT,

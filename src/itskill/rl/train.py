@@ -302,6 +302,13 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
     # Checkpoints written before the policy class was recorded all hold the staged policy.
     meta = {"policy_class": STAGED_POLICY_CLASS, **meta}
     require_same(meta, want, ("task", "algo", "seed"), run_dir)
+    # A run recorded before the task's fingerprint was kept is taken as it was.
+    if meta.get("task_sha256", want["task_sha256"]) != want["task_sha256"]:
+        raise ResumeMismatchError(
+            f"{run_dir}: holds a run of {want['task']} as the task was then; its parts, start, "
+            "stages, success or length have changed since (their sha256 differs), so it would "
+            "go on as another task: use another --out directory"
+        )
     if meta["policy_class"] != want["policy_class"]:
         have_net, want_net = (
             c.rpartition(".")[2] for c in (meta["policy_class"], want["policy_class"])
@@ -565,6 +572,7 @@ def check_training(
     reward_fn, reward_meta = load_reward(reward, spec)
     meta: dict[str, Any] = {
         "task": spec.id,
+        "task_sha256": spec.fingerprint,
         "family": spec.family,
         "algo": algo,
         "seed": seed,

@@ -164,6 +164,26 @@ class TaskSpec:
             stage = np.where(st.done(ctx), k + 1, stage)
         return np.minimum(stage, len(self.stages) - 1)
 
+    @property
+    def fingerprint(self) -> str:
+        """A sha256 of what an episode of this task is and how it is scored: its parts and
+        fixtures, start, stages (which a policy sees), success and length. A checkpoint records
+        it, so resuming or re-measuring a run after the task's file changed is refused rather
+        than done on another task. The predicates' own code is not covered."""
+        import hashlib
+
+        what = (
+            self.objects,
+            self.fixtures,
+            self.object_fixture,
+            self.init,
+            self.stages,
+            self.success,
+            self.max_steps,
+            self.terminate_on_success,
+        )
+        return hashlib.sha256(repr(what).encode()).hexdigest()
+
     def to_sim_task(self) -> SimTask:
         return SimTask(
             name=self.id,
