@@ -282,6 +282,12 @@ def test_a_stage_over_a_hole_that_stops_holding_before_the_insert_does_is_refuse
     deep = above.replace("0.01)", "0.01, 0.01)")
     (task,) = load_task_file(write(tmp_path, text.replace("DONE", deep)), parts)
     assert task.stages[0].done.source == deep
+    # The depth the message asks for loads, whatever the rounding of fraction x hole depth.
+    nine_tenths = text.replace('done = "inserted(0)"', 'done = "inserted(0, 0.9)"')
+    with pytest.raises(TaskFileError, match=r"at least 0\.018$"):
+        load_task_file(write(tmp_path, nine_tenths.replace("DONE", above)), parts)
+    asked = above.replace("0.01)", "0.01, 0.018)")
+    load_task_file(write(tmp_path, nine_tenths.replace("DONE", asked)), parts)
 
 
 def test_a_fixture_predicate_in_a_task_without_fixtures_is_refused(tmp_path, parts):
