@@ -480,6 +480,22 @@ def test_eval_of_a_policy_on_another_task_runs_with_a_note(tmp_path, monkeypatch
     )
 
 
+def test_eval_of_a_policy_on_a_changed_version_of_its_task_runs_with_a_note(tmp_path, monkeypatch):
+    import shutil
+
+    from itskill.skills.store import SHIPPED_LIBRARY
+
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    copy = tmp_path / "reach"
+    shutil.copytree(SHIPPED_LIBRARY / "reach_nut_m12", copy)
+    meta = json.loads((copy / "checkpoint.json").read_text())
+    (copy / "checkpoint.json").write_text(json.dumps({**meta, "task_sha256": "0" * 64}))
+    args = ["eval", "reach_nut_m12", "--policy", str(copy), "--episodes", "2", "--num-envs", "2"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "trained on reach_nut_m12 as its task file defined it then" in flat(result.output)
+
+
 def test_plan_of_a_task_id_needs_no_model_but_refuses_a_mistyped_one(monkeypatch):
     monkeypatch.delenv("ITSKILL_LLM_MODEL", raising=False)
     ok = runner.invoke(app, ["plan", "pick_nut_m12"])

@@ -284,7 +284,8 @@ def test_new_seeds_are_refused_where_the_packaged_settings_changed_since_the_run
 
 def test_new_seeds_alone_are_checked_against_the_runs_finished_cells(toy, tmp_path):
     # A file naming only new seeds has none of the finished cells in its grid: nothing was
-    # compared, and the new seeds trained at changed packaged values or a changed expert reward.
+    # compared, and the new seeds trained at changed packaged values, a changed expert reward or
+    # a changed task.
     config, _ = toy
     run = tmp_path / "run"
     first = type(config)(**{**config.__dict__, "methods": ("no_transfer",), "seeds": (0,)})
@@ -295,6 +296,7 @@ def test_new_seeds_alone_are_checked_against_the_runs_finished_cells(toy, tmp_pa
     for edit, problem in (
         (lambda r: r["hyperparams"]["policy"].update(log_std_init=-9.0), "policy.log_std_init"),
         (lambda r: r["reward"].update(sha256="0" * 64), "another version of the expert reward"),
+        (lambda r: r.update(task_sha256="0" * 64), "trained on the task as it was then"),
     ):
         record = json.loads(kept)
         edit(record)

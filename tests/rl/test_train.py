@@ -476,6 +476,8 @@ def test_a_run_resumes_only_on_the_task_as_it_trained_on_it(
     del record["task_sha256"]  # a run from before the fingerprint: taken as it was
     (out / "checkpoint.json").write_text(json.dumps(record))
     assert _train(out, reach_reward, 128).num_timesteps == 128
+    # and left without one: its first steps were taken on a task of unknown version.
+    assert "task_sha256" not in json.loads((out / "checkpoint.json").read_text())
 
 
 def test_a_resume_ignores_settings_of_tables_the_run_never_used(

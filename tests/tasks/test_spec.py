@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import itskill.tasks.spec as spec_module
+from itskill.sim.task import Range
 from itskill.tasks import TaskFileError, UnknownTaskError, all_tasks, get_task, make_batch_env
 from itskill.tasks.predicates import PREDICATES, PredicateError, parse
 from itskill.tasks.spec import load_parts, load_task_file
@@ -288,6 +290,10 @@ def test_a_stage_over_a_hole_that_stops_holding_before_the_insert_does_is_refuse
         load_task_file(write(tmp_path, nine_tenths.replace("DONE", above)), parts)
     asked = above.replace("0.01)", "0.01, 0.018)")
     load_task_file(write(tmp_path, nine_tenths.replace("DONE", asked)), parts)
+    # Seated within 1 mm of the hole's floor: from 19 mm in.
+    seated = text.replace('done = "inserted(0)"', 'done = "seated(0, 0.001)"')
+    with pytest.raises(TaskFileError, match=r"only from 19 mm.*at least 0\.019$"):
+        load_task_file(write(tmp_path, seated.replace("DONE", deep)), parts)
 
 
 def test_a_fixture_predicate_in_a_task_without_fixtures_is_refused(tmp_path, parts):
@@ -968,3 +974,32 @@ def test_a_peg_in_a_turned_hole_is_checked_against_the_hole_not_the_table(tmp_pa
     load_task_file(write(tmp_path, head + start.replace("YAW", "0.0")), parts)
     with pytest.raises(TaskFileError, match="wider than its bore"):
         load_task_file(write(tmp_path, head + start.replace("YAW", "1.5708")), parts)
+
+
+def test_a_tasks_fingerprint_follows_what_its_episodes_are_not_how_they_are_written() -> None:
+    spec = get_task("pickplaceinsert_peg_rect")
+    # Pinned: a field added to a spec with a default, or a refactoring, must not refuse every
+    # recorded run's resume and held-out measurement as if its task had changed.
+    assert spec.fingerprint == "384da51e10e62d3f835986de447db04dbc72ae0484b226405be81722f85a4c20"
+    place = spec.stages[4]
+    respaced = dataclasses.replace(
+        place, done=parse(place.done.source.replace(", ", ",").replace(" and ", "  and "))
+    )
+    defaults = dataclasses.replace(
+        spec.stages[5], done=parse("inserted(0, 0.5, 0.1)")
+    )  # yaw_tol written out
+    same = [
+        dataclasses.replace(spec, stages=(*spec.stages[:4], respaced, defaults)),
+        dataclasses.replace(
+            spec, objects=(dataclasses.replace(spec.objects[0], rgba=(1.0, 0.0, 0.0, 1.0)),)
+        ),
+        dataclasses.replace(spec, command="Put the green peg in", tags=("mine",)),
+    ]
+    assert {s.fingerprint for s in same} == {spec.fingerprint}
+    deeper = dataclasses.replace(spec.stages[5], done=parse("inserted(0, 0.6)"))
+    other = [
+        dataclasses.replace(spec, stages=(*spec.stages[:5], deeper)),
+        dataclasses.replace(spec, max_steps=spec.max_steps + 1),
+        dataclasses.replace(spec, init=dataclasses.replace(spec.init, ee_yaw=Range(0.0, 0.1))),
+    ]
+    assert spec.fingerprint not in {s.fingerprint for s in other}

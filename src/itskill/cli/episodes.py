@@ -134,10 +134,18 @@ def _note_another_task(policy: str, source: str | Path, spec: TaskSpec) -> None:
 
     if not (Path(source) / META_FILE).is_file():
         return
-    trained = read_meta(source)["task"]
+    meta = read_meta(source)
+    trained = meta["task"]
     if trained != spec.id:
         note = f"{policy} was trained on {trained}; evaluated on {spec.id}"
-        err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)
+    elif meta.get("task_sha256", spec.fingerprint) != spec.fingerprint:
+        note = (
+            f"{policy} was trained on {trained} as its task file defined it then; its parts, "
+            "start, stages, success or length have changed since"
+        )
+    else:
+        return
+    err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)
 
 
 def render_cmd(

@@ -138,12 +138,14 @@ def _measure_cell(task: str, cell_dir: str, episodes: int, policy: str) -> dict[
         raise TaskChangedError(
             f"{where}: trained on {task} as the task was then; its parts, start, stages, "
             "success or length have changed since, so a held-out figure now would measure "
-            "another task"
+            "another task: train the cell again, or measure it on a checkout of the task file "
+            "it trained on"
         )
     res = evaluate(spec, as_policy(where), episodes, HELD_OUT_SEED, HELD_OUT_ENVS)
     return {
         "policy": policy,
         "num_timesteps": meta["num_timesteps"],
+        "task_sha256": spec.fingerprint,  # the version of the task it was measured on
         "episodes": episodes,
         "seed": HELD_OUT_SEED,
         "num_envs": HELD_OUT_ENVS,

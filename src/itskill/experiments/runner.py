@@ -262,13 +262,24 @@ def reward_hashes(run_dir: Path, task: str) -> set[str]:
 
 def trained_reward_hashes(run_dir: Path, task: str) -> set[str]:
     """The sha256 of the reward file every cell of ``task`` with a checkpoint trained with."""
-    hashes = set()
+    return _recorded(run_dir, task, lambda meta: meta["reward"]["sha256"])
+
+
+def trained_task_hashes(run_dir: Path, task: str) -> set[str]:
+    """The fingerprints of ``task`` (:attr:`TaskSpec.fingerprint`) its cells with a checkpoint
+    trained on; a checkpoint from before they were recorded adds none."""
+    return _recorded(run_dir, task, lambda meta: meta["task_sha256"])
+
+
+def _recorded(run_dir: Path, task: str, read: Callable[[dict[str, Any]], Any]) -> set[str]:
+    """What ``read`` gives of each checkpoint record of ``task``'s cells, where it gives one."""
+    found = set()
     for meta in (run_dir / CELLS_DIR / task).glob("*/*/checkpoint.json"):
         try:
-            hashes.add(str(read_json(meta)["reward"]["sha256"]))
+            found.add(str(read(read_json(meta))))
         except (CorruptFileError, KeyError, TypeError):
             continue  # a damaged checkpoint is the cell's own error when it resumes
-    return hashes
+    return found
 
 
 def _first_record(
@@ -309,11 +320,12 @@ def _check_as_recorded(
 ) -> None:
     """Refuse a session whose new cells would train, by the file ``config``, otherwise than the
     finished cells of the run (``record``: every session's grid) of their task (and, for the
-    transfer settings, their method) recorded: other hyper-parameters or network settings, or
-    another version of the expert reward. The file's settings were compared already; the
-    packaged ones under them, and the expert reward's code, may have changed since the run
-    began (another itskill release), and the new seeds would learn beside the old ones under
-    them. Cells resumed from a checkpoint are checked against their own records."""
+    transfer settings, their method) recorded: another version of the task, other
+    hyper-parameters or network settings, or another version of the expert reward. The file's
+    settings were compared already; the packaged ones under them, the task's file and the
+    expert reward's code may have changed since the run began (another itskill release), and
+    the new seeds would learn beside the old ones under them. Cells resumed from a checkpoint
+    are checked against their own records."""
     from itskill.rl.config import load_hyperparams
     from itskill.rl.train import changed_settings
     from itskill.tasks import get_task
@@ -330,6 +342,13 @@ def _check_as_recorded(
         )
 
     for task in dict.fromkeys(cell.task for cell in new):
+        trained_on = trained_task_hashes(run_dir, task)
+        if trained_on and get_task(task).fingerprint not in trained_on:
+            raise ExperimentRunError(
+                f"{run_dir}: its cells of {task} trained on the task as it was then (its parts, "
+                "start, stages, success or length changed since the run began): new seeds "
+                "would learn another task beside them; use another --out"
+            )
         if config.reward.get(task, EXPERT) == EXPERT:
             trained = trained_reward_hashes(run_dir, task)
             if trained and expert_fingerprint(get_task(task)) not in trained:

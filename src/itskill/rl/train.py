@@ -602,6 +602,10 @@ def check_training(
             # A session without evaluations keeps the record for the sessions after it.
             meta.setdefault("evaluation", previous["evaluation"])
         _check_resume(previous, meta, run_dir)
+        if "task_sha256" not in previous:
+            # Trained on a task of unknown version so far: stamping today's would vouch for
+            # every step already taken.
+            del meta["task_sha256"]
         if not (run_dir / MODEL_FILE).is_file():
             raise CheckpointError(run_dir / MODEL_FILE, "missing" + CANNOT_RESUME)
     elif run_dir.exists():

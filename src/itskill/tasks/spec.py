@@ -7,12 +7,14 @@ file is reported with the file, the field and what was expected.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import itertools
+import json
 import math
 import os
 import re
-from dataclasses import MISSING, dataclass, field, replace
+from dataclasses import MISSING, dataclass, field, is_dataclass, replace
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -169,20 +171,27 @@ class TaskSpec:
         """A sha256 of what an episode of this task is and how it is scored: its parts and
         fixtures, start, stages (which a policy sees), success and length. A checkpoint records
         it, so resuming or re-measuring a run after the task's file changed is refused rather
-        than done on another task. The predicates' own code is not covered."""
+        than done on another task.
+
+        It is taken over a canonical form (:func:`_canonical`): a part's colour, how an
+        expression is spaced or whether it writes out a default argument, and a field added to
+        a spec with a default that keeps today's behaviour do not change it. Not covered: the
+        training starts (what a run trains on, not the task it is measured on) and the
+        predicates' own code."""
         import hashlib
 
-        what = (
-            self.objects,
-            self.fixtures,
-            self.object_fixture,
-            self.init,
-            self.stages,
-            self.success,
-            self.max_steps,
-            self.terminate_on_success,
-        )
-        return hashlib.sha256(repr(what).encode()).hexdigest()
+        what = {
+            "objects": self.objects,
+            "fixtures": self.fixtures,
+            "object_fixture": self.object_fixture,
+            "init": self.init,
+            "stages": self.stages,
+            "success": self.success,
+            "max_steps": self.max_steps,
+            "terminate_on_success": self.terminate_on_success,
+        }
+        text = json.dumps(_canonical(what), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()
 
     def to_sim_task(self) -> SimTask:
         return SimTask(
@@ -244,6 +253,29 @@ class _Reader:
 
     def check_keys(self, allowed: set[str]) -> None:
         check_table(self.path, self.where, self.table, TaskFileError, allowed)
+
+
+_COSMETIC = frozenset({"rgba"})
+"""Spec fields that change how a scene looks, not what happens in it."""
+
+
+def _canonical(value: Any) -> Any:
+    """``value`` as JSON-ready data for :attr:`TaskSpec.fingerprint`: an expression as its terms
+    with every argument named and defaults filled in, a dataclass as its fields less the
+    cosmetic ones and those at their defaults, a tuple as a list."""
+    if isinstance(value, Expression):
+        return [[neg, name, predicate_params(name, args)] for neg, name, args in value.terms]
+    if is_dataclass(value) and not isinstance(value, type):
+        return {
+            f.name: _canonical(getattr(value, f.name))
+            for f in dataclasses.fields(value)
+            if f.name not in _COSMETIC and getattr(value, f.name) != f.default
+        }
+    if isinstance(value, dict):
+        return {key: _canonical(v) for key, v in value.items()}
+    if isinstance(value, tuple | list):
+        return [_canonical(v) for v in value]
+    return value
 
 
 def _load_toml(path: Path) -> dict[str, Any]:
@@ -552,13 +584,14 @@ def _check_script(path: Path, spec: TaskSpec) -> None:
 
 def _check_stage_holds_into_hole(path: Path, spec: TaskSpec) -> None:
     """A stage ending with a peg over its hole (``above_fixture``) and followed by one ending
-    with it inserted must go on holding as the peg goes down: a stage's index is one past the
-    furthest stage done, so where neither holds it falls back to an earlier stage, whose skill
-    then pulls the peg out, and the expert reward drops by the stage bonuses in between.
+    with it inserted or seated must go on holding as the peg goes down: a stage's index is one
+    past the furthest stage done, so where neither holds it falls back to an earlier stage,
+    whose skill then pulls the peg out, and the expert reward drops by the stage bonuses in
+    between.
 
-    Only the depth is checked: the stage's other terms (its radius, an ``aligned`` tolerance
-    tighter than ``inserted``'s) can still fail on the way down, and hand the peg back one
-    stage while its approach still holds."""
+    Only the depth is checked, and only against the stage right after: the stage's other terms
+    (its radius, an ``aligned`` tolerance tighter than ``inserted``'s) can still fail on the
+    way down, and hand the peg back one stage while its approach still holds."""
     for k in range(len(spec.stages) - 1):
         over = [
             predicate_params(n, a)
@@ -566,15 +599,21 @@ def _check_stage_holds_into_hole(path: Path, spec: TaskSpec) -> None:
             if n == "above_fixture" and not neg
         ]
         into = [
-            predicate_params(n, a)
+            (n, predicate_params(n, a))
             for neg, n, a in spec.stages[k + 1].done.terms
-            if n == "inserted" and not neg
+            if n in ("inserted", "seated") and not neg
         ]
-        for above, inserted in itertools.product(over, into):
+        for above, (name, deep) in itertools.product(over, into):
             hole = spec.fixtures[spec.object_fixture[above["i"]]].part
-            if inserted["i"] != above["i"] or not isinstance(hole, HoleSpec):
+            if deep["i"] != above["i"] or not isinstance(hole, HoleSpec):
                 continue
-            depth, need = above["depth"], inserted["fraction"] * hole.hole_depth
+            # Inserted from a fraction of the hole's depth; seated within a tolerance of its floor.
+            need = (
+                deep["fraction"] * hole.hole_depth
+                if name == "inserted"
+                else hole.hole_depth - deep["tolerance"]
+            )
+            depth = above["depth"]
             # With a margin: 0.9 of 2 cm is 0.018000000000000002, and 0.018 is deep enough.
             if depth < need - 1e-9:
                 raise TaskFileError(
