@@ -130,7 +130,12 @@ def _note_another_task(policy: str, source: str | Path, spec: TaskSpec) -> None:
     target), so it runs; the note keeps a mistyped task from passing for the policy's result.
     ``source`` is where ``policy`` loads from (:func:`policy_source`): a checkpoint's directory
     records the task it was trained on, whether named as a run, its weights or a skill."""
-    from itskill.rl.checkpoint import META_FILE, read_meta
+    from itskill.rl.checkpoint import (
+        META_FILE,
+        TASK_CHANGED,
+        read_meta,
+        trained_on_another_version,
+    )
 
     if not (Path(source) / META_FILE).is_file():
         return
@@ -138,11 +143,8 @@ def _note_another_task(policy: str, source: str | Path, spec: TaskSpec) -> None:
     trained = meta["task"]
     if trained != spec.id:
         note = f"{policy} was trained on {trained}; evaluated on {spec.id}"
-    elif meta.get("task_sha256", spec.fingerprint) != spec.fingerprint:
-        note = (
-            f"{policy} was trained on {trained} as its task file defined it then; its parts, "
-            "start, stages, success or length have changed since"
-        )
+    elif trained_on_another_version(meta, spec.fingerprint):
+        note = f"{policy} was trained on {trained} as its task file defined it then; {TASK_CHANGED}"
     else:
         return
     err_console.print(f"[yellow]note:[/yellow] {escape(note)}", highlight=False)

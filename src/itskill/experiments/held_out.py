@@ -121,7 +121,12 @@ def _measure_cell(task: str, cell_dir: str, episodes: int, policy: str) -> dict[
     # Imported in the worker, which alone runs the simulator.
     import torch
 
-    from itskill.rl.checkpoint import as_policy, read_meta
+    from itskill.rl.checkpoint import (
+        TASK_CHANGED,
+        as_policy,
+        read_meta,
+        trained_on_another_version,
+    )
     from itskill.tasks import get_task
     from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
 
@@ -133,13 +138,11 @@ def _measure_cell(task: str, cell_dir: str, episodes: int, policy: str) -> dict[
     if not (where / META_FILE).is_file():
         raise FileNotFoundError(f"{where}: no {policy} policy kept (no {META_FILE})")
     spec, meta = get_task(task), read_meta(where)
-    # Checkpoints written before the fingerprint was kept are measured as they are.
-    if meta.get("task_sha256", spec.fingerprint) != spec.fingerprint:
+    if trained_on_another_version(meta, spec.fingerprint):
         raise TaskChangedError(
-            f"{where}: trained on {task} as the task was then; its parts, start, stages, "
-            "success or length have changed since, so a held-out figure now would measure "
-            "another task: train the cell again, or measure it on a checkout of the task file "
-            "it trained on"
+            f"{where}: trained on {task} as the task was then; {TASK_CHANGED}, so a held-out "
+            "figure now would measure another task: train the cell again, or measure it on a "
+            "checkout of the task file it trained on"
         )
     res = evaluate(spec, as_policy(where), episodes, HELD_OUT_SEED, HELD_OUT_ENVS)
     return {

@@ -326,6 +326,7 @@ def _check_as_recorded(
     expert reward's code may have changed since the run began (another itskill release), and
     the new seeds would learn beside the old ones under them. Cells resumed from a checkpoint
     are checked against their own records."""
+    from itskill.rl.checkpoint import TASK_CHANGED
     from itskill.rl.config import load_hyperparams
     from itskill.rl.train import changed_settings
     from itskill.tasks import get_task
@@ -345,9 +346,9 @@ def _check_as_recorded(
         trained_on = trained_task_hashes(run_dir, task)
         if trained_on and get_task(task).fingerprint not in trained_on:
             raise ExperimentRunError(
-                f"{run_dir}: its cells of {task} trained on the task as it was then (its parts, "
-                "start, stages, success or length changed since the run began): new seeds "
-                "would learn another task beside them; use another --out"
+                f"{run_dir}: its cells of {task} trained on the task as it was then "
+                f"({TASK_CHANGED}): new seeds would learn another task beside them; use another "
+                "--out"
             )
         if config.reward.get(task, EXPERT) == EXPERT:
             trained = trained_reward_hashes(run_dir, task)

@@ -243,6 +243,17 @@ def read_record(
     return record
 
 
+TASK_CHANGED = "its parts, start, stages, success or length have changed since"
+"""What differs when a checkpoint's task fingerprint is not its task's now."""
+
+
+def trained_on_another_version(meta: Mapping[str, Any], fingerprint: str) -> bool:
+    """Whether the checkpoint record ``meta`` was trained on another version of its task than
+    the one whose :attr:`~itskill.tasks.spec.TaskSpec.fingerprint` is ``fingerprint``. A record
+    from before the fingerprint was kept (2026-12-07) is taken as it was."""
+    return meta.get("task_sha256", fingerprint) != fingerprint
+
+
 def read_meta(run_dir: str | Path) -> dict[str, Any]:
     """``checkpoint.json`` of ``run_dir``, checked; :class:`CheckpointError` says what is wrong."""
     run_dir = Path(run_dir)

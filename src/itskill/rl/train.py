@@ -44,11 +44,13 @@ from itskill.rl.checkpoint import (
     POLICY_FILE,
     REWARD_NORM_FILE,
     STAGED_POLICY_CLASS,
+    TASK_CHANGED,
     class_path,
     interrupts_deferred,
     read_meta,
     restore_reward_norm,
     save_checkpoint,
+    trained_on_another_version,
 )
 from itskill.rl.clock import TRAIN_WALL_KEY, WallClock
 from itskill.rl.config import ALGOS, HyperparamError, Hyperparams, default_path, load_hyperparams
@@ -302,12 +304,11 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
     # Checkpoints written before the policy class was recorded all hold the staged policy.
     meta = {"policy_class": STAGED_POLICY_CLASS, **meta}
     require_same(meta, want, ("task", "algo", "seed"), run_dir)
-    # A run recorded before the task's fingerprint was kept is taken as it was.
-    if meta.get("task_sha256", want["task_sha256"]) != want["task_sha256"]:
+    if trained_on_another_version(meta, want["task_sha256"]):
         raise ResumeMismatchError(
-            f"{run_dir}: holds a run of {want['task']} as the task was then; its parts, start, "
-            "stages, success or length have changed since (their sha256 differs), so it would "
-            "go on as another task: use another --out directory"
+            f"{run_dir}: holds a run of {want['task']} as the task was then; {TASK_CHANGED} "
+            "(their sha256 differs), so it would go on as another task: use another --out "
+            "directory"
         )
     if meta["policy_class"] != want["policy_class"]:
         have_net, want_net = (
