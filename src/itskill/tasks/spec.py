@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import hashlib
 import itertools
 import json
 import math
 import os
 import re
 from dataclasses import MISSING, dataclass, field, is_dataclass, replace
-from functools import cache
+from functools import cache, cached_property
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin, get_type_hints
@@ -166,7 +167,7 @@ class TaskSpec:
             stage = np.where(st.done(ctx), k + 1, stage)
         return np.minimum(stage, len(self.stages) - 1)
 
-    @property
+    @cached_property
     def fingerprint(self) -> str:
         """A sha256 of what an episode of this task is and how it is scored: its parts and
         fixtures, start, stages (which a policy sees), success and length. A checkpoint records
@@ -177,9 +178,7 @@ class TaskSpec:
         expression is spaced or whether it writes out a default argument, and a field added to
         a spec with a default that keeps today's behaviour do not change it. Not covered: the
         training starts (what a run trains on, not the task it is measured on) and the
-        predicates' own code."""
-        import hashlib
-
+        predicates' own code. Computed once per spec (a spec does not change)."""
         what = {
             "objects": self.objects,
             "fixtures": self.fixtures,
