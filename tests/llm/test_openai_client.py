@@ -7,6 +7,8 @@ import json
 import re
 import socket
 import sys
+import threading
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -300,6 +302,33 @@ def test_cache_replays_without_a_second_request(tmp_path: Path) -> None:
     files = sorted(tmp_path.glob("*.json"))
     assert len(files) == 2
     assert all(json.loads(f.read_text())["model"] == "openai:fake-model" for f in files)
+
+
+def test_clients_sharing_a_cache_ask_a_question_once_and_get_one_answer(tmp_path: Path) -> None:
+    # Two experiment cells asking the analyzer the same question at once: the second waits for
+    # the first's reply and replays it, so both train on one prior whatever the worker count.
+    in_flight = threading.Event()
+
+    def slow(body: dict) -> str:
+        in_flight.set()
+        time.sleep(0.5)
+        return "first"
+
+    with FakeOpenAIServer([slow, "second"]) as server:
+        got: dict[str, list[str]] = {}
+
+        def ask(name: str) -> None:
+            got[name] = client(server, cache_dir=tmp_path).complete(MESSAGES, purpose="analyze")
+
+        early = threading.Thread(target=ask, args=("early",))
+        early.start()
+        assert in_flight.wait(5.0)
+        late = threading.Thread(target=ask, args=("late",))
+        late.start()
+        early.join(10.0)
+        late.join(10.0)
+        assert got == {"early": ["first"], "late": ["first"]}
+        assert len(server.requests) == 1
 
 
 @pytest.mark.parametrize(

@@ -164,7 +164,10 @@ class Threshold:
         if self.censored == self.n:
             return f"≥ budget ({self.n}/{self.n} never reached)"
         text = fmt(est.mean)
-        if est.n > 1:
+        if est.n > 1 and est.high == est.low:
+            # Seeds that all reached it at one evaluation have no spread: not certainty.
+            text += f" (all {est.n} seeds)"
+        elif est.n > 1:
             # With few seeds a t-interval can reach below zero or past the budget, where no
             # mean of these values can lie: it is cut to the possible range.
             text += f" [{fmt(max(est.low, 0.0))}, {fmt(min(est.high, upper))}]"
@@ -177,7 +180,7 @@ def time_to_threshold(curves: Sequence[Curve], threshold: float) -> Threshold:
     """First evaluated env-step (and training wall time) at which success ≥ ``threshold``.
 
     Censored at the budget, and at the training wall time of the last evaluation, for a seed that
-    does not reach it within the budget (training ends one rollout past it, and a crossing at that
+    does not reach it within the budget (training ends up to one rollout past it, and a crossing at that
     last evaluation would otherwise count as reached later than a seed censored at the budget).
     """
     steps, walls, reached = [], [], []
@@ -249,10 +252,11 @@ def efficiency_gain(
 
     The interval is :func:`itskill.stats.ratio_interval`'s for the ratio of the two means (the
     methods' seeds are independent, not paired): the t-intervals the report prints for each
-    side's mean, carried through, and cut at 100% (times are never negative). A baseline whose
-    seeds all ran out the budget adds no spread, and the gain's interval is then the method's
-    t-interval (cut at zero) over the budget. With one seed on either side, or seeds that all
-    agree, it has none.
+    side's mean, carried through, and cut at 100% (times are never negative). In env-steps a
+    baseline whose seeds all ran out the budget adds no spread, and the gain's interval is then
+    the method's t-interval (cut at zero) over the budget; in wall time such seeds keep each its
+    own training time, which does spread. With one seed on either side, or seeds that all agree,
+    it has none.
     """
     m = np.asarray(method, float)
     b = np.asarray(baseline, float)

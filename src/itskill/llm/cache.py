@@ -7,7 +7,9 @@ serving the same model keeps the cache. The occurrence index counts identical re
 client's lifetime (0 for the first, 1 for the second, ...): asking the same question twice in a run
 still gets two independent samples, and a rerun that asks the same sequence of questions gets the
 same sequence of replies back. Files are written atomically (temporary file, then ``os.replace``),
-so a run killed mid-write never leaves a truncated entry.
+so a run killed mid-write never leaves a truncated entry. Processes sharing a cache (an
+experiment's cells) ask a request one at a time (:meth:`ReplyCache.lock`): the second replays the
+first's reply instead of drawing another sample of its own.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import json
 from collections import Counter
 from pathlib import Path
 from typing import Any
+
+from filelock import FileLock
 
 from itskill.files import write_text
 
@@ -57,6 +61,15 @@ class ReplyCache:
 
     def path(self, key: str) -> Path:
         return self.dir / f"{key}.json"
+
+    def lock(self, key: str) -> FileLock:
+        """A lock on request ``key`` across processes, held from the cache lookup to the write.
+
+        Without it, cells started together (an ITN and an NIA cell asking the analyzer the same
+        question) each missed the cache and got replies of their own, so their priors differed
+        with the number of workers."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        return FileLock(self.dir / f"{key}.lock")
 
     def get(self, key: str, n: int) -> list[str] | None:
         """The cached replies for ``key``, or None if absent or unusable (then it is re-asked)."""

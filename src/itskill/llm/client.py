@@ -119,19 +119,22 @@ class BaseClient:
         self, messages: list[Message], n: int = 1, *, purpose: str, temperature: float = 1.0
     ) -> list[str]:
         validate_request(messages, n, purpose, temperature)
-        key = None
-        if self.cache is not None:
-            key = request_key(self.name, messages, n, temperature, purpose)
-            key = self.cache.occurrence_key(key)
+        if self.cache is None:
+            return self._ask(messages, n, purpose, temperature)
+        key = self.cache.occurrence_key(request_key(self.name, messages, n, temperature, purpose))
+        with self.cache.lock(key):
             cached = self.cache.get(key, n)
             if cached is not None:
                 self.usage.cache_hits += 1
                 return cached
+            replies = self._ask(messages, n, purpose, temperature)
+            self.cache.put(key, replies, {"model": self.name, "purpose": purpose, "n": n})
+        return replies
+
+    def _ask(self, messages: list[Message], n: int, purpose: str, temperature: float) -> list[str]:
         replies = self._complete(messages, n, purpose, temperature)
         if len(replies) != n:
             raise LLMError(f"{self.name} returned {len(replies)} replies where {n} were asked for")
-        if self.cache is not None and key is not None:
-            self.cache.put(key, replies, {"model": self.name, "purpose": purpose, "n": n})
         return replies
 
     def _complete(
