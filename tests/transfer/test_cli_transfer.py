@@ -150,14 +150,19 @@ def no_api_key(monkeypatch: pytest.MonkeyPatch) -> None:
         monkeypatch.delenv(name, raising=False)
 
 
-@pytest.mark.parametrize("method", ["no_transfer", "dfs"])
-def test_a_method_that_asks_no_model_needs_no_api_key(
-    home: Path, tmp_path: Path, no_api_key: None, method: str
+@pytest.mark.parametrize(
+    ("method", "sources"),
+    [("no_transfer", "auto"), ("dfs", "auto"), ("itn", "pick_nut_m12"), ("pst", "auto")],
+)
+def test_a_run_that_asks_no_model_needs_no_api_key(
+    home: Path, tmp_path: Path, no_api_key: None, method: str, sources: str
 ) -> None:
     # The analyzer's client was built for every method: "no API key" though none was needed.
+    # Over one source (ITN given one, PST keeping one) the analyzer is not asked either.
     res = runner.invoke(app, ["transfer", "train", "pick_nut_m12", "--method", method,
-                              "--llm", "openai:gpt-4o", "--algo", "a2c", "--steps", "16",
-                              "--num-envs", "2", "--out", str(tmp_path / "run")])  # fmt: skip
+                              "--sources", sources, "--llm", "openai:gpt-4o", "--algo", "a2c",
+                              "--steps", "16", "--num-envs", "2",
+                              "--out", str(tmp_path / "run")])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "16 env-steps" in res.output
 

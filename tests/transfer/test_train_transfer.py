@@ -34,7 +34,6 @@ from itskill.transfer import (
     train_transfer,
 )
 from itskill.transfer.sources import IncompatibleSourceError
-from itskill.transfer.train import asks_analyzer
 
 TARGET = "pickplace_nut_m12"
 SOURCES = "pick_nut_m12,place_nut_m12"
@@ -74,16 +73,6 @@ EXPECTED = {
 
 def test_every_method_is_listed() -> None:
     assert set(METHODS) == set(EXPECTED)
-
-
-def test_only_a_run_that_may_ask_the_analyzer_needs_a_language_model(tmp_path: Path) -> None:
-    # PST keeping one source asks nothing, yet a cell built the client and, without an API
-    # key, failed.
-    one, two = TransferConfig(pst_keep=1), TransferConfig(pst_keep=2)
-    assert not asks_analyzer("pst", tmp_path, one) and asks_analyzer("pst", tmp_path, two)
-    assert asks_analyzer("itn", tmp_path, one) and not asks_analyzer("dfs", tmp_path, one)
-    (tmp_path / "transfer.json").write_text("{}")  # a record holds its matrix already
-    assert not asks_analyzer("itn", tmp_path, one)
 
 
 @pytest.mark.parametrize("method", list(EXPECTED))

@@ -108,10 +108,9 @@ def transfer_train(
     hyperparams: HyperparamsOpt = None,
 ) -> None:
     """Train TARGET with a transfer method; rerun the same command to resume."""
-    from itskill.llm.client import make_client, model_spec
+    from itskill.llm.client import LazyClient
     from itskill.rl.config import ALGOS
     from itskill.transfer import METHODS, train_transfer
-    from itskill.transfer.train import asks_analyzer
 
     if method not in METHODS:
         raise typer.BadParameter(f"expected one of {', '.join(METHODS)}", param_hint="--method")
@@ -120,8 +119,8 @@ def transfer_train(
     try:
         with user_errors():
             cfg = _config(config, k, sources)
-            model_spec(llm)  # a mistyped --llm is said even where no model is asked
-            client = make_client(llm) if asks_analyzer(method, out, cfg) else None
+            # Made only if the analyzer is asked: a run that asks no model needs no API key.
+            client = LazyClient(llm)
             result = train_transfer(
                 target,
                 method,

@@ -120,16 +120,11 @@ class CellSettings:
 
 def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
     """Train one cell into ``out`` (resuming a partial run) and write its ``result.json``."""
-    from itskill.llm import make_client
+    from itskill.llm.client import LazyClient
     from itskill.transfer import train_transfer
-    from itskill.transfer.train import asks_analyzer
 
-    # Only where the analyzer is asked: a cell that needs no model must not need its API key.
-    client = (
-        make_client(settings.llm, cache_dir=Path(settings.llm_cache))
-        if asks_analyzer(cell.method, out, settings.transfer)
-        else None
-    )
+    # Made only if the analyzer is asked: a cell that asks no model needs no API key.
+    client = LazyClient(settings.llm, cache_dir=Path(settings.llm_cache))
     res = train_transfer(
         cell.task,
         cell.method,

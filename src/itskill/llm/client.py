@@ -14,7 +14,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from itskill.llm.cache import ReplyCache, request_key
 
@@ -211,3 +211,30 @@ def make_client(
         price=price,
         retry=retry,
     )
+
+
+class LazyClient:
+    """The client :func:`make_client` gives for the same arguments, made at its first request.
+
+    For a run that may not ask a model at all (a transfer method's analyzer is skipped over one
+    source, or when the run's record already holds its matrix): such a run then needs no API key,
+    and one that does ask fails as the client would have when made, before any training. The
+    spec is checked at once, so a mistyped ``--llm`` is never silently ignored."""
+
+    def __init__(self, spec: str | None = None, **kwargs: Any) -> None:
+        backend, model = model_spec(spec)
+        self.name = "offline" if backend == "offline" else f"openai:{model}"
+        self.offline = backend == "offline"
+        self._spec, self._kwargs = spec, kwargs
+        self._client: LLMClient | None = None
+
+    @property
+    def usage(self) -> Usage:
+        return Usage() if self._client is None else self._client.usage
+
+    def complete(
+        self, messages: list[Message], n: int = 1, *, purpose: str, temperature: float = 1.0
+    ) -> list[str]:
+        if self._client is None:
+            self._client = make_client(self._spec, **self._kwargs)
+        return self._client.complete(messages, n, purpose=purpose, temperature=temperature)

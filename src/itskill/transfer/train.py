@@ -453,19 +453,6 @@ def prepare_transfer(
     return record
 
 
-def asks_analyzer(method: str, out: str | Path, config: TransferConfig) -> bool:
-    """Whether :func:`prepare_transfer` of ``method`` in ``out`` under ``config`` may ask the
-    analyzer, and so needs a language model: a method that uses its prior, in a run with no
-    record yet (a record already holds the matrix, or differs and is refused before anything
-    is asked), but not PST keeping one source (each stage is that source's)."""
-    one_source = method == "pst" and config.pst_keep == 1
-    return (
-        get_method(method).uses_prior
-        and not one_source
-        and not (Path(out) / TRANSFER_FILE).is_file()
-    )
-
-
 def transfer_network(
     record: dict[str, Any], config: TransferConfig | None = None
 ) -> tuple[type[ActorCriticPolicy], dict[str, Any] | None]:
