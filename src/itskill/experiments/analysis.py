@@ -179,9 +179,10 @@ class Threshold:
 def time_to_threshold(curves: Sequence[Curve], threshold: float) -> Threshold:
     """First evaluated env-step (and training wall time) at which success ≥ ``threshold``.
 
-    Censored at the budget, and at the training wall time of the last evaluation, for a seed that
-    does not reach it within the budget (training ends up to one rollout past it, and a crossing at that
-    last evaluation would otherwise count as reached later than a seed censored at the budget).
+    Censored at the budget, and at the training wall time of the last evaluation, for a seed
+    that does not reach it within the budget (training ends up to one rollout past it, and a
+    crossing at that last evaluation would otherwise count as reached later than a seed censored
+    at the budget).
     """
     steps, walls, reached = [], [], []
     for c in curves:
