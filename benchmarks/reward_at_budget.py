@@ -42,7 +42,9 @@ from itskill.experiments.analysis import (
     time_to_threshold,
 )
 from itskill.experiments.plots import plot_learning_curves
+from itskill.experiments.sandboxed import train_transfer_sandboxed
 from itskill.files import read_json, replaced_whole, write_json
+from itskill.reward_contract import EXPERT
 from itskill.rl.checkpoint import BEST_DIR, as_policy
 from itskill.rl.config import HyperparamError, check_hyperparams_file
 from itskill.stats import format_rate_interval
@@ -57,12 +59,16 @@ HELDOUT_FILE = "heldout_eval.json"
 def train_one(task: str, method: str, reward: str, seed: int, steps: int, every: int,
               episodes: int, out: str, hyperparams: str | None) -> int:  # fmt: skip
     """One transfer run into ``out`` (resumed if it is there), PPO with the packaged settings
-    or those of the ``hyperparams`` file."""
-    train_transfer(
-        task, method, "auto", seed=seed, steps=steps, algo="ppo", out=Path(out), reward=reward,
-        eval_every=every, eval_episodes=episodes, n_threads=1, progress=False,
+    or those of the ``hyperparams`` file. The generated reward trains only in the sandbox."""
+    training = dict(
+        target=task, method=method, sources="auto", seed=seed, steps=steps, algo="ppo",
+        out=Path(out), eval_every=every, eval_episodes=episodes, n_threads=1, progress=False,
         hyperparams=hyperparams,
     )  # fmt: skip
+    if reward == EXPERT:
+        train_transfer(reward=EXPERT, **training)
+    else:
+        train_transfer_sandboxed(reward, "file", name=f"the training of seed {seed}", **training)
     return seed
 
 
@@ -150,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     if not seeds:
         parser.error("no seeds: give --seeds, or --with-earlier where a summary is kept")
 
-    rewards = {"generated": str(args.reward), "expert": "expert"}
+    rewards = {"generated": str(args.reward), "expert": EXPERT}
     runs = {(r, s): args.out / f"{r}_seed{s}" for r in rewards for s in args.seeds}
     t0 = time.perf_counter()
     jobs = [

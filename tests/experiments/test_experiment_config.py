@@ -252,14 +252,21 @@ def test_invalid_fields_are_named(tmp_path, edit, where, problem):
 @pytest.mark.parametrize(
     ("body", "problem"),
     [
-        ("def compute_reward(ctx)\n    return 0\n", "failed to run: SyntaxError"),
+        ("def compute_reward(ctx)\n    return 0\n", "rejected by the sandbox: line 1: syntax"),
         ("def reward(ctx):\n    return 0\n", "defines no function compute_reward"),
         # Runs, but its result is caught only when called on the task's states.
         ("def compute_reward(ctx):\n    return 0\n", "must return (total, components)"),
+        # Usually generated code: it is checked, and trains, only in the reward sandbox. It ran
+        # as plain Python when the file was loaded, and in every cell.
+        ("import os\nos.system('touch pwned')\n" + GOOD_REWARD, "import 'os' is not allowed"),
+        (GOOD_REWARD.replace("np.zeros", "np.load('x.npy') + np.zeros"), "np.load"),
     ],
 )
-def test_a_reward_file_training_would_refuse_is_refused_at_load(tmp_path, body, problem):
+def test_a_reward_file_training_would_refuse_is_refused_at_load(
+    tmp_path, monkeypatch, body, problem
+):
     (tmp_path / "r.py").write_text(body)
+    monkeypatch.chdir(tmp_path)  # where a file the code wrote would land
     text = MINIMAL.replace("steps = 1000", 'steps = 1000\nreward = {pick_nut_m12 = "r.py"}')
     path = write(tmp_path, text)
     with pytest.raises(ExperimentConfigError) as info:
@@ -267,6 +274,7 @@ def test_a_reward_file_training_would_refuse_is_refused_at_load(tmp_path, body, 
     assert info.value.where == "reward.pick_nut_m12"
     assert str(tmp_path / "r.py") in info.value.problem and problem in info.value.problem
     assert str(path) in str(info.value)
+    assert not (tmp_path / "pwned").exists()
 
 
 def test_missing_required_field_and_bad_syntax(tmp_path):
@@ -299,7 +307,7 @@ def test_cli_reports_a_bad_experiment_file_in_one_line(tmp_path):
     [
         ("seeds = [-1]", "seeds[0]: expected a seed between 0 and 4294967295, got -1"),
         ('llm = "bogus"', "llm: unknown language model 'bogus'"),
-        ('reward = "r.py"', "reward: " + "{r}: failed to run: SyntaxError"),
+        ('reward = "r.py"', "reward: " + "{r}: rejected by the sandbox: line 1: syntax error"),
     ],
 )
 def test_cli_refuses_what_every_cell_would_fail_on_before_making_the_run(tmp_path, edit, message):

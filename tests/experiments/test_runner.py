@@ -733,6 +733,7 @@ def test_a_reward_file_edited_between_sessions_is_refused_and_cells_train_the_ru
         (run / "cells/pickplace_nut_m12/no_transfer/seed_0/checkpoint.json").read_text()
     )
     assert meta["reward"]["path"] == str(copy.resolve())
+    assert meta["reward"]["sandboxed"]  # trained in the reward sandbox, not as plain Python
 
     original = reward.read_text()
     reward.write_text(

@@ -2,8 +2,10 @@
 
 ``experiments/validation.toml`` (the paper's validation experiment) is the worked example. Every
 problem is reported with the file, the field and what was expected, before any training starts:
-a reward file is run and probed on its task's initial states when the experiment file is loaded,
-as training does (:func:`itskill.rl.train.load_reward`).
+a reward file is checked when the experiment file is loaded as a reward search checks a sample
+(compiled in the reward sandbox and run on a probe batch of its task's contexts): cells train
+on it only in the sandbox (:mod:`itskill.experiments.sandboxed`), since it is usually generated
+code, a search's ``best_reward.py``.
 
 Fields (``[eval]``, ``[report]`` and ``[execution]`` are tables; everything but ``tasks``,
 ``methods``, ``steps`` and ``eval.every`` has a default)::
@@ -49,7 +51,7 @@ from itskill.llm.client import UnknownModelError, model_spec
 from itskill.reward.config import check_seeds
 from itskill.reward_contract import EXPERT
 from itskill.rl.config import ALGOS, HyperparamError, load_hyperparams
-from itskill.rl.train import RESUMABLE_CHANGES, RewardLoadError, load_reward
+from itskill.rl.train import RESUMABLE_CHANGES
 from itskill.tasks import UnknownTaskError, get_task
 
 if TYPE_CHECKING:
@@ -301,12 +303,13 @@ def _parse_transfer(path: Path, value: Any) -> dict[str, dict[str, Any]]:
 
 
 def _check_reward_file(path: Path, where: str, file: Path, task: str) -> None:
-    """Load ``file`` for ``task`` as training will (run and probed on the task's initial states),
-    so a broken reward file is refused here instead of failing every cell of the task."""
-    try:
-        load_reward(file, get_task(task))
-    except RewardLoadError as err:
-        raise ExperimentConfigError(path, where, str(err)) from err
+    """Check ``file`` for ``task`` as training will run it (in the reward sandbox, on a probe
+    batch), so a broken reward file is refused here instead of failing every cell of the task."""
+    from itskill.experiments.sandboxed import check_reward_file
+
+    problem = check_reward_file(file, task)
+    if problem is not None:
+        raise ExperimentConfigError(path, where, f"{file}: {problem}")
 
 
 def parse_experiment(data: dict[str, Any], path: Path, recorded: bool = False) -> ExperimentConfig:

@@ -745,7 +745,8 @@ def _train(
 ) -> dict[str, Any]:
     """The final training, in a child process under the sandbox's memory limit, as the reward's
     candidates trained: the generated code runs nowhere else."""
-    from itskill.reward.limited import ChildFailed, run_limited
+    from itskill.experiments.sandboxed import train_transfer_sandboxed
+    from itskill.reward.limited import ChildFailed
     from itskill.reward.sandbox import SandboxError, SandboxTimeout
     from itskill.rl.checkpoint import best_policy_dir
     from itskill.tasks import get_task
@@ -756,16 +757,23 @@ def _train(
     # The network's record (sources, the analyzer's matrix) is written before the child starts,
     # so the child never needs the LLM client.
     prepare_transfer(task, t.method, _source_request(sources), seed, t.algo, out, client)
-    sandbox = b.search_config().sandbox
     reward_file = best_reward_file(run_dir, reward)
     try:
-        res = run_limited(
-            _train_generated,
-            (task, t, seed, _source_request(sources), str(reward_file), sandbox, out),
-            # A candidate's CPU-time limit is sized for a candidate's budget; this training is
-            # bounded by its own, and every reward call keeps its time limit.
-            sandbox=replace(sandbox, cpu_limit_s=None),
-            name="the final training's process",
+        res = train_transfer_sandboxed(
+            reward_file,
+            "generated",
+            b.search_config().sandbox,
+            "the final training's process",
+            target=task,
+            method=t.method,
+            sources=_source_request(sources),
+            seed=seed,
+            steps=t.steps,
+            algo=t.algo,
+            out=out,
+            num_envs=t.num_envs,
+            eval_every=t.eval_every,
+            eval_episodes=t.eval_episodes,
         )
     except (ChildFailed, SandboxError, SandboxTimeout) as err:
         kept = (
@@ -809,39 +817,6 @@ def _train(
         f"evaluation {curve.success[-1]:.0%}{kept} → {policy_dir(run_dir, summary)}"
     )
     return summary
-
-
-def _train_generated(
-    task: str,
-    t: TransferBudget,
-    seed: int,
-    sources: list[str] | str,
-    reward_path: str,
-    sandbox: Any,
-    out: Path,
-) -> Any:
-    """The body of :func:`_train`'s child: the reward compiled in the sandbox trains the transfer
-    network; the :class:`~itskill.rl.train.TrainResult`."""
-    from itskill.reward.sandbox import compile_reward
-    from itskill.rl.train import RewardSource
-    from itskill.transfer import train_transfer
-
-    fn = compile_reward(Path(reward_path).read_text(), sandbox)
-    meta = {"kind": "generated", "sha256": fn.sha256, "path": reward_path}
-    return train_transfer(
-        task,
-        t.method,
-        sources=sources,
-        seed=seed,
-        steps=t.steps,
-        algo=t.algo,
-        out=out,
-        reward=RewardSource(fn, meta),
-        num_envs=t.num_envs,
-        eval_every=t.eval_every,
-        eval_episodes=t.eval_episodes,
-        console=Console(emoji=False),
-    )
 
 
 def _evaluate(task: str, kept: Path, episodes: int, steps: _Steps) -> dict[str, Any]:

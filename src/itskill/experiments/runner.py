@@ -120,29 +120,35 @@ class CellSettings:
 
 def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
     """Train one cell into ``out`` (resuming a partial run) and write its ``result.json``."""
+    from itskill.experiments.sandboxed import train_transfer_sandboxed
     from itskill.llm.client import LazyClient
     from itskill.transfer import train_transfer
 
-    # Made only if the analyzer is asked: a cell that asks no model needs no API key.
-    client = LazyClient(settings.llm, cache_dir=Path(settings.llm_cache))
-    res = train_transfer(
-        cell.task,
-        cell.method,
+    training = dict(
+        target=cell.task,
+        method=cell.method,
         sources=list(settings.sources),
         seed=cell.seed,
         steps=settings.steps,
         algo=settings.algo,
         out=out,
-        reward=settings.reward,
         num_envs=settings.num_envs,
         eval_every=settings.eval_every,
         eval_episodes=settings.eval_episodes,
         n_threads=1,
-        client=client,
+        # Made only if the analyzer is asked: a cell that asks no model needs no API key.
+        client=LazyClient(settings.llm, cache_dir=Path(settings.llm_cache)),
         progress=False,
         overrides=settings.hyperparams,
         config=settings.transfer,
     )
+    if settings.reward == EXPERT:
+        res = train_transfer(reward=EXPERT, **training)
+    else:
+        # Usually a reward search's best_reward.py: generated code, run only in the sandbox.
+        res = train_transfer_sandboxed(
+            settings.reward, "file", name="the cell's process", **training
+        )
     curve = read_curve(out, settings.steps)
     hit = time_to_threshold([curve], settings.threshold)
     result = {
