@@ -114,7 +114,7 @@ def test_report_has_every_section_with_the_known_numbers(run, tmp_path):
     assert "| ITN | 3 | 70.0% (all 3 seeds) |" in md
     assert (tmp_path / "report" / "figures" / f"stages_{TASK}.png").is_file()
     # ITN: 400 env-steps in every seed; No_Transfer: 800, 800 and censored at 1000.
-    assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | ≥ 53.8% [" in md
+    assert "| ITN | 400 (all 3 seeds) | 0.7 (all 3 seeds) | ≥ 53.8% [" in md
     assert "≥ 867 [" in md and "(1/3 never reached)" in md
     # No_Transfer has a censored seed, so 53.8% [38.6%, 69.1%] is a lower bound: not a
     # shortfall, though its interval lies below the paper's 72.22%.
@@ -653,7 +653,7 @@ def test_a_baseline_run_with_a_longer_budget_measures_the_gain_the_budget_cut_of
     # No_Transfer: 800, 800 and 1400 (censored at 1000 in the run itself): a mean of 1000, and
     # ITN's 400 is 60% fewer, measured rather than a lower bound of 53.8%.
     assert "| No_Transfer | 1,000 [139, 1,861] | 1.7 [0.2, 3.1] | — | — |" in md
-    assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | 60.0% [25.6%, 94.4%] |" in md
+    assert "| ITN | 400 (all 3 seeds) | 0.7 (all 3 seeds) | 60.0% [25.6%, 94.4%] |" in md
     assert "≥ 53.8%" not in md
     assert (
         f"The No_Transfer runs are those of the experiment run longer ({tmp_path / 'baseline'}) "
@@ -680,7 +680,7 @@ def test_a_run_of_itn_alone_gets_its_gain_over_a_baseline_run(run, tmp_path):
     md = files.markdown.read_text()
     assert not any(note.startswith("no gains") for note in files.notes)
     assert "1 task(s) × 1 method(s) × 4 seed(s)" in md and "3 of 4 runs finished" in md
-    assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | 60.0% [25.6%, 94.4%] |" in md
+    assert "| ITN | 400 (all 3 seeds) | 0.7 (all 3 seeds) | 60.0% [25.6%, 94.4%] |" in md
     assert "72.22%" in md and "measured here: 60.0% [25.6%, 94.4%]" in md
     # Without the baseline run the report says where the gains went.
     alone_report = experiment_report(alone, tmp_path / "no_baseline", video=False)
@@ -755,7 +755,7 @@ def test_a_baseline_run_of_a_reward_file_is_compared_by_its_code(
     _with_file_reward(base, *theirs)
     if problem is None:
         md = experiment_report(mine_dir, video=False, baseline_run=base).markdown.read_text()
-        assert "| ITN | 400 [400, 400] | 0.7 [0.7, 0.7] | 60.0% [25.6%, 94.4%] |" in md
+        assert "| ITN | 400 (all 3 seeds) | 0.7 (all 3 seeds) | 60.0% [25.6%, 94.4%] |" in md
     else:
         with pytest.raises(ReportError, match=re.escape(problem)):
             experiment_report(mine_dir, video=False, baseline_run=base)

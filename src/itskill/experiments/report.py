@@ -76,7 +76,7 @@ from itskill.experiments.runner import (
 from itskill.files import CorruptFileError, copy_whole, read_json, read_json_or_none
 from itskill.reward_contract import EXPERT
 from itskill.rl.checkpoint import META_FILE
-from itskill.rl.eval_callback import SELECTION_KEY
+from itskill.rl.eval_callback import read_selection
 from itskill.stats import mean_interval
 from itskill.transfer.trace import TRACE_FILE
 from itskill.transfer.train import TRANSFER_FILE
@@ -807,9 +807,8 @@ def _selection_score(cell_dir: Path) -> float | None:
     """The success of the evaluation that chose the cell's best policy, as its record keeps it
     (the row of ``eval.csv`` may be gone: a resumed run evaluates again where it crashed, and
     keeps the best policy); None without a readable one."""
-    meta = read_json_or_none(cell_dir / POLICY_DIRS["best"] / META_FILE)
-    selection = meta.get(SELECTION_KEY) if isinstance(meta, dict) else None
-    success = selection.get("success") if isinstance(selection, dict) else None
+    selection = read_selection(cell_dir)
+    success = selection.get("success") if selection is not None else None
     return float(success) if is_number(success) else None
 
 
