@@ -34,7 +34,7 @@ from itskill.experiments.analysis import (
     threshold_gain,
     time_to_threshold,
 )
-from itskill.experiments.config import ExperimentConfig
+from itskill.experiments.config import ExperimentConfig, ReportSettings
 from itskill.experiments.document import (
     Bullets,
     Code,
@@ -1100,9 +1100,15 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
             {transfer["method"]: mean_band([curve], grid)},
             f"{plan['task']}: learning curve",
             figures / "curve.png",
-            summary.get("threshold", 0.8),
+            ReportSettings.threshold,
         )
-        doc.add(Figure(fig, "Deterministic success against env-steps during training."))
+        doc.add(
+            Figure(
+                fig,
+                "Deterministic success against env-steps during training; the dotted line is "
+                f"the {ReportSettings.threshold:.0%} an experiment report times each method to.",
+            )
+        )
     except CurveError as err:
         notes.append(str(err))
     method = get_method(transfer["method"])
