@@ -99,7 +99,8 @@ def test_foreign_entries_leave_out_what_the_caller_and_file_browsers_own(tmp_pat
     assert foreign_entries(tmp_path / "nowhere") == []
     # A write a kill cut short left its temporary file: a learn or reward search killed before
     # its first file was whole could not be started again until the user deleted it.
-    for name in ("plan.json", ".DS_Store", "network", "notes.txt", ".config.json.4242.tmp"):
+    for name in ("plan.json", ".DS_Store", "network", "notes.txt", ".config.json.4242.tmp",
+                 ".v.mp4.4242.tmp.mp4"):  # fmt: skip
         (tmp_path / name).write_text("")
     (tmp_path / ".notes.tmp").write_text("")  # not a name an itskill write uses: the user's
     assert foreign_entries(tmp_path) == [".notes.tmp", "network", "notes.txt", "plan.json"]

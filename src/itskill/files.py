@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -28,13 +29,15 @@ from itskill.errors import PicklableError
 
 
 @contextmanager
-def replaced_whole(path: Path) -> Iterator[Path]:
+def replaced_whole(path: Path, keep_suffix: bool = False) -> Iterator[Path]:
     """A temporary path beside ``path`` to write the new file to: when the block ends it replaces
     ``path`` in one ``os.replace``; if the block fails (a full disk, Ctrl-C) it is removed and
-    ``path`` is left as it was."""
+    ``path`` is left as it was. ``keep_suffix`` ends the temporary name with ``path``'s suffix,
+    for writers that choose the format by it (a video's encoder)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # see is_partial_write
+    suffix = path.suffix if keep_suffix else ""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp{suffix}")  # see is_partial_write
     try:
         yield tmp
         os.replace(tmp, path)
@@ -215,11 +218,15 @@ BROWSER_FILES = frozenset({".DS_Store", "Thumbs.db", "desktop.ini"})
 
 def is_partial_write(name: str) -> bool:
     """Whether ``name`` is the temporary file of a :func:`replaced_whole` write that a kill cut
-    short (``.NAME.PID.tmp``): itskill's, never the user's."""
-    if not (name.startswith(".") and name.endswith(".tmp")):
+    short (``.NAME.PID.tmp``, or ``.NAME.PID.tmp.SUFFIX`` keeping NAME's suffix): itskill's,
+    never the user's."""
+    match = _PARTIAL_WRITE.fullmatch(name)
+    if match is None:
         return False
-    stem, _, pid = name[1:].removesuffix(".tmp").rpartition(".")
-    return bool(stem) and pid.isdigit()
+    return match["suffix"] is None or match["name"].endswith(match["suffix"])
+
+
+_PARTIAL_WRITE = re.compile(r"\.(?P<name>.+)\.\d+\.tmp(?P<suffix>\.[^.]+)?")
 
 
 def foreign_entries(directory: Path, ours: Callable[[str], bool] = lambda name: False) -> list[str]:

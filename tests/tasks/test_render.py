@@ -6,6 +6,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import imageio.v3 as iio
+import numpy as np
+import pytest
 
 from itskill.tasks import get_task
 from itskill.tasks.render import record
@@ -28,3 +30,32 @@ def test_a_video_larger_than_the_default_offscreen_buffer_is_made_at_its_size(
     spec = replace(get_task("reach_nut_m12"), max_steps=3)
     video = record(spec, "scripted", tmp_path / "v.mp4", width=1280, height=720)
     assert iio.improps(video.path).shape[1:3] == (720, 1280)
+
+
+class _Interrupted:
+    """A policy stopped by Ctrl-C after a few steps of the rollout."""
+
+    def __init__(self, steps: int) -> None:
+        self.steps = steps
+
+    def reset(self, env_ids=None) -> None:
+        pass
+
+    def __call__(self, ctx):
+        self.steps -= 1
+        if self.steps < 0:
+            raise KeyboardInterrupt
+        return np.zeros((len(ctx["ee_pos"]), 5))
+
+
+def test_an_interrupted_video_leaves_the_one_before_it_whole(tmp_path: Path) -> None:
+    # Written in place, a Ctrl-C left a short clip where the earlier video was (with --force),
+    # or a partial file that the rerun then refused to overwrite.
+    spec = replace(get_task("reach_nut_m12"), max_steps=3)
+    out = tmp_path / "v.mp4"
+    before = record(spec, "scripted", out, width=64, height=48)
+    kept = out.read_bytes()
+    with pytest.raises(KeyboardInterrupt):
+        record(spec, lambda spec, n: _Interrupted(5), out, episodes=3, width=64, height=48)
+    assert out.read_bytes() == kept and before.frames > 0
+    assert [p.name for p in tmp_path.iterdir()] == ["v.mp4"]  # no temporary left behind

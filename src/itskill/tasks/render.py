@@ -13,6 +13,7 @@ import imageio.v2 as imageio
 import mujoco
 import numpy as np
 
+from itskill.files import replaced_whole
 from itskill.sim import GL_BACKEND
 from itskill.sim.gl import gl_help
 from itskill.sim.scene import offscreen_renderer
@@ -89,9 +90,12 @@ def record(
                 writer.append_data(image)
             frames += times
 
-        # Once the policy and the renderer load: a refused policy leaves no empty folders.
-        out.parent.mkdir(parents=True, exist_ok=True)
-        with imageio.get_writer(out, fps=fps, codec="libx264", quality=7) as writer:
+        # Once the policy and the renderer load: a refused policy leaves no empty folders. The
+        # video replaces ``out`` only once whole: a Ctrl-C left a short clip in its place.
+        with (
+            replaced_whole(out, keep_suffix=True) as tmp,
+            imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7) as writer,
+        ):
             for _ in range(episodes):
                 env.reset()
                 actor.reset()
