@@ -169,6 +169,18 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(
     search = json.loads((out / "reward" / "usage.json").read_text())["sessions"][0]
     assert first["requests"] - search["requests"] == 2  # the plan and the analysis
 
+    # The skill removed since: "kept from the previous session" named a skill the space no
+    # longer had; the resume adds it again and says why.
+    with open_skill_space() as space:
+        space.remove(skill.name)
+    resumed = learn(*args, "--no-video", "--resume")
+    assert resumed.exit_code == 0, resumed.output
+    assert f"skill {skill.name!r} was no longer in" in flat(resumed.output)
+    with open_skill_space() as space:
+        assert [s.name for s in space.list(task_id="pickplace_nut_m12")] == [skill.name]
+        readded = space.get(skill.name).id
+    assert json.loads((out / "skill.json").read_text())["id"] == readded
+
     # A step's file damaged between sessions is named when read, not a KeyError steps later.
     evaluation = json.loads((out / "evaluation.json").read_text())
     (out / "evaluation.json").write_text(json.dumps({**evaluation, "episodes": "four"}))

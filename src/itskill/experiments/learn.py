@@ -878,6 +878,12 @@ def _add_skill(
     kept_out = cached is not None and not cached.get("added", True)
     if kept_out and cached["min_success"] != b.min_success:
         cached = None  # resumed with another threshold: decided again, the policy as it was
+    gone = ""
+    if cached is not None and not kept_out and not _still_in_space(cached):
+        # Removed since, or resumed with another ITSKILL_HOME: "kept from the previous
+        # session" named a skill that `itskill skills show` did not know.
+        gone = f" (skill {cached['name']!r} was no longer in {cached['skill_space']})"
+        cached = None
     was_cached = cached is not None
     pending = steps.run_dir / "skill.pending.json"
     below = evaluation["success_rate"] < b.min_success
@@ -949,5 +955,15 @@ def _add_skill(
             f"{kept_policy_words(run_dir, transfer)} "
             "(--resume --min-success X adds it at a lower threshold X)"
         )
-    steps.done(done, was_cached)
+    steps.done(done + gone, was_cached)
     return cached
+
+
+def _still_in_space(record: dict[str, Any]) -> bool:
+    """Whether the skill ``skill.json`` records as added is in the skill space open now."""
+    from itskill.skills import open_skill_space
+
+    with open_skill_space() as space:
+        if Path(record["skill_space"]).resolve() != Path(space.path).resolve():
+            return False
+        return any(s.id == record["id"] and s.name == record["name"] for s in space.list())
