@@ -39,6 +39,8 @@ from itskill.llm.client import (
 )
 
 OPENAI_URL = "https://api.openai.com/v1"
+OFFLINE = 'the offline backend (--llm offline, or llm = "offline" in an experiment file)'
+"""How every unavailable-model message ends: ``experiment run`` has no ``--llm``, its file does."""
 LOCAL_DUMMY_KEY = "sk-no-key-needed"
 """Sent to a custom endpoint when no key is set: the SDK insists on one, Ollama ignores it."""
 RETRY_STATUSES = frozenset({408, 409, 429})
@@ -200,7 +202,7 @@ class OpenAIClient(BaseClient):
         if api_key is None and base_url is None:
             raise LLMUnavailableError(
                 f"no API key for openai:{model}: set OPENAI_API_KEY, point OPENAI_BASE_URL at a "
-                "local OpenAI-compatible server (vLLM, Ollama, llama.cpp), or use --llm offline"
+                "local OpenAI-compatible server (vLLM, Ollama, llama.cpp), or use " + OFFLINE
             )
         self.model = model
         self.name = f"openai:{model}"
@@ -265,12 +267,12 @@ class OpenAIClient(BaseClient):
             except openai.AuthenticationError as err:
                 raise LLMUnavailableError(
                     f"{self.base_url} refused the API key for {self.name}: {_detail(err)}; "
-                    "set OPENAI_API_KEY or use --llm offline"
+                    "set OPENAI_API_KEY or use " + OFFLINE
                 ) from err
             except openai.PermissionDeniedError as err:
                 raise LLMUnavailableError(
                     f"{self.base_url} denied access to {self.name}: {_detail(err)}; "
-                    "check the key's permissions or use --llm offline"
+                    "check the key's permissions or use " + OFFLINE
                 ) from err
             except openai.NotFoundError as err:
                 raise LLMError(
@@ -431,15 +433,13 @@ def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnav
         return LLMUnavailableError(
             f"cannot reach {client.name} at {client.base_url}: connection refused ({gave_up}); "
             "is the server running? Start it (ollama serve, vllm serve MODEL, llama-server) or "
-            f"correct the address (--base-url or {BASE_URL_ENV}), or use --llm offline"
+            f"correct the address (--base-url or {BASE_URL_ENV}), or use " + OFFLINE
         )
     else:
         what = f"cannot reach {client.name} at {client.base_url}"
         # The address is often already set (OPENAI_BASE_URL), just to a server that is down.
         advice = "check that a server answers there (OPENAI_BASE_URL sets the address)"
-    return LLMUnavailableError(
-        f"{what}: {_reason(err)} ({gave_up}); {advice}, or use --llm offline"
-    )
+    return LLMUnavailableError(f"{what}: {_reason(err)} ({gave_up}); {advice}, or use " + OFFLINE)
 
 
 def _reason(err: Exception) -> str:
