@@ -194,3 +194,16 @@ def test_k_with_named_sources_is_refused(home: Path, tmp_path: Path, command: st
     assert res.exit_code == 2, res.output
     assert "-k sets how many skills --sources auto retrieves" in " ".join(res.output.split())
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("extra", [["--sources", "pick_nut_m12"], ["-k", "2"]])
+def test_sources_for_a_method_that_uses_none_are_refused(
+    home: Path, tmp_path: Path, extra: list[str]
+) -> None:
+    # Silently ignored: the run trained from scratch, whatever skills were named.
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["transfer", "train", "pick_nut_m12", "--method", "no_transfer",
+                              *extra, "--out", str(out)])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    assert "no_transfer uses no source skills" in " ".join(res.output.split())
+    assert not out.exists()

@@ -110,10 +110,16 @@ def transfer_train(
     """Train TARGET with a transfer method; rerun the same command to resume."""
     from itskill.llm.client import LazyClient
     from itskill.rl.config import ALGOS
-    from itskill.transfer import METHODS, train_transfer
+    from itskill.transfer import METHODS, get_method, train_transfer
+    from itskill.transfer.sources import AUTO
 
     if method not in METHODS:
         raise typer.BadParameter(f"expected one of {', '.join(METHODS)}", param_hint="--method")
+    if not get_method(method).uses_sources and (sources.strip() != AUTO or k is not None):
+        # Else ignored: the run trained from scratch, whatever skills were named.
+        raise typer.BadParameter(
+            f"{method} uses no source skills: leave out --sources and -k", param_hint="--method"
+        )
     if algo not in ALGOS:
         raise typer.BadParameter(f"expected one of {', '.join(ALGOS)}", param_hint="--algo")
     try:
