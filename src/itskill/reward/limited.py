@@ -1,8 +1,9 @@
 """A function run in a child process under the sandbox's process limits.
 
 Whatever trains with generated reward code runs through :func:`run_limited`: a reward candidate
-(:mod:`itskill.reward.candidate`) and the final training of ``itskill learn``. The child is a
-fresh spawned interpreter whose address space and CPU time are capped
+(:mod:`itskill.reward.candidate`) and the trainings after the search
+(:mod:`itskill.experiments.sandboxed`: ``itskill learn``'s final one, an experiment's cells).
+The child is a fresh spawned interpreter whose address space and CPU time are capped
 (:func:`~itskill.reward.sandbox.apply_process_limits`), so code that computes its way to a memory
 bomb on some state the static checks could not foresee fails there with ``MemoryError`` and takes
 down nothing else. The caller's process keeps its own limits, and gets back the function's value,

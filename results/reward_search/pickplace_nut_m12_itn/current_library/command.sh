@@ -9,7 +9,7 @@
 #    samples at 20,000 env-steps on the ITN over pick_nut_m12, place_nut_m12, carry_nut_m12,
 #    the packaged settings), in a fresh skill space, seed 0; learn_budgets.toml is the default
 #    budget with a 20k-step transfer training and no expert comparison, since only the chosen
-#    reward (best_reward.py) was wanted. 11.5 minutes.
+#    reward (best_reward.py) was wanted. 8.6 minutes for the session, 6.8 of them the search.
 ITSKILL_HOME=runs/home_learn itskill learn "Pick up the nut and place it on the bolt" \
   --budgets learn_budgets.toml --seed 0 --out runs/learn_pp --no-video
 cp runs/learn_pp/reward/best_reward.py runs/learn_pp/reward/summary.json .   # -> reward_search_summary.json
