@@ -662,17 +662,3 @@ def test_a_chosen_reward_that_failed_on_every_final_seed_stops_learn_with_its_er
         _reward("Pick up the M12 nut", plan, budget, 0, {"retrieved": []}, None, tmp_path,
                 _Steps(console, tmp_path), console)  # fmt: skip
     assert not (tmp_path / "reward.json").exists()
-
-
-def test_long_commands_that_begin_alike_get_run_directories_of_their_own():
-    # Cut at 60 characters, both shared runs/learn/<slug>, and the second was told to --resume
-    # a run of the first, which it could not.
-    from itskill.experiments.learn import slugify
-
-    head = "Pick up the nut, place it on the bolt and screw it down until it is seated "
-    first, second = slugify(head + "tightly"), slugify(head + "by hand")
-    assert first != second and len(first) == len(second) == 60
-    assert first.startswith("pick-up-the-nut-place-it-on-the-bolt-and-screw-it-")
-    assert slugify("Pick up the nut and place it on the bolt") == (
-        "pick-up-the-nut-and-place-it-on-the-bolt"
-    )

@@ -25,7 +25,6 @@ resume from their own checkpoints. Budgets are data (``itskill/experiments/data/
 
 from __future__ import annotations
 
-import hashlib
 import re
 import shutil
 from dataclasses import asdict, dataclass, replace
@@ -273,21 +272,11 @@ def load_budgets(path: str | Path | None = None) -> dict[str, LearnBudget]:
 
 
 def slugify(command: str) -> str:
-    """A directory name for a command: lower case words joined by hyphens, at most 60 chars.
-
-    A longer command keeps its first words and ends with a hash of the whole: two commands that
-    began alike shared one default run directory, where the second was told to ``--resume`` a
-    run of the first."""
-    slug = re.sub(r"[^a-z0-9]+", "-", command.lower()).strip("-")
+    """A directory name for a command: lower case words joined by hyphens, at most 60 chars."""
+    slug = re.sub(r"[^a-z0-9]+", "-", command.lower()).strip("-")[:60].rstrip("-")
     if not slug:
         raise LearnError(f"command {command!r} has no letters or digits")
-    if len(slug) > _SLUG_MAX:
-        digest = hashlib.sha256(command.encode()).hexdigest()[:8]
-        slug = f"{slug[: _SLUG_MAX - len(digest) - 1].rstrip('-')}-{digest}"
     return slug
-
-
-_SLUG_MAX = 60
 
 
 @dataclass(frozen=True)
