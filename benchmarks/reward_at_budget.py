@@ -42,7 +42,7 @@ from itskill.experiments.analysis import (
     time_to_threshold,
 )
 from itskill.experiments.plots import plot_learning_curves
-from itskill.experiments.sandboxed import train_transfer_sandboxed
+from itskill.experiments.sandboxed import train_transfer_on
 from itskill.files import read_json, replaced_whole, write_json
 from itskill.reward_contract import EXPERT
 from itskill.rl.checkpoint import BEST_DIR, as_policy
@@ -50,7 +50,6 @@ from itskill.rl.config import HyperparamError, check_hyperparams_file
 from itskill.stats import format_rate_interval
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
-from itskill.transfer import train_transfer
 
 THRESHOLD = 0.8
 HELDOUT_FILE = "heldout_eval.json"
@@ -60,15 +59,11 @@ def train_one(task: str, method: str, reward: str, seed: int, steps: int, every:
               episodes: int, out: str, hyperparams: str | None) -> int:  # fmt: skip
     """One transfer run into ``out`` (resumed if it is there), PPO with the packaged settings
     or those of the ``hyperparams`` file. The generated reward trains only in the sandbox."""
-    training = dict(
-        target=task, method=method, sources="auto", seed=seed, steps=steps, algo="ppo",
-        out=Path(out), eval_every=every, eval_episodes=episodes, n_threads=1, progress=False,
-        hyperparams=hyperparams,
+    train_transfer_on(
+        reward, "file", f"the training of seed {seed}", target=task, method=method,
+        sources="auto", seed=seed, steps=steps, algo="ppo", out=Path(out), eval_every=every,
+        eval_episodes=episodes, n_threads=1, progress=False, hyperparams=hyperparams,
     )  # fmt: skip
-    if reward == EXPERT:
-        train_transfer(reward=EXPERT, **training)
-    else:
-        train_transfer_sandboxed(reward, "file", name=f"the training of seed {seed}", **training)
     return seed
 
 

@@ -88,6 +88,9 @@ def test_threshold_steps_and_wall_time_with_censoring():
     # Seeds that agree have no spread: the report says so rather than print "[300, 300]".
     assert exact.format_steps() == "300 (all 2 seeds)"
     assert exact.format_minutes() == "0.5 (all 2 seeds)"
+    # Not where one of them is censored: "(all 2 seeds) (1/2 never reached)" said two things.
+    at_budget = curve([100, 200, 1000], [0.1, 0.5, 0.85])
+    assert "all" not in time_to_threshold([at_budget, never], 0.8).format_steps()
 
 
 def test_threshold_interval_is_cut_to_zero_and_the_budget():

@@ -111,7 +111,8 @@ def compute_reward(ctx):
 
 
 def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path):
-    (tmp_path / "r.py").write_text(GOOD_REWARD)
+    # With the byte-order mark an editor may write: not code, so not refused by the sandbox.
+    (tmp_path / "r.py").write_bytes(b"\xef\xbb\xbf" + GOOD_REWARD.encode())
     text = MINIMAL.replace("steps = 1000", 'steps = 1000\nreward = {pick_nut_m12 = "r.py"}')
     config = load_experiment(write(tmp_path, text))
     assert config.reward["pick_nut_m12"] == str((tmp_path / "r.py").resolve())
@@ -260,6 +261,7 @@ def test_invalid_fields_are_named(tmp_path, edit, where, problem):
         # as plain Python when the file was loaded, and in every cell.
         ("import os\nos.system('touch pwned')\n" + GOOD_REWARD, "import 'os' is not allowed"),
         (GOOD_REWARD.replace("np.zeros", "np.load('x.npy') + np.zeros"), "np.load"),
+        ("\n", "the file is empty"),
     ],
 )
 def test_a_reward_file_training_would_refuse_is_refused_at_load(

@@ -164,7 +164,7 @@ class Threshold:
         if self.censored == self.n:
             return f"≥ budget ({self.n}/{self.n} never reached)"
         text = fmt(est.mean)
-        if est.n > 1 and est.high == est.low:
+        if est.n > 1 and est.high == est.low and not self.censored:
             # Seeds that all reached it at one evaluation have no spread: not certainty.
             text += f" (all {est.n} seeds)"
         elif est.n > 1:

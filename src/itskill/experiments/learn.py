@@ -880,8 +880,8 @@ def _add_skill(
         cached = None  # resumed with another threshold: decided again, the policy as it was
     gone = ""
     if cached is not None and not kept_out and not _still_in_space(cached):
-        # Removed since, or resumed with another ITSKILL_HOME: "kept from the previous
-        # session" named a skill that `itskill skills show` did not know.
+        # Removed since: "kept from the previous session" named a skill that `itskill skills
+        # show` did not know.
         gone = f" (skill {cached['name']!r} was no longer in {cached['skill_space']})"
         cached = None
     was_cached = cached is not None
@@ -960,10 +960,12 @@ def _add_skill(
 
 
 def _still_in_space(record: dict[str, Any]) -> bool:
-    """Whether the skill ``skill.json`` records as added is in the skill space open now."""
+    """Whether the skill ``skill.json`` records as added is still in the skill space it was
+    added to (a resume under another ``ITSKILL_HOME`` does not copy it there)."""
     from itskill.skills import open_skill_space
 
-    with open_skill_space() as space:
-        if Path(record["skill_space"]).resolve() != Path(space.path).resolve():
-            return False
+    path = Path(record["skill_space"])
+    if not path.is_file():
+        return False
+    with open_skill_space(path) as space:
         return any(s.id == record["id"] and s.name == record["name"] for s in space.list())

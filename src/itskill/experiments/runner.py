@@ -120,11 +120,14 @@ class CellSettings:
 
 def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
     """Train one cell into ``out`` (resuming a partial run) and write its ``result.json``."""
-    from itskill.experiments.sandboxed import train_transfer_sandboxed
+    from itskill.experiments.sandboxed import train_transfer_on
     from itskill.llm.client import LazyClient
-    from itskill.transfer import train_transfer
 
-    training = dict(
+    # A reward file is usually a search's best_reward.py: generated code, run only in the sandbox.
+    res = train_transfer_on(
+        settings.reward,
+        "file",
+        "the cell's process",
         target=cell.task,
         method=cell.method,
         sources=list(settings.sources),
@@ -142,13 +145,6 @@ def run_cell(cell: Cell, settings: CellSettings, out: Path) -> dict[str, Any]:
         overrides=settings.hyperparams,
         config=settings.transfer,
     )
-    if settings.reward == EXPERT:
-        res = train_transfer(reward=EXPERT, **training)
-    else:
-        # Usually a reward search's best_reward.py: generated code, run only in the sandbox.
-        res = train_transfer_sandboxed(
-            settings.reward, "file", name="the cell's process", **training
-        )
     curve = read_curve(out, settings.steps)
     hit = time_to_threshold([curve], settings.threshold)
     result = {

@@ -1,12 +1,14 @@
 """Transfer training on a reward file that may be generated code: the code runs only in the sandbox.
 
 A reward search's ``best_reward.py`` is a language model's code. The search trains it only in the
-reward sandbox (:mod:`itskill.reward.sandbox`), and so does everything that trains on it after:
-``itskill learn``'s final training, an experiment's cells, ``benchmarks/reward_at_budget.py``. The
-file is compiled in the sandbox (its AST checked, restricted builtins, every call time-limited)
-inside a spawned child under the sandbox's memory limit, and trains there; the caller's process
-never runs it. The sandbox's CPU-time limit is left off: it is sized for a candidate's budget, and
-a training is bounded by its own.
+reward sandbox (:mod:`itskill.reward.sandbox`), and so do the trainings on it after the search:
+``itskill learn``'s final one, an experiment's cells, ``benchmarks/reward_at_budget.py``'s runs.
+(A file given to ``itskill train --reward`` or ``itskill transfer train --reward`` is the user's
+own script and runs as plain Python.) The file is compiled in the sandbox (its AST checked,
+restricted builtins, every call time-limited) inside a spawned child under a memory limit, and
+trains there; the caller's process never runs it. The sandbox's CPU-time limit is left off: it
+is sized for a candidate's budget, and a training is bounded by its own. The memory limit is the
+sandbox's, raised for a training of many environments (each holds its own simulator).
 """
 
 from __future__ import annotations
@@ -41,14 +43,53 @@ def train_transfer_sandboxed(
     training's own, raised here."""
     from itskill.reward import load_search_config
     from itskill.reward.limited import run_limited
+    from itskill.rl.eval_callback import EVAL_ENVS
 
     sandbox = sandbox or load_search_config().sandbox
+    limits = replace(sandbox, cpu_limit_s=None)
+    if limits.memory_limit_mb is not None:
+        envs = _num_envs(train_kwargs) + EVAL_ENVS
+        limits = replace(limits, memory_limit_mb=max(limits.memory_limit_mb, _memory_mb(envs)))
     return run_limited(
         _train,
         (str(Path(reward_file).resolve()), kind, sandbox, train_kwargs),
-        sandbox=replace(sandbox, cpu_limit_s=None),
+        sandbox=limits,
         name=name,
     )
+
+
+def train_transfer_on(reward: str, kind: str, name: str, **train_kwargs: Any) -> TrainResult:
+    """:func:`itskill.transfer.train_transfer` on ``reward``: the expert reward in this process,
+    a reward file through :func:`train_transfer_sandboxed` (``kind``, ``name`` as there)."""
+    from itskill.reward_contract import EXPERT
+    from itskill.transfer import train_transfer
+
+    if reward == EXPERT:
+        return train_transfer(reward=EXPERT, **train_kwargs)
+    return train_transfer_sandboxed(reward, kind, name=name, **train_kwargs)
+
+
+_BASE_MB = 2048
+_PER_ENV_MB = 48
+"""Address space a training needs: PyTorch, the networks and buffers, and per environment its
+simulator (about 35 MB each, measured with pickplace_nut_m12: 48 training environments and the
+evaluation's 25 took 3.4 GB; at 96 the 4 GB limit failed to build them)."""
+
+
+def _memory_mb(envs: int) -> int:
+    return _BASE_MB + _PER_ENV_MB * envs
+
+
+def _num_envs(train_kwargs: dict[str, Any]) -> int:
+    """The training environments of ``train_kwargs`` (None: its task family's packaged count)."""
+    if train_kwargs.get("num_envs") is not None:
+        return int(train_kwargs["num_envs"])
+    from itskill.rl.config import load_hyperparams
+    from itskill.tasks import get_task
+
+    spec = get_task(train_kwargs["target"])
+    algo, path = train_kwargs.get("algo", "ppo"), train_kwargs.get("hyperparams")
+    return load_hyperparams(spec.family, algo, path, task=spec.id).num_envs
 
 
 def check_reward_file(
@@ -64,9 +105,11 @@ def check_reward_file(
 
     config = load_search_config()
     try:
-        code = Path(reward_file).read_bytes().decode("utf-8")
+        code = _text(Path(reward_file).read_bytes())
     except UnicodeDecodeError as err:
         return f"not UTF-8 text ({err.reason} at byte {err.start})"
+    if not code.strip():
+        return "the file is empty: it must define compute_reward(ctx)"
     contexts = probe_contexts(task, config.probe_envs, config.probe_steps)
     with Probe(contexts, sandbox or config.sandbox) as probe:
         return probe.check(code)
@@ -83,7 +126,7 @@ def _train(
     from itskill.transfer import train_transfer
 
     source = Path(reward_path).read_bytes()
-    fn = compile_reward(source.decode("utf-8"), sandbox)
+    fn = compile_reward(_text(source), sandbox)
     meta = {
         "kind": kind,
         "path": reward_path,
@@ -92,3 +135,8 @@ def _train(
     }
     train_kwargs.setdefault("console", Console(emoji=False))
     return train_transfer(reward=RewardSource(fn, meta), **train_kwargs)
+
+
+def _text(source: bytes) -> str:
+    """A reward file's code; a byte-order mark an editor wrote is not code."""
+    return source.decode("utf-8-sig")
