@@ -222,11 +222,22 @@ class LazyClient:
     spec is checked at once, so a mistyped ``--llm`` is never silently ignored."""
 
     def __init__(self, spec: str | None = None, **kwargs: Any) -> None:
-        backend, model = model_spec(spec)
-        self.name = "offline" if backend == "offline" else f"openai:{model}"
-        self.offline = backend == "offline"
+        model_spec(spec)
         self._spec, self._kwargs = spec, kwargs
         self._client: LLMClient | None = None
+
+    def _made(self) -> LLMClient:
+        if self._client is None:
+            self._client = make_client(self._spec, **self._kwargs)
+        return self._client
+
+    @property
+    def name(self) -> str:
+        return self._made().name
+
+    @property
+    def offline(self) -> bool:
+        return self._made().offline
 
     @property
     def usage(self) -> Usage:
@@ -235,6 +246,4 @@ class LazyClient:
     def complete(
         self, messages: list[Message], n: int = 1, *, purpose: str, temperature: float = 1.0
     ) -> list[str]:
-        if self._client is None:
-            self._client = make_client(self._spec, **self._kwargs)
-        return self._client.complete(messages, n, purpose=purpose, temperature=temperature)
+        return self._made().complete(messages, n, purpose=purpose, temperature=temperature)
