@@ -8,8 +8,8 @@ client's lifetime (0 for the first, 1 for the second, ...): asking the same ques
 still gets two independent samples, and a rerun that asks the same sequence of questions gets the
 same sequence of replies back. Files are written atomically (temporary file, then ``os.replace``),
 so a run killed mid-write never leaves a truncated entry. Processes sharing a cache (an
-experiment's cells) ask a request one at a time (:meth:`ReplyCache.lock`): the second replays the
-first's reply instead of drawing another sample of its own.
+experiment's cells) ask one at a time (:meth:`ReplyCache.lock`): of two asking the same question,
+the second replays the first's reply instead of drawing another sample of its own.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from typing import Any
 
 from filelock import FileLock
 
-from itskill.files import write_text
+from itskill.files import directory_lock, write_text
 
 CACHE_VERSION = 1
 
@@ -62,14 +62,15 @@ class ReplyCache:
     def path(self, key: str) -> Path:
         return self.dir / f"{key}.json"
 
-    def lock(self, key: str) -> FileLock:
-        """A lock on request ``key`` across processes, held from the cache lookup to the write.
+    def lock(self) -> FileLock:
+        """The cache's lock across processes, held from a lookup to its write
+        (:func:`~itskill.files.directory_lock`: its file is among the user's locks, not in the
+        cache, which may be read-only).
 
         Without it, cells started together (an ITN and an NIA cell asking the analyzer the same
         question) each missed the cache and got replies of their own, so their priors differed
         with the number of workers."""
-        self.dir.mkdir(parents=True, exist_ok=True)
-        return FileLock(self.dir / f"{key}.lock")
+        return directory_lock(self.dir, "llm-cache")
 
     def get(self, key: str, n: int) -> list[str] | None:
         """The cached replies for ``key``, or None if absent or unusable (then it is re-asked)."""

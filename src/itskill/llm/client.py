@@ -122,7 +122,7 @@ class BaseClient:
         if self.cache is None:
             return self._ask(messages, n, purpose, temperature)
         key = self.cache.occurrence_key(request_key(self.name, messages, n, temperature, purpose))
-        with self.cache.lock(key):
+        with self.cache.lock():
             cached = self.cache.get(key, n)
             if cached is not None:
                 self.usage.cache_hits += 1
