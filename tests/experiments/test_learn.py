@@ -11,7 +11,7 @@ import torch
 from typer.testing import CliRunner
 
 from itskill.cli import app
-from itskill.experiments.learn import BudgetError, load_budgets
+from itskill.experiments.learn import BudgetError, learn_dir, load_budgets, slugify
 from itskill.reward import load_search_config
 
 runner = CliRunner()
@@ -335,6 +335,30 @@ def test_resume_with_no_run_to_resume_is_refused(tmp_path, budgets, made, why):
     assert "leave out --resume to start a new run" in text and "Traceback" not in text
     assert "[1/8]" not in text  # not even the plan was started
     assert out.exists() == made and not (made and any(out.iterdir()))
+
+
+def test_long_commands_that_begin_alike_get_directories_of_their_own(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    stem = "Pick up the nut and place it on the bolt, then carry it over to "
+    first, second = learn_dir(stem + "the left", None), learn_dir(stem + "the right", None)
+    assert first != second
+    assert first.parent == second.parent == Path("runs/learn")
+    assert first.name.startswith("pick-up-the-nut-and-place-it-on-the-bolt-then-carry-it-over")
+    assert learn_dir(" " + stem + "the left ", None) == first  # what learn runs is stripped
+    assert learn_dir(COMMAND, None) == Path("runs/learn/pick-up-the-nut-and-place-it-on-the-bolt")
+    assert learn_dir(stem + "the left", tmp_path / "mine") == tmp_path / "mine"
+
+
+def test_a_long_command_run_made_before_the_hash_is_still_found(tmp_path, monkeypatch):
+    # Such runs lived in the bare 60-character slug's directory: --resume must find them there.
+    monkeypatch.chdir(tmp_path)
+    command = "Pick up the nut and place it on the bolt, then carry it over to the left"
+    bare = Path("runs/learn") / slugify(command)
+    bare.mkdir(parents=True)
+    (bare / "learn.json").write_text(json.dumps({"command": command, "seed": 0}))
+    assert learn_dir(command, None) == bare
+    other = command.replace("left", "right")
+    assert learn_dir(other, None) != bare
 
 
 @pytest.mark.parametrize("out", [False, True])

@@ -25,6 +25,7 @@ resume from their own checkpoints. Budgets are data (``itskill/experiments/data/
 
 from __future__ import annotations
 
+import hashlib
 import re
 import shutil
 from dataclasses import asdict, dataclass, replace
@@ -64,6 +65,7 @@ from itskill.files import (
     foreign_entries,
     held_alone,
     read_json,
+    read_json_or_none,
     some_of,
     write_json,
 )
@@ -271,9 +273,13 @@ def load_budgets(path: str | Path | None = None) -> dict[str, LearnBudget]:
     return {name: _budget(path, name, raw) for name, raw in data.items()}
 
 
+def _words(command: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "-", command.lower()).strip("-")
+
+
 def slugify(command: str) -> str:
     """A directory name for a command: lower case words joined by hyphens, at most 60 chars."""
-    slug = re.sub(r"[^a-z0-9]+", "-", command.lower()).strip("-")[:60].rstrip("-")
+    slug = _words(command)[:60].rstrip("-")
     if not slug:
         raise LearnError(f"command {command!r} has no letters or digits")
     return slug
@@ -404,8 +410,23 @@ def _difference(old: Any, new: Any, key: str = "") -> tuple[str, Any, Any] | Non
 
 
 def learn_dir(command: str, out: str | Path | None) -> Path:
-    """The run directory of ``itskill learn COMMAND [--out OUT]``."""
-    return Path(out) if out else Path("runs/learn") / slugify(command.strip())
+    """The run directory of ``itskill learn COMMAND [--out OUT]``.
+
+    A command longer than its slug's 60 characters gets a hash of the whole command after the
+    slug, so two that begin alike do not share a directory. A run made before that (in the
+    bare slug's directory, whose ``learn.json`` records this very command) is still found there.
+    """
+    if out:
+        return Path(out)
+    command = command.strip()
+    slug = slugify(command)
+    bare = Path("runs/learn") / slug
+    if slug == _words(command):
+        return bare
+    recorded = read_json_or_none(bare / LEARN_FILE)
+    if isinstance(recorded, dict) and recorded.get("command") == command:
+        return bare
+    return bare.with_name(f"{slug}-{hashlib.sha256(command.encode()).hexdigest()[:8]}")
 
 
 def learn(
