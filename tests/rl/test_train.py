@@ -9,6 +9,7 @@ import json
 import os
 import signal
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -170,6 +171,20 @@ def test_the_best_evaluated_policy_is_kept_across_a_resume(
     assert torch.equal(load_policy(out / "best").action_net.weight, evaluated[5])
 
 
+@pytest.mark.parametrize("selection", [{"env_steps": 64}, {"env_steps": 64, "success": "0.5"}])
+def test_a_run_whose_best_record_lost_its_score_resumes_and_evaluates_anew(
+    tmp_path: Path, reach_reward: Path, selection: dict
+) -> None:
+    # It stopped with a KeyError before its first update; the next evaluation writes a new one.
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64, eval_every=64, eval_episodes=2)
+    path = out / "best" / "checkpoint.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), "selection": selection}))
+    result = _train(out, reach_reward, 128, eval_every=64, eval_episodes=2)
+    assert result.num_timesteps == 128
+    assert result.best is not None and result.best["env_steps"] == 128
+
+
 def _record_evaluation_seeds(monkeypatch) -> list[int]:
     """Seeds the evaluation callback draws its episodes from, in order (the evaluation itself
     runs as usual)."""
@@ -290,9 +305,18 @@ def test_resume_refuses_other_evaluation_settings(tmp_path: Path, reach_reward: 
     with pytest.raises(ResumeMismatchError, match="every 32 over 2"):
         _train(out, reach_reward, 128, eval_every=32, eval_episodes=2)
     assert (out / "eval.csv").read_text() == before
-    # A session without evaluations adds no rows and keeps the record for the next one.
-    _train(out, reach_reward, 128)
+    # A session without evaluations adds no rows and keeps the record for the next one, and
+    # says that best/ no longer follows the training.
+    told = io.StringIO()
+    train(
+        TASK, "ppo", 128, seed=1, reward=reach_reward, out=out, num_envs=4, overrides=FAST_PPO,
+        logger=replace(QUIET, progress=True), console=Console(file=told, width=400),
+    )  # fmt: skip
     assert (out / "eval.csv").read_text() == before
+    assert (
+        "this session adds no evaluations, so best/ stays the policy its evaluations to 64 "
+        "env-steps chose; resume with --eval-every 64 --eval-episodes 2" in told.getvalue()
+    )
     with pytest.raises(ResumeMismatchError, match="every 64 over 3"):
         _train(out, reach_reward, 192, eval_every=64, eval_episodes=3)
     result = _train(out, reach_reward, 192, eval_every=64, eval_episodes=2)
@@ -810,6 +834,23 @@ def test_resume_restores_reward_scale(tmp_path: Path, reach_reward: Path, monkey
     monkeypatch.setattr(train_module, "restore_reward_norm", spy)
     _train(out, reach_reward, 128)
     assert seen == {"mean": saved["mean"], "count": saved["count"]}
+
+
+def test_evaluating_a_finished_run_keeps_its_reward_scale(
+    tmp_path: Path, reach_reward: Path
+) -> None:
+    # Stopped during its last evaluation, the run is called again to evaluate: its closing
+    # checkpoint wrote fresh statistics, which a later --steps raise then trained on.
+    out = tmp_path / "run"
+    _train(out, reach_reward, 64, eval_every=32, eval_episodes=2)
+    saved = (out / "reward_norm.json").read_text()
+    rows = (out / "eval.csv").read_text().splitlines()
+    (out / "eval.csv").write_text("\n".join(rows[:-1]) + "\n")
+    result = _train(out, reach_reward, 64, eval_every=32, eval_episodes=2)
+    assert result.num_timesteps == 64
+    again = (out / "eval.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in again] == [r.split(",")[0] for r in rows]  # evaluated at 64
+    assert (out / "reward_norm.json").read_text() == saved
 
 
 def test_a_task_table_of_the_hyperparameter_file_reaches_its_training(

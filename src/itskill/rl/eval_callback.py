@@ -27,6 +27,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from itskill.curves import EVAL_COLUMNS, EVAL_FILE
+from itskill.datafile import is_number
 from itskill.rl.checkpoint import BEST_DIR, META_FILE, save_checkpoint
 from itskill.rl.clock import WallClock
 from itskill.rl.logger import drop_rows_after
@@ -62,15 +63,18 @@ def truncate_evaluations(run_dir: str | Path, step: int) -> None:
 
 
 def read_selection(run_dir: str | Path) -> dict[str, Any] | None:
-    """The ``selection`` record of ``run_dir/best``, or None if the run kept no best policy."""
+    """The ``selection`` record of ``run_dir/best``, or None if the run kept no best policy or
+    its record lacks the env-steps and success that chose it (or holds no numbers there)."""
     path = Path(run_dir) / BEST_DIR / META_FILE
     if not path.is_file():
         return None
     try:
-        return dict(json.loads(path.read_text())[SELECTION_KEY])
+        selection = dict(json.loads(path.read_text())[SELECTION_KEY])
     except (json.JSONDecodeError, KeyError, TypeError, ValueError):
         # A damaged record must not stop training: the next evaluation writes a new one.
         return None
+    numbers = ("env_steps", "success", *(("stages_done",) if "stages_done" in selection else ()))
+    return selection if all(is_number(selection.get(k)) for k in numbers) else None
 
 
 EVAL_ENVS = 25

@@ -870,7 +870,9 @@ def run_training(
         train_env = VecNormalize(
             env, norm_obs=False, norm_reward=True, gamma=hp.algo_config.gamma, clip_reward=10.0
         )
-        if resuming and resumed_from < steps:  # a finished run trains on no reward
+        # A finished run trains on no reward and may lack them; where it has them, its closing
+        # checkpoint (after an evaluation still due) must write them back, not fresh ones.
+        if resuming and (resumed_from < steps or (run_dir / REWARD_NORM_FILE).is_file()):
             restore_reward_norm(train_env, run_dir)
 
     clock = WallClock.from_checkpoint(setup.previous or {})  # a warm start's time counts
@@ -878,6 +880,16 @@ def run_training(
         if resuming:
             model = _resumed_model(setup, train_env, clock, note)
             resumed_from = int(model.num_timesteps)
+            recorded_eval = setup.previous.get("evaluation")
+            if recorded_eval and setup.eval_every is None and resumed_from < steps:
+                # best/ (what skills add, --init and exports take) stays the policy chosen
+                # before, however far this session trains past it.
+                note(
+                    f"{run_dir}: this session adds no evaluations, so best/ stays the policy "
+                    f"its evaluations to {resumed_from:,} env-steps chose; resume with "
+                    f"--eval-every {recorded_eval['every']} --eval-episodes "
+                    f"{recorded_eval['episodes']} to go on evaluating"
+                )
             _warn_of_a_moved_schedule(setup, resumed_from)
             set_random_seed(env_seed)  # seed + resumed_from may pass the 2**32 numpy takes
         else:
