@@ -58,6 +58,23 @@ def test_ray_executor_on_a_local_instance(workers: int | None) -> None:
     _check(run_jobs(math.sqrt, JOBS, "ray", workers))
 
 
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="ray is not installed")
+def test_a_lost_ray_worker_fails_its_job_not_the_run() -> None:
+    # A worker that dies (killed for memory, a crash) raised out of the loop, cancelling every
+    # other job: a search lost its whole iteration to one candidate.
+    import ray
+
+    [result] = run_jobs(os._exit, [(1,)], "ray", 1)
+    assert not result.ok and isinstance(result.error, ray.exceptions.RayError)
+
+
+def test_the_ray_executor_without_ray_is_refused_before_any_work(monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    with pytest.raises(ExecutorError, match=r"executor 'ray' needs Ray: pip install"):
+        check_executor("ray")
+    check_executor("local")
+
+
 def test_a_ray_address_with_the_local_executor_is_refused() -> None:
     with pytest.raises(ExecutorError, match="needs the Ray executor"):
         list(run_jobs(math.sqrt, JOBS, "local", 2, "ray://head:10001"))

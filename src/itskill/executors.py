@@ -86,12 +86,15 @@ def check_executor(
     executor: str, workers: int | None = None, ray_address: str | None = None
 ) -> None:
     """Raise :class:`ExecutorError` now for settings :func:`run_jobs` would fail on later: an
-    unknown executor, fewer than one worker, a Ray address with the local executor, or one where
+    unknown executor, fewer than one worker, the Ray executor without Ray installed, a Ray
+    address with the local executor, or one where
     nothing listens (Ray itself retries such an address for minutes before giving up)."""
     if executor not in EXECUTORS:
         raise ExecutorError(f"unknown executor {executor!r}; expected one of {EXECUTORS}")
     if workers is not None and workers < 1:
         raise ExecutorError(f"workers must be at least 1, got {workers}")
+    if executor == "ray":
+        _ray()  # before a search plans and pays for its first samples
     if ray_address is None:
         return
     if executor == "local":
@@ -272,13 +275,19 @@ def _call(fn: Callable[..., Any], *args: Any) -> Any:
     return fn(*args)
 
 
-def _run_ray(fn, jobs, address: str | None, workers: int | None) -> Iterator[JobResult]:
+def _ray() -> Any:
+    """The ``ray`` module; :class:`ExecutorError` saying how to install it if it is missing."""
     try:
         import ray
     except ImportError as err:
         raise ExecutorError(
             "executor 'ray' needs Ray: pip install 'ray>=2.9' (or use --executor local)"
         ) from err
+    return ray
+
+
+def _run_ray(fn, jobs, address: str | None, workers: int | None) -> Iterator[JobResult]:
+    ray = _ray()
     started_here = not ray.is_initialized()
     if started_here:
         # ray.init makes SIGTERM a SystemExit for the rest of the process; a SIGTERM must stay a
@@ -305,9 +314,14 @@ def _run_ray(fn, jobs, address: str | None, workers: int | None) -> Iterator[Job
             for ref in done:
                 index = pending.pop(ref)
                 try:
-                    yield JobResult(index, value=ray.get(ref))
+                    result = JobResult(index, value=ray.get(ref))
                 except ray.exceptions.RayTaskError as err:
-                    yield JobResult(index, error=err.as_instanceof_cause())
+                    result = JobResult(index, error=err.as_instanceof_cause())
+                except ray.exceptions.RayError as err:
+                    # The job's worker or node was lost (crashed, killed for memory): this job
+                    # failed, the others go on.
+                    result = JobResult(index, error=err)
+                yield result
     except BaseException:
         # Ctrl-C (or a caller that stopped reading): a non-forced cancel raises
         # KeyboardInterrupt in each running task, so a trainer saves its checkpoint before the
