@@ -53,6 +53,22 @@ def test_a_dead_child_is_reported_and_replaced(contexts) -> None:
         assert probe.check(extract_code(GOOD)) is None
 
 
+def test_a_child_that_dies_before_reading_the_code_is_reported(contexts) -> None:
+    # Its socket closed with the code unread: the search stopped on ConnectionResetError.
+    with Probe(contexts, SandboxConfig(call_timeout_s=2.0)) as probe:
+        probe._start()
+        conn, send = probe._conn, probe._conn.send
+
+        def send_then_die(code: str) -> None:
+            send(code)
+            probe._child.kill()
+            probe._child.join()
+
+        conn.send = send_then_die
+        assert "failed on the probe batch" in probe.check(extract_code(GOOD))
+        assert probe.check(extract_code(GOOD)) is None
+
+
 def test_a_child_that_does_not_answer_is_stopped(contexts) -> None:
     with Probe(contexts, SandboxConfig(call_timeout_s=2.0)) as probe:
         probe.answer_s = 0.001  # less than a spawned interpreter needs to start

@@ -85,7 +85,9 @@ class Probe:
                 self.close()
                 return f"timed out on the probe batch: no answer within {self.answer_s:g} s"
             return self._conn.recv()
-        except (EOFError, BrokenPipeError):  # the child died: this code, or killed from outside
+        # The child died (this code, or killed from outside); a socket it closed with the code
+        # unread resets the connection rather than ending it.
+        except (EOFError, OSError):
             self._child.join(5.0)
             cause = death_cause(self._child.exitcode, self.sandbox, "the probe's process")
             self.close()
