@@ -31,11 +31,13 @@ from typing import Any, Literal
 
 @dataclass(frozen=True)
 class Status:
-    """A scripted HTTP error; ``param`` is the request field it blames, as OpenAI names it."""
+    """A scripted HTTP error; ``param`` is the request field it blames, as OpenAI names it, and
+    ``error_code`` OpenAI's code for the error (``insufficient_quota``, ...)."""
 
     code: int
     message: str = "scripted error"
     param: str | None = None
+    error_code: str | None = None
 
 
 @dataclass(frozen=True)
@@ -121,7 +123,7 @@ class FakeOpenAIServer:
                 item = self._next(body)
                 if isinstance(item, Status):
                     headers = {"retry-after": "0"} if item.code == 429 else {}
-                    error = {"message": item.message, "param": item.param}
+                    error = {"message": item.message, "param": item.param, "code": item.error_code}
                     return item.code, {"error": error}, headers
                 if isinstance(item, Truncated):
                     cut, item = True, item.text

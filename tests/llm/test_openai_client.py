@@ -274,6 +274,19 @@ def test_only_a_refused_connection_skips_the_back_off(
     assert len(sent) == attempts and said in str(err.value)
 
 
+def test_a_used_up_quota_is_not_retried_and_says_so() -> None:
+    # OpenAI sends it as a 429, like a rate limit: six attempts and half a minute of back-off
+    # ended in "try again later", which no wait mends.
+    used_up = Status(429, "You exceeded your current quota", error_code="insufficient_quota")
+    with FakeOpenAIServer([used_up] * 3) as server:
+        with pytest.raises(LLMUnavailableError) as err:
+            client(server).complete(MESSAGES, purpose="plan")
+        assert len(server.requests) == 1
+    text = str(err.value)
+    assert "quota is used up" in text and "You exceeded your current quota" in text
+    assert "billing" in text and "--llm offline" in text and "try again later" not in text
+
+
 def test_auth_failure_and_unknown_model_are_not_retried() -> None:
     with FakeOpenAIServer([Status(401, "bad key")]) as server:
         with pytest.raises(LLMUnavailableError, match="refused the API key"):

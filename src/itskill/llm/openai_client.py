@@ -282,6 +282,12 @@ class OpenAIClient(BaseClient):
             except (openai.BadRequestError, openai.UnprocessableEntityError):
                 raise
             except (openai.APIConnectionError, openai.APIStatusError, *CUT_OFF) as err:
+                if getattr(err, "code", None) == "insufficient_quota":
+                    # Sent as a 429, like a rate limit, but no wait mends it.
+                    raise LLMUnavailableError(
+                        f"{self.base_url}: the account's quota is used up for {self.name}: "
+                        f"{_detail(err)}; check its plan and billing, or use " + OFFLINE
+                    ) from err
                 retryable = not isinstance(err, openai.APIStatusError) or (
                     err.status_code in RETRY_STATUSES or err.status_code >= 500
                 )
