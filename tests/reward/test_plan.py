@@ -6,7 +6,9 @@ import json
 
 import pytest
 from fake_openai import FakeOpenAIServer
+from typer.testing import CliRunner
 
+from itskill.cli import app
 from itskill.llm import make_client
 from itskill.llm.openai_client import OpenAIClient
 from itskill.reward.plan import PlanError, TaskPlan, plan_command, plan_for_task, task_catalogue
@@ -63,6 +65,24 @@ def test_empty_command_gets_a_short_error(command: str) -> None:
     assert message.startswith("the command is empty: say what the robot should do, e.g.")
     assert "itskill tasks list" in message
     assert "pick_nut_m12" not in message and len(message) < 200
+
+
+def test_a_command_in_another_encoding_is_named_not_a_traceback(tmp_path, monkeypatch) -> None:
+    # A Latin-1 terminal's "é" reaches Python as the lone surrogate U+DCE9, which the reply
+    # cache's key could not encode.
+    command = "Pick up the nut and place it \udce9 on the bolt"
+    with pytest.raises(PlanError) as info:
+        plan_command(command, make_client("offline"))
+    assert str(info.value) == (
+        "the command is not UTF-8 text (the byte 0xe9 after 'Pick up the nut and place it '): "
+        "type it again in a UTF-8 terminal"
+    )
+    monkeypatch.chdir(tmp_path)
+    for args in (["reward", "generate", command], ["plan", command]):
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 2, result.output
+        assert "not UTF-8 text" in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "runs").exists()
 
 
 def test_plan_for_task_needs_no_model() -> None:

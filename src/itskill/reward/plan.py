@@ -224,7 +224,19 @@ def plan_for_task(task_id: str) -> TaskPlan:
 
 
 def check_command(command: str) -> None:
-    """:class:`PlanError` for an empty or blank command, with an example of a good one."""
+    """:class:`PlanError` for an empty or blank command, with an example of a good one, or for
+    one that is not text (bytes of another encoding, which Python hands over as lone
+    surrogates that no request, cache key or file name can carry)."""
+    try:
+        command.encode("utf-8")
+    except UnicodeEncodeError as err:
+        char = ord(command[err.start])
+        # Arguments are decoded with surrogateescape: U+DC80..U+DCFF is the raw byte 0x80..0xFF.
+        what = f"the byte {char - 0xDC00:#04x}" if 0xDC80 <= char <= 0xDCFF else f"U+{char:04X}"
+        raise PlanError(
+            f"the command is not UTF-8 text ({what} after {command[: err.start]!r}): type it "
+            "again in a UTF-8 terminal"
+        ) from None
     if not command.strip():
         example = next(t.command for t in all_tasks().values() if t.table_i)
         raise PlanError(
