@@ -68,6 +68,15 @@ def test_a_wrapper_nested_past_the_parser_is_no_crash(expr: str) -> None:
     assert extract_code(f"````\n{code}\n````") == code
 
 
+def test_a_reply_of_fences_nested_a_thousand_deep_is_no_crash() -> None:
+    # Each Markdown block was read for the blocks inside it, one call deeper: RecursionError,
+    # which a resumed search met again on the cached reply.
+    opens = [("~" if i % 2 == 0 else "`") * (3 + (1000 - i) // 2) for i in range(1000)]
+    reply = "\n".join(f + "md" for f in opens) + f"\n{FENCE}python\n{CODE}\n{FENCE}\n"
+    reply += "\n".join(reversed(opens))
+    assert isinstance(extract_code(reply), str)  # the probe then says it is no reward
+
+
 def test_a_reply_ending_in_a_long_run_of_fence_characters_is_read_quickly() -> None:
     # The opening fence's pattern backtracked over the run: 0.55 s at 40,000 characters,
     # quadratic beyond.

@@ -74,17 +74,24 @@ def extract_code(reply: str) -> str:
     return reply.strip()
 
 
-def _blocks(text: str, fence: re.Pattern[str]) -> list[tuple[str, str]]:
+_MAX_NESTING = 16
+"""Fenced blocks read inside one another: Markdown around the code nests two or three deep, and
+a reply nested a thousand deep would exhaust Python's recursion (an error no resume gets past,
+since the reply is cached)."""
+
+
+def _blocks(text: str, fence: re.Pattern[str], depth: int = 0) -> list[tuple[str, str]]:
     """(language, dedented code) of each block of ``fence`` in ``text``; the blocks nested in one
     tagged other than Python, or untagged, fenced by four or more and not Python itself, come
-    first: that one is the Markdown around the code, not the code."""
+    first: that one is the Markdown around the code, not the code. Blocks nested deeper than
+    :data:`_MAX_NESTING` are read as their outer block's text."""
     blocks = []
     for match in fence.finditer(text):
         lang, code = match["lang"].lower(), textwrap.dedent(match["code"])
         wrapper = not lang and len(match.groupdict().get("fence") or "") > 3 and not _parses(code)
-        if lang not in _PYTHON or wrapper:
+        if (lang not in _PYTHON or wrapper) and depth < _MAX_NESTING:
             # Code holds no block: a line of tildes in it underlines a docstring heading.
-            blocks += _blocks(code, fence)
+            blocks += _blocks(code, fence, depth + 1)
         blocks.append((lang, code))
     return blocks
 
