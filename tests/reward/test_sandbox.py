@@ -229,6 +229,7 @@ ESCAPES = {
     # A 10 GB string made in one C call, which the timeout cannot interrupt.
     "format_width_bomb": ("x = f'{0:10000000000}'", "format width 10000000000 is too large"),
     "percent_width_bomb": ("x = '%.10000000000f' % 1.0", "format width 10000000000 is too"),
+    "computed_format_width_bomb": ("x = f'{0:{10**8}}'", "a format spec computed inside the"),
     # Each argument passed the size check; their product is 10**10 elements.
     "outer_product_bomb": ("x = np.outer(np.ones(10**5), np.ones(10**5))", "size 10000000000"),
     "kron_bomb": ("x = np.kron(np.ones(10**5), np.ones(10**5))", "size 10000000000 is too"),

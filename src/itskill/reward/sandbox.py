@@ -13,7 +13,8 @@ Layers, each for a reason:
    ``math.floor``/``ceil``/``trunc`` and numpy's scalar types and roundings (``np.int64(1e12)``);
    a size computed from the data is left to layer 4. String, bytes, void and object dtypes (an
    element of ``"U1000"`` is 4 kB) and format widths above :data:`MAX_FORMAT_WIDTH` (one C call
-   builds the string, which no timeout interrupts) are refused too.
+   builds the string, which no timeout interrupts) are refused too, and f-string format specs
+   computed in place (``f"{x:{w}}"``), whose width cannot be read.
 2. :func:`compile_reward` runs the module in a fresh namespace whose builtins are only the safe
    ones (no ``open``, ``eval``, ``getattr``, ``type``, ``__import__``...; ``import`` statements are
    served by a private importer that hands out numpy and math and nothing else, and numpy's own
@@ -631,6 +632,12 @@ class _Checker(ast.NodeVisitor):
             for part in spec.values:
                 if isinstance(part, ast.Constant) and isinstance(part.value, str):
                     _check_format_widths(node, part.value)
+                else:
+                    # f"{x:{10**8}}": a width no check here can read (one from the data no
+                    # less), and no reward needs one.
+                    raise _violation(
+                        node, "a format spec computed inside the f-string; write it as a number"
+                    )
         self.generic_visit(node)
 
 
