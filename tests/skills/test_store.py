@@ -131,8 +131,14 @@ def test_a_name_taken_meanwhile_is_refused_skipped_or_replaced(home, checkpoint)
         assert [s.name for s in space.add_many(both, on_conflict="skip")] == ["new"]
         assert space.get("taken").seed != 9  # the first one stays
         newer = make_skill("taken", Path(checkpoint), success_rate=0.75)
-        assert [s.success_rate for s in space.add_many([newer], on_conflict="replace")] == [0.75]
-        assert [s.success_rate for s in space.list() if s.name == "taken"] == [0.75]
+        serial = space.get("taken").id
+        [added] = space.add_many([newer], on_conflict="replace")
+        assert added.success_rate == 0.75 and added.id == serial
+        # Retrained by `skills pretrain`, it keeps the number `--sources 1` and notes name it by.
+        assert [(s.id, s.success_rate) for s in space.list() if s.name == "taken"] == [
+            (serial, 0.75)
+        ]
+        assert space.get(str(serial)).success_rate == 0.75
 
 
 def _replace_many(args) -> None:

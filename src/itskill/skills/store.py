@@ -677,7 +677,8 @@ class SkillSpace:
         while this one was embedding), what ``on_conflict`` says: ``error`` raises
         :class:`DuplicateSkillError`, ``skip`` leaves the skill out, ``replace`` deletes the old
         skill in the same transaction, so there is no moment without one and two processes
-        replacing the same skill leave the later one.
+        replacing the same skill leave the later one; the new record keeps the old one's serial
+        number.
         """
         skills = list(skills)
         for s in skills:
@@ -701,18 +702,25 @@ class SkillSpace:
                 taken = self._taken(conn, s.name)
                 if taken and on_conflict == "skip":
                     continue
+                serial = None  # a new one
                 if taken and on_conflict == "replace":
+                    # The skill keeps its serial number: `--sources 3`, a learn run's
+                    # skill.json and notes that name it by number still mean it.
+                    (serial,) = conn.execute(
+                        "SELECT id FROM skills WHERE name = ?", (s.name,)
+                    ).fetchone()
                     conn.execute("DELETE FROM skills WHERE name = ?", (s.name,))
                 ci_low, ci_high = s.success_ci if s.success_ci else (None, None)
                 created = s.created if s.created is not None else now
                 try:
                     cur = conn.execute(
-                        "INSERT INTO skills (name, task_id, description, actions, checkpoint, "
-                        "success_rate, success_ci_low, success_ci_high, train_steps, "
-                        "train_wall_s, algo, seed, created, embedding, embedding_model, "
-                        "description_embedding) "
-                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                        "INSERT INTO skills (id, name, task_id, description, actions, "
+                        "checkpoint, success_rate, success_ci_low, success_ci_high, "
+                        "train_steps, train_wall_s, algo, seed, created, embedding, "
+                        "embedding_model, description_embedding) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                         (
+                            serial,
                             s.name,
                             s.task_id,
                             s.description,
