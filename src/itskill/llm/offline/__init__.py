@@ -13,8 +13,6 @@ as they would with a model. Purposes:
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from itskill.llm.client import BaseClient, Message
 from itskill.llm.offline import analyzer, planner, synthesiser
 from itskill.llm.offline.blocks import last_tagged, tagged
@@ -25,9 +23,6 @@ class OfflineClient(BaseClient):
 
     name = "offline"
     offline = True
-
-    def __init__(self, cache_dir: Path | None = None) -> None:
-        super().__init__(cache_dir)
 
     def _complete(
         self, messages: list[Message], n: int, purpose: str, temperature: float
