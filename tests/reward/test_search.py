@@ -276,6 +276,37 @@ def test_a_reward_repeated_in_a_later_iteration_is_not_trained_again(tmp_path: P
     assert [e["status"] for e in result.history[1]["samples"]] == ["ok", "ok"]
 
 
+def test_a_reward_sampled_twice_in_one_iteration_is_trained_once(
+    tmp_path: Path, quiet, monkeypatch
+) -> None:
+    # At a low temperature the K samples of one request are often the same code: each trained.
+    run = tmp_path / "run"
+    trained: list[str] = []
+    real = search.run_candidate
+
+    def counting(job):
+        trained.append(Path(job.out).name)
+        return real(job)
+
+    monkeypatch.setattr(search, "run_candidate", counting)
+    twin = GOOD.replace("def compute_reward", "# Sample 3.\ndef compute_reward")
+    with FakeOpenAIServer([GOOD, CONSTANT, twin]) as server:
+        client = search_client(run, "openai:fake-model", server.base_url)
+        result = generate_reward(
+            "pick_nut_m12",
+            client,
+            run,
+            tiny_config(samples=3, workers=1),
+            compare_expert=False,
+            console=quiet,
+        )
+    assert sorted(n for n in trained if n.startswith("sample_")) == ["sample_0", "sample_1"]
+    first = json.loads((run / "iter_0" / "sample_0" / "result.json").read_text())
+    copy = json.loads((run / "iter_0" / "sample_2" / "result.json").read_text())
+    assert copy.pop("reused_from") == "iter_0/sample_0" and copy == first
+    assert [e["status"] for e in result.history[0]["samples"]] == ["ok", "ok", "ok"]
+
+
 def test_a_plan_made_by_the_caller_is_used_not_asked_for_again(tmp_path: Path, quiet) -> None:
     # `reward generate --transfer` plans the command to retrieve the network's sources; the
     # search asked the model for the same plan a second time.

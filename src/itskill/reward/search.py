@@ -657,15 +657,27 @@ def _search(
             ]
             keys = [_code_key(s.code) for s in accepted]
             reused = _reuse_results(jobs, keys, results_of, out)
-            if reused:
+            # A reward sampled twice in this iteration (a low temperature) trains once; its
+            # twins get a copy of the result afterwards.
+            lead: dict[str, CandidateJob] = {}
+            for job, key in zip(jobs, keys, strict=True):
+                lead.setdefault(key, job)
+            twins = sum(
+                lead[key] is not job and not (Path(job.out) / RESULT_FILE).is_file()
+                for job, key in zip(jobs, keys, strict=True)
+            )
+            if reused or twins:
                 console.print(
-                    f"{label}: {reused} sample(s) repeat a reward already trained: result reused",
+                    f"{label}: {reused + twins} sample(s) repeat a reward trained before or in "
+                    "this iteration: trained once, result reused",
                     highlight=False,
                 )
-            results = run.run_jobs(jobs, config, f"{label}: training")
+            run.run_jobs(list(lead.values()), config, f"{label}: training")
             for job, key in zip(jobs, keys, strict=True):
                 if (Path(job.out) / RESULT_FILE).is_file():
                     results_of.setdefault(key, Path(job.out) / RESULT_FILE)
+            _reuse_results(jobs, keys, results_of, out)
+            results = [read_json(Path(job.out) / RESULT_FILE) for job in jobs]
             by_sample = {s.index: results[j] for j, s in enumerate(accepted)}
             entries = [_entry(s, by_sample.get(s.index)) for s in samples]
             trained = [e for e in entries if e["status"] == "ok"]
