@@ -158,8 +158,22 @@ def test_add_needs_existing_checkpoint_and_known_task(home, tmp_path, checkpoint
     missing = runner.invoke(
         app, ["skills", "add", "--task", "pick_nut_m12", "--checkpoint", str(tmp_path / "no.zip")]
     )
-    assert missing.exit_code == 2 and "does not exist" in missing.output
+    assert missing.exit_code == 2 and "doesnotexist" in _flat(missing.output)
+    assert "--checkpoint" in _flat(missing.output)
+    assert not home.exists()  # refused before the skill space was made
     assert add(checkpoint, "no_such_task").exit_code == 2
+
+
+def test_add_refuses_weights_under_another_name_than_policy_safetensors(home, tmp_path):
+    # Every reader loads the policy.safetensors beside the file: the skill recorded one file and
+    # ran another.
+    run_dir = tmp_path / "run"
+    shutil.copytree(SHIPPED_LIBRARY / "reach_nut_m12", run_dir)
+    (run_dir / "policy.safetensors").rename(run_dir / "weights_v2.safetensors")
+    result = add(run_dir / "weights_v2.safetensors", "reach_nut_m12")
+    assert result.exit_code == 2
+    assert "--checkpoint" in _flat(result.output) and "policy.safetensors" in result.output
+    assert not home.exists()
 
 
 def test_add_takes_a_run_directory_and_refuses_weights_without_their_metadata(home, tmp_path):

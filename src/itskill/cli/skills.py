@@ -237,12 +237,18 @@ def skills_add(
         except InvalidMeasurementError as err:
             hint = _MEASUREMENT_OPTIONS[err.field]
             raise typer.BadParameter(err.problem, param_hint=hint) from err
+        # Before the space opens: a refused add must not create it (with the shipped library
+        # in it).
+        if not checkpoint.exists():
+            raise typer.BadParameter(
+                f"{checkpoint} does not exist (only learned skills, with a trained policy, go "
+                "into the skill space)",
+                param_hint="--checkpoint",
+            )
         try:
-            # Before the space opens: a refused add must not create it (with the shipped
-            # library in it).
             check_admissible(spec.id, checkpoint, acts)
         except InadmissibleSkillError as err:
-            hint = "--checkpoint" if checkpoint.exists() and any(acts) else "--actions"
+            hint = "--checkpoint" if any(acts) else "--actions"
             raise typer.BadParameter(str(err), param_hint=hint) from err
         with open_skill_space() as space:
             if skill.name in space:  # the space's error, but naming the option and the default

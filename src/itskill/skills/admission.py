@@ -25,7 +25,13 @@ def check_admissible(task_id: str, checkpoint: Path, actions: Sequence[str]) -> 
 
     A missing checkpoint passes: the skill space names it when the skill is added.
     """
-    from itskill.rl.checkpoint import CheckpointError, as_policy, policy_location, read_meta
+    from itskill.rl.checkpoint import (
+        POLICY_FILE,
+        CheckpointError,
+        as_policy,
+        policy_location,
+        read_meta,
+    )
     from itskill.tasks import get_task
     from itskill.tasks.evaluate import make_policy
 
@@ -37,6 +43,13 @@ def check_admissible(task_id: str, checkpoint: Path, actions: Sequence[str]) -> 
         )
     if not Path(checkpoint).exists():
         return
+    if Path(checkpoint).suffix == ".safetensors" and Path(checkpoint).name != POLICY_FILE:
+        # Every reader loads the policy.safetensors beside it: the skill would record one
+        # file and run another.
+        raise InadmissibleSkillError(
+            f"{checkpoint}: a policy is read from its run's or skill's {POLICY_FILE}; give that "
+            "file or its directory"
+        )
     location = policy_location(checkpoint)
     try:
         make_policy(as_policy(location), spec, num_envs=1)
