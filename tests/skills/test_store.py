@@ -63,6 +63,11 @@ def test_add_get_list_update_remove(home, checkpoint):
         assert space.get("a").success_rate == 0.9
         assert space.get("a").success_ci == (0.8, 0.95) == new.success_ci
         assert space.get("a").train_steps == 1000  # Untouched fields are kept.
+        # Said to be a corrupt database ("Move it aside"), or a bare TypeError from the actions.
+        for field in ("task_id", "description", "actions"):
+            with pytest.raises(TypeError, match=f"a skill's {field} cannot be None"):
+                space.update("a", **{field: None})
+        assert space.get("a") == replace(a, success_rate=0.9, success_ci=(0.8, 0.95))
         assert space.remove("b").name == "b"
         assert len(space) == 1
         with pytest.raises(DuplicateSkillError):

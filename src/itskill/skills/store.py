@@ -830,11 +830,17 @@ class SkillSpace:
 
         A new description or action sequence clears the stored embedding, so the next search
         embeds the new text instead of retrieving the skill by the old one. Measurements that
-        :func:`check_measurements` refuses raise :class:`InvalidMeasurementError`.
+        :func:`check_measurements` refuses raise :class:`InvalidMeasurementError`; an unknown
+        field, or None for the task, description or actions, ``TypeError``.
         """
         unknown = set(changes) - set(UPDATABLE_FIELDS)
         if unknown:
             raise TypeError(f"cannot update {sorted(unknown)}; fields: {list(UPDATABLE_FIELDS)}")
+        required = [f for f in ("task_id", "description", "actions") if f in changes]
+        for name in required:
+            if changes[name] is None:
+                # The database refuses it too, in words that blame the file.
+                raise TypeError(f"a skill's {name} cannot be None")
         if changes.get("actions") is not None:
             changes["actions"] = tuple(changes["actions"])
         if changes.get("success_ci") is not None:
