@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -95,6 +96,19 @@ def test_a_resume_needs_the_same_starting_policy(tmp_path: Path) -> None:
     assert _train(out, 64).resumed_from == 32
 
 
+def test_a_resume_from_a_skill_retrained_in_place_says_its_weights_changed(tmp_path: Path) -> None:
+    # The message named the same directory twice: "started from X, this call starts from X".
+    skill = tmp_path / "skill"
+    shutil.copytree(SKILL, skill)
+    out = tmp_path / "run"
+    _train(out, init=skill)
+    other = (SHIPPED_LIBRARY / "reach_nut_m16" / "policy.safetensors").read_bytes()
+    (skill / "policy.safetensors").write_bytes(other)
+    with pytest.raises(ResumeMismatchError, match="its weights have changed since") as err:
+        _train(out, 64, init=skill)
+    assert str(err.value).count(str(skill.resolve())) == 1
+
+
 def test_a_policy_of_another_shape_is_refused_by_name(tmp_path: Path) -> None:
     with pytest.raises(CheckpointError, match=r"stages \[256, 256, 128\] \(run: \[64, 64, 64\]\)"):
         _train(tmp_path / "run", policy={"stages": [64, 64, 64]})
@@ -159,8 +173,6 @@ def test_cli_init_takes_a_skill_by_name_and_its_weights_file(
         assert result.exit_code == 0, result.output
         assert json.loads((out / "checkpoint.json").read_text())["init"]["sha256"] == digest
     # A run's weights file named itself is that policy, not the run's best one beside it.
-    import shutil
-
     run = tmp_path / "source_run"
     shutil.copytree(SKILL, run)
     shutil.copytree(SHIPPED_LIBRARY / "lift_nut_m12", run / "best")

@@ -319,6 +319,14 @@ def _check_resume(meta: dict[str, Any], want: dict[str, Any], run_dir: Path) -> 
             f"{want_net}: use another --out directory"
         )
     have_init, want_init = meta.get("init") or {}, want.get("init") or {}
+    if have_init.get("sha256") != want_init.get("sha256") and have_init.get("path") == (
+        want_init.get("path")
+    ):
+        raise ResumeMismatchError(
+            f"{run_dir}: holds a run started from the policy in {have_init['path']} as it was "
+            "then; its weights have changed since (retrained in place: their sha256 differs); "
+            "use another --out directory, or start the new run from it"
+        )
     if have_init.get("sha256") != want_init.get("sha256"):
         raise ResumeMismatchError(
             f"{run_dir}: holds a run started from {have_init.get('path', 'random weights')}, "
