@@ -754,6 +754,7 @@ def test_a_new_run_starts_again_where_a_killed_one_left_files(
     result = _train(out, reach_reward, 64, eval_every=64, eval_episodes=2)
     assert result.resumed_from == 0 and result.num_timesteps == 64
     assert [row["step"] for row in read_metrics(out)][-1] == 64
+    assert not (out / "tb").exists()  # the killed run's curves would show beside the new ones
     # A user's own temporary file is not one of the run's.
     (out / "checkpoint.json").unlink()
     (out / ".notes.tmp").write_text("mine")

@@ -46,6 +46,10 @@ class LoggerConfig:
     progress: bool = True
 
 
+TB_DIR = "tb"
+"""The run directory's TensorBoard folder."""
+
+
 class MetricsWriter:
     """Appends metric rows to ``metrics.csv`` and ``metrics.jsonl`` in ``run_dir``.
 
@@ -212,7 +216,7 @@ class MetricsCallback(BaseCallback):
     def _on_training_start(self) -> None:
         self._reset_window(self.num_timesteps)
         if self.config.tensorboard:
-            tb_dir = self.run_dir / "tb"
+            tb_dir = self.run_dir / TB_DIR
             tb_dir.mkdir(parents=True, exist_ok=True)
             self._tb = Logger(str(tb_dir), [TensorBoardOutputFormat(str(tb_dir))])
             # SB3's own training statistics (losses, entropy, ...) go to the same event file.

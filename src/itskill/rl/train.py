@@ -67,7 +67,7 @@ from itskill.rl.init_policy import (
     init_policy,
     warm_up_critic,
 )
-from itskill.rl.logger import LoggerConfig, MetricsCallback, MetricsWriter
+from itskill.rl.logger import TB_DIR, LoggerConfig, MetricsCallback, MetricsWriter
 from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.sim.task import Context, RewardFn
 from itskill.sim.vec_env import BatchEnv
@@ -106,12 +106,12 @@ RUN_ENTRIES = frozenset(
         BEST_DIR,
         "metrics.csv",
         "metrics.jsonl",
-        "tb",
+        TB_DIR,
     }
 )
 """What training writes into its run directory (and its ``best/``). A run killed before its first
-checkpoint leaves some of them, which a new run there starts again: ``best/`` is deleted and the
-metrics truncated."""
+checkpoint leaves some of them, which a new run there starts again: ``best/`` and ``tb/`` are
+deleted and the metrics truncated."""
 
 
 def _foreign_entries(run_dir: Path, own: frozenset[str]) -> list[str]:
@@ -753,9 +753,10 @@ def _clear_records_after(run_dir: Path, resumed_from: int | None) -> None:
     from (``None``: a new run)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     if resumed_from is None:
-        # A session killed before its first checkpoint left rows and a best policy of a run
-        # whose settings nothing records: this run starts them again.
+        # A session killed before its first checkpoint left rows, TensorBoard events and a best
+        # policy of a run whose settings nothing records: this run starts them again.
         shutil.rmtree(run_dir / BEST_DIR, ignore_errors=True)
+        shutil.rmtree(run_dir / TB_DIR, ignore_errors=True)
     MetricsWriter(run_dir).truncate_after(-1 if resumed_from is None else resumed_from)
     truncate_evaluations(run_dir, -1 if resumed_from is None else resumed_from)
 
