@@ -405,6 +405,26 @@ def test_pretrain_exits_non_zero_when_a_skill_fails(home, tmp_path, monkeypatch)
     assert result.exit_code == 1, result.output
     assert "reach_nut_m12: failed: RuntimeError: the evaluation broke" in result.output
     assert "1skill(s)failed:reach_nut_m12" in _flat(result.output)
+    assert "thesamecommandtriesreach_nut_m12again" in _flat(result.output)
+
+
+def test_pretrain_says_a_run_of_other_settings_is_not_mended_by_running_again(
+    home, tmp_path, monkeypatch
+):
+    # "the same command tries them again" fails it again, every time.
+    from itskill.rl.train import ResumeMismatchError
+
+    def mismatched(*args, **kwargs):
+        raise ResumeMismatchError("runs/reach_nut_m12/seed0: holds a run trained with ppo")
+
+    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", mismatched)
+    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--steps", "256", "--seeds", "1"]
+    args += ["--eval-every", "0", "--workers", "1", "--runs", str(tmp_path / "runs")]
+    result = runner.invoke(app, [*args, "--library", str(tmp_path / "library")])
+    assert result.exit_code == 1, result.output
+    flat = _flat(result.output)
+    assert "reach_nut_m12:theirrundirectoriesunder--runsholdrunsofothersettings" in flat
+    assert "movethoseasideorgiveanother--runsdirectory" in flat and "triesreach" not in flat
 
 
 @pytest.mark.parametrize(

@@ -442,6 +442,7 @@ def skills_pretrain(
             param_hint="--replace-p",
         )
     from itskill.executors import check_executor
+    from itskill.rl.train import ResumeMismatchError
     from itskill.skills import open_skill_space
     from itskill.skills.library import shipped_budgets
     from itskill.skills.pretrain import (
@@ -481,10 +482,13 @@ def skills_pretrain(
         raise typer.BadParameter(str(err)) from err
 
     failed: list[str] = []
+    mismatched: list[str] = []  # their runs hold other settings: a rerun fails them again
 
     def report(task: str, entry, added: bool, error) -> None:
         if error is not None:
             failed.append(task)
+            if isinstance(error, ResumeMismatchError):
+                mismatched.append(task)
             console.print(
                 f"[red]{escape(f'{task}: failed: {type(error).__name__}: {error}')}[/red]"
             )
@@ -535,9 +539,20 @@ def skills_pretrain(
                 budgets=shipped_budgets() if steps is None and not refine else None,
             )
     if failed:
+        retried = [t for t in failed if t not in mismatched]
+        ways = []
+        if retried:
+            ways.append(
+                f"the same command tries {', '.join(retried)} again, from their last checkpoints"
+            )
+        if mismatched:
+            ways.append(
+                f"{', '.join(mismatched)}: their run directories under --runs hold runs of other "
+                "settings; move those aside or give another --runs directory"
+            )
         err_console.print(
             f"[red]error:[/red] {len(failed)} skill(s) failed: {escape(', '.join(failed))}; "
-            "the same command tries them again, from their last checkpoints",
+            + escape("; ".join(ways)),
             highlight=False,
         )
         raise typer.Exit(1)
