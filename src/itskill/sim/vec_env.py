@@ -132,7 +132,12 @@ class BatchEnv(VecEnv):
             info: dict[str, Any] = {}
             if dones[e]:
                 info["terminal_observation"] = obs[e].copy()
-                info["TimeLimit.truncated"] = bool(res.truncated[e] and not res.terminated[e])
+                # A diverged env's state is MuJoCo's reset pose, which says nothing of where the
+                # episode was: a learner bootstrapping a value from it would learn noise, so it
+                # ends as terminal (no value after it), not as timed out.
+                info["TimeLimit.truncated"] = bool(
+                    res.truncated[e] and not res.terminated[e] and not self.sim.unstable[e]
+                )
                 info["is_success"] = bool(res.success[e])
                 # The reward function's own sum: a wrapper may rescale what the learner sees.
                 info["episode_return"] = float(self.episode_return[e])
