@@ -190,6 +190,16 @@ BROKEN = {
         "init.objects[0].z",
         "bottom would start under the table",
     ),
+    # Both loaded, and the episodes ran from interpenetrating geometry without a word.
+    "fixture inside fixture": (
+        (
+            'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }]',
+            'fixtures = [{ part = "bolt_m12", xy = [0.55, 0.12] }, '
+            '{ part = "hole_round_4mm", xy = [0.56, 0.13] }]',
+        ),
+        "fixtures[1].xy",
+        "hole_round_4mm would stand inside bolt_m12 (fixtures[0])",
+    ),
     # A step to the fixture in a task without one steered to the robot's base.
     "fixture step without fixture": (
         (
@@ -238,6 +248,19 @@ def test_a_part_started_on_a_bolt_must_screw_onto_it(tmp_path, parts, nut, probl
         text = text.replace('"hole_round_4mm"', '"bolt_m16"')
     with pytest.raises(TaskFileError, match=f"init.objects\\[0\\].mode.*{nut} {problem}"):
         load_task_file(write(tmp_path, text), parts)
+
+
+def test_two_parts_started_on_one_fixture_are_refused(tmp_path, parts):
+    # A shank is shorter than two nuts are tall: they started inside each other, whatever their
+    # turns, and the episodes ran on without a word.
+    text = VALID.replace('objects = ["nut_m12"]', 'objects = ["nut_m12", "nut_m12"]').replace(
+        '{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] },',
+        '{ mode = "bolt", fixture = 0, turns = 0 },\n  { mode = "bolt", fixture = 0, turns = 3 },',
+    )
+    with pytest.raises(TaskFileError) as err:
+        load_task_file(write(tmp_path, text), parts)
+    assert err.value.where.endswith("init.objects[1].fixture")
+    assert "nut_m12 would start on bolt_m12 with objects[0]: one part per fixture" in str(err.value)
 
 
 def test_a_part_measured_against_a_fixture_it_does_not_fit_is_refused(tmp_path, parts):

@@ -410,6 +410,14 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
             (float(xy[0]), float(xy[1])),
             yaw,
         )
+        for j, other in enumerate(fixtures):
+            gap, need = math.dist(placed.xy, other.xy), placed.part.radius + other.part.radius
+            if gap < need:
+                raise TaskFileError(
+                    path, fr.where + ".xy", f"{placed.part.name} would stand inside "
+                    f"{other.part.name} (fixtures[{j}]): {gap * 1000:.1f} mm between their "
+                    f"axes, {need * 1000:.1f} mm keeps them apart",
+                )  # fmt: skip
         fixtures.append(placed)
     if not 1 <= len(objects) <= 2 or len(fixtures) > 2:
         raise TaskFileError(path, f"task {task_id!r}", "expected 1-2 objects and 0-2 fixtures")
@@ -671,6 +679,7 @@ def _parse_init(
         raise TaskFileError(
             path, ir.where + ".objects", f"expected {len(objects)} entries, one per object"
         )
+    seated: dict[int, int] = {}  # fixture -> the object starting on it
     for k, oi in enumerate(raw_inits):
         orr = _Reader(path, f"{ir.where}.objects[{k}]", oi)
         orr.check_keys(
@@ -710,6 +719,16 @@ def _parse_init(
                     path, orr.where + ".fixture", f"mode {mode!r} needs a {want.__name__} fixture"
                 )
             part, seat = objects[k], fixtures[fixture].part
+            if fixture in seated:
+                # A bolt's shank is shorter than two nuts are tall: they start inside each other
+                # whatever their turns, as two pegs in one hole do.
+                raise TaskFileError(
+                    path,
+                    orr.where + ".fixture",
+                    f"{part.name} would start on {seat.name} with objects[{seated[fixture]}]: "
+                    "one part per fixture",
+                )
+            seated[fixture] = k
             if mode == "hole" and not fits(part, seat):
                 # A peg wider than the bore started stuck inside it.
                 what = "does not fit" if isinstance(part, PegSpec) else "is not a peg for"
