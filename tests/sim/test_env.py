@@ -557,3 +557,20 @@ def test_an_upside_down_part_on_the_table_reads_as_on_the_table():
     env.close()
     assert ctx["obj_tilt"][0, 0] > 3.0
     assert abs(ctx["obj_bottom_z"][0, 0]) < 0.003
+
+
+def test_vec_env_methods_on_some_environments_are_refused_not_applied_to_all():
+    # set_attr(indices=[0]) changed every environment, env_method("reset") reset the whole
+    # batch once per index: SB3's contract is per environment, the batch has one simulator.
+    env = make_batch_env("reach_nut_m12", num_envs=3, seed=0, n_threads=1)
+    env.reset()
+    with pytest.raises(NotImplementedError, match="all 3 environments of a BatchEnv together"):
+        env.set_attr("note", 1, indices=[0])
+    with pytest.raises(NotImplementedError, match="env_method acts on all 3"):
+        env.env_method("observe", indices=[1, 2])
+    env.set_attr("note", 1)
+    assert env.get_attr("note") == [1, 1, 1]
+    calls = []
+    env.note_call = lambda: calls.append(1) or "done"
+    assert env.env_method("note_call") == ["done"] * 3 and calls == [1]
+    env.close()

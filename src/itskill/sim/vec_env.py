@@ -191,10 +191,21 @@ class BatchEnv(VecEnv):
         return [getattr(self, attr_name)] * len(self._get_indices(indices))
 
     def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        self._whole_batch(indices, "set_attr")
         setattr(self, attr_name, value)
 
     def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
-        return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
+        self._whole_batch(indices, "env_method")
+        return [getattr(self, method_name)(*args, **kwargs)] * self.num_envs
+
+    def _whole_batch(self, indices, what: str) -> None:
+        # The environments share one simulator object: what a VecEnv does to some of them
+        # would change (or reset) all of them.
+        if sorted(self._get_indices(indices)) != list(range(self.num_envs)):
+            raise NotImplementedError(
+                f"{what} acts on all {self.num_envs} environments of a BatchEnv together, not "
+                "on some of them"
+            )
 
     def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
         return [False] * len(self._get_indices(indices))
