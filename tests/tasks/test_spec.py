@@ -164,6 +164,17 @@ BROKEN = {
         "script[0]",
         "finite",
     ),
+    # Loaded: the hand drove into the fixture, or the lift ended at once.
+    "script negative height": (
+        ("max_steps = 60", 'max_steps = 60\nscript = ["pick 0 -5"]'),
+        "script[0]",
+        "a height must be from 0 to 0.45 m",
+    ),
+    "script height past the reach": (
+        ("max_steps = 60", 'max_steps = 60\nscript = ["pick 0", "lift 1e6"]'),
+        "script[1]",
+        "a height must be from 0 to 0.45 m",
+    ),
     # The observation's stage one-hot has 8 slots: it loaded, then failed in BatchEnv.
     "nine stages": (
         (
@@ -800,6 +811,8 @@ BAD_PREDICATES = {
     "fractional_slot": ("near(0.9, 0.015)", "object slot must be a whole number"),
     "negative_slot": ("grasped(-1)", "object slot must be a whole number"),
     "nan_slot": ("grasped(nan)", "i must be a finite number"),
+    # Deeper than the hole: loaded as a success no episode could reach.
+    "fraction_past_the_hole": ("inserted(0, 1.5)", "fraction must be at most 1, got 1.5"),
 }
 
 

@@ -196,6 +196,9 @@ def _check_args(term: str, name: str, args: tuple[float, ...]) -> None:
             )
         if param.name not in _SIGNED and value < 0:
             raise PredicateError(f"{term!r}: {param.name} must be 0 or more, got {value:g}")
+        if param.name == "fraction" and value > 1:
+            # A part goes no deeper than its hole: never true (or, negated, always).
+            raise PredicateError(f"{term!r}: fraction must be at most 1, got {value:g}")
 
 
 def predicate_params(name: str, args: tuple[float, ...]) -> dict[str, Any]:

@@ -499,6 +499,10 @@ def fitting_step_slots(spec: TaskSpec) -> set[int]:
     return slots
 
 
+_HEIGHT_STEPS = ("hover", "pick", "lift")
+"""Steps whose numbers (after the object slot) are heights in metres."""
+
+
 def compile_script(spec: TaskSpec) -> list[Phase]:
     """Expand ``spec.script`` into phases; :class:`ScriptError` names any bad step."""
     phases: list[Phase] = []
@@ -539,6 +543,11 @@ def compile_script(spec: TaskSpec) -> list[Phase]:
             call_args.append(_Part(slot, spec.objects[slot]))
         if len(numbers) > extra or (name in ("lift", "push") and len(numbers) != extra):
             raise bad("wrong number of arguments")
+        top = _CTRL.workspace_high[2]
+        if name in _HEIGHT_STEPS and not all(0 <= v <= top for v in numbers):
+            # A negative height drives the hand into the fixture or ends the lift at once; one
+            # over the arm's reach is a goal it never gets to.
+            raise bad(f"a height must be from 0 to {top:g} m (the arm's reach)")
         phases.extend(builder(*call_args, *numbers))
     return phases
 
