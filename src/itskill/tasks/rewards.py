@@ -45,8 +45,9 @@ STAGE_BONUS = 1.0
 PROGRESS_WEIGHT = 1.0
 """Weight of the current stage's shaping (a mean in [0, 1]); at most ``STAGE_BONUS``."""
 SUCCESS_BONUS = 2.0
-"""Paid every step on which the task's success predicate holds (episodes do not end on success,
-so a policy that keeps the part lifted or seated keeps earning it)."""
+"""Paid every step on which the task's success predicate holds (a task's episodes do not end on
+success unless it sets ``terminate_on_success``, so a policy that keeps the part lifted or
+seated keeps earning it)."""
 ACTION_PENALTY = 0.01
 """Weight of the mean squared motion action [dx, dy, dz, dyaw]: discourages jitter, small enough
 not to stop exploration."""
