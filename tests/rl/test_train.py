@@ -1053,6 +1053,30 @@ def test_a_checkpoint_torn_between_its_files_resumes_from_the_model(
     assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 256
 
 
+def test_a_run_killed_while_writing_its_first_trained_checkpoint_resumes_from_it(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # Before a new run saved a checkpoint at step 0, a kill between its first model.zip and
+    # checkpoint.json left no record: the next session started again from step 0.
+    from itskill.rl import checkpoint as checkpoint_module
+
+    real = checkpoint_module.write_text
+
+    def killed_at_the_record(path, text):
+        if Path(path).name == "checkpoint.json" and json.loads(text)["num_timesteps"] > 0:
+            raise SystemExit("killed")
+        real(path, text)
+
+    out = tmp_path / "run"
+    monkeypatch.setattr(checkpoint_module, "write_text", killed_at_the_record)
+    with pytest.raises(SystemExit):
+        _train(out, reach_reward, 128)
+    monkeypatch.undo()
+    assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 0
+    done = _train(out, reach_reward, 256)
+    assert done.resumed_from == 128 and done.num_timesteps == 256
+
+
 def test_a_run_directory_in_training_elsewhere_is_refused_and_left_as_it_is(
     tmp_path: Path, reach_reward: Path
 ) -> None:

@@ -9,7 +9,8 @@ A run directory holds, after every checkpoint:
   shape, hyper-parameters, reward, versions). It is written last, so its presence means the two
   files beside it are complete. Ctrl-C waits for a checkpoint being written to be finished; a run
   killed between ``model.zip`` and ``checkpoint.json`` is found out on resume (``model.zip``'s
-  own step count is the truth) and its record repaired.
+  own step count is the truth) and its record repaired. A new run writes its first checkpoint
+  before it trains, so there is always a record to repair.
 
 A run evaluated while it trained also holds ``best/``: ``policy.safetensors`` and
 ``checkpoint.json`` of the policy that scored best in those evaluations, the latter with a

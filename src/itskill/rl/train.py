@@ -903,6 +903,10 @@ def run_training(
             set_random_seed(env_seed)  # seed + resumed_from may pass the 2**32 numpy takes
         else:
             model = _new_model(setup, env, train_env, policy_kwargs, note)
+            # Its first checkpoint before any training: a session killed while a later one is
+            # written resumes from model.zip or the checkpoint before it, never from step 0 with
+            # the run's record gone (a warm start's minutes lost with it).
+            _save(model, run_dir, meta, clock)
         # Building or loading the model seeds the environments with the run's seed: the fresh
         # initial states of a resumed run are drawn from env_seed only from here on.
         train_env.seed(env_seed)
