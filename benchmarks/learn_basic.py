@@ -124,9 +124,10 @@ def summarise(curves: list[dict], requested: int) -> dict:
             # Renamed from env_steps_mean and wall_min_mean, which averaged only the seeds that
             # reached the threshold: a reader of an older summary.json must not mix the two.
             "env_steps_mean_censored": steps.mean,
-            "env_steps_ci": [steps.low, steps.high],
+            # Cut to the possible range, as the text is: no mean lies past the budget.
+            "env_steps_ci": [max(steps.low, 0.0), min(steps.high, hit.budget)],
             "wall_min_mean_censored": wall.mean / 60,
-            "wall_min_ci": [wall.low / 60, wall.high / 60],
+            "wall_min_ci": [max(wall.low, 0.0) / 60, wall.high / 60],
             "env_steps_text": hit.format_steps(),
             "wall_min_text": hit.format_minutes(),
             "per_seed": {

@@ -57,6 +57,10 @@ def main(argv: list[str] | None = None) -> int:
     config = PretrainConfig(eval_episodes=args.episodes, eval_seed=args.seed)
 
     entries = read_manifest(args.library)
+    unknown = sorted(set(args.skills or ()) - {e.name for e in entries})
+    if unknown:
+        # Left out silently, they measured nothing and --update rewrote the manifest.
+        parser.error(f"not in {args.library}'s manifest: {', '.join(unknown)}")
     chosen = [e for e in entries if not args.skills or e.name in args.skills]
     print(f"{'skill':22s} {'before':>7s} {'now':>6s} {'95% CI':>15s} {'time':>6s}")
     results, updated = [], {}

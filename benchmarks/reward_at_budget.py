@@ -36,6 +36,7 @@ import numpy as np
 from itskill.curves import EVAL_FILE, read_curve
 from itskill.executors import run_jobs
 from itskill.experiments.analysis import (
+    Estimate,
     common_grid,
     estimate,
     mean_band,
@@ -47,7 +48,6 @@ from itskill.files import read_json, replaced_whole, write_json
 from itskill.reward_contract import EXPERT
 from itskill.rl.checkpoint import BEST_DIR, as_policy
 from itskill.rl.config import HyperparamError, check_hyperparams_file
-from itskill.stats import format_rate_interval
 from itskill.tasks import UnknownTaskError, get_task
 from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
 
@@ -69,11 +69,12 @@ def train_one(task: str, method: str, reward: str, seed: int, steps: int, every:
 
 def _band(values: list[float]) -> dict[str, float]:
     est = estimate(values)
-    return {"mean": est.mean, "ci_low": est.low, "ci_high": est.high}
+    return {"mean": est.mean, "ci_low": est.low, "ci_high": est.high, "seeds": est.n}
 
 
 def _format_band(band: dict[str, float]) -> str:
-    return format_rate_interval(band["mean"], band["ci_low"], band["ci_high"])
+    # Seeds that all measured one rate say so, rather than a zero-width "interval".
+    return Estimate(band["mean"], band["ci_low"], band["ci_high"], band["seeds"]).format(0)
 
 
 def _earlier_seeds(results: Path, settings: dict[str, Any], seeds: list[int]) -> list[int]:
@@ -162,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     failed = False
     for job in run_jobs(train_one, jobs, workers=args.workers):
         if not job.ok:
-            print(f"run {jobs[job.index][-1]} failed: {job.error}", file=sys.stderr)
+            print(f"run {jobs[job.index][7]} failed: {job.error}", file=sys.stderr)
             failed = True
     if failed:
         return 1

@@ -33,10 +33,10 @@ from pathlib import Path
 from rich.console import Console
 
 from itskill.executors import EXECUTORS
+from itskill.experiments.analysis import estimate
 from itskill.files import read_json, replaced_whole, write_json
 from itskill.reward import generate_reward, load_search_config, search_client
 from itskill.reward.search import BEST_FILE, CONFIG_FILE, FIGURE_FILE, NETWORK_DIR, SUMMARY_FILE
-from itskill.stats import format_rate_interval, mean_interval
 from itskill.transfer import search_network
 
 DEFAULT_TASKS = ("pick_nut_m12", "pickplace_nut_m12")
@@ -47,7 +47,7 @@ def _interval(band: dict | None, key: str) -> str:
     t-interval; ``-`` where no seed finished, or the expert reward was not compared."""
     if not band or not band.get(key):
         return "-"
-    return format_rate_interval(*mean_interval(band[key]))
+    return estimate(band[key]).format(0)  # "(all n seeds)" where they agree, not [x, x]
 
 
 def main() -> None:

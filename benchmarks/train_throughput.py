@@ -2,10 +2,11 @@
 
 (a) bare: ``BatchEnv`` stepped with uniform random actions through the VecEnv API;
 (b) a2c / ppo: ``itskill.rl.train`` for a fixed number of env-steps (rollouts, gradient updates,
-    metrics), with the same task, ``num_envs`` and the packaged hyper-parameters. The rate is the
-    trainer's own clock in ``metrics.csv`` (env-steps over the seconds since learning started), so
-    building the environments and the model and writing the final checkpoint are not in it, as
-    they are not in (a); a large ``checkpoint_every`` keeps checkpoints out of the loop.
+    metrics), with the same task, ``num_envs`` and the packaged hyper-parameters. The rate is read
+    off the trainer's own clock in ``metrics.csv`` between its first row (after about 1,000
+    env-steps) and its last, so building the environments and the model, the first checkpoint,
+    the first rollouts' one-time start-up and the final checkpoint are not in it, as they are not
+    in (a); a large ``checkpoint_every`` keeps checkpoints out of the loop.
 
     python benchmarks/train_throughput.py [--json] [--task reach_nut_m12] [--num-envs 16]
                                           [--steps N]
@@ -59,8 +60,13 @@ def train_rate(task: str, algo: str, num_envs: int, steps: int, reward: Path, tm
         logger=LoggerConfig(progress=False, tensorboard=True),
     )  # fmt: skip
     with open(result.run_dir / "metrics.csv", newline="") as fh:
-        last = list(csv.DictReader(fh))[-1]
-    return int(last["step"]) / float(last["wall_s"])
+        rows = list(csv.DictReader(fh))
+    if len(rows) < 2:
+        raise SystemExit(f"--steps {steps}: too few to time the training between two metrics rows")
+    first, last = rows[0], rows[-1]
+    return (int(last["step"]) - int(first["step"])) / (
+        float(last["wall_s"]) - float(first["wall_s"])
+    )
 
 
 def main() -> None:
