@@ -32,6 +32,20 @@ def test_analyze_json_and_table(home: Path) -> None:
     )
 
 
+def test_analyze_of_one_source_shows_the_prior_training_uses(home: Path, monkeypatch) -> None:
+    # It asked the model, whose fair 0 for stages a pick cannot do was refused after its retries
+    # (and needed a key), while training used an all-ones matrix without asking.
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    monkeypatch.delenv("OPENAI_BASE_URL", raising=False)
+    res = runner.invoke(
+        app, ["transfer", "analyze", "pickplace_nut_m12", "--sources", "pick_nut_m12",
+              "--llm", "openai:gpt-4o", "--json"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.output)
+    assert data["matrix"] == [[1.0]] * 5 and data["client"] == "none (one source)"
+
+
 def test_train_then_trace(home: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     args = ["transfer", "train", "pickplace_nut_m12", "--method", "pst",
@@ -72,6 +86,7 @@ def test_settings_that_cannot_train_are_one_line_errors(home: Path, tmp_path: Pa
     pst = runner.invoke(app, [*train, "--method", "pst", "--sources", "pick_nut_m12",
                               "--out", str(tmp_path / "b")])  # fmt: skip
     assert pst.exit_code == 2 and "that is ITN itself" in " ".join(pst.output.split())
+    assert "smaller" not in pst.output  # it keeps 1, the least there is
     for result in (bad_llm, pst):
         assert "Traceback" not in result.output
 

@@ -87,6 +87,9 @@ def test_the_residual_adds_the_performing_sources_action(tiny_sources) -> None:
         build(ITNPolicy, tiny_sources, performers=[0, 2])
     with pytest.raises(ValueError, match="performers must be 1 to"):  # an IndexError when built
         build(ITNPolicy, tiny_sources, performers=[])
+    # A matrix of two rows for five stages lent its last row to stages 2-4 without a word.
+    with pytest.raises(ValueError, match="the contribution matrix has 2 rows, the target 5 stag"):
+        build(ITNPolicy, tiny_sources, performers=PERFORMERS, prior=PRIOR[:2])
 
 
 @pytest.mark.parametrize("performers", [None, PERFORMERS])

@@ -159,7 +159,7 @@ def transfer_analyze(
     as_json: JsonOpt = False,
 ) -> None:
     """Print the analyzer's contribution matrix: TARGET's stages x the source skills."""
-    from itskill.llm.client import make_client
+    from itskill.llm.client import LazyClient
     from itskill.tasks import get_task
     from itskill.transfer import analyze_sources, resolve_sources
 
@@ -167,13 +167,13 @@ def transfer_analyze(
         cfg = _config(config, k, sources)
         spec = get_task(target)
         chosen = resolve_sources(spec.id, sources, cfg)
-        client = make_client(llm)
-        matrix = analyze_sources(spec, chosen, client, cfg)
+        # As training does: one source takes every stage, and no model is asked (or needs a key).
+        matrix = analyze_sources(spec, chosen, LazyClient(llm), cfg)
     if as_json:
         print_json({**matrix.to_dict(), "source_skills": [s.to_dict() for s in chosen]})
         return
     # Titles, headers and cells are markup: skill and task names are escaped ('pick[/v2]').
-    title = f"contribution of {len(chosen)} sources to {spec.id} ({client.name})"
+    title = f"contribution of {len(chosen)} sources to {spec.id} ({matrix.client})"
     table = Table(title=escape(title))
     table.add_column("stage")
     for s in chosen:

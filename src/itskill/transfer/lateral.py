@@ -18,7 +18,10 @@ A method is a choice of ``weighting`` (intelligent attention, fixed analyzer val
   trunk and action head), fed the raw observation with one change: the stage one-hot says the
   stage the source's own task would be in (``stage_map`` of its spec, from
   :mod:`itskill.transfer.stages`; a spec without one sees the target's stage, as checkpoints
-  written before the map existed did). Its parameters have ``requires_grad = False``
+  written before the map existed did). The rest is the target's, ``time_frac`` included: the
+  episode's clock runs over the target's horizon, not the source's own, which moves a source's
+  actions a little (a few hundredths on the nut's pick, less on its place). Its parameters
+  have ``requires_grad = False``
   and are not given to the optimiser, its normaliser statistics never update, and it stays in
   eval mode through SB3's train/eval switches. Source outputs are computed without gradients:
   they are inputs to the target network, nothing upstream of them trains.
@@ -372,6 +375,14 @@ class TransferPolicy(ActorCriticPolicy):
         kwargs.setdefault("activation_fn", ACTIVATIONS[activation])
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
         self.update_obs_stats = normalize_obs
+        stage_counts = {len(performers)} if performers is not None else set()
+        stage_counts |= {len(s["stage_map"]) for s in sources if s.get("stage_map") is not None}
+        if self.config.prior is not None and stage_counts - {len(self.config.prior)}:
+            # A short matrix lent its last row to the stages past it without a word.
+            raise ValueError(
+                f"the contribution matrix has {len(self.config.prior)} rows, the target "
+                f"{max(stage_counts)} stages (its performers and stage maps): one row per stage"
+            )
 
     @classmethod
     def check_sources(

@@ -25,9 +25,10 @@ def select_sources(sources: list[S], config: TransferConfig) -> list[S]:
     Keeping every source would train ITN itself under another name: :class:`SourceError`.
     """
     if len(sources) <= config.pst_keep:
+        smaller = " or a smaller [pst] keep" if config.pst_keep > 1 else ""
         raise SourceError(
             f"PST keeps {config.pst_keep} of the {len(sources)} source(s): that is ITN itself; "
-            "give more sources (k, or the sources named) or a smaller [pst] keep",
+            f"give more sources (k, or the sources named){smaller}",
             setting="pst_keep",
         )
     return sources[: config.pst_keep]

@@ -83,10 +83,26 @@ def target_entry(spec: TaskSpec) -> dict[str, Any]:
 
 
 def analyze_sources(
-    spec: TaskSpec, chosen: Sequence[SourceSkill], client: LLMClient, config: TransferConfig
+    spec: TaskSpec,
+    chosen: Sequence[SourceSkill],
+    client: LLMClient | None,
+    config: TransferConfig,
 ) -> ContributionMatrix:
     """The analyzer's contribution matrix of the ``chosen`` sources to the stages of ``spec``,
-    asked again up to ``config.analyzer_retries`` times after an invalid reply."""
+    asked again up to ``config.analyzer_retries`` times after an invalid reply. One source takes
+    every stage, without asking: each row is [1] however the analyzer answers (a fair answer of 0
+    for the stages it cannot do would be refused after its retries), and attention over one
+    source weights it 1. ``client`` may then be None; it must be a client otherwise."""
+    if len(chosen) == 1:
+        return ContributionMatrix(
+            np.ones((len(spec.stages), 1)),
+            tuple(st.name for st in spec.stages),
+            (chosen[0].name,),
+            reasoning="one source: it takes every stage",
+            client="none (one source)",
+        )
+    if client is None:
+        raise ValueError(f"the analyzer needs a language-model client for {len(chosen)} sources")
     return analyze(
         target_entry(spec),
         [s.analyzer_entry() for s in chosen],
@@ -405,19 +421,8 @@ def prepare_transfer(
             target_stages = load_hyperparams(spec.family, algo, task=spec.id).policy.stages
         meth.policy_class.check_sources([s.spec() for s in chosen], target_stages)
     stage_names = [st.name for st in spec.stages]
-    if meth.uses_prior and len(chosen) == 1:
-        # Each row is [1] however the analyzer answers (a fair answer of 0 for the stages the
-        # one source cannot do was refused after its retries, failing the run), and attention
-        # over one source weights it 1.
-        matrix = ContributionMatrix(
-            np.ones((len(stage_names), 1)),
-            tuple(stage_names),
-            (chosen[0].name,),
-            reasoning="one source: it takes every stage",
-            client="none (one source)",
-        )
-    elif meth.uses_prior:
-        if client is None:
+    if meth.uses_prior:
+        if client is None and len(chosen) > 1:
             from itskill.llm.client import make_client
 
             client = make_client()
