@@ -7,13 +7,17 @@ seeds): each seed's best evaluation through training (what the search ranks by, 
 maximum of noisy evaluations) and its last evaluation, at the budget, each as a mean over the
 seeds with its 95% t-interval. Results go to ``results/reward_search/<task>/`` (the
 search's ``summary.json``, ``fig6.png`` and the chosen ``best_reward.py``); the run directories
-to ``--runs`` (resumable: rerunning the same command continues an interrupted search).
+to ``--runs`` (resumable: rerunning the same command continues an interrupted search). A
+search of another size than the one whose results are there is refused unless ``--force`` (the
+quick example below would replace the committed full search's results); give it its own
+``--results`` directory.
 
 Targets (issue 4): the basic-skill loop under 60 minutes on 2 cores; generated reward success >=
 the expert's.
 
     python benchmarks/reward_search.py                       # pick_nut_m12 and pickplace_nut_m12
-    python benchmarks/reward_search.py --tasks pick_nut_m12 --iterations 1 --samples 2 --steps 2048
+    python benchmarks/reward_search.py --tasks pick_nut_m12 --iterations 1 --samples 2 \
+        --steps 2048 --results runs/reward_search_trial
     python benchmarks/reward_search.py --tasks pickplace_nut_m12 --transfer itn
 
 ``--transfer METHOD`` trains every candidate (and the final runs of both rewards) with that
@@ -34,7 +38,7 @@ from rich.console import Console
 
 from itskill.executors import EXECUTORS
 from itskill.experiments.analysis import estimate
-from itskill.files import read_json, replaced_whole, write_json
+from itskill.files import read_json, read_json_or_none, replaced_whole, write_json
 from itskill.reward import generate_reward, load_search_config, search_client
 from itskill.reward.search import BEST_FILE, CONFIG_FILE, FIGURE_FILE, NETWORK_DIR, SUMMARY_FILE
 from itskill.transfer import search_network
@@ -48,6 +52,20 @@ def _interval(band: dict | None, key: str) -> str:
     if not band or not band.get(key):
         return "-"
     return estimate(band[key]).format(0)  # "(all n seeds)" where they agree, not [x, x]
+
+
+def _name(task: str, transfer: str | None) -> str:
+    """The directory of a task's search under --runs and --results."""
+    return f"{task}_{transfer}" if transfer else task
+
+
+def _search_size(summary: dict) -> tuple[int, int] | None:
+    """(iterations, samples per iteration) of the search a summary records; None if unreadable."""
+    iterations = summary.get("iterations")
+    if not isinstance(iterations, list) or not iterations:
+        return None
+    samples = iterations[0].get("samples") if isinstance(iterations[0], dict) else None
+    return (len(iterations), len(samples)) if isinstance(samples, list) else None
 
 
 def main() -> None:
@@ -65,6 +83,9 @@ def main() -> None:
     )
     parser.add_argument("--runs", type=Path, default=Path("runs/reward_search"))
     parser.add_argument("--results", type=Path, default=Path("results/reward_search"))
+    parser.add_argument(
+        "--force", action="store_true", help="replace results of a search of another size"
+    )
     args = parser.parse_args()
     config = load_search_config(
         overrides={
@@ -77,10 +98,21 @@ def main() -> None:
             "executor": args.executor,
         }
     )
+    for task in args.tasks:
+        # The defaults write into the committed results: a quick trial (the second example
+        # above) replaced the full search's figure and the reward other benchmarks read.
+        kept = read_json_or_none(args.results / _name(task, args.transfer) / SUMMARY_FILE)
+        size = _search_size(kept) if isinstance(kept, dict) else None
+        if size not in (None, (config.iterations, config.samples)) and not args.force:
+            parser.error(
+                f"{args.results / _name(task, args.transfer)} holds the results of a "
+                f"{size[0]} x {size[1]} search, this one is {config.iterations} x "
+                f"{config.samples}: give another --results directory, or --force to replace them"
+            )
     console = Console(stderr=True)
     rows = []
     for task in args.tasks:
-        name = f"{task}_{args.transfer}" if args.transfer else task
+        name = _name(task, args.transfer)
         run_dir = args.runs / name
         client = search_client(run_dir, "offline")
         network = None

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -434,3 +435,22 @@ def test_learn_basic_learns_a_task_that_clones_its_script_from_scratch_with_demo
     module.run_one("place_nut_m12", "ppo", 0, 256, 256, 2, str(tmp_path), "expert", None, 0)
     run = tmp_path / "runs" / "place_nut_m12" / "ppo" / "seed0"
     assert (run / "checkpoint.json").is_file() and not (run / "demos.json").exists()
+
+
+def test_a_trial_search_does_not_replace_the_results_of_a_full_one(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    # The docstring's quick example, run with the defaults, replaced the committed full search's
+    # summary, figure and best_reward.py (the reward reward_at_budget reads).
+    results = tmp_path / "results"
+    shutil.copytree(
+        BENCHMARK_DIR.parent / "results/reward_search/pick_nut_m12", results / "pick_nut_m12"
+    )
+    module = _load("reward_search")
+    monkeypatch.setattr(module, "generate_reward", lambda *a, **k: pytest.fail("it searched"))
+    argv = ["reward_search.py", "--tasks", "pick_nut_m12", "--iterations", "1", "--samples", "2"]
+    monkeypatch.setattr(sys, "argv", [*argv, "--results", str(results), "--runs", str(tmp_path)])
+    with pytest.raises(SystemExit) as stop:
+        module.main()
+    assert stop.value.code == 2
+    assert "holds the results of a 5 x 10 search, this one is 1 x 2" in capsys.readouterr().err
