@@ -23,6 +23,7 @@ Target (issue 4): generated reward success >= the expert's.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import platform
 import shutil
@@ -77,6 +78,10 @@ def _format_band(band: dict[str, float]) -> str:
     return Estimate(band["mean"], band["ci_low"], band["ci_high"], band["seeds"]).format(0)
 
 
+REWARDS = ("generated", "expert")
+REWARD_HASH = "reward_sha256"
+
+
 def _earlier_seeds(results: Path, settings: dict[str, Any], seeds: list[int]) -> list[int]:
     """The seeds besides ``seeds`` whose runs an earlier call kept in ``results`` (each
     reward's ``seed_N/`` with its curve and held-out result), if ``results/summary.json`` says
@@ -85,7 +90,13 @@ def _earlier_seeds(results: Path, settings: dict[str, Any], seeds: list[int]) ->
     if not path.is_file():
         return []
     before = read_json(path)
-    changed = [k for k, v in settings.items() if before.get(k) != v]
+    # The reward is compared by its bytes too (a search rewrites best_reward.py in place);
+    # summaries from before that was recorded are taken at their path's word.
+    changed = [
+        k
+        for k, v in settings.items()
+        if before.get(k) != v and not (k == REWARD_HASH and k not in before)
+    ]
     if changed:
         raise SystemExit(
             f"{path}: made with other settings ({', '.join(changed)}); --with-earlier pools "
@@ -95,11 +106,13 @@ def _earlier_seeds(results: Path, settings: dict[str, Any], seeds: list[int]) ->
     def kept(seed_dir: Path) -> bool:
         return (seed_dir / EVAL_FILE).is_file() and (seed_dir / HELDOUT_FILE).is_file()
 
-    found = {int(d.name.removeprefix("seed_")) for d in results.glob("generated/seed_*")}
+    # Only the seeds this summary counted: a call that replaced an earlier summary left that
+    # call's seed folders behind, made with whatever settings it had.
+    counted = [set(before.get("rewards", {}).get(r, {}).get("seeds", [])) for r in REWARDS]
     return sorted(
         s
-        for s in found - set(seeds)
-        if kept(results / "generated" / f"seed_{s}") and kept(results / "expert" / f"seed_{s}")
+        for s in set.intersection(*counted) - set(seeds)
+        if all(kept(results / r / f"seed_{s}") for r in REWARDS)
     )
 
 
@@ -138,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         "task": args.task,
         "method": args.method,
         "reward": str(args.reward),
+        REWARD_HASH: hashlib.sha256(args.reward.read_bytes()).hexdigest(),
         "algo": "ppo",
         "hyperparams": str(args.hyperparams) if args.hyperparams else "packaged",
         "steps": args.steps,
@@ -152,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     if not seeds:
         parser.error("no seeds: give --seeds, or --with-earlier where a summary is kept")
 
-    rewards = {"generated": str(args.reward), "expert": EXPERT}
+    rewards = dict(zip(REWARDS, (str(args.reward), EXPERT), strict=True))
     runs = {(r, s): args.out / f"{r}_seed{s}" for r in rewards for s in args.seeds}
     t0 = time.perf_counter()
     jobs = [

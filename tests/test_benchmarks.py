@@ -234,6 +234,33 @@ def test_reward_at_budget_pools_seeds_added_later(tmp_path, monkeypatch, capsys)
     assert summary["earlier_seeds"] == [1]
     with pytest.raises(SystemExit, match="other settings \\(steps\\)"):
         module.main([*later[:3], "300", *later[4:]])
+    # The reward rewritten in place (a search's best_reward.py) is another reward.
+    reward.write_text("# another search's choice\n")
+    with pytest.raises(SystemExit, match="other settings \\(reward_sha256\\)"):
+        module.main(later)
+
+
+def test_reward_at_budget_does_not_pool_seeds_a_replaced_summary_left(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    # A call without --with-earlier replaced the summary; its predecessor's seed folders stayed
+    # in --results and a later --with-earlier pooled them, whatever their settings.
+    results, reward = tmp_path / "results", tmp_path / "reward.py"
+    reward.write_text("")
+    argv = ["--reward", str(reward), "--results", str(results)]
+    module = _fake_reward_at_budget(monkeypatch, tmp_path / "a", {("generated", 1): 0.6,
+                                    ("expert", 1): 0.4}, [0.5, 0.3])  # fmt: skip
+    assert module.main([*argv, "--steps", "300", "--seeds", "1", "--out", str(tmp_path / "a")]) == 0
+    module = _fake_reward_at_budget(monkeypatch, tmp_path / "b", {("generated", 2): 0.8,
+                                    ("expert", 2): 0.2}, [0.7, 0.1])  # fmt: skip
+    assert module.main([*argv, "--steps", "200", "--seeds", "2", "--out", str(tmp_path / "b")]) == 0
+    module = _fake_reward_at_budget(monkeypatch, tmp_path / "c", {("generated", 3): 0.8,
+                                    ("expert", 3): 0.2}, [0.7, 0.1])  # fmt: skip
+    later = [*argv, "--steps", "200", "--seeds", "3", "--out", str(tmp_path / "c")]
+    assert module.main([*later, "--with-earlier"]) == 0
+    summary = json.loads((results / "summary.json").read_text())
+    assert summary["earlier_seeds"] == [2]  # not seed 1, trained for 300 env-steps
+    assert summary["rewards"]["generated"]["seeds"] == [2, 3]
 
 
 def test_library_success_refuses_to_write_figures_of_other_episodes(tmp_path, capsys) -> None:
