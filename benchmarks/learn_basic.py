@@ -48,7 +48,7 @@ from itskill.files import replaced_whole, write_json
 from itskill.rl.config import HyperparamError, check_hyperparams_file
 from itskill.rl.train import train
 from itskill.stats import mean_interval
-from itskill.tasks import UnknownTaskError
+from itskill.tasks import UnknownTaskError, get_task
 
 THRESHOLDS = (0.8, 0.9)
 
@@ -219,11 +219,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.demos is not None and args.demos < 0:
         parser.error(f"--demos must be 0 or more, got {args.demos}")  # before every job fails
-    if args.hyperparams is not None:
-        try:
+    try:  # before every job fails
+        for task in args.tasks:
+            get_task(task)
+        if args.hyperparams is not None:
             check_hyperparams_file(args.hyperparams, product(args.tasks, args.algos))
-        except (HyperparamError, UnknownTaskError) as err:
-            parser.error(str(err))
+    except (HyperparamError, UnknownTaskError) as err:
+        parser.error(str(err))
 
     args.out.mkdir(parents=True, exist_ok=True)
     cells = [(t, a, s) for t in args.tasks for a in args.algos for s in args.seeds]
@@ -276,6 +278,10 @@ def main(argv: list[str] | None = None) -> int:
             )
             for thr in THRESHOLDS:
                 print(f"  to {thr:.0%}: {_cell(s, thr)}")
+    if not summary["results"]:
+        # A summary of nothing would replace the last one that measured something.
+        print(f"no run completed; {args.out / 'summary.json'} left as it was", file=sys.stderr)
+        return 1
     write_json(args.out / "summary.json", summary)
     print(f"\nplots and summary.json in {args.out}")
     if failed:

@@ -141,6 +141,12 @@ def test_learn_basic_reports_failed_runs_and_exits_non_zero(tmp_path, monkeypatc
     fail_seed.clear()
     assert module.main(args) == 0
     assert "pick_nut_m12 ppo: 3/3 seeds completed" in capsys.readouterr().out
+    # Every run failed: the summary of the runs that measured something stays.
+    kept = (tmp_path / "summary.json").read_text()
+    fail_seed.extend([0, 1, 2])
+    assert module.main(args) == 1
+    assert "no run completed" in capsys.readouterr().err
+    assert (tmp_path / "summary.json").read_text() == kept
 
 
 def test_reward_search_reports_the_best_and_the_last_evaluation() -> None:
