@@ -111,6 +111,13 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None, help="default: min(cpus, envs)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
+    horizon = get_task(args.task).max_steps
+    if not 1 <= args.steps < horizon - 1 or args.rounds < 1 or args.num_envs < 1:
+        # A window past the episode spans resets the replayed physics never makes.
+        parser.error(
+            f"--steps from 1 to {horizon - 2} (the window ends before {args.task}'s {horizon}-step "
+            "episode does), --rounds and --num-envs at least 1"
+        )
 
     env = make_batch_env(args.task, num_envs=args.num_envs, seed=0, n_threads=args.threads)
     sim = env.sim

@@ -76,6 +76,8 @@ def main() -> None:
     parser.add_argument("--num-envs", type=int, default=16)
     parser.add_argument("--steps", type=int, default=8192)
     args = parser.parse_args()
+    if args.steps < 1 or args.num_envs < 1:
+        parser.error("--steps and --num-envs must be at least 1")
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
