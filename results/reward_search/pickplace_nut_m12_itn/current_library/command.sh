@@ -24,4 +24,7 @@ ITSKILL_HOME=runs/home_rab python benchmarks/reward_at_budget.py --task pickplac
 # Seeds 5 and 6 were added by two later calls of the same command with --seeds 5 (then 6)
 # --with-earlier, which pooled them with the kept seeds into summary.json (the machine idle but
 # for them: 9.8 and 10.5 minutes for each pair of runs). Seeds 1-4 took 41.9 minutes, test runs
-# beside them part of the time. output.txt is the last call's summary.
+# beside them part of the time. Seeds 7-10 were added the same way in a later session
+# (--seeds 7 8 9 10 --with-earlier, code of commit ae42803 in a worktree, a fresh ITSKILL_HOME
+# with the same shipped library; 65.6 minutes for the eight runs, two at a time, with test runs
+# and review helpers beside them). output.txt is that last call's summary.
