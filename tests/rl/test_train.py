@@ -9,6 +9,7 @@ import json
 import os
 import signal
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -1075,6 +1076,39 @@ def test_a_run_killed_while_writing_its_first_trained_checkpoint_resumes_from_it
     assert json.loads((out / "checkpoint.json").read_text())["num_timesteps"] == 0
     done = _train(out, reach_reward, 256)
     assert done.resumed_from == 128 and done.num_timesteps == 256
+
+
+def test_a_run_killed_before_its_first_update_starts_over_as_a_new_budget_would(
+    tmp_path: Path, reach_reward: Path, monkeypatch
+) -> None:
+    # Resumed from its step-0 checkpoint toward another budget, it warned of a moved learning
+    # rate schedule (nothing had trained), kept the killed session's TensorBoard events, and
+    # said best/ stayed a policy no evaluation had chosen.
+    run = tmp_path / "run"
+
+    def killed(*args, **kwargs):
+        raise SystemExit("killed")
+
+    monkeypatch.setattr(train_module, "_learn", killed)
+    with pytest.raises(SystemExit):
+        train(
+            TASK, "ppo", 64, seed=1, reward=reach_reward, out=run, num_envs=4,
+            overrides=FAST_PPO, logger=QUIET, eval_every=64, eval_episodes=2,
+        )  # fmt: skip
+    monkeypatch.undo()
+    (run / "tb").mkdir()
+    (run / "tb" / "events.out.tfevents.killed").write_text("")  # what its session logged
+    told = io.StringIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ScheduleWarning)
+        result = train(
+            TASK, "ppo", 128, seed=1, reward=reach_reward, out=run, num_envs=4,
+            overrides=FAST_PPO, logger=replace(QUIET, progress=True),
+            console=Console(file=told, width=400),
+        )  # fmt: skip
+    assert result.resumed_from == 0 and result.num_timesteps == 128
+    assert not (run / "tb" / "events.out.tfevents.killed").exists()
+    assert "best/ stays" not in told.getvalue()
 
 
 def test_a_run_directory_in_training_elsewhere_is_refused_and_left_as_it_is(

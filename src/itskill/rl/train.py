@@ -652,8 +652,8 @@ def _warn_of_a_moved_schedule(setup: TrainSetup, resumed_from: int) -> None:
     schedule of neither budget."""
     before, now = (setup.previous or {}).get("budget"), setup.steps
     algo = setup.hp.algo_config
-    if before in (None, now) or algo.lr_schedule != "linear" or resumed_from >= now:
-        return  # the same schedule, none, or nothing left to train
+    if before in (None, now) or algo.lr_schedule != "linear" or not 0 < resumed_from < now:
+        return  # the same schedule, none, nothing trained yet, or nothing left to train
     rate = algo.learning_rate
     warnings.warn(
         f"{setup.run_dir}: its learning rate decays linearly to 0 at its budget, {before:,} "
@@ -753,9 +753,12 @@ def _clear_records_after(run_dir: Path, resumed_from: int | None) -> None:
     from (``None``: a new run)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     if resumed_from is None:
-        # A session killed before its first checkpoint left rows, TensorBoard events and a best
-        # policy of a run whose settings nothing records: this run starts them again.
+        # Files of a session killed before its first checkpoint (or of a release that wrote
+        # none at step 0): rows and a best policy of a run whose settings nothing records.
         shutil.rmtree(run_dir / BEST_DIR, ignore_errors=True)
+    if not resumed_from:
+        # Nothing of them is kept (a run resumed at 0 trains every step again): their
+        # TensorBoard events would show beside the new ones.
         shutil.rmtree(run_dir / TB_DIR, ignore_errors=True)
     MetricsWriter(run_dir).truncate_after(-1 if resumed_from is None else resumed_from)
     truncate_evaluations(run_dir, -1 if resumed_from is None else resumed_from)
@@ -890,7 +893,8 @@ def run_training(
             model = _resumed_model(setup, train_env, clock, note)
             resumed_from = int(model.num_timesteps)
             recorded_eval = setup.previous.get("evaluation")
-            if recorded_eval and setup.eval_every is None and resumed_from < steps:
+            chosen = read_selection(run_dir) is not None
+            if recorded_eval and chosen and setup.eval_every is None and resumed_from < steps:
                 # best/ (what skills add, --init and exports take) stays the policy chosen
                 # before, however far this session trains past it.
                 note(
