@@ -380,8 +380,27 @@ def test_a_damaged_curve_is_noted_for_its_cell_and_the_rest_is_reported(run, tmp
     eval_csv.write_bytes(eval_csv.read_bytes() + b"\xff\xfe\n")
     files = experiment_report(damaged, tmp_path / "report", video=False)
     md = files.markdown.read_text()
-    assert "5 of 8 runs finished" in md and "Success at fractions of the budget (Table II)" in md
-    assert any(str(eval_csv) in n and "not UTF-8 text" in n for n in files.notes)
+    assert "Success at fractions of the budget (Table II)" in md
+    # Left out of every figure: the header and the note say which finished seed is missing.
+    assert "5 of 8 runs finished and counted (1 more not counted: see Notes)" in md
+    assert any(
+        n.startswith(f"{TASK}/no_transfer/seed_2: finished, but not counted in any figure:")
+        and str(eval_csv) in n
+        and "not UTF-8 text" in n
+        for n in files.notes
+    )
+
+
+def test_a_checkpoint_record_of_another_shape_is_in_progress_not_a_traceback(run, tmp_path):
+    import shutil
+
+    damaged = tmp_path / "damaged"
+    shutil.copytree(run, damaged)
+    cell = Cell(TASK, "no_transfer", 2).dir(damaged)
+    (cell / "result.json").unlink()
+    (cell / "checkpoint.json").write_text("[1, 2]")
+    md = experiment_report(damaged, tmp_path / "report", video=False).markdown.read_text()
+    assert "no_transfer/seed_2: in progress (its checkpoint.json cannot be read)" in md
 
 
 def test_runs_recorded_without_subtask_progress_still_get_a_report(run, tmp_path):
@@ -464,8 +483,8 @@ def test_a_cell_stopped_before_its_first_evaluation_is_a_note_not_a_traceback(ru
     eval_csv.write_text(eval_csv.read_text().splitlines()[0] + "\n")
     result = CliRunner().invoke(app, ["report", str(damaged), "--no-video"])
     assert result.exit_code == 0, result.output
-    assert f"note: {eval_csv}: no evaluations" in " ".join(result.output.split())
-    assert "5 of 8 runs finished" in (damaged / "report.md").read_text()
+    assert f"{eval_csv}: no evaluations" in " ".join(result.output.split())
+    assert "5 of 8 runs finished and counted" in (damaged / "report.md").read_text()
 
 
 EXPERIMENT = """
@@ -666,6 +685,16 @@ def test_a_baseline_run_with_a_longer_budget_measures_the_gain_the_budget_cut_of
     assert "| 83.3% [54.6%, 100.0%] | 90.0% (all 3 seeds) |" in md
     # This run's own No_Transfer cells are not read: its seed 3 is not listed as not started.
     assert "no_transfer/seed_3" not in md and "itn/seed_3: not started" in md
+
+
+def test_held_out_policies_of_a_longer_baseline_run_say_their_budget(run, tmp_path):
+    # They sat beside this run's policies at half their training under one caption.
+    base = _baseline_run(tmp_path, meta='{"num_timesteps": 2000}')
+    for seed in range(3):
+        held = {"num_timesteps": 2000, "success": 0.5, "episodes": 10}
+        write_json(Cell(TASK, "no_transfer", seed).dir(base) / "held_out.json", held)
+    md = experiment_report(run, tmp_path / "report", video=False, baseline_run=base)
+    assert "| No_Transfer (trained 2,000 env-steps) | final | 3 |" in md.markdown.read_text()
 
 
 def test_a_run_of_itn_alone_gets_its_gain_over_a_baseline_run(run, tmp_path):

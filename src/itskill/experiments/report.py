@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from itskill.curves import EVAL_FILE, Curve, CurveError, eval_seed, read_curve
-from itskill.datafile import is_number
+from itskill.datafile import is_count, is_number
 from itskill.experiments.analysis import (
     Band,
     Gain,
@@ -424,7 +424,8 @@ def _curves(config: ExperimentConfig, run_dir: Path) -> tuple[dict, list[Cell], 
         try:
             curve = read_curve(out, config.steps)
         except CurveError as err:
-            broken.append(str(err))
+            # Left out of every figure below: the reader must learn which seed is missing.
+            broken.append(f"{cell.name}: finished, but not counted in any figure: {err}")
             continue
         curves.setdefault((cell.task, cell.method), []).append((cell.seed, curve))
     return curves, pending, broken
@@ -505,7 +506,9 @@ def experiment_report(
             f"{config.algo.upper()}, {config.steps:,} env-steps per run, deterministic evaluation "
             f"over {config.eval.episodes} episodes every {config.eval.every:,} env-steps"
             f"{_episodes_of_seeds(curves, where)}. "
-            f"{finished} of {len(own)} runs finished.{where.about_baseline}"
+            f"{finished} of {len(own)} runs finished"
+            f"{f' and counted ({len(broken)} more not counted: see Notes)' if broken else ''}."
+            f"{where.about_baseline}"
         )
     )
     header_section(doc, sessions, {"run directory": str(run_dir.resolve())})
@@ -616,9 +619,9 @@ def _pending_line(cell: Cell, run_dir: Path) -> str:
             "counted; `itskill experiment run ... --resume` finishes it again from its checkpoint"
         )
     if (out / META_FILE).is_file():
-        try:
-            steps = read_json(out / META_FILE).get("num_timesteps", 0)
-        except CorruptFileError:
+        meta = read_json_or_none(out / META_FILE)
+        steps = meta.get("num_timesteps") if isinstance(meta, dict) else None
+        if not is_count(steps):  # damaged, or edited into another shape
             return f"{cell.name}: in progress (its checkpoint.json cannot be read)"
         return f"{cell.name}: in progress ({steps:,} env-steps checkpointed)"
     return f"{cell.name}: not started"
@@ -771,9 +774,13 @@ def _held_out_section(doc: Document, task: str, curves: dict, where: _Runs) -> N
                 continue
             mean, low, high = (100 * v for v in mean_interval(np.subtract(evaluated, held)))
             spread = f" (all {len(held)} seeds)" if low == high else f" [{low:+.1f}, {high:+.1f}]"
+            label = method_label(method)
+            if where.budget(method) != where.steps:
+                # A baseline run's policies trained for its own budget, not this run's.
+                label += f" (trained {where.budget(method):,} env-steps)"
             rows.append(
                 [
-                    method_label(method),
+                    label,
                     policy,
                     str(len(held)),
                     estimate(held).format(),
