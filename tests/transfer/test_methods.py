@@ -74,3 +74,14 @@ def test_a_method_is_changed_by_the_settings_it_names_and_only_by_them(
         varied = _actions(method, replace(BASE, **{name: value}), tmp_path / name)
         changed = varied.shape != base.shape or not np.array_equal(varied, base)
         assert changed == (name in METHODS[method].settings), (method, name)
+
+
+@pytest.mark.parametrize(("keep", "given", "smaller"), [(1, 1, False), (2, 1, False), (3, 2, True)])
+def test_pst_over_too_few_sources_suggests_only_what_can_work(keep, given, smaller) -> None:
+    # A smaller keep over one source is refused again: it was suggested all the same.
+    from itskill.transfer.pst import select_sources
+    from itskill.transfer.sources import SourceError
+
+    with pytest.raises(SourceError, match="that is ITN itself") as err:
+        select_sources(["a", "b"][:given], replace(TransferConfig(), pst_keep=keep))
+    assert ("smaller [pst] keep" in str(err.value)) == smaller

@@ -25,7 +25,8 @@ def select_sources(sources: list[S], config: TransferConfig) -> list[S]:
     Keeping every source would train ITN itself under another name: :class:`SourceError`.
     """
     if len(sources) <= config.pst_keep:
-        smaller = " or a smaller [pst] keep" if config.pst_keep > 1 else ""
+        # A smaller keep helps only where more than one source is given.
+        smaller = " or a smaller [pst] keep" if len(sources) > 1 else ""
         raise SourceError(
             f"PST keeps {config.pst_keep} of the {len(sources)} source(s): that is ITN itself; "
             f"give more sources (k, or the sources named){smaller}",
