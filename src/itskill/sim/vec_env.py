@@ -170,7 +170,8 @@ class BatchEnv(VecEnv):
         self.episode_return += reward
         self.last_components = components
         terminated = success if self.task.terminate_on_success else np.zeros_like(success)
-        # A diverged environment (see BatchSim.unstable) ends its episode as if timed out.
+        # A diverged environment (see BatchSim.unstable) ends its episode: truncated here (the
+        # Gymnasium env's view), terminal for a learner (step_wait's TimeLimit.truncated).
         truncated = (self.steps >= self.task.max_steps) | self.sim.unstable
         obs = OBSERVATION_LAYOUT.build(ctx)
         return StepResult(obs, reward, success, terminated, truncated, components, ctx)

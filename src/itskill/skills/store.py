@@ -764,7 +764,9 @@ class SkillSpace:
         Embedding takes seconds, and another process may change the text meanwhile (which clears
         the row's vector, see :meth:`update`): the vector of the old text, stored under the
         current model, would never be replaced, so it is dropped and the next search embeds the
-        new text. Ids are never reused, so a row removed meanwhile cannot match another skill.
+        new text. An id is reused only by a retraining of the same skill (``add_many`` with
+        ``replace``), and a row is matched on its description and actions too, so a row removed
+        meanwhile cannot take another skill's vector.
         """
         with self._write() as conn:
             conn.executemany(
