@@ -692,7 +692,14 @@ def _task_section(
         ),
     )
     doc.add(Heading("Success at fractions of the budget (Table II)", 3))
-    _fractions_table(doc, config, by_method, "mean [95% t-interval over seeds, cut to 0–100%]")
+    _fractions_table(
+        doc,
+        config,
+        by_method,
+        "mean [95% t-interval over seeds, cut to 0–100%]; each seed's success at a fraction is "
+        "read between the evaluations either side of it (the one past it weighs in where the "
+        "fraction falls between evaluations)",
+    )
     _held_out_section(doc, task, curves, where)
     _progress_section(doc, config, task, curves, where, figures, notes)
     thresholds = {m: time_to_threshold(cs, rep.threshold) for m, cs in by_method.items()}
