@@ -42,6 +42,11 @@ def main(argv: list[str] | None = None) -> int:
         help="standard deviation of Gaussian noise added to both policies' actions",
     )
     args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error("--episodes must be at least 1")
+    for policy in (args.before, args.after):
+        if not policy.is_dir():
+            parser.error(f"{policy}: no such policy directory")
     config = PretrainConfig(eval_episodes=args.episodes, eval_seed=args.seed)
     spec = get_task(args.task)
 

@@ -94,6 +94,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=PretrainConfig.eval_seed)
     parser.add_argument("--json", type=Path, help="also write the result as JSON")
     args = parser.parse_args(argv)
+    if args.envs < 1:
+        parser.error("--envs must be at least 1")
     result: dict = {"episodes": args.envs, "seed": args.seed, "pulls": {}}
     for peg in args.pegs:
         for start, task in STARTS[peg].items():

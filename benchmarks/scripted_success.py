@@ -49,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     below = f"exit 1 if a Table I task is below {THRESHOLD * 100:.0f}%%"
     parser.add_argument("--check", action="store_true", help=below)
     args = parser.parse_args(argv)
+    if args.episodes < 1 or args.num_envs < 1:
+        parser.error("--episodes and --num-envs must be at least 1")
 
     results = []
     print(f"{'task':28s} {'success':>8s} {'95% CI':>15s} {'time':>7s}" + " random" * args.random)

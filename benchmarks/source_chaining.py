@@ -53,6 +53,7 @@ from itskill.tasks.evaluate import (
 )
 from itskill.tasks.spec import TaskSpec
 from itskill.transfer import resolve_sources
+from itskill.transfer.sources import SourceError
 from itskill.transfer.stages import pad_stages, stage_map
 
 
@@ -218,6 +219,8 @@ def main(argv: list[str] | None = None) -> int:
         "episodes last lost the part there",
     )
     args = parser.parse_args(argv)
+    if args.episodes < 1 or (args.handovers is not None and args.handovers < 1):
+        parser.error("--episodes and --handovers must be at least 1")
 
     spec = get_task(args.task)
     if len(args.chain) != len(spec.stages):
@@ -225,7 +228,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(
             f"{spec.id} has {len(spec.stages)} stages ({stages}), --chain names {len(args.chain)}"
         )
-    chain = StageChain(spec, args.chain, own_stage=not args.target_stage)
+    try:
+        chain = StageChain(spec, args.chain, own_stage=not args.target_stage)
+    except SourceError as err:  # a skill misspelled, or one without its checkpoint
+        parser.error(str(err))
 
     # Each run draws its noise afresh from the seed: the trace does not depend on --episodes.
     policy = with_noise(chain, args.noise, args.seed)
