@@ -24,7 +24,11 @@ ITSKILL_HOME=runs/home_rab python benchmarks/reward_at_budget.py --task pickplac
 # Seeds 5 and 6 were added by two later calls of the same command with --seeds 5 (then 6)
 # --with-earlier, which pooled them with the kept seeds into summary.json (the machine idle but
 # for them: 9.8 and 10.5 minutes for each pair of runs). Seeds 1-4 took 41.9 minutes, test runs
-# beside them part of the time. Seeds 7-10 were added the same way in a later session
+# beside them part of the time. The runs named the reward and hyper-parameter files by the
+# paths they were made at (/work/rab2/learn/reward/best_reward.py, /work/rab2/hyperparams.toml:
+# the same bytes as best_reward.py and hyperparams.toml here), which summary.json records and
+# --with-earlier compares, so extending this summary needs files at those paths (or a new
+# summary without --with-earlier). Seeds 7-10 were added the same way in a later session
 # (--seeds 7 8 9 10 --with-earlier, code of commit ae42803 in a worktree, a fresh ITSKILL_HOME
 # with the same shipped library; 65.6 minutes for the eight runs, two at a time, with test runs
 # and review helpers beside them). output.txt is that last call's summary.
