@@ -393,15 +393,19 @@ def test_pretrain_reports_the_seeds_it_tried(home, tmp_path, monkeypatch):
     ]
 
 
-def test_pretrain_exits_non_zero_when_a_skill_fails(home, tmp_path, monkeypatch):
-    # The failure was printed and the command exited 0, so a script went on as if all was well.
-    def broken(*args, **kwargs):
-        raise RuntimeError("the evaluation broke")
+def _pretrain_failing_with(error: Exception, tmp_path, monkeypatch):
+    def failing(*args, **kwargs):
+        raise error
 
-    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", broken)
+    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", failing)
     args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--steps", "256", "--seeds", "1"]
     args += ["--eval-every", "0", "--workers", "1", "--runs", str(tmp_path / "runs")]
-    result = runner.invoke(app, [*args, "--library", str(tmp_path / "library")])
+    return runner.invoke(app, [*args, "--library", str(tmp_path / "library")])
+
+
+def test_pretrain_exits_non_zero_when_a_skill_fails(home, tmp_path, monkeypatch):
+    # The failure was printed and the command exited 0, so a script went on as if all was well.
+    result = _pretrain_failing_with(RuntimeError("the evaluation broke"), tmp_path, monkeypatch)
     assert result.exit_code == 1, result.output
     assert "reach_nut_m12: failed: RuntimeError: the evaluation broke" in result.output
     assert "1skill(s)failed:reach_nut_m12" in _flat(result.output)
@@ -414,13 +418,8 @@ def test_pretrain_says_a_run_of_other_settings_is_not_mended_by_running_again(
     # "the same command tries them again" fails it again, every time.
     from itskill.rl.train import ResumeMismatchError
 
-    def mismatched(*args, **kwargs):
-        raise ResumeMismatchError("runs/reach_nut_m12/seed0: holds a run trained with ppo")
-
-    monkeypatch.setattr("itskill.skills.pretrain.measure_skill", mismatched)
-    args = ["skills", "pretrain", "--tasks", "reach_nut_m12", "--steps", "256", "--seeds", "1"]
-    args += ["--eval-every", "0", "--workers", "1", "--runs", str(tmp_path / "runs")]
-    result = runner.invoke(app, [*args, "--library", str(tmp_path / "library")])
+    mismatch = ResumeMismatchError("runs/reach_nut_m12/seed0: holds a run trained with ppo")
+    result = _pretrain_failing_with(mismatch, tmp_path, monkeypatch)
     assert result.exit_code == 1, result.output
     flat = _flat(result.output)
     assert "reach_nut_m12:theirrundirectoriesunder--runsholdrunsofothersettings" in flat

@@ -14,13 +14,16 @@ from itskill.cli import app
 runner = CliRunner()
 
 
-def test_analyze_json_and_table(home: Path) -> None:
-    res = runner.invoke(
-        app, ["transfer", "analyze", "pickplace_nut_m12", "--sources", "pick_nut_m12,place_nut_m12",
-              "--llm", "offline", "--json"],
-    )  # fmt: skip
+def analyze_json(sources: str, llm: str) -> dict:
+    """``transfer analyze pickplace_nut_m12 --sources SOURCES --llm LLM --json``, read."""
+    args = ["transfer", "analyze", "pickplace_nut_m12", "--sources", sources, "--llm", llm]
+    res = runner.invoke(app, [*args, "--json"])
     assert res.exit_code == 0, res.output
-    data = json.loads(res.output)
+    return json.loads(res.output)
+
+
+def test_analyze_json_and_table(home: Path) -> None:
+    data = analyze_json("pick_nut_m12,place_nut_m12", "offline")
     assert data["sources"] == ["pick_nut_m12", "place_nut_m12"]
     np.testing.assert_allclose(np.sum(data["matrix"], axis=1), 1.0)
     table = runner.invoke(app, ["transfer", "analyze", "pickplace_nut_m12", "-k", "2"])
@@ -37,12 +40,7 @@ def test_analyze_of_one_source_shows_the_prior_training_uses(home: Path, monkeyp
     # (and needed a key), while training used an all-ones matrix without asking.
     monkeypatch.delenv("OPENAI_API_KEY", raising=False)
     monkeypatch.delenv("OPENAI_BASE_URL", raising=False)
-    res = runner.invoke(
-        app, ["transfer", "analyze", "pickplace_nut_m12", "--sources", "pick_nut_m12",
-              "--llm", "openai:gpt-4o", "--json"],
-    )  # fmt: skip
-    assert res.exit_code == 0, res.output
-    data = json.loads(res.output)
+    data = analyze_json("pick_nut_m12", "openai:gpt-4o")
     assert data["matrix"] == [[1.0]] * 5 and data["client"] == "none (one source)"
 
 
