@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     failed = False
     for job in run_jobs(train_one, jobs, workers=args.workers):
         if not job.ok:
-            print(f"run {jobs[job.index][7]} failed: {job.error}", file=sys.stderr)
+            print(f"run {list(runs.values())[job.index]} failed: {job.error}", file=sys.stderr)
             failed = True
     if failed:
         return 1

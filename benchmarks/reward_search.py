@@ -101,11 +101,12 @@ def main() -> None:
     for task in args.tasks:
         # The defaults write into the committed results: a quick trial (the second example
         # above) replaced the full search's figure and the reward other benchmarks read.
-        kept = read_json_or_none(args.results / _name(task, args.transfer) / SUMMARY_FILE)
+        target = args.results / _name(task, args.transfer)
+        kept = read_json_or_none(target / SUMMARY_FILE)
         size = _search_size(kept) if isinstance(kept, dict) else None
         if size not in (None, (config.iterations, config.samples)) and not args.force:
             parser.error(
-                f"{args.results / _name(task, args.transfer)} holds the results of a "
+                f"{target} holds the results of a "
                 f"{size[0]} x {size[1]} search, this one is {config.iterations} x "
                 f"{config.samples}: give another --results directory, or --force to replace them"
             )

@@ -893,8 +893,12 @@ def run_training(
             model = _resumed_model(setup, train_env, clock, note)
             resumed_from = int(model.num_timesteps)
             recorded_eval = setup.previous.get("evaluation")
-            chosen = read_selection(run_dir) is not None
-            if recorded_eval and chosen and setup.eval_every is None and resumed_from < steps:
+            if (
+                recorded_eval
+                and setup.eval_every is None
+                and resumed_from < steps
+                and read_selection(run_dir) is not None  # only where one was chosen
+            ):
                 # best/ (what skills add, --init and exports take) stays the policy chosen
                 # before, however far this session trains past it.
                 note(
