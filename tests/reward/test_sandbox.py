@@ -110,6 +110,8 @@ ESCAPES = {
     "np_ctypeslib": ("np.ctypeslib.as_ctypes(ctx['ee_pos'])", "np.ctypeslib"),
     "np_lib_format": ("np.lib.format.open_memmap('x.npy')", "np.lib"),
     "np_genfromtxt": ("np.genfromtxt('/etc/passwd')", "np.genfromtxt"),
+    # Uninitialised memory: what the process held before, not numbers the reward computed.
+    "np_empty": ("x = np.empty(3)", "np.empty"),
     "np_os": ("np.os.system('id')", "np.os"),
     "np_testing": ("np.testing.assert_equal(1, 1)", "np.testing"),
     "np_random": ("np.random.seed(0)", "np.random"),
@@ -232,7 +234,6 @@ ESCAPES = {
     "computed_format_width_bomb": ("x = f'{0:{10**8}}'", "a format spec computed inside the"),
     # Each argument passed the size check; their product is 10**10 elements.
     "outer_product_bomb": ("x = np.outer(np.ones(10**5), np.ones(10**5))", "size 10000000000"),
-    "kron_bomb": ("x = np.kron(np.ones(10**5), np.ones(10**5))", "size 10000000000 is too"),
     "positional_string_dtype": ("x = np.ones(10**8, 'U1000')", "string, bytes, void and"),
     "string_fill_value": ("x = np.full(10**8, 'x' * 1000)", "string, bytes, void and object"),
     "mapping_key_width_bomb": ("x = '%(a)10000000000d' % {'a': 1}", "format width 10000000000"),

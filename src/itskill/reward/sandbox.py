@@ -184,7 +184,7 @@ _REPEATING_NUMPY = {"tile", "repeat"}
 """Functions whose first argument is repeated by the others."""
 _LIKE_NUMPY = {"empty_like", "zeros_like", "ones_like", "full_like"}
 _OTHER_SIZED_NUMPY = {"eye", "arange", "linspace", "broadcast_to"}
-_PRODUCT_NUMPY = {"outer", "kron"}
+_PRODUCT_NUMPY = {"outer"}
 """Functions whose result holds the product of their two arguments' sizes."""
 _SIZE_CHECKED = _SIZED_NUMPY | _REPEATING_NUMPY | _LIKE_NUMPY | _OTHER_SIZED_NUMPY | _PRODUCT_NUMPY
 """The numpy functions whose size :func:`_elements` reads from their arguments."""
@@ -196,8 +196,8 @@ _FLEXIBLE_DTYPES = re.compile(r"^[<>=|]?[USVaO]|^(str|bytes|object|void|str_|byt
 name them: no reward needs one, and their item size (``"U1000"``, 4 kB an element) multiplies
 every size this module counts."""
 _DTYPE_POSITION = {
-    "zeros": 1, "ones": 1, "empty": 1, "full": 2, "array": 1, "asarray": 1, "eye": 3,
-    "identity": 1, "arange": 3, "linspace": 5,
+    "zeros": 1, "ones": 1, "full": 2, "array": 1, "asarray": 1, "eye": 3, "arange": 3,
+    "linspace": 5,
     "zeros_like": 1, "ones_like": 1, "empty_like": 1, "full_like": 2,
 }  # fmt: skip
 """The position of ``dtype`` among the arguments of the numpy functions that take one."""
