@@ -252,7 +252,9 @@ def evaluate(
 
     Environment ``i`` runs the first ``quota[i]`` episodes of its own seeded sequence
     (:func:`episode_quotas`), so the set of counted episodes depends only on ``seed`` and
-    ``num_envs``, never on which environment happens to finish first.
+    ``num_envs``, never on which environment happens to finish first. At most ``episodes``
+    environments run: an environment with no episode to count would only cost time, so 10
+    episodes asked of 16 environments are those of 10.
     """
     if episodes < 1:
         raise ValueError(f"episodes must be positive, got {episodes}")
