@@ -55,7 +55,8 @@ def test_tasks_show_json_is_complete():
     assert data["command"] == "Screw the M12 nut onto the bottom of the bolt"
     assert data["objects"][0]["pitch"] == pytest.approx(0.00175)
     assert data["fixtures"][0]["part"]["kind"] == "bolt"
-    assert data["init"]["objects"][0]["mode"] == "bolt"
+    # Only what the bolt mode reads: where on the thread the nut starts, on which bolt.
+    assert data["init"]["objects"][0] == {"mode": "bolt", "fixture": 0, "turns": [1.5, 2.5]}
     assert data["success"] == "seated(0, 0.00175)"
     assert data["max_steps"] > 0 and data["stages"] and data["script"]
 

@@ -764,8 +764,8 @@ def _parse_init(
             if key in _MODE_FIELDS[mode]:
                 ranges[key] = orr.range(key, (0.0, 0.0), bounds[key])
                 continue
-            # A field the mode does not read would be ignored without a word; init_table writes
-            # every field, as 0, so 0 is let through.
+            # A field the mode does not read would be ignored without a word; 0, the value it
+            # takes when left out, is let through.
             ranges[key] = orr.range(key, (0.0, 0.0))
             if ranges[key] != Range(0.0, 0.0):
                 raise TaskFileError(
@@ -896,10 +896,12 @@ def init_table(init: InitSpec) -> dict[str, Any]:
     def span(r: Range) -> list[float]:
         return [r.low, r.high]
 
+    # Only the fields the part's mode reads: the others are ignored, and a reader shown them
+    # (``itskill tasks show``) would take them for part of the start.
     objects = [
-        {"mode": o.mode, "fixture": o.fixture}
-        | {k: span(getattr(o, k)) for k in ("x", "y", "z", "yaw", "turns", "depth")}
-        | ({"hold": span(o.hold)} if o.mode == "gripper" else {})
+        {"mode": o.mode}
+        | ({"fixture": o.fixture} if o.mode in ("bolt", "hole") else {})
+        | {k: span(getattr(o, k)) for k in sorted(_MODE_FIELDS[o.mode])}
         | ({"symmetric_yaw": True} if o.symmetric_yaw else {})
         for o in init.objects
     ]
