@@ -117,7 +117,11 @@ CameraOpt = Annotated[str, typer.Option(help="Camera: front or closeup.")]
 
 
 HyperparamsOpt = Annotated[
-    Path | None, typer.Option(help="A hyper-parameter TOML file instead of the packaged one.")
+    Path | None,
+    typer.Option(
+        help="A hyper-parameter TOML file instead of the packaged one, whole: a field it leaves "
+        "out takes the dataclass default, not the packaged value (copy the packaged file)."
+    ),
 ]
 
 

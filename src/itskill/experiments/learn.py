@@ -445,7 +445,8 @@ def learn(
     """Learn ``command`` end to end (see the module docstring); returns the run and its report.
 
     ``steps`` overrides the budget's transfer env-steps and ``min_success`` its threshold for
-    adding the skill; ``llm`` is ``"offline"`` (the default, no network) or ``"openai:MODEL"``.
+    adding the skill; ``llm`` is ``"offline"`` (no network), ``"openai:MODEL"``, or None for
+    ``$ITSKILL_LLM_MODEL``, else offline.
     """
     from itskill.llm import make_client
     from itskill.reward import check_command

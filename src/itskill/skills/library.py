@@ -90,8 +90,9 @@ def _stored(space: SkillSpace) -> list[Skill] | None:
 
 
 def shipped_budgets() -> dict[str, int]:
-    """Env-steps each task's shipped skill was trained for from scratch, from the library's
-    manifest: the budgets with which ``itskill skills pretrain`` rebuilds the library. A refined
+    """Env-steps each task's shipped skill was trained for before its last refinement (all of
+    its training for a skill never refined), from the library's manifest: the budgets with which
+    ``itskill skills pretrain`` rebuilds the library. A refined
     skill's is that of the policy its last refinement started from (``refined_from``: the first
     round's for a skill refined once); ``--refine`` then adds the last round."""
     entries = read_manifest_or_empty(store.SHIPPED_LIBRARY)
