@@ -344,29 +344,43 @@ def test_clients_sharing_a_cache_ask_a_question_once_and_get_one_answer(tmp_path
         assert len(server.requests) == 1
 
 
+OTHER_MESSAGES = [MESSAGES[0], {"role": "user", "content": "Write one for placing the nut."}]
+
+
 @pytest.mark.parametrize(
     ("change", "fresh"),
     [
         ({"purpose": "plan"}, ["three", "four"]),
         ({"temperature": 0.5}, ["three", "four"]),
         ({"n": 1}, ["three"]),
+        # An experiment's cells share one cache: another task's prompt must not get this reply.
+        ({"messages": OTHER_MESSAGES}, ["three", "four"]),
+        ({"model": "other-model"}, ["three", "four"]),
     ],
 )
 def test_cache_does_not_replay_a_request_that_differs(
     tmp_path: Path, change: dict, fresh: list[str]
 ) -> None:
-    asked = {"n": 2, "purpose": "reward", "temperature": 1.0}
+    asked = {"n": 2, "purpose": "reward", "temperature": 1.0, "messages": MESSAGES}
+    asked["model"] = "fake-model"
     other = {**asked, **change}
+
+    def ask(server: FakeOpenAIServer, request: dict) -> list[str]:
+        # A new client each time, so each request is its first occurrence: a cache key that left
+        # the difference out would replay the cached replies.
+        settings = {k: v for k, v in request.items() if k not in ("model", "messages")}
+        c = OpenAIClient(
+            request["model"], base_url=server.base_url, retry=FAST, cache_dir=tmp_path
+        )
+        return c.complete(request["messages"], **settings)
+
     with FakeOpenAIServer(["one", "two", "three", "four"]) as server:
-        cached = client(server, cache_dir=tmp_path).complete(MESSAGES, **asked)
-        # A new client, so both are the first occurrence of their request: a cache key that left
-        # the difference out would replay the cached replies here.
-        assert client(server, cache_dir=tmp_path).complete(MESSAGES, **other) == fresh
+        cached = ask(server, asked)
+        assert ask(server, other) == fresh
         assert len(server.requests) == 2
         # Neither overwrote the other: a rerun replays both.
-        rerun = client(server, cache_dir=tmp_path)
-        assert rerun.complete(MESSAGES, **asked) == cached
-        assert rerun.complete(MESSAGES, **other) == fresh
+        assert ask(server, asked) == cached
+        assert ask(server, other) == fresh
         assert len(server.requests) == 2
     assert len(list(tmp_path.glob("*.json"))) == 2
 
