@@ -125,6 +125,18 @@ def test_learn_completes_adds_a_skill_and_resumes_without_redoing(
     stored, best = load_policy(checkpoint.parent), load_policy(out / "transfer" / "best")
     assert stored.state_dict().keys() == best.state_dict().keys()
     assert all(torch.equal(v, best.state_dict()[k]) for k, v in stored.state_dict().items())
+    # Measured on the held-out episodes, not on the evaluation episodes that chose best/.
+    from itskill.rl.checkpoint import as_policy
+    from itskill.tasks import get_task
+    from itskill.tasks.evaluate import HELD_OUT_ENVS, HELD_OUT_SEED, evaluate
+
+    again = evaluate(
+        get_task("pickplace_nut_m12"), as_policy(out / "transfer" / "best"), 4,
+        seed=HELD_OUT_SEED, num_envs=HELD_OUT_ENVS,
+    )  # fmt: skip
+    measured = json.loads((out / "evaluation.json").read_text())
+    for key in ("outcomes", "mean_length", "mean_stages_done", "stage_steps"):
+        assert measured[key] == again.to_dict()[key], key  # each episode's own, not the run's
 
     md = (out / "report.md").read_text()
     for section in ("## Plan", "## Generated reward", "## Transfer", "## Evaluation",
