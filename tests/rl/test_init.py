@@ -163,12 +163,17 @@ def test_cli_init_takes_a_skill_by_name_and_its_weights_file(
     import hashlib
 
     monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "home"))
+    # The packaged settings but a critic fitted on 2 episodes, not 64: five runs start below.
+    hyperparams = tmp_path / "hyperparams.toml"
+    packaged = default_path().read_text()
+    assert packaged.count("critic_episodes = 64") == 2
+    hyperparams.write_text(packaged.replace("critic_episodes = 64", "critic_episodes = 2"))
+    quick = ["--steps", "8", "--num-envs", "2", "--demos", "0", "--hyperparams", str(hyperparams)]
     weights = SKILL / "policy.safetensors"
     digest = hashlib.sha256(weights.read_bytes()).hexdigest()
     for n, ref in enumerate((f"skill:{TASK}", str(weights))):
         out = tmp_path / f"run{n}"
-        args = ["train", TASK, "--steps", "8", "--num-envs", "2", "--demos", "0", "--out",
-                str(out), "--init", ref]  # fmt: skip
+        args = ["train", TASK, *quick, "--out", str(out), "--init", ref]
         result = CliRunner().invoke(app, args)
         assert result.exit_code == 0, result.output
         assert json.loads((out / "checkpoint.json").read_text())["init"]["sha256"] == digest
@@ -183,8 +188,7 @@ def test_cli_init_takes_a_skill_by_name_and_its_weights_file(
     cases = ((run / "policy.safetensors", run), ("skill:mine", run), (run, run / "best"))
     for ref, used in cases:
         out = tmp_path / f"from_{str(ref).replace('/', '_').replace(':', '_')}"
-        args = ["train", TASK, "--steps", "8", "--num-envs", "2", "--demos", "0", "--out",
-                str(out), "--init", str(ref)]  # fmt: skip
+        args = ["train", TASK, *quick, "--out", str(out), "--init", str(ref)]
         result = CliRunner().invoke(app, args)
         assert result.exit_code == 0, result.output
         recorded = json.loads((out / "checkpoint.json").read_text())["init"]
