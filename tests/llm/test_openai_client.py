@@ -369,9 +369,7 @@ def test_cache_does_not_replay_a_request_that_differs(
         # A new client each time, so each request is its first occurrence: a cache key that left
         # the difference out would replay the cached replies.
         settings = {k: v for k, v in request.items() if k not in ("model", "messages")}
-        c = OpenAIClient(
-            request["model"], base_url=server.base_url, retry=FAST, cache_dir=tmp_path
-        )
+        c = OpenAIClient(request["model"], base_url=server.base_url, retry=FAST, cache_dir=tmp_path)
         return c.complete(request["messages"], **settings)
 
     with FakeOpenAIServer(["one", "two", "three", "four"]) as server:

@@ -51,6 +51,9 @@ def test_a_part_fits_the_fixtures_it_goes_onto_or_into():
     # Within a float's rounding of the thread still fits (the thread coupling's own rule).
     assert fits(nut, BoltSpec(**(BOLT | {"pitch": 0.00175 + 1e-13})))
     assert not fits(nut, BoltSpec(**(BOLT | {"thread_diameter": 0.016, "pitch": 0.002})))
+    # One size apart each: a fine-pitch bolt of the nut's diameter, a thicker one of its pitch.
+    assert not fits(nut, BoltSpec(**(BOLT | {"pitch": 0.00125})))
+    assert not fits(nut, BoltSpec(**(BOLT | {"thread_diameter": 0.014})))
     assert not fits(nut, round_hole) and not fits(round_peg, bolt)
     assert not fits(rect_peg, round_hole)
     assert not fits(PegSpec(name="w", shape="round", diameter=0.006, length=0.05), round_hole)
@@ -61,3 +64,9 @@ def test_a_part_fits_the_fixtures_it_goes_onto_or_into():
     # Not even where the bore's float rounds a hair above the peg (0.002 + 2 * 0.0007).
     tight = HoleSpec(**(HOLE | {"diameter": 0.002, "clearance": 0.0007}))
     assert not fits(PegSpec(name="w", shape="round", diameter=0.0034, length=0.05), tight)
+    # A rectangular bore, 17 x 11 mm with its clearance: each side of the peg is checked.
+    rect_hole = HoleSpec(name="rh", shape="rect", width=0.016, depth=0.01, clearance=0.0005,
+                         hole_depth=0.02)  # fmt: skip
+    assert fits(rect_peg, rect_hole)
+    assert not fits(PegSpec(**(PEG | {"width": 0.017})), rect_hole)
+    assert not fits(PegSpec(**(PEG | {"depth": 0.011})), rect_hole)

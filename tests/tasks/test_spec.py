@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -285,15 +286,20 @@ def test_a_part_measured_against_a_fixture_it_does_not_fit_is_refused(tmp_path, 
     load_task_file(write(tmp_path, beside), parts)
 
 
-def test_a_peg_started_in_a_hole_it_does_not_fit_is_refused(tmp_path, parts):
-    # It started stuck in the middle of a bore narrower than itself.
+@pytest.mark.parametrize("hole", ["hole_round_4mm", "hole_rect_14mm"])
+def test_a_peg_started_in_a_hole_it_does_not_fit_is_refused(tmp_path, parts, hole):
+    # It started stuck in the middle of a bore narrower than itself: a bore of another shape,
+    # or of its own shape 2 mm narrower than the 16 mm peg.
+    narrow = replace(parts["hole_rect_16mm"], name="hole_rect_14mm", width=0.014)
     text = (
         VALID.replace('objects = ["nut_m12"]', 'objects = ["peg_rect_16mm"]')
-        .replace('part = "bolt_m12"', 'part = "hole_round_4mm"')
+        .replace('part = "bolt_m12"', f'part = "{hole}"')
         .replace('{ mode = "table", x = [0.45, 0.58], y = [-0.14, -0.02] }', '{ mode = "hole" }')
     )
     with pytest.raises(TaskFileError, match=r"init.objects\[0\].mode.*peg_rect_16mm does not fit"):
-        load_task_file(write(tmp_path, text), parts)
+        load_task_file(write(tmp_path, text), parts | {narrow.name: narrow})
+    wide = text.replace(f'part = "{hole}"', 'part = "hole_rect_16mm"')
+    load_task_file(write(tmp_path, wide), parts)  # its own hole takes it
 
 
 def test_a_stage_over_a_hole_that_stops_holding_before_the_insert_does_is_refused(tmp_path, parts):
