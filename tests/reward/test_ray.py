@@ -22,7 +22,19 @@ def local_ray():
     ray.shutdown()
 
 
-def test_ray_executor_trains_the_candidates(tmp_path: Path, local_ray, quiet) -> None:
+def test_ray_executor_trains_the_candidates(
+    tmp_path: Path, local_ray, quiet, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import itskill.reward.search as search_module
+
+    executors: list[str] = []
+    real = search_module.run_jobs
+
+    def recorded(fn, jobs, executor, workers, address):
+        executors.append(executor)
+        return real(fn, jobs, executor, workers, address)
+
+    monkeypatch.setattr(search_module, "run_jobs", recorded)
     run = tmp_path / "run"
     with FakeOpenAIServer([GOOD, CONSTANT]) as server:
         result = generate_reward(
@@ -39,6 +51,8 @@ def test_ray_executor_trains_the_candidates(tmp_path: Path, local_ray, quiet) ->
         result_file = run / "iter_0" / f"sample_{k}" / "result.json"
         assert json.loads(result_file.read_text())["env_steps"] == 128
     assert len(list((run / "final").glob("generated_*_seed1/result.json"))) == 1
+    # Every training went through Ray: the candidates' and the final reward's.
+    assert executors and set(executors) == {"ray"}
 
 
 def test_a_relative_run_directory_reaches_ray_workers_as_an_absolute_path(
@@ -52,6 +66,7 @@ def test_a_relative_run_directory_reaches_ray_workers_as_an_absolute_path(
     outs: list[Path] = []
 
     def on_this_machine(fn, jobs, executor, workers, address):
+        assert executor == "ray"
         outs.extend(Path(job.out) for (job,) in jobs)
         return run_jobs(fn, jobs, "local", 1, None)
 
