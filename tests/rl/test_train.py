@@ -145,7 +145,11 @@ def test_the_best_evaluated_policy_is_kept_across_a_resume(
 ) -> None:
     """best/ holds the weights of the highest evaluation (then most subtasks, later on a tie),
     and a resumed run only replaces it with one that matches or beats it."""
-    scores = iter([(0.25, 0.5), (0.75, 0.8), (0.75, 0.8), (0.5, 0.9), (0.5, 1.0), (0.75, 0.9)])
+    scores = iter(
+        [(0.25, 0.5), (0.75, 0.8), (0.75, 0.8), (0.5, 0.9)]  # the first session
+        + [(0.5, 1.0), (0.5, 0.9)]  # the second: below the earlier best, which stays
+        + [(0.75, 0.9)]  # the third: as successful, more subtasks: it replaces it
+    )
     evaluated: list[torch.Tensor] = []  # the weights each evaluation saw, every 64 env-steps
 
     def fake_evaluate(spec, actor, episodes, seed, num_envs):
@@ -168,8 +172,11 @@ def test_the_best_evaluated_policy_is_kept_across_a_resume(
     assert not torch.equal(evaluated[1], evaluated[2])
 
     second = _train(out, reach_reward, 384, eval_every=64, eval_episodes=2)
-    assert second.best is not None and second.best["env_steps"] == 384
-    assert torch.equal(load_policy(out / "best").action_net.weight, evaluated[5])
+    assert second.best is not None and second.best["env_steps"] == 192
+    assert torch.equal(load_policy(out / "best").action_net.weight, evaluated[2])
+    third = _train(out, reach_reward, 448, eval_every=64, eval_episodes=2)
+    assert third.best is not None and third.best["env_steps"] == 448
+    assert torch.equal(load_policy(out / "best").action_net.weight, evaluated[6])
 
 
 @pytest.mark.parametrize("selection", [{"env_steps": 64}, {"env_steps": 64, "success": "0.5"}])
