@@ -13,6 +13,7 @@ import sys
 import time
 import warnings
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 
@@ -78,6 +79,25 @@ def test_the_ray_executor_without_ray_is_refused_before_any_work(monkeypatch) ->
 def test_a_ray_address_with_the_local_executor_is_refused() -> None:
     with pytest.raises(ExecutorError, match="needs the Ray executor"):
         list(run_jobs(math.sqrt, JOBS, "local", 2, "ray://head:10001"))
+
+
+@pytest.mark.parametrize("address", ["", "  "])
+def test_an_empty_ray_address_is_refused_before_any_work(tmp_path, address: str) -> None:
+    # A variable that expanded to nothing: the run was recorded and its first samples paid for
+    # before Ray refused the address.
+    pytest.importorskip("ray")
+    from typer.testing import CliRunner
+
+    from itskill.cli import app
+
+    with pytest.raises(ExecutorError, match="the Ray address is empty"):
+        check_executor("ray", None, address)
+    out = tmp_path / "run"
+    smoke = Path(__file__).parents[1] / "experiments" / "smoke.toml"
+    args = ["experiment", "run", str(smoke), "--executor", "ray", "--ray-address"]
+    result = CliRunner().invoke(app, [*args, address, "--out", str(out)])
+    assert result.exit_code != 0 and "the Ray address is empty" in " ".join(result.output.split())
+    assert not out.exists()
 
 
 def test_an_address_where_no_ray_listens_is_refused_in_seconds() -> None:

@@ -86,8 +86,8 @@ def check_executor(
     executor: str, workers: int | None = None, ray_address: str | None = None
 ) -> None:
     """Raise :class:`ExecutorError` now for settings :func:`run_jobs` would fail on later: an
-    unknown executor, fewer than one worker, the Ray executor without Ray installed, a Ray
-    address with the local executor, or one where
+    unknown executor, fewer than one worker, the Ray executor without Ray installed, an empty
+    Ray address, a Ray address with the local executor, or one where
     nothing listens (Ray itself retries such an address for minutes before giving up)."""
     if executor not in EXECUTORS:
         raise ExecutorError(f"unknown executor {executor!r}; expected one of {EXECUTORS}")
@@ -97,6 +97,12 @@ def check_executor(
         _ray()  # before a search plans and pays for its first samples
     if ray_address is None:
         return
+    if not ray_address.strip():
+        # A variable that expanded to nothing: Ray fails on it only once the first jobs start.
+        raise ExecutorError(
+            "the Ray address is empty: leave --ray-address out for a local Ray instance, or "
+            "name the cluster's head node (HOST:PORT, ray://HOST:PORT or auto)"
+        )
     if executor == "local":
         # Silently training on this machine when the user named a cluster would waste hours.
         raise ExecutorError(

@@ -146,9 +146,11 @@ def test_the_best_evaluated_policy_is_kept_across_a_resume(
     """best/ holds the weights of the highest evaluation (then most subtasks, later on a tie),
     and a resumed run only replaces it with one that matches or beats it."""
     scores = iter(
-        [(0.25, 0.5), (0.75, 0.8), (0.75, 0.8), (0.5, 0.9)]  # the first session
-        + [(0.5, 1.0), (0.5, 0.9)]  # the second: below the earlier best, which stays
-        + [(0.75, 0.9)]  # the third: as successful, more subtasks: it replaces it
+        [
+            *[(0.25, 0.5), (0.75, 0.8), (0.75, 0.8), (0.5, 0.9)],  # the first session
+            *[(0.5, 1.0), (0.5, 0.9)],  # the second: below the earlier best, which stays
+            (0.75, 0.9),  # the third: as successful, more subtasks: it replaces it
+        ]
     )
     evaluated: list[torch.Tensor] = []  # the weights each evaluation saw, every 64 env-steps
 
