@@ -703,6 +703,27 @@ def test_render_refuses_to_overwrite_a_video_unless_forced(tmp_path):
     assert out.read_bytes() == b"another run's film"
 
 
+def test_render_refuses_a_folder_or_another_suffix_before_offering_force(tmp_path):
+    # It said "exists; pass --force", and with --force that the video must be a .mp4 file.
+    for out in (tmp_path, tmp_path / "film.avi"):
+        result = runner.invoke(app, ["render", "reach_nut_m12", "--out", str(out)])
+        assert result.exit_code == 2
+        assert "mustbea.mp4filepath" in unspaced(result.output.replace("│", ""))
+
+
+@pytest.mark.parametrize("name", ["reach_nut_m12.mp4", "reach_nut_m12_eval.json"])
+def test_demo_refuses_to_overwrite_its_files_unless_forced(tmp_path, name):
+    # It replaced them without a word, after the rollouts.
+    (tmp_path / name).write_text("mine")
+    args = ["demo", "--task", "reach_nut_m12", "--episodes", "1", "--out", str(tmp_path)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and "exists; pass --force to overwrite it" in flat(result.output)
+    assert (tmp_path / name).read_text() == "mine"
+    forced = runner.invoke(app, [*args, "--force"])
+    assert forced.exit_code == 0, forced.output
+    assert json.loads((tmp_path / "reach_nut_m12_eval.json").read_text())["episodes"] == 1
+
+
 def test_an_upper_case_task_id_gets_the_ids_it_is_near():
     result = runner.invoke(app, ["tasks", "show", "PICK_NUT_M12"])
     assert result.exit_code == 2

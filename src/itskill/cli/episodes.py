@@ -27,6 +27,7 @@ from itskill.cli.common import (
     policy_ref,
     policy_source,
     print_json,
+    run_dir_option,
     user_errors,
 )
 from itskill.files import write_json
@@ -163,6 +164,10 @@ def render_cmd(
     from itskill.tasks import get_task, render
 
     _check_camera(camera)
+    try:
+        render.check_video_path(out)
+    except render.RenderError as err:
+        raise typer.BadParameter(str(err), param_hint="--out") from err
     if out.exists() and not force:
         # Checked before the rollouts: a mistyped --out would replace another video, perhaps
         # the only film of a run since deleted.
@@ -188,9 +193,12 @@ def demo(
         str, typer.Option(help="Task id (`itskill tasks list` shows them).")
     ] = "pick_nut_m12",
     episodes: Annotated[int, episodes_option("Episodes to evaluate.")] = 100,
-    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/demo"),
+    out: Annotated[Path, run_dir_option("Output folder.")] = Path("runs/demo"),
     seed: SeedOpt = 0,
     camera: CameraOpt = "front",
+    force: Annotated[
+        bool, typer.Option("--force", help="Overwrite the task's video and summary in --out.")
+    ] = False,
 ) -> None:
     """Check the simulator on this machine: a task's scripted controller, filmed and evaluated.
 
@@ -200,18 +208,22 @@ def demo(
     from itskill.tasks.evaluate import evaluate
 
     _check_camera(camera)
+    video_path, summary = out / f"{task}.mp4", out / f"{task}_eval.json"
+    taken = [p for p in (video_path, summary) if p.exists()]
+    if taken and not force:
+        # Before the rollouts, as `render` does: the files may be a user's own.
+        raise typer.BadParameter(
+            f"{taken[0]} exists; pass --force to overwrite it", param_hint="--out"
+        )
     with user_errors():
         spec = get_task(task)
         try:
-            video = render.record(
-                spec, SCRIPTED, out / f"{task}.mp4", episodes=1, seed=seed, camera=camera
-            )
+            video = render.record(spec, SCRIPTED, video_path, episodes=1, seed=seed, camera=camera)
             console.print(f"video: {video.path}", markup=False)
         except render.RenderError as err:
             err_console.print(f"[yellow]no video:[/yellow] {escape(str(err))}", highlight=False)
         result = evaluate(spec, SCRIPTED, episodes=episodes, seed=seed)
-    _print_eval(result, spec, as_json=False)
-    out.mkdir(parents=True, exist_ok=True)
-    summary = out / f"{task}_eval.json"
-    write_json(summary, result.to_dict())
+        _print_eval(result, spec, as_json=False)
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(summary, result.to_dict())
     console.print(f"summary: {summary}", markup=False)

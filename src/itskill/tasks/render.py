@@ -51,6 +51,16 @@ class VideoResult:
     successes: tuple[bool, ...]
 
 
+def check_video_path(out: str | Path) -> Path:
+    """``out`` as a path a video can be written to; :class:`RenderError` for anything that is
+    not a .mp4 file path (found out only after the rollout otherwise, as an encoder's cryptic
+    error)."""
+    out = Path(out)
+    if out.suffix.lower() != ".mp4" or out.is_dir():
+        raise RenderError(f"{out}: the video must be a .mp4 file path")
+    return out
+
+
 def record(
     spec: TaskSpec,
     policy: str | Path | Policy | PolicyFactory,
@@ -68,10 +78,7 @@ def record(
     """
     if camera not in CAMERAS:
         raise ValueError(f"unknown camera {camera!r}; expected one of {CAMERAS}")
-    out = Path(out)
-    if out.suffix.lower() != ".mp4" or out.is_dir():
-        # Found out only after the rollout otherwise, as an encoder's cryptic error.
-        raise RenderError(f"{out}: the video must be a .mp4 file path")
+    out = check_video_path(out)
     env = make_batch_env(spec, num_envs=1, seed=seed, n_threads=1)
     fps = round(1 / env.sim.control_dt)
     renderer = None
