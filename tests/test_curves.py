@@ -53,3 +53,20 @@ def test_read_curve_errors_name_the_file_and_problem(tmp_path):
     (tmp_path / "eval.csv").write_bytes(b"env_steps,wall_s,success\n100,1,0.5\n\xff\xfe,2,0.6\n")
     with pytest.raises(CurveError, match=r"eval\.csv: not UTF-8 text \(byte 35\)"):
         read_curve(tmp_path, 100)
+
+
+@pytest.mark.parametrize(
+    ("rows", "problem"),
+    [
+        # A success of 7.5 reached the report as 148% over five seeds.
+        ("100,1,0.5\n200,2,7.5\n", r"line 3: success 7.5 is not a fraction in \[0, 1\]"),
+        ("100,1,-0.1\n", r"line 2: success -0.1 is not"),
+        ("100,1,nan\n", r"line 2: success nan is not"),
+        ("-100,1,0.5\n", "line 2: env_steps and wall_s must be numbers >= 0"),
+        ("100,inf,0.5\n", "line 2: env_steps and wall_s must be numbers >= 0"),
+    ],
+)
+def test_read_curve_refuses_values_no_evaluation_writes(tmp_path, rows, problem):
+    (tmp_path / "eval.csv").write_text("env_steps,wall_s,success\n" + rows)
+    with pytest.raises(CurveError, match=problem):
+        read_curve(tmp_path, 1000)

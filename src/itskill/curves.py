@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -119,6 +120,13 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
     if not raw:
         # A run stopped before its first evaluation: no curve to plot or reach a threshold on.
         raise NoEvaluationsError(path, "no evaluations")
+    for row, (step, wall, value) in enumerate(raw, start=2):  # the header is line 1
+        # A value no evaluation writes (an edit, a damaged cell) reached the report as a
+        # success of 150%.
+        if not (math.isfinite(step) and step >= 0 and math.isfinite(wall) and wall >= 0):
+            raise CurveError(path, f"line {row}: env_steps and wall_s must be numbers >= 0")
+        if not 0.0 <= value <= 1.0:
+            raise CurveError(path, f"line {row}: {column} {value:g} is not a fraction in [0, 1]")
     kept: list[list[float]] = []  # [step, wall over the run, success]
     offset = 0.0
     for step, wall, success in raw:
