@@ -97,14 +97,26 @@ def is_unusable_path(err: OSError) -> bool:
     return isinstance(err, UNUSABLE_PATH_ERRORS) or err.errno in UNUSABLE_PATH_ERRNOS
 
 
+def decode_utf8(data: bytes, path: str | Path) -> str:
+    """``data``, read from ``path``, as text; :class:`CorruptFileError` naming the file and the
+    first bad byte if it is not UTF-8 (an editor's byte-order mark is not text)."""
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise CorruptFileError(path, f"not UTF-8 text (byte {err.start})") from err
+
+
+def read_utf8(path: str | Path) -> str:
+    """The text in ``path``: :func:`decode_utf8` of its bytes."""
+    return decode_utf8(Path(path).read_bytes(), path)
+
+
 def read_json(path: Path) -> Any:
     """The JSON in ``path``; :class:`CorruptFileError` naming the file if it is not valid JSON."""
     try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
+        return json.loads(read_utf8(path))
     except json.JSONDecodeError as err:
         raise CorruptFileError(path, f"not valid JSON ({err})") from err
-    except UnicodeDecodeError as err:
-        raise CorruptFileError(path, f"not UTF-8 text (byte {err.start})") from err
 
 
 def read_json_or_none(path: Path) -> Any:

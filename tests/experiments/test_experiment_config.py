@@ -262,12 +262,13 @@ def test_invalid_fields_are_named(tmp_path, edit, where, problem):
         ("import os\nos.system('touch pwned')\n" + GOOD_REWARD, "import 'os' is not allowed"),
         (GOOD_REWARD.replace("np.zeros", "np.load('x.npy') + np.zeros"), "np.load"),
         ("\n", "the file is empty"),
+        (b"\xff\xfe", "not UTF-8 text (byte 0)"),
     ],
 )
 def test_a_reward_file_training_would_refuse_is_refused_at_load(
     tmp_path, monkeypatch, body, problem
 ):
-    (tmp_path / "r.py").write_text(body)
+    (tmp_path / "r.py").write_bytes(body if isinstance(body, bytes) else body.encode())
     monkeypatch.chdir(tmp_path)  # where a file the code wrote would land
     text = MINIMAL.replace("steps = 1000", 'steps = 1000\nreward = {pick_nut_m12 = "r.py"}')
     path = write(tmp_path, text)

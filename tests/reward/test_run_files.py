@@ -238,6 +238,15 @@ def test_a_finished_search_without_its_chosen_reward_says_where_it_is(
         load_search(run)
 
 
+def test_a_chosen_reward_that_is_not_text_is_named(finished_run: Path, tmp_path: Path) -> None:
+    # `reward show` said only "'utf-8' codec can't decode byte 0xff", naming no file.
+    run = _copy(finished_run, tmp_path / "run")
+    (run / "best_reward.py").write_bytes(b"\xff\xfe")
+    code, output = _show(run)
+    assert code == 2 and "best_reward.py: not UTF-8 text (byte 0)" in output, output
+    assert "Traceback" not in output
+
+
 def test_a_search_in_use_is_refused_before_its_network_is_built(tmp_path: Path) -> None:
     # `--transfer` builds the candidates' network into the run before the search starts: a
     # second session wrote it (and asked the model for its analysis) while the first ran.

@@ -53,6 +53,8 @@ def test_resume_truncation_drops_a_row_cut_short_by_a_crash(tmp_path: Path) -> N
         writer.write({"step": step, "wall_s": 0.1 * step, "success_rate": 0.5})
     with open(writer.jsonl_path, "a") as fh:
         fh.write('{"step": 256, "wall')
+    with open(writer.jsonl_path, "ab") as fh:
+        fh.write(b'\n{"step": 320\xff\xfe}')  # and a damaged byte: a UnicodeDecodeError before
     with open(writer.csv_path, "a") as fh:
         fh.write("256,2")
     MetricsWriter(tmp_path).truncate_after(128)

@@ -612,7 +612,8 @@ def _copy_results(config: ExperimentConfig, run_dir: Path, out: Path) -> None:
 def _pending_line(cell: Cell, run_dir: Path) -> str:
     out = cell.dir(run_dir)
     if (out / ERROR_FILE).is_file():
-        return f"{cell.name}: failed: {(out / ERROR_FILE).read_text().strip()}"
+        error = (out / ERROR_FILE).read_text(encoding="utf-8", errors="replace").strip()
+        return f"{cell.name}: failed: {error}"
     if (out / RESULT_FILE).is_file():
         return (
             f"{cell.name}: its {RESULT_FILE} cannot be read (damaged or edited), so the run is not "

@@ -18,6 +18,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from itskill.files import CorruptFileError, decode_utf8, read_utf8
+
 if TYPE_CHECKING:
     from itskill.reward.sandbox import SandboxConfig
     from itskill.rl.train import TrainResult
@@ -105,9 +107,9 @@ def check_reward_file(
 
     config = load_search_config()
     try:
-        code = _text(Path(reward_file).read_bytes())
-    except UnicodeDecodeError as err:
-        return f"not UTF-8 text ({err.reason} at byte {err.start})"
+        code = read_utf8(reward_file)
+    except CorruptFileError as err:
+        return err.problem
     if not code.strip():
         return "the file is empty: it must define compute_reward(ctx)"
     contexts = probe_contexts(task, config.probe_envs, config.probe_steps)
@@ -126,7 +128,7 @@ def _train(
     from itskill.transfer import train_transfer
 
     source = Path(reward_path).read_bytes()
-    fn = compile_reward(_text(source), sandbox)
+    fn = compile_reward(decode_utf8(source, reward_path), sandbox)
     meta = {
         "kind": kind,
         "path": reward_path,
@@ -135,8 +137,3 @@ def _train(
     }
     train_kwargs.setdefault("console", Console(emoji=False))
     return train_transfer(reward=RewardSource(fn, meta), **train_kwargs)
-
-
-def _text(source: bytes) -> str:
-    """A reward file's code; a byte-order mark an editor wrote is not code."""
-    return source.decode("utf-8-sig")

@@ -49,6 +49,7 @@ from itskill.files import (
     foreign_entries,
     held_alone,
     read_json,
+    read_utf8,
     some_of,
     write_json,
     write_text,
@@ -364,7 +365,7 @@ def _write_sample(sample_dir: Path, sample: Sample) -> None:
     if path.is_file() and read_json(path) == json.loads(json.dumps(status)):
         return  # a resumed run regenerated the same sample: leave the files as they are
     code = sample_dir / "reward.py"
-    if code.is_file() and code.read_text() != sample.code + "\n":
+    if code.is_file() and code.read_bytes() != (sample.code + "\n").encode():
         # Replayed differently (a probe timed out this time, the model was asked again): the
         # training of the old code must not be credited to the new.
         (sample_dir / RESULT_FILE).unlink(missing_ok=True)
@@ -985,7 +986,7 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
             "iterations": iterations,
             "summary": summary,
             "usage": optional(USAGE_FILE, _USAGE),
-            "best_code": (run_dir / BEST_FILE).read_text()
+            "best_code": read_utf8(run_dir / BEST_FILE)
             if (run_dir / BEST_FILE).is_file()
             else None,
         }

@@ -76,7 +76,8 @@ class MetricsWriter:
         """
         kept: list[str] = []
         if self.jsonl_path.exists():
-            for line in self.jsonl_path.read_text().splitlines():
+            # A damaged byte spoils its line only, which json.loads then refuses.
+            for line in self.jsonl_path.read_text(encoding="utf-8", errors="replace").splitlines():
                 try:
                     if json.loads(line)["step"] <= step:
                         kept.append(line)
