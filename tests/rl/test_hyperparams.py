@@ -345,3 +345,7 @@ def test_a_ppo_rollout_of_one_sample_is_refused() -> None:
     demos = load_hyperparams("nutbolt", "ppo", overrides={"demos": {"batch_size": 1}})
     assert demos.demos.batch_size == 1
     assert load_hyperparams("nutbolt", "a2c", overrides={"n_steps": 1, "num_envs": 1}).num_envs == 1
+    # A2C normalising its advantages over one sample: NaN actions after the first update.
+    one = {"n_steps": 1, "num_envs": 1, "normalize_advantage": True}
+    with pytest.raises(HyperparamError, match="A2C needs 2 or more samples a rollout to normal"):
+        load_hyperparams("nutbolt", "a2c", overrides=one)

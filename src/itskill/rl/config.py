@@ -429,20 +429,22 @@ def load_hyperparams(
         table = {k: v for k, v in overrides.items() if k in _FAMILY_KEYS or k in _SUB_TABLES}
         table[algo] = {k: v for k, v in overrides.items() if k not in table}
         hp = _layer("overrides", "overrides", table, algo, _FIELDS, hp)
+    rollout = hp.algo_config.n_steps * hp.num_envs
+    # PPO always normalises a minibatch's advantages, A2C when asked: over one sample the
+    # standard deviation is 0, and the first update turns the policy into NaN. The two values
+    # may come from different tables (the family's, the task's) or the overrides.
+    normalises = isinstance(hp.algo_config, PPOConfig) or hp.algo_config.normalize_advantage
+    if rollout < 2 and normalises:
+        raise HyperparamError(
+            path,
+            "n_steps x num_envs",
+            f"{algo.upper()} needs 2 or more samples a rollout to normalise advantages; "
+            f"{family}'s settings for {task or algo} give n_steps {hp.algo_config.n_steps} x "
+            f"num_envs {hp.num_envs}" + (" (the overrides included)" if overrides else ""),
+        )
     if isinstance(hp.algo_config, PPOConfig):
         # Fewer environments than the family's (a small machine, a reward-search candidate)
         # shrink the rollout below a minibatch: train on the whole rollout at once instead.
-        rollout = hp.algo_config.n_steps * hp.num_envs
         batch = min(hp.algo_config.batch_size, rollout)
-        if rollout < 2:
-            # A minibatch of one sample, as above. The two values may come from different
-            # tables (the family's, the task's) or the overrides.
-            raise HyperparamError(
-                path,
-                "n_steps x num_envs",
-                f"PPO needs 2 or more samples a rollout; {family}'s settings for {task or algo} "
-                f"give n_steps {hp.algo_config.n_steps} x num_envs {hp.num_envs}"
-                + (" (the overrides included)" if overrides else ""),
-            )
         hp = replace(hp, algo_config=replace(hp.algo_config, batch_size=batch))
     return hp
