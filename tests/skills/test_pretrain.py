@@ -176,6 +176,28 @@ def test_pretrain_config_refuses_no_seeds_and_no_selection_episodes() -> None:
     # Above 1 every seed trained and none could be kept.
     with pytest.raises(ValueError, match=r"min_success must be in \[0, 1\], got 2"):
         PretrainConfig(min_success=2.0)
+    # The last seed's run failed on it, after the others had trained.
+    with pytest.raises(ValueError, match="go past the largest seed"):
+        PretrainConfig(seed=2**32 - 1, seeds=2)
+    with pytest.raises(ValueError, match="seeds must be 1 to 1000"):
+        PretrainConfig(seeds=10**14)
+
+
+def test_pretrain_refuses_a_folder_that_is_no_library_before_training(tmp_path, monkeypatch):
+    # Found out after the skills had trained, and their files written into the folder.
+    from itskill.skills import pretrain as pretrain_module
+    from itskill.skills.manifest import ManifestError
+
+    monkeypatch.setattr(pretrain_module, "run_jobs", lambda *a: pytest.fail("trained"))
+    foreign = tmp_path / "app"
+    foreign.mkdir()
+    (foreign / "manifest.json").write_text('{"name": "my web app"}')
+    with pytest.raises(ManifestError, match="expected an object with a 'skills' list"):
+        pretrain(["reach_nut_m12"], PretrainConfig(), tmp_path / "runs", foreign)
+    (tmp_path / "runs.txt").write_text("mine")
+    with pytest.raises(NotADirectoryError):
+        pretrain(["reach_nut_m12"], PretrainConfig(), tmp_path / "runs.txt", tmp_path / "lib")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["app", "runs.txt"]
 
 
 def test_a_warm_started_skill_records_the_demonstrations_env_steps(tmp_path, monkeypatch) -> None:

@@ -26,13 +26,14 @@ round before it, and the paired comparison).
 
 from __future__ import annotations
 
+import errno
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from itskill.executors import Executor, run_jobs
 from itskill.files import read_json, write_json
-from itskill.limits import check_steps
+from itskill.limits import SEED_COUNT_MAX, SEED_MAX, check_steps
 from itskill.reward_contract import EXPERT
 from itskill.rl.checkpoint import (
     POLICY_FILE,
@@ -108,8 +109,14 @@ class PretrainConfig:
         if self.algo not in ALGOS:  # checked here, not in each worker after the pool started
             raise ValueError(f"algo must be one of {', '.join(ALGOS)}, got {self.algo!r}")
         check_steps(self.steps)
-        if self.seeds < 1:
-            raise ValueError(f"seeds must be at least 1, got {self.seeds}")
+        if not 1 <= self.seeds <= SEED_COUNT_MAX:
+            raise ValueError(f"seeds must be 1 to {SEED_COUNT_MAX}, got {self.seeds}")
+        if self.seed + self.seeds - 1 > SEED_MAX:
+            # Found out otherwise by the last seed's run, after the others trained.
+            raise ValueError(
+                f"seeds {self.seed} to {self.seed + self.seeds - 1} go past the largest seed, "
+                f"{SEED_MAX}: give a smaller seed or fewer seeds"
+            )
         if self.select_episodes < 1:
             raise ValueError(f"select_episodes must be at least 1, got {self.select_episodes}")
         if not 0.0 <= self.min_success <= 1.0:
@@ -294,6 +301,11 @@ def pretrain(
     # Unknown names fail before any training starts; a task named twice would train twice at
     # once into one folder.
     tasks = list(dict.fromkeys(get_task(t).id for t in tasks))
+    # A library directory's manifest, and a runs folder that is a file, are found out
+    # otherwise only once the skills have trained.
+    read_manifest_or_empty(library_dir)
+    if Path(runs_dir).exists() and not Path(runs_dir).is_dir():
+        raise NotADirectoryError(errno.ENOTDIR, "not a directory", str(runs_dir))
     Path(library_dir).mkdir(parents=True, exist_ok=True)
     budgets = budgets or {}
     jobs = [
