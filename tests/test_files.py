@@ -230,3 +230,14 @@ def test_a_file_where_the_lock_folder_goes_is_said_so(tmp_path, monkeypatch) -> 
         f"a file, where the folder of itskill's locks goes; set {LOCK_DIR_ENV} to a folder of "
         "your own, the same in every session on this machine"
     )
+
+
+def test_a_folder_where_a_file_is_written_is_named_not_the_temporary_file(tmp_path) -> None:
+    # "cannot use .../.report.md.23194.tmp: Is a directory" named a file the user never made.
+    from itskill.files import path_error_message, write_json
+
+    (tmp_path / "report.json").mkdir()
+    with pytest.raises(IsADirectoryError) as err:
+        write_json(tmp_path / "report.json", {"a": 1})
+    assert path_error_message(err.value) == f"cannot use {tmp_path / 'report.json'}: Is a directory"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]  # no temporary left

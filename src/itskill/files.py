@@ -40,7 +40,12 @@ def replaced_whole(path: Path, keep_suffix: bool = False) -> Iterator[Path]:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp{suffix}")  # see is_partial_write
     try:
         yield tmp
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as err:
+            # The error names the temporary file first; the path the caller asked for is the
+            # one to tell the user about (a folder standing where the file goes, say).
+            raise type(err)(err.errno, err.strerror, str(path)) from err
     finally:
         tmp.unlink(missing_ok=True)
 
