@@ -451,3 +451,22 @@ def test_a_damaged_row_is_named_and_a_damaged_vector_embedded_again(home, checkp
     with SkillSpace() as space:
         assert space.remove(1).name == "a"
         assert [s.name for s in space.list()] == ["b"]
+
+
+def test_a_database_another_process_holds_is_said_to_be_in_use(tmp_path, checkpoint) -> None:
+    # It said "check the path, or point ITSKILL_HOME at a writable directory": nothing was wrong
+    # with either.
+    from itskill.skills.store import SkillSpaceConfig
+
+    path = tmp_path / "skills.sqlite"
+    SkillSpace(path).close()
+    holder = sqlite3.connect(path, isolation_level=None)
+    holder.execute("BEGIN EXCLUSIVE")
+    try:
+        with pytest.raises(SkillSpaceError, match="is in use by another process") as err:
+            space = SkillSpace(path, SkillSpaceConfig(busy_timeout_s=0.2))
+            space.add(make_skill("mine", checkpoint))
+        assert "writable directory" not in str(err.value)
+    finally:
+        holder.rollback()
+        holder.close()

@@ -523,6 +523,13 @@ class SkillSpace:
         be opened or created, as a directory or a place without write access; the file is
         read-only, locked past the busy timeout, the disk full) as an OperationalError, which
         moving the file aside would not cure; anything else is damage to the file itself."""
+        if isinstance(err, sqlite3.OperationalError) and "locked" in str(err):
+            # Another process held it past the busy timeout: nothing is wrong with the path.
+            return SkillSpaceError(
+                f"{self.path} is in use by another process (the skill database stayed locked "
+                f"for {self.config.busy_timeout_s:g} s); try again when that itskill command "
+                "has finished"
+            )
         if isinstance(err, sqlite3.OperationalError):
             return SkillSpaceError(
                 f"cannot use {self.path} as the skill database ({err}); check the path, or point "
