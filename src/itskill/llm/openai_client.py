@@ -174,7 +174,8 @@ def _check_base_url(url: str) -> None:
         problem = str(err)
     if problem:
         raise LLMUnavailableError(
-            f"{url!r} is not a usable endpoint URL ({problem}); check --base-url or {BASE_URL_ENV}"
+            f"{url!r} is not a usable endpoint URL ({problem}); check {BASE_URL_ENV} (or "
+            "--base-url of plan and reward generate)"
         )
 
 
@@ -327,7 +328,8 @@ class OpenAIClient(BaseClient):
             )
             raise LLMError(
                 f"{self.base_url} did not answer like an OpenAI-compatible endpoint ({got}); "
-                "check --base-url (or OPENAI_BASE_URL): it should end in /v1"
+                f"check {BASE_URL_ENV} (or --base-url of plan and reward generate): it should "
+                "end in /v1"
             )
         texts = []
         for choice in choices:
@@ -337,8 +339,8 @@ class OpenAIClient(BaseClient):
                 # was cached and cost a regeneration each time.
                 raise LLMError(
                     f"{self.base_url} did not answer like an OpenAI-compatible chat endpoint (a "
-                    "choice without a message); check --base-url (or OPENAI_BASE_URL): it "
-                    "should serve /v1/chat/completions"
+                    f"choice without a message); check {BASE_URL_ENV} (or --base-url of plan and "
+                    "reward generate): it should serve /v1/chat/completions"
                 )
             content = getattr(message, "content", None)
             if content is not None and not isinstance(content, str):
@@ -439,7 +441,8 @@ def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnav
         return LLMUnavailableError(
             f"cannot reach {client.name} at {client.base_url}: connection refused ({gave_up}); "
             "is the server running? Start it (ollama serve, vllm serve MODEL, llama-server) or "
-            f"correct the address (--base-url or {BASE_URL_ENV}), or use " + OFFLINE
+            f"correct the address ({BASE_URL_ENV}, or --base-url of plan and reward generate), "
+            "or use " + OFFLINE
         )
     else:
         what = f"cannot reach {client.name} at {client.base_url}"
