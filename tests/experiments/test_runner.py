@@ -17,6 +17,7 @@ from itskill.experiments.runner import (
     Cell,
     ExperimentRunError,
     cells,
+    finished_result,
     load_cell_results,
     run_experiment,
 )
@@ -788,3 +789,23 @@ def test_pst_added_to_a_run_that_stored_one_source_is_refused_naming_its_sources
     stored = {"pickplace_nut_m12": ["pick_nut_m12", "place_nut_m12"]}
     (run / SOURCES_FILE).write_text(json.dumps(stored))
     assert resolve_all_sources(load_experiment(path), run, path) == stored
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [{"seed": "abc"}, {"seed": None}, {"seed": 7}, {"task": [1]}, {"method": "itn"},
+     {"num_timesteps": -1}, {"final_success": "high"}],
+)  # fmt: skip
+def test_a_result_naming_another_cell_or_of_odd_types_is_unfinished(tmp_path, edit):
+    # `experiment held-out` stopped with a ValueError or TypeError on these, or measured the
+    # directory of the seed the edit named.
+    cell = Cell("reach_nut_m12", "no_transfer", 0)
+    result = {"task": cell.task, "method": cell.method, "seed": 0, "num_timesteps": 256,
+              "final_success": 0.5}  # fmt: skip
+    cell.dir(tmp_path).mkdir(parents=True)
+    (cell.dir(tmp_path) / RESULT_FILE).write_text(json.dumps(result))
+    assert finished_result(cell.dir(tmp_path)) == result
+    assert load_cell_results(tmp_path) == {cell: result}
+    (cell.dir(tmp_path) / RESULT_FILE).write_text(json.dumps(result | edit))
+    assert finished_result(cell.dir(tmp_path)) is None
+    assert load_cell_results(tmp_path) == {}

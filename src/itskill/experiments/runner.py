@@ -30,6 +30,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from itskill.curves import read_curve
+from itskill.datafile import is_count, is_number
 from itskill.executors import check_executor, run_jobs
 from itskill.experiments.analysis import time_to_threshold
 from itskill.experiments.config import (
@@ -775,10 +776,20 @@ def finished_result(out: Path) -> dict[str, Any] | None:
 
     A ``result.json`` that cannot be read (emptied or edited outside itskill: the runner writes it
     whole) counts as unfinished too, so ``--resume`` finishes the cell again from its checkpoint
-    and the report does not count a run it cannot vouch for.
+    and the report does not count a run it cannot vouch for; so does one naming another cell
+    than the directory it lies in.
     """
-    data = read_json_or_none(Path(out) / RESULT_FILE)
-    return data if isinstance(data, dict) and data.keys() >= _RESULT_KEYS else None
+    out = Path(out)
+    data = read_json_or_none(out / RESULT_FILE)
+    if not (isinstance(data, dict) and data.keys() >= _RESULT_KEYS):
+        return None
+    # The cell a result names is the directory's it lies in: an edited seed or task sent the
+    # held-out measurement to another cell's directory, or stopped it with a traceback.
+    own = (out.parent.parent.name, out.parent.name, out.name)
+    named = (data["task"], data["method"], f"seed_{data['seed']}")
+    if named != own or not is_count(data["seed"]) or not is_count(data["num_timesteps"]):
+        return None
+    return data if is_number(data["final_success"]) else None
 
 
 def load_cell_results(run_dir: Path) -> dict[Cell, dict[str, Any]]:
@@ -787,5 +798,5 @@ def load_cell_results(run_dir: Path) -> dict[Cell, dict[str, Any]]:
     for path in sorted((Path(run_dir) / CELLS_DIR).glob(f"*/*/seed_*/{RESULT_FILE}")):
         data = finished_result(path.parent)
         if data is not None:
-            found[Cell(data["task"], data["method"], int(data["seed"]))] = data
+            found[Cell(data["task"], data["method"], data["seed"])] = data
     return found
