@@ -18,6 +18,10 @@ and the controller's IK) and a row of every rollout buffer, and they are stepped
 own threads: the families train with 16, a thousand is already far past the cores that step them,
 and a mistyped 100000000000 crashes every run at allocation instead of failing at load."""
 
+EPISODE_STEPS_MAX = 10_000
+"""The longest episode a task may have, in control steps: the packaged tasks run 50 to 260, and
+a mistyped 100000000000 ran an evaluation's first episode without end and without a word."""
+
 STEPS_MAX = 1_000_000_000
 """The most env-steps of one training run (a training, a transfer run, an experiment's cell, a
 reward candidate): a thousand times the paper's transfer runs (1M). The learning rate decays over

@@ -68,6 +68,9 @@ BROKEN = {
     "unknown_field": (("max_steps = 60", "max_steps = 60\ncolour = 'red'"), "colour", "unknown"),
     "missing_command": (('command = "Pick up the M12 nut"\n', ""), "command", "missing"),
     "wrong_type": (("max_steps = 60", 'max_steps = "ten"'), "max_steps", "int"),
+    # An evaluation's first episode ran without end and without a word.
+    "endless_episode": (("max_steps = 60", "max_steps = 100000000000"), "max_steps", "10,000"),
+    "no_episode": (("max_steps = 60", "max_steps = 0"), "max_steps", "from 1"),
     "unknown_predicate": (('done = "grasped(0)"', 'done = "flying(0)"'), "stages[1]", "flying"),
     "unknown_part": (('objects = ["nut_m12"]', 'objects = ["nut_m99"]'), "objects", "nut_m99"),
     "init_count": (

@@ -23,6 +23,7 @@ from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 from itskill.datafile import DataFileError, check_table, check_type, is_number, read_toml
 from itskill.errors import PicklableError
+from itskill.limits import EPISODE_STEPS_MAX
 from itskill.sim.context import max_grip_offset
 from itskill.sim.controller import ControllerConfig
 from itskill.sim.layout import MAX_STAGES
@@ -481,8 +482,12 @@ def _parse_task(path: Path, index: int, raw: Any, parts: dict[str, Any]) -> Task
             path, f"task {task_id!r}.kind", f"expected one of {_KINDS}, got {kind!r}"
         )
     max_steps = r.get("max_steps", int)
-    if max_steps < 1:
-        raise TaskFileError(path, f"task {task_id!r}.max_steps", "expected a positive integer")
+    if not 1 <= max_steps <= EPISODE_STEPS_MAX:
+        raise TaskFileError(
+            path,
+            f"task {task_id!r}.max_steps",
+            f"expected a whole number of steps from 1 to {EPISODE_STEPS_MAX:,}, got {max_steps}",
+        )
     starts = []
     for k, raw_start in enumerate(r.get("training_starts", list, [])):
         sr = _Reader(path, f"task {task_id!r}.training_starts[{k}]", raw_start)
