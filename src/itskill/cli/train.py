@@ -21,7 +21,7 @@ from itskill.cli.common import (
     steps_option,
     user_errors,
 )
-from itskill.limits import NUM_ENVS_MAX
+from itskill.limits import EPISODES_MAX, NUM_ENVS_MAX
 
 
 def train_cmd(
@@ -45,6 +45,7 @@ def train_cmd(
         int | None,
         typer.Option(
             min=0,
+            max=EPISODES_MAX,
             help="Warm start: clone the task's scripted controller over this many episodes "
             "before RL (0: off; default: the hyper-parameters' demos.episodes).",
         ),
