@@ -349,6 +349,17 @@ def skills_install(
         )
 
 
+_PRETRAIN_FLAGS = {
+    "algo": "--algo",
+    "seeds": "--seed/--seeds",
+    "min_success": "--min-success",
+    "replace_p": "--replace-p",
+    "select_episodes": "--eval-episodes",
+    "steps": "--steps",
+}
+"""The flag behind each :class:`PretrainConfig` field its errors start with."""
+
+
 @skills_app.command("pretrain")
 def skills_pretrain(
     tasks: Annotated[
@@ -479,7 +490,9 @@ def skills_pretrain(
             replace_p=PretrainConfig.replace_p if replace_p is None else replace_p,
         )
     except ValueError as err:  # the config validates what the options' ranges cannot say
-        raise typer.BadParameter(str(err)) from err
+        field = str(err).split(" ", 1)[0]
+        flag = _PRETRAIN_FLAGS.get(field)
+        raise typer.BadParameter(str(err), param_hint=flag) from err
 
     failed: list[str] = []
     mismatched: list[str] = []  # their runs hold other settings: a rerun fails them again
