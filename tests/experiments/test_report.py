@@ -227,8 +227,8 @@ def test_a_run_of_a_task_not_defined_here_still_gets_a_report(run, tmp_path):
 
     kept = tmp_path / "kept"
     shutil.copytree(run, kept)
-    for name in ("config.json", "sources.json"):
-        path = kept / name
+    # Every record names the task as that machine did, the cells' results too.
+    for path in [kept / "config.json", kept / "sources.json", *kept.glob("cells/**/result.json")]:
         path.write_text(path.read_text().replace(TASK, "elsewhere_task"))
     (kept / "cells" / TASK).rename(kept / "cells" / "elsewhere_task")
     files = experiment_report(kept, tmp_path / "report")
