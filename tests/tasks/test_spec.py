@@ -652,6 +652,39 @@ def test_a_start_that_changes_the_hold_keeps_the_symmetric_yaw(tmp_path):
     assert [s.init.objects[0].symmetric_yaw for s in carry.training_starts] == [True]
 
 
+def test_a_start_keeps_the_hole_a_held_peg_starts_in(tmp_path, parts):
+    # The peg is held with its bottom in the second of two holes, turned as that hole is: a
+    # start that changed the hand's yaw alone lost that hole, so its check was made against the
+    # first one and a peg turned off the bore was let through.
+    text = """
+[[task]]
+id = "extract_from_the_second_hole"
+family = "peghole"
+command = "Lift the held rectangular peg out of the second hole"
+skills = ["Remove"]
+actions = ["lift"]
+objects = ["peg_rect_16mm"]
+fixtures = [{ part = "hole_rect_16mm", xy = [0.45, -0.10] },
+            { part = "hole_rect_16mm", xy = [0.55, 0.12], yaw = 0.6 }]
+object_fixture = [0]
+max_steps = 30
+success = "removed(0, 0.02) and grasped(0)"
+stages = [{ name = "lift", done = "removed(0, 0.02) and grasped(0)" }]
+[task.init]
+ee = { yaw = [0.57, 0.63] }
+objects = [{ mode = "gripper", fixture = 1, x = 0.55, y = 0.12, z = [0.034, 0.038] }]
+"""
+    (spec,) = load_task_file(write(tmp_path, text), parts)
+    assert spec.init.objects[0].fixture == 1
+    path = tmp_path / "starts.toml"
+    path.write_text('[[start]]\nname = "turned off"\nee = { yaw = [-0.03, 0.03] }\n')
+    with pytest.raises(TaskFileError, match="wider than its bore"):
+        spec_module.load_starts(path, spec)
+    path.write_text('[[start]]\nname = "higher"\nobjects = [{ z = [0.036, 0.038] }]\n')
+    ((_, higher),) = spec_module.load_starts(path, spec)
+    assert higher.init.objects[0].fixture == 1
+
+
 @pytest.mark.parametrize(
     ("text", "field", "problem"),
     [

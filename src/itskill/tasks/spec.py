@@ -98,6 +98,9 @@ _MODE_FIELDS = {
 }
 """The start fields each mode reads (``BatchEnv._place_object``); a part in the hand takes the
 hand's yaw, a part on its fixture the fixture's place."""
+_FIXTURE_MODES = ("bolt", "hole", "gripper")
+"""The modes whose ``fixture`` counts: the one a part starts on or in, and the hole a held peg
+starts with its bottom in (its turn is checked against that hole's bore)."""
 
 
 class TaskFileError(DataFileError):
@@ -905,7 +908,7 @@ def init_table(init: InitSpec) -> dict[str, Any]:
     # (``itskill tasks show``) would take them for part of the start.
     objects = [
         {"mode": o.mode}
-        | ({"fixture": o.fixture} if o.mode in ("bolt", "hole") else {})
+        | ({"fixture": o.fixture} if o.mode in _FIXTURE_MODES else {})
         | {k: span(getattr(o, k)) for k in sorted(_MODE_FIELDS[o.mode])}
         | ({"symmetric_yaw": True} if o.symmetric_yaw else {})
         for o in init.objects
