@@ -98,6 +98,11 @@ def test_an_empty_ray_address_is_refused_before_any_work(tmp_path, address: str)
     result = CliRunner().invoke(app, [*args, address, "--out", str(out)])
     assert result.exit_code != 0 and "the Ray address is empty" in " ".join(result.output.split())
     assert not out.exists()
+    # A search over a transfer network asked the model for its plan and analysis first.
+    args = ["reward", "generate", "pick_nut_m12", "--transfer", "itn", "--executor", "ray"]
+    result = CliRunner().invoke(app, [*args, "--ray-address", address, "--out", str(out)])
+    assert result.exit_code != 0 and "the Ray address is empty" in " ".join(result.output.split())
+    assert not out.exists()
 
 
 def test_an_address_where_no_ray_listens_is_refused_in_seconds() -> None:

@@ -162,6 +162,7 @@ def generate_cmd(
 ) -> None:
     """Search a reward for a task or command: plan, generate, train candidates, keep the best,
     compare it with the expert reward (Fig. 6). Rerun with --resume RUN after an interruption."""
+    from itskill.executors import check_executor
     from itskill.llm.client import LLMError, Usage
     from itskill.reward.search import (
         CONFIG_FILE,
@@ -208,6 +209,9 @@ def generate_cmd(
                 )
             config = _flags_named(overrides, lambda: load_search_config(config_file, overrides))
             run_dir = out or Path("runs/reward") / _slug(target)
+        # Before the plan and the network's analysis are asked of the model: the search would
+        # refuse an unusable executor only after them.
+        check_executor(config.executor, config.workers, config.ray_address)
         # Held from here, not only by the search: the transfer network is built into the run.
         with search_lock(run_dir):
             if resume is None:

@@ -73,7 +73,7 @@ from itskill.experiments.runner import (
     reward_hashes,
     trained_reward_hashes,
 )
-from itskill.files import CorruptFileError, copy_whole, read_json, read_json_or_none
+from itskill.files import CorruptFileError, copy_whole, read_json, read_json_or_none, read_utf8
 from itskill.reward_contract import EXPERT
 from itskill.rl.checkpoint import META_FILE
 from itskill.rl.eval_callback import read_selection
@@ -1074,7 +1074,7 @@ def learn_report(learn_dir: str | Path, summary: dict[str, Any]) -> ReportFiles:
             + f". Search run: {reward['run_dir']}."
         )
     )
-    doc.add(Code(best_reward_file(learn_dir, reward).read_text(), "python"))
+    doc.add(Code(read_utf8(best_reward_file(learn_dir, reward)), "python"))
     transfer = summary["transfer"]
     doc.add(Heading("Transfer"))
     doc.add(
