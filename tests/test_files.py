@@ -241,3 +241,14 @@ def test_a_folder_where_a_file_is_written_is_named_not_the_temporary_file(tmp_pa
         write_json(tmp_path / "report.json", {"a": 1})
     assert path_error_message(err.value) == f"cannot use {tmp_path / 'report.json'}: Is a directory"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]  # no temporary left
+
+
+def test_a_damaged_byte_after_a_byte_order_mark_is_named_where_it_is(tmp_path) -> None:
+    from itskill.files import CorruptFileError, read_json
+
+    path = tmp_path / "record.json"
+    path.write_bytes(b'\xef\xbb\xbf{"a": "caf\xe9"}')
+    with pytest.raises(CorruptFileError, match=r"not UTF-8 text \(byte 13\)"):
+        read_json(path)
+    path.write_bytes(b'\xef\xbb\xbf{"a": 1}')  # an editor's mark alone is not damage
+    assert read_json(path) == {"a": 1}

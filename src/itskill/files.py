@@ -7,6 +7,7 @@ can trust every file it finds: a ``result.json`` that exists is a finished candi
 
 from __future__ import annotations
 
+import codecs
 import errno
 import hashlib
 import json
@@ -105,10 +106,11 @@ def is_unusable_path(err: OSError) -> bool:
 def decode_utf8(data: bytes, path: str | Path) -> str:
     """``data``, read from ``path``, as text; :class:`CorruptFileError` naming the file and the
     first bad byte if it is not UTF-8 (an editor's byte-order mark is not text)."""
+    bom = len(codecs.BOM_UTF8) if data.startswith(codecs.BOM_UTF8) else 0
     try:
-        return data.decode("utf-8-sig")
+        return data[bom:].decode("utf-8")
     except UnicodeDecodeError as err:
-        raise CorruptFileError(path, f"not UTF-8 text (byte {err.start})") from err
+        raise CorruptFileError(path, f"not UTF-8 text (byte {bom + err.start})") from err
 
 
 def read_utf8(path: str | Path) -> str:

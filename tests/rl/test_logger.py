@@ -102,3 +102,17 @@ def test_rows_dropped_on_resume_keep_a_damaged_byte_for_the_reports_to_name(tmp_
     assert path.read_bytes() == b"env_steps,wall_s,success\r\n64,1,0.\xff\r\n128,2,0.5\r\n"
     with pytest.raises(CurveError, match=r"not UTF-8 text \(byte 33\)"):
         read_curve(tmp_path, 192)
+
+
+def test_resume_drops_a_row_with_a_damaged_byte_rather_than_keeping_it_altered(tmp_path: Path):
+    # Read with the byte replaced, the row was kept with a new column name ("re\ufffdch"),
+    # which the rebuilt metrics.csv then carried beside "reach".
+    writer = MetricsWriter(tmp_path)
+    for step in (64, 128):
+        writer.write({"step": step, "wall_s": 0.5, "success_rate": 0.25, "reach": 1.5})
+    damaged = writer.jsonl_path.read_bytes().replace(b'"reach"', b'"re\xffch"', 1)
+    writer.jsonl_path.write_bytes(damaged)
+    writer.csv_path.write_text("")
+    MetricsWriter(tmp_path).truncate_after(128)
+    assert [r["step"] for r in read_metrics(tmp_path)] == [128]
+    assert writer.csv_path.read_text().splitlines()[0].split(",")[-1] == "reach"

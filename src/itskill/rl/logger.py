@@ -76,12 +76,12 @@ class MetricsWriter:
         """
         kept: list[str] = []
         if self.jsonl_path.exists():
-            # A damaged byte spoils its line only, which json.loads then refuses.
-            for line in self.jsonl_path.read_text(encoding="utf-8", errors="replace").splitlines():
+            for raw in self.jsonl_path.read_bytes().splitlines():
                 try:
+                    line = raw.decode("utf-8")  # a damaged byte drops its line, no other
                     if json.loads(line)["step"] <= step:
                         kept.append(line)
-                except (json.JSONDecodeError, KeyError, TypeError):
+                except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
                     continue  # a line cut short by a crash
             write_text(self.jsonl_path, "".join(ln + "\n" for ln in kept))
         if self._columns is None and kept:
