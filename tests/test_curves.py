@@ -70,3 +70,9 @@ def test_read_curve_refuses_values_no_evaluation_writes(tmp_path, rows, problem)
     (tmp_path / "eval.csv").write_text("env_steps,wall_s,success\n" + rows)
     with pytest.raises(CurveError, match=problem):
         read_curve(tmp_path, 1000)
+
+
+def test_read_curve_names_the_line_past_blank_ones(tmp_path):
+    (tmp_path / "eval.csv").write_text("env_steps,wall_s,success\n100,1,0.5\n\n200,2,7.5\n")
+    with pytest.raises(CurveError, match=r"line 4: success 7\.5"):
+        read_curve(tmp_path, 1000)

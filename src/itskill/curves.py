@@ -103,7 +103,10 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
     try:
         # Decoded whole, so a damaged byte's offset is the file's, not one of a read buffer's.
         reader = csv.DictReader(io.StringIO(path.read_bytes().decode("utf-8"), newline=""))
-        rows = list(reader)
+        rows, lines = [], []  # each row with the line it ends on (blank lines are skipped)
+        for row in reader:
+            rows.append(row)
+            lines.append(reader.line_num)
     except OSError as err:
         raise CurveError(path, f"cannot be read: {(err.strerror or str(err)).lower()}") from err
     except UnicodeDecodeError as err:
@@ -120,7 +123,7 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
     if not raw:
         # A run stopped before its first evaluation: no curve to plot or reach a threshold on.
         raise NoEvaluationsError(path, "no evaluations")
-    for row, (step, wall, value) in enumerate(raw, start=2):  # the header is line 1
+    for row, (step, wall, value) in zip(lines, raw, strict=True):
         # A value no evaluation writes (an edit, a damaged cell) reached the report as a
         # success of 150%.
         if not (math.isfinite(step) and step >= 0 and math.isfinite(wall) and wall >= 0):
