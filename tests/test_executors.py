@@ -101,7 +101,8 @@ def test_an_empty_ray_address_is_refused_before_any_work(tmp_path, address: str)
     # A search over a transfer network asked the model for its plan and analysis first.
     args = ["reward", "generate", "pick_nut_m12", "--transfer", "itn", "--executor", "ray"]
     result = CliRunner().invoke(app, [*args, "--ray-address", address, "--out", str(out)])
-    assert result.exit_code != 0 and "the Ray address is empty" in " ".join(result.output.split())
+    said = " ".join(result.output.replace("│", " ").split())
+    assert result.exit_code == 2 and "--ray-address: empty: leave it out for a local Ray" in said
     assert not out.exists()
 
 

@@ -192,6 +192,12 @@ def test_per_task_reward_files_resolve_relative_to_the_experiment_file(tmp_path)
             "execution.executor",
             "expected one of",
         ),
+        # Ray refused it only once the first cells started, after the run was recorded.
+        (
+            ("every = 500", 'every = 500\n[execution]\nexecutor = "ray"\nray_address = ""'),
+            "execution.ray_address",
+            "empty: leave it out",
+        ),
         # As the algorithm (A2C by default) and the policy tables check them, named as written.
         *(
             (("every = 500", f"every = 500\n[hyperparams.pick_nut_m12]\n{line}"), where, problem)

@@ -499,6 +499,10 @@ def _parse_execution(path: Path, value: Any) -> ExecutionSettings:
     address = ex.get("ray_address")
     if address is not None:
         _typed(path, "execution.ray_address", address, str)
+        if not address.strip():
+            raise ExperimentConfigError(
+                path, "execution.ray_address", "empty: leave it out for a local Ray instance"
+            )
     return ExecutionSettings(executor, workers, address)
 
 

@@ -207,6 +207,10 @@ class RewardSearchConfig:
             raise SearchConfigError(
                 where, "executor", f"expected one of {EXECUTORS}, got {self.executor!r}"
             )
+        if self.ray_address is not None and not self.ray_address.strip():
+            raise SearchConfigError(
+                where, "ray_address", "empty: leave it out for a local Ray instance"
+            )
         # Before the seeds' check, which lists the retraining's seeds: a huge count hung there.
         for name, most in _MAXIMA.items():
             table, _, key = name.rpartition(".")
