@@ -209,6 +209,9 @@ def demo(
 
     _check_camera(camera)
     video_path, summary = out / f"{task}.mp4", out / f"{task}_eval.json"
+    folders = [p for p in (video_path, summary) if p.is_dir()]
+    if folders:  # which --force could not replace
+        raise typer.BadParameter(f"{folders[0]} is a folder; move it or use another --out")
     taken = [p for p in (video_path, summary) if p.exists()]
     if taken and not force:
         # Before the rollouts, as `render` does: the files may be a user's own.
