@@ -39,6 +39,15 @@ from itskill.rl.policy import StagedActorCriticPolicy
 from itskill.tasks import UnknownTaskError
 
 
+def _search(
+    run: Path, server: FakeOpenAIServer, config, console, target: str = "pick_nut_m12", **kw
+):
+    """The search for ``target`` in ``run``, asking the scripted ``server``, without the expert
+    reward's comparison."""
+    client = search_client(run, "openai:fake-model", server.base_url)
+    return generate_reward(target, client, run, config, compare_expert=False, console=console, **kw)
+
+
 def _status(run: Path, k: int) -> dict:
     return json.loads((run / "iter_0" / f"sample_{k}" / "status.json").read_text())
 
@@ -54,10 +63,7 @@ def test_every_broken_reply_is_handled_and_the_good_one_wins(tmp_path: Path, qui
     ]
     run = tmp_path / "run"
     with FakeOpenAIServer(script) as server:
-        client = search_client(run, "openai:fake-model", server.base_url)
-        result = generate_reward(
-            "pick_nut_m12", client, run, tiny_config(samples=6), compare_expert=False, console=quiet
-        )
+        result = _search(run, server, tiny_config(samples=6), quiet)
         requests = server.requests
 
     # One request for the 6 samples, then one regeneration per broken reply, with its error.
@@ -259,15 +265,7 @@ def test_a_reward_repeated_in_a_later_iteration_is_not_trained_again(tmp_path: P
     again = GOOD.replace("def compute_reward", "# The same reward, said again.\ndef compute_reward")
     assert again != GOOD
     with FakeOpenAIServer([GOOD, CONSTANT, again, CONSTANT]) as server:
-        client = search_client(run, "openai:fake-model", server.base_url)
-        result = generate_reward(
-            "pick_nut_m12",
-            client,
-            run,
-            tiny_config(iterations=2),
-            compare_expert=False,
-            console=quiet,
-        )
+        result = _search(run, server, tiny_config(iterations=2), quiet)
         requests = server.requests
     assert "This is iteration 2 of the search" in requests[1]["messages"][-1]["content"]
     for k in (0, 1):
@@ -296,15 +294,7 @@ def test_a_reward_sampled_twice_in_one_iteration_is_trained_once(
     retuned = GOOD.replace("temp_reach = 0.15", "temp_reach = 0.3")
     assert retuned != GOOD
     with FakeOpenAIServer([GOOD, CONSTANT, twin, retuned]) as server:
-        client = search_client(run, "openai:fake-model", server.base_url)
-        result = generate_reward(
-            "pick_nut_m12",
-            client,
-            run,
-            tiny_config(samples=4, workers=1),
-            compare_expert=False,
-            console=quiet,
-        )
+        result = _search(run, server, tiny_config(samples=4, workers=1), quiet)
     trained_samples = sorted(n for n in trained if n.startswith("sample_"))
     assert trained_samples == ["sample_0", "sample_1", "sample_3"]
     first = json.loads((run / "iter_0" / "sample_0" / "result.json").read_text())
@@ -330,15 +320,7 @@ def test_a_later_iteration_replaces_the_best_only_when_it_beats_it(
             json.dumps(_fake_result(success, 0.9))
         )
     with FakeOpenAIServer([GOOD, CONSTANT, retuned]) as server:
-        client = search_client(run, "openai:fake-model", server.base_url)
-        result = generate_reward(
-            "pick_nut_m12",
-            client,
-            run,
-            tiny_config(iterations=3, samples=1),
-            compare_expert=False,
-            console=quiet,
-        )
+        result = _search(run, server, tiny_config(iterations=3, samples=1), quiet)
         requests = server.requests
     assert [h["best_success"] for h in result.history] == [0.6, 0.3, 0.2]
     assert [h["best_so_far"] for h in result.history] == [0.6, 0.6, 0.6]
@@ -356,10 +338,7 @@ def test_a_plan_made_by_the_caller_is_used_not_asked_for_again(tmp_path: Path, q
     plan = plan_target(command, search_client(tmp_path / "planner", "offline"))
     run = tmp_path / "run"
     with FakeOpenAIServer([GOOD, CONSTANT]) as server:
-        client = search_client(run, "openai:fake-model", server.base_url)
-        generate_reward(
-            command, client, run, tiny_config(), compare_expert=False, console=quiet, plan=plan
-        )
+        _search(run, server, tiny_config(), quiet, target=command, plan=plan)
         requests = server.requests
     assert len(requests) == 1 and requests[0]["n"] == 2  # the two samples, no plan request
     assert json.loads((run / "plan.json").read_text()) == plan.to_dict()
@@ -422,10 +401,7 @@ def test_the_choice_is_made_on_more_seeds_than_the_search_saw(
     config = tiny_config(select_top=2, select_seeds=1)
     assert (config.final_seed_list, config.select_seed_list) == ([1], [2])
     with FakeOpenAIServer([GOOD, CONSTANT]) as server:
-        client = search_client(run, "openai:fake-model", server.base_url)
-        result = generate_reward(
-            "pick_nut_m12", client, run, config, compare_expert=False, console=quiet
-        )
+        result = _search(run, server, config, quiet)
     assert result.history[0]["best_sample"] == 0
     selection = json.loads((run / "summary.json").read_text())["selection"]
     assert [(c["sample"], c["mean"]) for c in selection["candidates"]] == [(0, 0.35), (1, 0.5)]
@@ -460,19 +436,15 @@ def test_a_worker_failure_stops_the_search_until_a_resume_trains_it_again(
     config = tiny_config(iterations=2, samples=2)
     with FakeOpenAIServer([RAISES_LATER, GOOD, GOOD, GOOD]) as server:
         monkeypatch.setattr(search_module, "run_jobs", disk_full_for_sample_1)
-        client = search_client(run, "openai:fake-model", server.base_url)
         with pytest.raises(RewardSearchError, match=r"1 job\(s\) failed in their worker.*iter_0/"
                            r"sample_1: OSError.*No space left.*--resume"):  # fmt: skip
-            generate_reward("pick_nut_m12", client, run, config, compare_expert=False,
-                            console=quiet)  # fmt: skip
+            _search(run, server, config, quiet)
         assert len(server.requests) == 1  # the model was not asked again
         assert (run / "iter_0" / "sample_0" / "result.json").is_file()
         assert not (run / "iter_0" / "sample_1" / "result.json").exists()
 
         monkeypatch.setattr(search_module, "run_jobs", real)
-        client = search_client(run, "openai:fake-model", server.base_url)
-        generate_reward("pick_nut_m12", client, run, config, compare_expert=False,
-                        console=quiet, resume=True)  # fmt: skip
+        _search(run, server, config, quiet, resume=True)
         requests = server.requests
     sample_1 = json.loads((run / "iter_0" / "sample_1" / "result.json").read_text())
     assert sample_1["status"] == "ok" and (run / "summary.json").is_file()
