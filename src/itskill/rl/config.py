@@ -430,8 +430,8 @@ def load_hyperparams(
         table[algo] = {k: v for k, v in overrides.items() if k not in table}
         hp = _layer("overrides", "overrides", table, algo, _FIELDS, hp)
     rollout = hp.algo_config.n_steps * hp.num_envs
-    # PPO always normalises a minibatch's advantages, A2C when asked: over one sample the
-    # standard deviation is 0, and the first update turns the policy into NaN. The two values
+    # PPO always normalises a minibatch's advantages, A2C when asked: one sample's standard
+    # deviation is NaN, and the first update turns the policy into NaN too. The two values
     # may come from different tables (the family's, the task's) or the overrides.
     normalises = isinstance(hp.algo_config, PPOConfig) or hp.algo_config.normalize_advantage
     if rollout < 2 and normalises:
