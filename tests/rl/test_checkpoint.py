@@ -140,3 +140,18 @@ def test_a_checkpoint_loads_only_itskills_policy_classes(
     with pytest.raises(CheckpointError, match=expected.replace("(", r"\(")):
         load_policy(skill)
     assert not (tmp_path / "planted.py.ran").exists() and "planted" not in sys.modules
+
+
+def test_a_run_holding_its_trainings_below_it_points_at_them(tmp_path) -> None:
+    # `itskill eval --policy` on a learn run or an experiment said "train into it first".
+    from itskill.rl.checkpoint import read_meta
+    from itskill.tasks.evaluate import CheckpointError
+
+    with pytest.raises(CheckpointError, match=r"train into it first"):
+        read_meta(tmp_path)
+    for cell in ("cells/t/itn/seed_0", "cells/t/itn/seed_1"):
+        (tmp_path / cell).mkdir(parents=True)
+        (tmp_path / cell / "checkpoint.json").write_text("{}")
+    below = r"below it \(cells/t/itn/seed_0, cells/t/itn/seed_1\)"
+    with pytest.raises(CheckpointError, match=below):
+        read_meta(tmp_path)

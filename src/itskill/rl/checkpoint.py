@@ -255,6 +255,16 @@ def trained_on_another_version(meta: Mapping[str, Any], fingerprint: str) -> boo
     return meta.get("task_sha256", fingerprint) != fingerprint
 
 
+def _nested_checkpoints(run_dir: Path, deepest: int = 4) -> list[Path]:
+    """The directories nearest below ``run_dir`` (at most ``deepest`` levels) that hold a
+    checkpoint record, relative to it: those at the first depth that has any."""
+    for depth in range(1, deepest + 1):
+        found = sorted(run_dir.glob("/".join(["*"] * depth) + f"/{META_FILE}"))
+        if found:
+            return [p.parent.relative_to(run_dir) for p in found]
+    return []
+
+
 def read_meta(run_dir: str | Path) -> dict[str, Any]:
     """``checkpoint.json`` of ``run_dir``, checked; :class:`CheckpointError` says what is wrong."""
     run_dir = Path(run_dir)
@@ -264,6 +274,13 @@ def read_meta(run_dir: str | Path) -> dict[str, Any]:
         raise CheckpointError(run_dir, "not a directory (expected a training run directory)")
     path = run_dir / META_FILE
     if not path.is_file():
+        nested = _nested_checkpoints(run_dir)
+        if nested:
+            # A learn run or an experiment holds its trainings in directories of their own.
+            shown = ", ".join(str(d) for d in nested[:3]) + (", ..." if len(nested) > 3 else "")
+            raise CheckpointError(
+                path, f"missing: the checkpoints are in directories below it ({shown})"
+            )
         raise CheckpointError(
             path, "missing: the directory holds no finished checkpoint (train into it first)"
         )
