@@ -27,6 +27,18 @@ def test_a_valid_file_reads(tmp_path: Path) -> None:
     assert read_toml(path) == {"search": {"samples": 3}}
 
 
+def test_a_file_saved_with_a_byte_order_mark_reads_and_bad_bytes_are_counted_from_it(
+    tmp_path: Path,
+) -> None:
+    # Windows Notepad saves UTF-8 with a byte-order mark: TOML syntax error at line 1, column 1.
+    path = tmp_path / "data.toml"
+    path.write_bytes(b"\xef\xbb\xbf[search]\nsamples = 3\n")
+    assert read_toml(path) == {"search": {"samples": 3}}
+    path.write_bytes(b"\xef\xbb\xbf[search]\nname = '\xe9'\n")
+    with pytest.raises(DataFileError, match=r"not UTF-8 text \(byte 20\)"):
+        read_toml(path)
+
+
 @pytest.mark.parametrize(
     ("make", "where", "problem"),
     [

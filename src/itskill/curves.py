@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from itskill.datafile import NotUTF8Error, utf8_text
 from itskill.errors import PicklableError
 
 EVAL_FILE = "eval.csv"
@@ -102,15 +103,15 @@ def read_curve(run_dir: str | Path, budget: float, column: str = "success") -> C
         )
     try:
         # Decoded whole, so a damaged byte's offset is the file's, not one of a read buffer's.
-        reader = csv.DictReader(io.StringIO(path.read_bytes().decode("utf-8"), newline=""))
+        reader = csv.DictReader(io.StringIO(utf8_text(path.read_bytes()), newline=""))
         rows, lines = [], []  # each row with the line it ends on (blank lines are skipped)
         for row in reader:
             rows.append(row)
             lines.append(reader.line_num)
     except OSError as err:
         raise CurveError(path, f"cannot be read: {(err.strerror or str(err)).lower()}") from err
-    except UnicodeDecodeError as err:
-        raise CurveError(path, f"not UTF-8 text (byte {err.start})") from err
+    except NotUTF8Error as err:
+        raise CurveError(path, str(err)) from err
     except csv.Error as err:
         raise CurveError(path, f"not a CSV file: {err}") from err
     missing = {"env_steps", "wall_s", column} - set(reader.fieldnames or ())

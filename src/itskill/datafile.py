@@ -9,6 +9,7 @@ manifest), which their readers check field by field the same way.
 
 from __future__ import annotations
 
+import codecs
 import math
 import string
 import sys
@@ -30,6 +31,20 @@ class DataFileError(PicklableError, ValueError):
     def __init__(self, path: str | Path, where: str, problem: str) -> None:
         super().__init__(f"{path}: {where}: {problem}" if where else f"{path}: {problem}")
         self.path, self.where, self.problem = str(path), where, problem
+
+
+class NotUTF8Error(ValueError):
+    """Bytes that are not UTF-8 text: says at which byte of the file."""
+
+
+def utf8_text(data: bytes) -> str:
+    """A file's bytes as text; :class:`NotUTF8Error` at the first byte that is not UTF-8. An
+    editor's byte-order mark is dropped (it is not text), and the byte counted is the file's."""
+    bom = len(codecs.BOM_UTF8) if data.startswith(codecs.BOM_UTF8) else 0
+    try:
+        return data[bom:].decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise NotUTF8Error(f"not UTF-8 text (byte {bom + err.start})") from err
 
 
 def is_number(value: Any) -> bool:
@@ -95,14 +110,13 @@ def read_toml(path: str | Path, error: type[DataFileError] = DataFileError) -> d
     """The parsed TOML file at ``path``; a file that is missing, unreadable (a directory, no
     permission), not UTF-8 text or not valid TOML raises ``error``."""
     try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
+        return tomllib.loads(utf8_text(Path(path).read_bytes()))
     except FileNotFoundError as err:
         raise error(path, "file", "no such file") from err
     except OSError as err:
         raise error(path, "file", (err.strerror or str(err)).lower()) from err
-    except UnicodeDecodeError as err:
-        raise error(path, "file", f"not UTF-8 text (byte {err.start})") from err
+    except NotUTF8Error as err:
+        raise error(path, "file", str(err)) from err
     except tomllib.TOMLDecodeError as err:
         raise error(path, "TOML syntax", str(err)) from err
     except ValueError as err:

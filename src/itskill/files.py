@@ -7,7 +7,6 @@ can trust every file it finds: a ``result.json`` that exists is a finished candi
 
 from __future__ import annotations
 
-import codecs
 import errno
 import hashlib
 import json
@@ -25,7 +24,7 @@ from typing import Any
 
 from filelock import FileLock, Timeout
 
-from itskill.datafile import is_count, is_number
+from itskill.datafile import NotUTF8Error, is_count, is_number, utf8_text
 from itskill.errors import PicklableError
 
 
@@ -106,11 +105,10 @@ def is_unusable_path(err: OSError) -> bool:
 def decode_utf8(data: bytes, path: str | Path) -> str:
     """``data``, read from ``path``, as text; :class:`CorruptFileError` naming the file and the
     first bad byte if it is not UTF-8 (an editor's byte-order mark is not text)."""
-    bom = len(codecs.BOM_UTF8) if data.startswith(codecs.BOM_UTF8) else 0
     try:
-        return data[bom:].decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise CorruptFileError(path, f"not UTF-8 text (byte {bom + err.start})") from err
+        return utf8_text(data)
+    except NotUTF8Error as err:
+        raise CorruptFileError(path, str(err)) from err
 
 
 def read_utf8(path: str | Path) -> str:

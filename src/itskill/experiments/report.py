@@ -550,10 +550,10 @@ def _experiment_text(path: Path) -> str:
     """The run's copy of its experiment file, as the report shows it; :class:`ReportError` if it
     is not UTF-8 text (the runner copies the user's file as is, and TOML must be UTF-8)."""
     try:
-        return path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as err:
+        return read_utf8(path)
+    except CorruptFileError as err:
         raise ReportError(
-            f"{path}: not UTF-8 text (byte {err.start}); was it edited? Restore it from the "
+            f"{err}; was it edited? Restore it from the "
             "experiment file, or delete it to report without it"
         ) from err
 

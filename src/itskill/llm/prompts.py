@@ -25,7 +25,7 @@ from functools import cache
 from importlib import resources
 from pathlib import Path
 
-from itskill.datafile import placeholders
+from itskill.datafile import NotUTF8Error, placeholders, utf8_text
 from itskill.llm.client import Message
 from itskill.sim.context import CONTEXT_DOC
 from itskill.sim.layout import OBSERVATION_LAYOUT
@@ -108,14 +108,11 @@ def _template_path(name: str) -> Path:
 @cache
 def _load_template(path: Path, name: str) -> str:
     try:
-        text = path.read_text(encoding="utf-8")
+        text = utf8_text(path.read_bytes())
     except OSError as err:
         raise PromptError(f"prompt template {name!r}: cannot read {path}: {err}") from err
-    except UnicodeDecodeError as err:
-        raise PromptError(
-            f"prompt template {name!r} ({path}): not UTF-8 text (byte {err.start}); "
-            "save it as UTF-8"
-        ) from err
+    except NotUTF8Error as err:
+        raise PromptError(f"prompt template {name!r} ({path}): {err}; save it as UTF-8") from err
     check_template(name, text, path)
     return text
 

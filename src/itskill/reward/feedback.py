@@ -10,11 +10,13 @@ evaluations, which :func:`itskill.curves.read_curve` reads.
 from __future__ import annotations
 
 import csv
+import io
 import math
 from collections.abc import Iterable
 from pathlib import Path
 
 from itskill.curves import CurveError
+from itskill.datafile import NotUTF8Error, utf8_text
 from itskill.reward_contract import EPISODE_RETURN, LOG_COLUMNS
 
 
@@ -36,10 +38,9 @@ def _rows(path: Path) -> list[dict[str, str]]:
     if not path.is_file():
         return []
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            return list(csv.DictReader(fh))
-    except UnicodeDecodeError as err:  # the candidate fails, naming the file
-        raise CurveError(path, f"not UTF-8 text (byte {err.start})") from err
+        return list(csv.DictReader(io.StringIO(utf8_text(path.read_bytes()), newline="")))
+    except NotUTF8Error as err:  # the candidate fails, naming the file
+        raise CurveError(path, str(err)) from err
 
 
 def component_stats(run_dirs: Iterable[Path]) -> dict[str, dict[str, float]]:

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from itskill.datafile import is_count, is_number
+from itskill.datafile import NotUTF8Error, is_count, is_number, utf8_text
 from itskill.files import directory_lock, write_text
 from itskill.skills.admission import InadmissibleSkillError, check_admissible
 from itskill.skills.store import (
@@ -201,15 +201,15 @@ def read_manifest(library_dir: Path | str) -> list[ManifestEntry]:
     """The entries of ``<library_dir>/manifest.json``."""
     path = Path(library_dir) / MANIFEST_NAME
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(utf8_text(path.read_bytes()))
     except FileNotFoundError as err:
         if not Path(library_dir).is_dir():
             raise ManifestError(f"{library_dir}: no such directory") from err
         raise ManifestError(f"{path}: no manifest (not a skill library directory)") from err
     except OSError as err:
         raise ManifestError(f"{path}: cannot be read: {err.strerror or err}") from err
-    except UnicodeDecodeError as err:
-        raise ManifestError(f"{path}: not UTF-8 text (byte {err.start})") from err
+    except NotUTF8Error as err:
+        raise ManifestError(f"{path}: {err}") from err
     except json.JSONDecodeError as err:
         raise ManifestError(f"{path}: not valid JSON ({err})") from err
     if not isinstance(data, dict) or not isinstance(data.get("skills"), list):
