@@ -27,3 +27,12 @@ class PicklableError(Exception):
         rebuild = functools.partial(type(self), **kwargs) if kwargs else type(self)
         # The state carries what the constructor set and anything set on the error afterwards.
         return rebuild, args, self.__dict__
+
+
+class FieldError(PicklableError, ValueError):
+    """A configuration field's value that cannot be used: ``field`` names it, so a front end
+    can point at its own name for it (a command-line flag, a file's key)."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(message)
+        self.field = field

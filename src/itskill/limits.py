@@ -3,6 +3,8 @@ import the libraries (PyTorch, Stable-Baselines3) that impose them."""
 
 from __future__ import annotations
 
+from itskill.errors import FieldError
+
 SEED_MAX = 2**32 - 1
 """The largest seed a run takes: NumPy's legacy seeding, which Stable-Baselines3 uses, stops
 there."""
@@ -30,10 +32,10 @@ once; a budget this size takes weeks on any machine we know of."""
 
 
 def check_steps(steps: int, name: str = "steps") -> None:
-    """``ValueError`` unless ``steps`` (an env-step budget, given as ``name``) is from 1 to
-    :data:`STEPS_MAX`."""
+    """:class:`~itskill.errors.FieldError` (a ``ValueError``) of field ``name`` unless ``steps``
+    (an env-step budget) is from 1 to :data:`STEPS_MAX`."""
     if not 1 <= steps <= STEPS_MAX:
-        raise ValueError(f"{name} must be between 1 and {STEPS_MAX:,}, got {steps:,}")
+        raise FieldError(name, f"{name} must be between 1 and {STEPS_MAX:,}, got {steps:,}")
 
 
 DEPTH_MAX = 16

@@ -430,11 +430,13 @@ def test_pretrain_says_a_run_of_other_settings_is_not_mended_by_running_again(
     ("option", "message"),
     [
         # It started the worker pool, whose job died with a KeyboardInterrupt traceback.
-        (["--algo", "foo"], "algomustbeoneofa2c,ppo,got'foo'"),
+        (["--algo", "foo"], "Invalidvaluefor--algo:algomustbeoneofa2c,ppo,got'foo'"),
         # 2 (or 50 for "50%") trained every seed of every skill and could never add one.
         (["--min-success", "2"], "Invalidvaluefor'--min-success'"),
         # Told on stdout, without "error:", by the executor once the skill space was open.
         (["--workers", "0"], "Invalidvaluefor'--workers'"),
+        # Found out by the last seed's run, after the others trained; then named no flag.
+        (["--seed", "4294967295", "--seeds", "2"], "Invalidvaluefor--seed/--seeds:seeds"),
     ],
 )
 def test_pretrain_refuses_bad_settings_before_training(home, tmp_path, option, message):
@@ -475,7 +477,8 @@ def test_pretrain_refuses_a_task_list_that_names_no_task(home, tmp_path, tasks):
 
 def test_a_refined_skill_must_beat_its_start_at_a_p_value_above_zero(home):
     result = runner.invoke(app, ["skills", "pretrain", "--refine", "--replace-p", "0"])
-    assert result.exit_code == 2 and "must be above 0" in result.output
+    assert result.exit_code == 2
+    assert "Invalidvaluefor--replace-p:replace_pmustbeabove0" in _flat(result.output)
 
 
 def test_replace_p_without_refine_is_refused(home):

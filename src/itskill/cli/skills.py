@@ -29,6 +29,7 @@ from itskill.cli.common import (
     user_errors,
     workers_option,
 )
+from itskill.errors import FieldError
 
 skills_app = typer.Typer(
     no_args_is_help=True, help="The skill space: learned skills, their checkpoints, retrieval."
@@ -357,7 +358,7 @@ _PRETRAIN_FLAGS = {
     "select_episodes": "--eval-episodes",
     "steps": "--steps",
 }
-"""The flag behind each :class:`PretrainConfig` field its errors start with."""
+"""The flag behind each :class:`PretrainConfig` field its errors name."""
 
 
 @skills_app.command("pretrain")
@@ -489,10 +490,8 @@ def skills_pretrain(
             ),
             replace_p=PretrainConfig.replace_p if replace_p is None else replace_p,
         )
-    except ValueError as err:  # the config validates what the options' ranges cannot say
-        field = str(err).split(" ", 1)[0]
-        flag = _PRETRAIN_FLAGS.get(field)
-        raise typer.BadParameter(str(err), param_hint=flag) from err
+    except FieldError as err:  # the config validates what the options' ranges cannot say
+        raise typer.BadParameter(str(err), param_hint=_PRETRAIN_FLAGS.get(err.field)) from err
 
     failed: list[str] = []
     mismatched: list[str] = []  # their runs hold other settings: a rerun fails them again

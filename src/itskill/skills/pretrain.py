@@ -31,6 +31,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from itskill.errors import FieldError
 from itskill.executors import Executor, run_jobs
 from itskill.files import read_json, write_json
 from itskill.limits import SEED_COUNT_MAX, SEED_MAX, check_steps
@@ -107,23 +108,30 @@ class PretrainConfig:
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:  # checked here, not in each worker after the pool started
-            raise ValueError(f"algo must be one of {', '.join(ALGOS)}, got {self.algo!r}")
+            raise FieldError("algo", f"algo must be one of {', '.join(ALGOS)}, got {self.algo!r}")
         check_steps(self.steps)
         if not 1 <= self.seeds <= SEED_COUNT_MAX:
-            raise ValueError(f"seeds must be 1 to {SEED_COUNT_MAX}, got {self.seeds}")
+            raise FieldError("seeds", f"seeds must be 1 to {SEED_COUNT_MAX}, got {self.seeds}")
         if self.seed + self.seeds - 1 > SEED_MAX:
             # Found out otherwise by the last seed's run, after the others trained.
-            raise ValueError(
+            raise FieldError(
+                "seeds",
                 f"seeds {self.seed} to {self.seed + self.seeds - 1} go past the largest seed, "
-                f"{SEED_MAX}: give a smaller seed or fewer seeds"
+                f"{SEED_MAX}: give a smaller seed or fewer seeds",
             )
         if self.select_episodes < 1:
-            raise ValueError(f"select_episodes must be at least 1, got {self.select_episodes}")
+            raise FieldError(
+                "select_episodes", f"select_episodes must be at least 1, got {self.select_episodes}"
+            )
         if not 0.0 <= self.min_success <= 1.0:
             # Above 1 no run can be kept: every seed would train for nothing.
-            raise ValueError(f"min_success must be in [0, 1], got {self.min_success}")
+            raise FieldError(
+                "min_success", f"min_success must be in [0, 1], got {self.min_success}"
+            )
         if not 0.0 < self.replace_p <= 1.0:
-            raise ValueError(f"replace_p must be above 0 and at most 1, got {self.replace_p}")
+            raise FieldError(
+                "replace_p", f"replace_p must be above 0 and at most 1, got {self.replace_p}"
+            )
 
 
 def measure_skill(
