@@ -41,6 +41,15 @@ def test_home_defaults(monkeypatch, tmp_path):
     assert itskill_home() == tmp_path / "h"
 
 
+def test_an_empty_home_variable_counts_as_unset(monkeypatch, tmp_path):
+    # A template's `ITSKILL_HOME=${HOME_DIR:-}` must not put the skill space in the current
+    # directory (Path("") is ".").
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("ITSKILL_HOME", "")
+    monkeypatch.setenv("XDG_DATA_HOME", "")
+    assert itskill_home() == Path.home() / ".local" / "share" / "itskill"
+
+
 def test_a_relative_home_is_made_absolute(monkeypatch, tmp_path):
     # A relative checkpoint path in the database is read as inside the library directory, so
     # paths under a relative home were joined twice (`itskill learn` failed to add its skill).

@@ -72,7 +72,8 @@ def itskill_home() -> Path:
     """The itskill data directory: ``$ITSKILL_HOME``, else ``$XDG_DATA_HOME/itskill``.
 
     ``XDG_DATA_HOME`` defaults to ``~/.local/share`` (the XDG base-directory rule, which is what
-    platformdirs returns on Linux); deriving it here avoids a dependency for one path.
+    platformdirs returns on Linux); deriving it here avoids a dependency for one path. Either
+    variable set to the empty string counts as unset, as ``$OPENAI_BASE_URL`` does.
     """
     env = os.environ.get(HOME_ENV)
     if env:
