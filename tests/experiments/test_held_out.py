@@ -92,6 +92,17 @@ def test_a_cell_without_its_weights_fails_by_name_and_the_others_are_measured(
     assert (Cell(TASK, "no_transfer", 0).dir(copy) / HELD_OUT_FILE).is_file()
 
 
+def test_a_cell_without_a_readable_result_is_counted_as_not_finished(run: Path) -> None:
+    # It said "0 cells measured, 0 already measured, 0 failed", as if there were nothing to do.
+    (Cell(TASK, "no_transfer", 1).dir(run) / "result.json").write_text("{")
+    result = CliRunner().invoke(app, ["experiment", "held-out", str(run), "--episodes", "2"])
+    assert result.exit_code == 0, result.output
+    flat = " ".join(result.output.split())
+    assert "1 cells measured, 0 already measured, 0 failed, 1 not finished" in flat
+    assert f"--resume--out{run}`finishesthem" in "".join(flat.split())  # wrapped anywhere
+    assert not (Cell(TASK, "no_transfer", 1).dir(run) / HELD_OUT_FILE).exists()
+
+
 def test_a_policy_trained_on_an_earlier_definition_of_its_task_is_not_measured(
     run: Path,
 ) -> None:

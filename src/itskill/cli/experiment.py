@@ -133,9 +133,15 @@ def experiment_held_out(
             markup=False,
         )
         raise typer.Exit(130) from None
+    unfinished = (
+        f", {len(summary.unfinished)} not finished (no readable result.json: "
+        f"`itskill experiment run FILE --resume --out {run}` finishes them)"
+        if summary.unfinished
+        else ""
+    )
     console.print(
         f"{len(summary.measured)} cells measured, {len(summary.skipped)} already measured, "
-        f"{len(summary.failed)} failed; `itskill report {run}` shows them",
+        f"{len(summary.failed)} failed{unfinished}; `itskill report {run}` shows them",
         markup=False,
     )
     if summary.failed:

@@ -21,7 +21,7 @@ from typing import Any
 
 from itskill.datafile import is_count, is_number
 from itskill.executors import run_jobs
-from itskill.experiments.runner import Cell, load_cell_results, read_run_config
+from itskill.experiments.runner import Cell, cells, load_cell_results, read_run_config
 from itskill.files import read_json_or_none, write_json
 from itskill.rl.checkpoint import BEST_DIR, META_FILE
 
@@ -52,6 +52,10 @@ class HeldOutSummary:
     skipped: list[Cell] = field(default_factory=list)
     """Already measured on as many episodes, at the same env-steps."""
     failed: dict[Cell, str] = field(default_factory=dict)
+    unfinished: list[Cell] = field(default_factory=list)
+    """Cells of the run without a readable ``result.json``: not trained to the end (or the
+    record damaged), so there is no final policy to measure; ``experiment run --resume``
+    finishes them."""
 
 
 def read_held_out(cell_dir: Path, policy: str = "final") -> dict[str, Any] | None:
@@ -96,8 +100,10 @@ def measure_held_out(
     config = read_run_config(run_dir)
     summary = HeldOutSummary()
     todo: list[Cell] = []
-    for cell in load_cell_results(run_dir):
-        if cell.task not in config.tasks:
+    finished = load_cell_results(run_dir)
+    for cell in cells(config):
+        if cell not in finished:
+            summary.unfinished.append(cell)
             continue
         have = read_held_out(cell.dir(run_dir), policy)
         if have is not None and have["episodes"] == episodes:
