@@ -198,7 +198,6 @@ class MetricsCallback(BaseCallback):
         self._tb: Logger | None = None
         self._progress: Progress | None = None
         self._task_id: Any = None
-        self.last_row: dict[str, Any] | None = None
         self._len = np.zeros(env.num_envs, dtype=np.int64)
         self._reset_window(None)
 
@@ -307,7 +306,6 @@ class MetricsCallback(BaseCallback):
             stats = f"success {sr:.0%}" if math.isfinite(sr) else "success -"
             stats += f"  {row['steps_per_s']:.0f} steps/s"
             self._progress.update(self._task_id, completed=self.num_timesteps, stats=stats)
-        self.last_row = row
         self._reset_window(self.num_timesteps)
         return row
 

@@ -155,7 +155,6 @@ class TrainResult:
     resumed_from: int
     wall_s: float
     session_wall_s: float
-    last_metrics: dict[str, Any] | None
     best: dict[str, Any] | None = None
     """The evaluation that chose the policy in ``run_dir/best`` (env-steps, success, ...), if the
     run was evaluated while it trained."""
@@ -772,9 +771,9 @@ def _learn(
     evaluate_at_start: bool,
     logger: LoggerConfig | None,
     console: Console | None,
-) -> dict[str, Any] | None:
+) -> None:
     """Train ``model`` on to the run's budget, logging, checkpointing and evaluating on the
-    way; the last metrics row logged. Ctrl-C saves a checkpoint before it stops the run."""
+    way. Ctrl-C saves a checkpoint before it stops the run."""
     run_dir, meta = setup.run_dir, setup.meta
     # Stable-Baselines3 collects whole rollouts: training ends at the first rollout boundary at
     # or past the budget (one rollout for --steps 1), and the progress bar counts to there.
@@ -829,7 +828,6 @@ def _learn(
             f"interrupted: checkpoint saved at {model.num_timesteps} env-steps in {run_dir}"
         )
         raise
-    return metrics.last_row
 
 
 @contextmanager
@@ -943,11 +941,10 @@ def run_training(
                 resumed_from,
                 clock.prior_s,
                 0.0,
-                None,
                 read_selection(run_dir),
             )
         _clear_records_after(run_dir, resumed_from if resuming else None)
-        last_row = _learn(model, setup, env, clock, keep_obs_stats, logger, console)
+        _learn(model, setup, env, clock, keep_obs_stats, logger, console)
         session_s = clock.session_s()
         # As the checkpoint stores it, so a later call that finds the run finished reports the
         # same figure.
@@ -958,7 +955,6 @@ def run_training(
             resumed_from,
             total_s,
             session_s,
-            last_row,
             read_selection(run_dir),
         )
     finally:

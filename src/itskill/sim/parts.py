@@ -350,9 +350,9 @@ def _yaw_quat(angle: float) -> tuple[float, float, float, float]:
     return (math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2))
 
 
-def _ring(body, prefix, apothem, thickness, half_height, z, sides, rgba, half_len=None) -> None:
+def _ring(body, prefix, apothem, thickness, half_height, z, sides, rgba) -> None:
     """``sides`` boxes whose inner faces form a regular polygon of inradius ``apothem``."""
-    half_len = half_len or (apothem + thickness) * math.tan(math.pi / sides) + 1e-4
+    half_len = (apothem + thickness) * math.tan(math.pi / sides) + 1e-4
     for k in range(sides):
         angle = 2 * math.pi * k / sides
         r = apothem + thickness / 2

@@ -268,7 +268,6 @@ def update_manifest(library_dir: Path | str, entry: ManifestEntry) -> Path:
 def install_library(
     space: SkillSpace,
     library_dir: Path | str,
-    skip_existing: bool = True,
     only: Collection[str] | None = None,
     check: bool = True,
 ) -> list[Skill]:
@@ -279,8 +278,8 @@ def install_library(
     With ``check``, every entry to add must also pass
     :func:`~itskill.skills.admission.check_admissible` (its task known, its checkpoint a policy
     of that task, an action named), or nothing is installed and the error names the entry.
-    Entries whose name is already in the space are skipped when ``skip_existing`` (so installing
-    twice, or from two processes opening a new space at once, is harmless). Checkpoints are
+    Entries whose name is already in the space are skipped (so installing twice, or from two
+    processes opening a new space at once, is harmless). Checkpoints are
     stored as :meth:`SkillSpace.checkpoint_ref` says: relative inside the space's own library
     directory or the package's shipped library (each relocatable), absolute otherwise.
     """
@@ -293,7 +292,7 @@ def install_library(
             f"{library_dir / MANIFEST_NAME}: {len(missing)} checkpoint file(s) missing: "
             + ", ".join(missing)
         )
-    existing = {s.name for s in space.list()} if skip_existing else set()
+    existing = {s.name for s in space.list()}
     entries = [e for e in entries if e.name not in existing]
     for e in entries if check else ():
         try:
@@ -301,4 +300,4 @@ def install_library(
         except (InadmissibleSkillError, UnknownTaskError) as err:
             raise ManifestError(f"{library_dir / MANIFEST_NAME}: skill {e.name!r}: {err}") from err
     todo = [e.to_skill(space.checkpoint_ref(library_dir / e.checkpoint)) for e in entries]
-    return space.add_many(todo, on_conflict="skip" if skip_existing else "error")
+    return space.add_many(todo, on_conflict="skip")
