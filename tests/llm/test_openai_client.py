@@ -477,6 +477,23 @@ def test_make_client_picks_the_backend(monkeypatch: pytest.MonkeyPatch) -> None:
         assert c.complete(MESSAGES, purpose="plan") == ["hello"]
 
 
+def test_a_bad_model_variable_is_named_and_a_base_url_needs_an_openai_backend(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The variable's typo was reported as the flag's, which the user had not typed.
+    monkeypatch.setenv("ITSKILL_LLM_MODEL", "gpt-4o")
+    with pytest.raises(ValueError, match="unknown language model ITSKILL_LLM_MODEL='gpt-4o'"):
+        make_client()
+    with pytest.raises(ValueError, match="unknown language model 'gpt-4o'"):
+        make_client("gpt-4o")
+    # A --base-url beside the offline backend was ignored: the plan came from the rules.
+    monkeypatch.delenv("ITSKILL_LLM_MODEL")
+    with pytest.raises(LLMError, match="offline one asks no server"):
+        make_client(base_url="http://localhost:9/v1")
+    monkeypatch.setenv("OPENAI_BASE_URL", "http://localhost:9/v1")  # set for other tools: fine
+    assert make_client().offline
+
+
 @pytest.mark.parametrize(
     ("kwargs", "problem"),
     [

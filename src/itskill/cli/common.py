@@ -91,12 +91,13 @@ def _not_the_current_directory(value: Path | None) -> Path | None:
     # Typer reads an empty --out (a variable that expanded to nothing) as ".", which would put
     # the run's checkpoints and logs among the user's own files.
     if value is not None and value.expanduser().resolve() == Path.cwd().resolve():
-        raise typer.BadParameter("name a directory for the run, not the current one")
+        raise typer.BadParameter("name a directory of its own, not the current one")
     return value
 
 
 def run_dir_option(help: str) -> Any:
-    """An ``--out`` option naming a run directory: anything but the current directory."""
+    """An option naming a directory itskill fills (a run, a library): anything but the current
+    directory."""
     return typer.Option(help=help, callback=_not_the_current_directory)
 
 

@@ -324,16 +324,19 @@ def _network(target: str, method: str, out: Path, client: Any, algo: str) -> tup
     """The target's plan, and the transfer network the candidates train over the skills
     retrieved for the planned task. The search is given that plan, so the model is asked once."""
     from itskill.reward.search import plan_target
-    from itskill.transfer import get_method, search_network
+    from itskill.transfer import METHODS, search_network
 
-    try:
-        get_method(method)
-    except ValueError as err:
-        raise typer.BadParameter(str(err), param_hint="--transfer") from err
+    # no_transfer is a method too, but trains no source skills: the search without --transfer.
+    with_sources = [name for name, m in METHODS.items() if m.uses_sources]
+    if method not in with_sources:
+        raise typer.BadParameter(
+            f"expected one of {', '.join(with_sources)}, got {method!r} (leave --transfer "
+            "out to search on the task's network from scratch)",
+            param_hint="--transfer",
+        )
     plan = plan_target(target, client)
     network = search_network(plan.task, method, out, algo=algo, client=client)
-    if network is None:
-        raise typer.BadParameter(f"{method} trains no source skills", param_hint="--transfer")
+    assert network is not None  # a method with sources has a network
     return plan, network
 
 

@@ -422,7 +422,10 @@ def skills_pretrain(
         "runs/pretrain"
     ),
     library: Annotated[
-        Path | None, typer.Option(help="Library directory (default: the skill space's own).")
+        Path | None,
+        # An empty --library is "." to Typer: the manifest and skill folders among the user's
+        # own files.
+        run_dir_option("Library directory (default: the skill space's own)."),
     ] = None,
     refine: Annotated[
         bool,
@@ -436,10 +439,11 @@ def skills_pretrain(
     replace_p: Annotated[
         float | None,
         typer.Option(
+            min=0.0,
             max=1.0,
             help="With --refine: the one-sided p-value (exact McNemar test over the paired "
-            "held-out episodes) a refined skill must be below to replace the library's "
-            "(default: 0.05; 1 replaces on any higher success).",
+            "held-out episodes) a refined skill must be below to replace the library's, above "
+            "0 (default: 0.05; 1 replaces on any higher success).",
         ),
     ] = None,
 ) -> None:
@@ -465,6 +469,7 @@ def skills_pretrain(
         basic_tasks,
         pretrain,
     )
+    from itskill.tasks import get_task
 
     names = [t.strip() for item in tasks or () for t in item.split(",") if t.strip()]
     if tasks is not None and not names:
@@ -537,6 +542,8 @@ def skills_pretrain(
     with user_errors():
         # Before the space opens (which may create it) and pretrain makes the library directory.
         check_executor(executor, workers, ray_address)
+        for name in names:
+            get_task(name)
         with open_skill_space() as space:
             pretrain(
                 basic_tasks() if tasks is None else names,

@@ -166,9 +166,11 @@ def transfer_analyze(
     with user_errors():
         cfg = _config(config, k, sources)
         spec = get_task(target)
+        # Checks --llm before the sources' skill space is opened (which may create it).
+        client = LazyClient(llm)
         chosen = resolve_sources(spec.id, sources, cfg)
         # As training does: one source takes every stage, and no model is asked (or needs a key).
-        matrix = analyze_sources(spec, chosen, LazyClient(llm), cfg)
+        matrix = analyze_sources(spec, chosen, client, cfg)
     if as_json:
         print_json({**matrix.to_dict(), "source_skills": [s.to_dict() for s in chosen]})
         return

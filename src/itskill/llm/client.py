@@ -150,6 +150,7 @@ def model_spec(spec: str | None = None) -> tuple[str, str]:
     Commands that may not need a model (``itskill plan TASK_ID``) check the spec with it anyway, so
     a mistyped ``--llm`` is never silently ignored.
     """
+    given = spec
     if spec is None:
         spec = os.environ.get(MODEL_ENV) or "offline"
     spec = spec.strip()
@@ -158,8 +159,10 @@ def model_spec(spec: str | None = None) -> tuple[str, str]:
     backend, _, model = spec.partition(":")
     if backend == "openai" and model.strip():
         return "openai", model.strip()
+    # Named by where it came from: a user who typed no --llm would look for the flag's typo.
+    where = f"{MODEL_ENV}={spec!r}" if given is None else repr(spec)
     raise UnknownModelError(
-        f"unknown language model {spec!r}: expected 'offline' or 'openai:MODEL' "
+        f"unknown language model {where}: expected 'offline' or 'openai:MODEL' "
         "(e.g. openai:gpt-4o, or openai:llama3.1 with OPENAI_BASE_URL=http://localhost:11434/v1)"
     )
 
@@ -183,6 +186,12 @@ def make_client(
     asking again). ``$ITSKILL_LLM_TIMEOUT`` sets the seconds a request may take (default 180).
     """
     backend, model = model_spec(spec)
+    if backend == "offline" and base_url is not None:
+        # Else ignored: a user who forgot --llm would think the server had answered.
+        raise LLMError(
+            f"a base URL ({base_url!r}) is for an openai:MODEL backend; the offline one asks no "
+            "server: give --llm openai:MODEL or leave out --base-url"
+        )
     if backend == "offline":
         from itskill.llm.offline import OfflineClient
 
