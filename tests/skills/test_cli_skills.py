@@ -437,6 +437,8 @@ def test_pretrain_says_a_run_of_other_settings_is_not_mended_by_running_again(
         (["--workers", "0"], "Invalidvaluefor'--workers'"),
         # Found out by the last seed's run, after the others trained; then named no flag.
         (["--seed", "4294967295", "--seeds", "2"], "Invalidvaluefor--seed/--seeds:seeds"),
+        # Typer reads an empty path as ".": the manifest and skills went into the current folder.
+        (["--library", ""], "Invalidvaluefor'--library':nameadirectoryofitsown"),
     ],
 )
 def test_pretrain_refuses_bad_settings_before_training(home, tmp_path, option, message):
@@ -461,7 +463,7 @@ def test_pretrain_takes_a_comma_separated_task_list(home, tmp_path):
     result = runner.invoke(app, [*args, "--runs", str(tmp_path / "runs")])
     assert result.exit_code == 2
     assert "unknown task 'no_such_task'" in result.output
-    assert not (tmp_path / "runs").exists()
+    assert not (tmp_path / "runs").exists() and not home.exists()  # nor the skill space
 
 
 @pytest.mark.parametrize("tasks", ["", ",", " "])

@@ -75,6 +75,15 @@ def test_errors_are_one_line_and_exit_2(home: Path, tmp_path: Path) -> None:
     assert trace.exit_code == 2 and "no contribution weights" in trace.output
 
 
+def test_analyze_refuses_a_bad_llm_before_it_creates_a_skill_space(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("ITSKILL_HOME", str(tmp_path / "fresh"))
+    result = runner.invoke(app, ["transfer", "analyze", "pickplace_nut_m12", "--llm", "x"])
+    assert result.exit_code == 2 and "unknown language model 'x'" in result.output
+    assert not (tmp_path / "fresh").exists()
+
+
 def test_settings_that_cannot_train_are_one_line_errors(home: Path, tmp_path: Path) -> None:
     train = ["transfer", "train", "pickplace_nut_m12", "--steps", "16", "--num-envs", "2"]
     bad_llm = runner.invoke(app, [*train, "--llm", "gpt-4o", "--out", str(tmp_path / "a")])
