@@ -28,7 +28,8 @@ experiment_app = typer.Typer(
 def experiment_run(
     file: Annotated[Path, typer.Argument(help="Experiment file (see experiments/*.toml).")],
     out: Annotated[
-        Path | None, run_dir_option("Run directory (default: runs/experiments/<name>).")
+        Path | None,
+        run_dir_option("Run directory (default: the experiment's name under runs/experiments)."),
     ] = None,
     executor: Annotated[
         str | None, typer.Option(help=escape("local or ray (default: the file's [execution])."))

@@ -35,7 +35,7 @@ def learn_cmd(
         str | None,
         typer.Option(
             help="offline (rule-based, no network) or openai:MODEL "
-            "(OPENAI_BASE_URL/OPENAI_API_KEY; any OpenAI-compatible server); "
+            "(OPENAI_BASE_URL and OPENAI_API_KEY; any OpenAI-compatible server); "
             "default $ITSKILL_LLM_MODEL, else offline."
         ),
     ] = None,

@@ -133,7 +133,9 @@ def generate_cmd(
     config_file: Annotated[
         Path | None,
         typer.Option(
-            "--config", help="A search settings TOML file (the shape of reward/data/search.toml)."
+            "--config",
+            help="A search settings TOML file, of the shape of the packaged search.toml "
+            "(itskill/reward/data).",
         ),
     ] = None,
     expert: Annotated[
