@@ -93,6 +93,20 @@ def test_a_run_started_again_gets_the_header_of_its_own_reward(tmp_path: Path) -
     assert len(rows) == 1
 
 
+def test_a_resumed_run_writes_under_a_header_an_editor_saved_with_a_byte_order_mark(
+    tmp_path: Path,
+) -> None:
+    # The first column was read as "\ufeffstep": every row resumed after it lost its step.
+    writer = MetricsWriter(tmp_path)
+    writer.write({"step": 64, "wall_s": 1.0, "success_rate": 0.5})
+    writer.csv_path.write_bytes(b"\xef\xbb\xbf" + writer.csv_path.read_bytes())
+    MetricsWriter(tmp_path).write({"step": 128, "wall_s": 2.0, "success_rate": 0.75})
+    assert [r.split(",")[0] for r in writer.csv_path.read_text("utf-8-sig").splitlines()[1:]] == [
+        "64",
+        "128",
+    ]
+
+
 def test_rows_dropped_on_resume_keep_a_damaged_byte_for_the_reports_to_name(tmp_path) -> None:
     # Resuming over a damaged byte stopped with a traceback; read with replacement, the rewrite
     # then turned the byte into U+FFFD for good and the reports could no longer name it.

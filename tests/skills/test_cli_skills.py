@@ -435,7 +435,7 @@ def test_pretrain_says_a_run_of_other_settings_is_not_mended_by_running_again(
         (["--min-success", "2"], "Invalidvaluefor'--min-success'"),
         # Told on stdout, without "error:", by the executor once the skill space was open.
         (["--workers", "0"], "Invalidvaluefor'--workers'"),
-        # Found out by the last seed's run, after the others trained; then named no flag.
+        # Found out by the last seed's run, after the others trained.
         (["--seed", "4294967295", "--seeds", "2"], "Invalidvaluefor--seed/--seeds:seeds"),
         # Typer reads an empty path as ".": the manifest and skills went into the current folder.
         (["--library", ""], "Invalidvaluefor'--library':nameadirectoryofitsown"),

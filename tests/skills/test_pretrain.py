@@ -12,6 +12,7 @@ from unittest.mock import ANY
 import pytest
 from skill_helpers import measured
 
+from itskill.errors import FieldError
 from itskill.rl import config as config_module
 from itskill.rl.checkpoint import MODEL_FILE, as_policy, load_policy
 from itskill.skills import SkillSpace
@@ -181,6 +182,24 @@ def test_pretrain_config_refuses_no_seeds_and_no_selection_episodes() -> None:
         PretrainConfig(seed=2**32 - 1, seeds=2)
     with pytest.raises(ValueError, match="seeds must be 1 to 1000"):
         PretrainConfig(seeds=10**14)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"algo": "sac"}, "algo"),
+        ({"steps": 0}, "steps"),
+        ({"seed": 2**32 - 1, "seeds": 2}, "seeds"),
+        ({"select_episodes": 0}, "select_episodes"),
+        ({"min_success": -0.1}, "min_success"),
+        ({"replace_p": 0.0}, "replace_p"),
+    ],
+)
+def test_each_refused_setting_names_its_field(kwargs: dict, field: str) -> None:
+    # `skills pretrain` points at the flag of the field the error names, whatever its wording.
+    with pytest.raises(FieldError) as err:
+        PretrainConfig(**kwargs)
+    assert err.value.field == field
 
 
 def test_pretrain_refuses_a_folder_that_is_no_library_before_training(tmp_path, monkeypatch):

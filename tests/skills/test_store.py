@@ -46,6 +46,8 @@ def test_an_empty_home_variable_counts_as_unset(monkeypatch, tmp_path):
     # directory (Path("") is ".").
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("ITSKILL_HOME", "")
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    assert itskill_home() == tmp_path / "xdg" / "itskill"
     monkeypatch.setenv("XDG_DATA_HOME", "")
     assert itskill_home() == Path.home() / ".local" / "share" / "itskill"
 

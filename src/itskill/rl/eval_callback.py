@@ -43,7 +43,7 @@ def last_evaluated(run_dir: str | Path) -> int | None:
     path = Path(run_dir) / EVAL_FILE
     if not path.is_file():
         return None
-    with open(path, newline="", encoding="utf-8", errors="replace") as fh:
+    with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
         steps = [row[0] for row in list(csv.reader(fh))[1:] if row]
     try:
         return int(float(steps[-1])) if steps else None
@@ -122,7 +122,7 @@ class DeterministicEvalCallback(BaseCallback):
         if not self.path.exists() or self.path.stat().st_size == 0:  # an emptied file too
             with open(self.path, "w", newline="") as fh:
                 csv.writer(fh).writerow(EVAL_COLUMNS)
-        with open(self.path, newline="", encoding="utf-8", errors="replace") as fh:
+        with open(self.path, newline="", encoding="utf-8-sig", errors="replace") as fh:
             # A run resumed from an older release keeps its file's columns (a damaged byte in
             # a later row is the reports' to name, not a reason to stop training).
             self._columns = next(csv.reader(fh))

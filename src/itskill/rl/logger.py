@@ -62,7 +62,7 @@ class MetricsWriter:
         self.jsonl_path = run_dir / "metrics.jsonl"
         self._columns: list[str] | None = None
         if self.csv_path.exists():
-            with open(self.csv_path, newline="", encoding="utf-8", errors="replace") as fh:
+            with open(self.csv_path, newline="", encoding="utf-8-sig", errors="replace") as fh:
                 header = next(csv.reader(fh), None)
             self._columns = header or None
 
@@ -126,7 +126,7 @@ def drop_rows_after(path: Path, step: int) -> int:
         return 0
     # A damaged byte is carried through as it is, for the reports to name: the rows around it
     # still say where the run was.
-    with open(path, newline="", encoding="utf-8", errors="surrogateescape") as fh:
+    with open(path, newline="", encoding="utf-8-sig", errors="surrogateescape") as fh:
         rows = list(csv.reader(fh))
     if not rows:
         return 0
