@@ -168,10 +168,7 @@ def render_cmd(
         render.check_video_path(out)
     except render.RenderError as err:
         raise typer.BadParameter(str(err), param_hint="--out") from err
-    if out.exists() and not force:
-        # Checked before the rollouts: a mistyped --out would replace another video, perhaps
-        # the only film of a run since deleted.
-        raise typer.BadParameter(f"{out} exists; pass --force to overwrite it", param_hint="--out")
+    _check_overwrite([out], force)
     with user_errors():
         ref = policy_ref(policy)
         video = render.record(get_task(task), ref, out, episodes, seed=seed, camera=camera)
@@ -179,6 +176,20 @@ def render_cmd(
     console.print(
         f"wrote {video.path} ({video.frames} frames); {wins}/{episodes} succeeded", markup=False
     )
+
+
+def _check_overwrite(paths: list[Path], force: bool) -> None:
+    """Refuse, before any rollout, to write the files ``paths`` over a folder (which --force
+    could not replace) or, without ``force``, over files that exist: a mistyped --out would
+    replace another video, perhaps the only film of a run since deleted, or a user's own file."""
+    folders = [p for p in paths if p.is_dir()]
+    if folders:
+        raise typer.BadParameter(f"{folders[0]} is a folder; move it or use another --out")
+    taken = [p for p in paths if p.exists()]
+    if taken and not force:
+        raise typer.BadParameter(
+            f"{taken[0]} exists; pass --force to overwrite it", param_hint="--out"
+        )
 
 
 def _check_camera(camera: str) -> None:
@@ -209,15 +220,7 @@ def demo(
 
     _check_camera(camera)
     video_path, summary = out / f"{task}.mp4", out / f"{task}_eval.json"
-    folders = [p for p in (video_path, summary) if p.is_dir()]
-    if folders:  # which --force could not replace
-        raise typer.BadParameter(f"{folders[0]} is a folder; move it or use another --out")
-    taken = [p for p in (video_path, summary) if p.exists()]
-    if taken and not force:
-        # Before the rollouts, as `render` does: the files may be a user's own.
-        raise typer.BadParameter(
-            f"{taken[0]} exists; pass --force to overwrite it", param_hint="--out"
-        )
+    _check_overwrite([video_path, summary], force)
     with user_errors():
         spec = get_task(task)
         try:
