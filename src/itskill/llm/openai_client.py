@@ -151,6 +151,10 @@ def model_price(model: str) -> tuple[float, float]:
     return prices.get(base, (0.0, 0.0))
 
 
+_WHERE_URL = f"{BASE_URL_ENV} (or --base-url of plan and reward generate)"
+"""Where a user sets the endpoint's address: learn, transfer and experiment have no flag for it."""
+
+
 def _check_base_url(url: str) -> None:
     """Raise :class:`LLMUnavailableError` for an endpoint that is no http(s) URL: the SDK finds
     out only when it sends, with a traceback (a bad address) or after every retry (no scheme)."""
@@ -174,8 +178,7 @@ def _check_base_url(url: str) -> None:
         problem = str(err)
     if problem:
         raise LLMUnavailableError(
-            f"{url!r} is not a usable endpoint URL ({problem}); check {BASE_URL_ENV} (or "
-            "--base-url of plan and reward generate)"
+            f"{url!r} is not a usable endpoint URL ({problem}); check {_WHERE_URL}"
         )
 
 
@@ -328,8 +331,7 @@ class OpenAIClient(BaseClient):
             )
             raise LLMError(
                 f"{self.base_url} did not answer like an OpenAI-compatible endpoint ({got}); "
-                f"check {BASE_URL_ENV} (or --base-url of plan and reward generate): it should "
-                "end in /v1"
+                f"check {_WHERE_URL}: it should end in /v1"
             )
         texts = []
         for choice in choices:
@@ -339,8 +341,8 @@ class OpenAIClient(BaseClient):
                 # was cached and cost a regeneration each time.
                 raise LLMError(
                     f"{self.base_url} did not answer like an OpenAI-compatible chat endpoint (a "
-                    f"choice without a message); check {BASE_URL_ENV} (or --base-url of plan and "
-                    "reward generate): it should serve /v1/chat/completions"
+                    f"choice without a message); check {_WHERE_URL}: it should serve "
+                    "/v1/chat/completions"
                 )
             content = getattr(message, "content", None)
             if content is not None and not isinstance(content, str):
@@ -441,8 +443,7 @@ def _unavailable(client: OpenAIClient, err: Exception, attempts: int) -> LLMUnav
         return LLMUnavailableError(
             f"cannot reach {client.name} at {client.base_url}: connection refused ({gave_up}); "
             "is the server running? Start it (ollama serve, vllm serve MODEL, llama-server) or "
-            f"correct the address ({BASE_URL_ENV}, or --base-url of plan and reward generate), "
-            "or use " + OFFLINE
+            f"correct the address in {_WHERE_URL}, or use " + OFFLINE
         )
     else:
         what = f"cannot reach {client.name} at {client.base_url}"
